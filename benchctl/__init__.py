@@ -1,0 +1,13 @@
+"""benchctl: dynamic-error tests of ship navigation instruments on a roll/pitch motion stand.
+
+The method is Gryazin & Belova (2023); see ``../shared/METHOD.md`` and the README.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("benchctl")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+    __version__ = "0.0.0+unknown"
+
+__all__ = ["__version__"]

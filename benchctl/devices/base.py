@@ -1,0 +1,144 @@
+"""Capability interfaces the run layer depends on, never a protocol.
+
+A driver speaks one protocol over a transport handed to it. The run layer sees only these
+small interfaces (in the spirit of bluesky's ``Movable``/``Readable``): ``Stand`` and
+``AngleSensor``. Every time here is the host's monotonic clock, ``time.monotonic()``, seconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+from benchctl.harmonics import HarmonicTable
+
+AXES: tuple[str, ...] = ("roll", "pitch")
+
+
+@dataclass(frozen=True)
+class DeviceIdentity:
+    """What a device says it is: recorded in every recording's metadata."""
+
+    vendor: str
+    model: str
+    serial: str = ""
+    firmware: str = ""
+    protocol: str = ""
+    extra: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class StandStatus:
+    """Decoded status word of the stand."""
+
+    ready: bool
+    enabled: bool
+    moving: bool
+    fault: bool
+    estop: bool
+    limit: bool
+    table_running: bool = False
+    fault_code: int = 0
+    heartbeat: int = 0
+
+
+@dataclass(frozen=True)
+class StandSample:
+    """One read of the stand's measured state.
+
+    ``t_host`` is the midpoint of request and reply on the monotonic clock; ``rtt_s`` the round
+    trip. Angles are the encoder's (the reference x(t)), never the commanded ones.
+    """
+
+    t_host: float
+    rtt_s: float
+    angle_deg: dict[str, float]
+    rate_deg_s: dict[str, float]
+    setpoint_deg: dict[str, float]
+    status: StandStatus
+
+
+@dataclass(frozen=True)
+class InstrumentSample:
+    """One decoded instrument output.
+
+    ``t_host`` is the receipt time on the monotonic clock. ``device_time_s`` and ``counter`` are
+    the device's own time or counter where the protocol carries one (else None). Angles for the
+    axes the instrument reports (``roll``, ``pitch``).
+    """
+
+    t_host: float
+    angle_deg: dict[str, float]
+    device_time_s: float | None = None
+    counter: int | None = None
+
+
+@dataclass
+class FrameStats:
+    """Counts of frames a reader saw. Bad frames are counted and skipped, never passed as data."""
+
+    good: int = 0
+    bad: dict[str, int] = field(default_factory=dict)  # reason -> count (checksum, length, range, id)
+
+    def count_bad(self, reason: str) -> None:
+        self.bad[reason] = self.bad.get(reason, 0) + 1
+
+    @property
+    def bad_total(self) -> int:
+        return sum(self.bad.values())
+
+
+@dataclass(frozen=True)
+class StandLimitsView:
+    """The limits a driver enforces at the point of sending (per axis)."""
+
+    angle_deg: float
+    rate_deg_s: float
+    accel_deg_s2: float
+
+
+@runtime_checkable
+class Stand(Protocol):
+    """A two-axis roll/pitch stand. Public methods hold the safety checks; errors raise."""
+
+    axes: tuple[str, ...]
+    limits: StandLimitsView
+
+    def connect(self) -> DeviceIdentity: ...
+    def close(self) -> None: ...
+    def read_status(self) -> StandStatus: ...
+    def read_sample(self) -> StandSample: ...
+    def enable(self) -> None: ...
+    def disable(self) -> None: ...
+    def heartbeat(self) -> None: ...
+    def send_setpoint(self, angle_deg: dict[str, float]) -> float: ...  # returns send time
+    def upload_table(self, tables: dict[str, HarmonicTable]) -> None: ...
+    def start_table(self) -> float: ...  # returns the host time the stand was told to start
+    def stop_table(self) -> None: ...
+    def go_to_zero(self, timeout_s: float = 30.0) -> None: ...
+    def ramp_to_zero(self, timeout_s: float = 30.0) -> None: ...
+    def stop(self) -> None: ...
+    def estop(self) -> None: ...
+    def reset_fault(self) -> None: ...
+
+
+SampleCallback = Callable[[InstrumentSample], None]
+ErrorCallback = Callable[[BaseException], None]
+
+
+@runtime_checkable
+class AngleSensor(Protocol):
+    """An instrument under test that streams angles.
+
+    ``start`` begins delivering samples to ``on_sample`` from a background reader; a fault in
+    that reader is passed to ``on_error`` at once (it never dies quietly).
+    """
+
+    axes: tuple[str, ...]
+    stats: FrameStats
+
+    def connect(self) -> DeviceIdentity: ...
+    def start(self, on_sample: SampleCallback, on_error: ErrorCallback) -> None: ...
+    def stop(self) -> None: ...
+    def close(self) -> None: ...

@@ -1,0 +1,64 @@
+"""Layout of a benchctl recording: a folder of append-only files on one host clock.
+
+::
+
+    <recording>/
+      meta.json         written once at start: format, version, config, profile (with seed),
+                        device identities, serial number, operator, station, software version,
+                        start time (UTC and monotonic), axes
+      stand.csv         t_host, rtt_s, <axis>_deg, <axis>_rate_deg_s…, <axis>_setpoint_deg…, status, fault_code
+                        (t_host = midpoint of request and reply, monotonic seconds)
+      instrument.csv    t_host, device_time_s, counter, <axis>_deg…   (t_host = receipt time)
+      setpoints.csv     t_send, <axis>_deg…                            (commanded motion)
+      events.jsonl      one JSON object a line: state changes, faults, notes
+      end.json          written at close: state (done|aborted), reason, end time, counters
+      can.blf|can.asc   raw CAN frames (python-can logger), when the instrument is on CAN
+
+Every data line is written straight through to the OS (line-buffered), so ``kill -9`` at any
+moment loses nothing already written; a torn last line is dropped by the reader. A recording
+with no ``end.json`` was not closed (the process died) and reads as state ``incomplete``.
+Floats are written with ``repr`` (shortest exact round trip).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+FORMAT_NAME = "benchctl-recording"
+FORMAT_VERSION = 1
+
+META_FILE = "meta.json"
+END_FILE = "end.json"
+EVENTS_FILE = "events.jsonl"
+STREAM_FILES = {"stand": "stand.csv", "instrument": "instrument.csv", "setpoints": "setpoints.csv"}
+
+
+def stand_columns(axes: tuple[str, ...]) -> list[str]:
+    return (
+        ["t_host", "rtt_s"]
+        + [f"{a}_deg" for a in axes]
+        + [f"{a}_rate_deg_s" for a in axes]
+        + [f"{a}_setpoint_deg" for a in axes]
+        + ["status", "fault_code"]
+    )
+
+
+def instrument_columns(axes: tuple[str, ...]) -> list[str]:
+    return ["t_host", "device_time_s", "counter"] + [f"{a}_deg" for a in axes]
+
+
+def setpoint_columns(axes: tuple[str, ...]) -> list[str]:
+    return ["t_send"] + [f"{a}_deg" for a in axes]
+
+
+STREAM_COLUMNS = {
+    "stand": stand_columns,
+    "instrument": instrument_columns,
+    "setpoints": setpoint_columns,
+}
+
+
+def is_recording(path: str | Path) -> bool:
+    """True when ``path`` is a folder holding a benchctl recording."""
+    p = Path(path)
+    return p.is_dir() and (p / META_FILE).is_file()

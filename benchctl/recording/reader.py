@@ -1,0 +1,139 @@
+"""Read a recording back, whatever state the process that wrote it ended in."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchctl.errors import DataError
+from benchctl.recording.format import END_FILE, EVENTS_FILE, FORMAT_NAME, META_FILE, STREAM_FILES
+
+
+def _read_stream(path: Path) -> tuple[list[str], NDArray[np.float64]]:
+    """Columns and a float array; a torn (unterminated) last line is dropped."""
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise DataError(f"{path}: cannot read recording stream: {e.strerror}") from None
+    if not raw:
+        raise DataError(f"{path}: empty stream file (no header)")
+    text = raw.decode("utf-8", errors="replace")
+    if not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    rows = lines[1:]
+    if not rows:
+        return header, np.empty((0, len(header)))
+    try:
+        data = np.loadtxt(rows, delimiter=",", ndmin=2, converters=None, dtype=float)
+    except ValueError:
+        # empty fields (None) → NaN, row by row
+        data = np.array(
+            [[float(v) if v else np.nan for v in r.split(",")] for r in rows], dtype=float
+        )
+    if data.shape[1] != len(header):
+        raise DataError(f"{path}: rows have {data.shape[1]} fields, header has {len(header)}")
+    return header, data
+
+
+@dataclass
+class Recording:
+    """A loaded recording: metadata, end record (None if the writer never closed) and streams."""
+
+    path: Path
+    meta: dict[str, Any]
+    end: dict[str, Any] | None
+    streams: dict[str, dict[str, NDArray[np.float64]]]
+    events: list[dict[str, Any]]
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return tuple(self.meta.get("axes", ("roll",)))
+
+    @property
+    def state(self) -> str:
+        """done, aborted, or incomplete (no end record: the process died)."""
+        return str(self.end["state"]) if self.end else "incomplete"
+
+    def column(self, stream: str, name: str) -> NDArray[np.float64]:
+        try:
+            return self.streams[stream][name]
+        except KeyError:
+            raise DataError(f"{self.path}: stream {stream!r} has no column {name!r}") from None
+
+    def pair(self, axis: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed."""
+        if axis not in self.axes:
+            raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")
+        tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
+        td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
+        okr = np.isfinite(tr) & np.isfinite(xr)
+        okd = np.isfinite(td) & np.isfinite(yd)
+        return tr[okr], xr[okr], td[okd], yd[okd]
+
+    def export_csv(self, folder: str | Path) -> list[Path]:
+        """One CSV per stream into ``folder``; returns the files written."""
+        out = Path(folder)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        for name, cols in self.streams.items():
+            dest = out / f"{name}.csv"
+            names = list(cols)
+            arr = np.column_stack([cols[c] for c in names]) if names else np.empty((0, 0))
+            np.savetxt(dest, arr, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+            written.append(dest)
+        return written
+
+    def export_mat(self, dest: str | Path) -> Path:
+        """All streams and metadata into one MATLAB .mat file (struct per stream)."""
+        from scipy.io import savemat
+
+        d = Path(dest)
+        payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}
+        payload["meta_json"] = json.dumps(self.meta, default=str)
+        payload["end_json"] = json.dumps(self.end, default=str)
+        savemat(d, payload, do_compression=True)
+        return d
+
+
+def load_recording(path: str | Path) -> Recording:
+    """Load a recording folder. Raises ``DataError`` naming the file when it is unusable."""
+    p = Path(path)
+    meta_path = p / META_FILE
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise DataError(f"{meta_path}: not a benchctl recording ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise DataError(f"{meta_path}: corrupt metadata: {e}") from None
+    if meta.get("format") != FORMAT_NAME:
+        raise DataError(f"{meta_path}: format is {meta.get('format')!r}, expected {FORMAT_NAME!r}")
+    end = None
+    end_path = p / END_FILE
+    if end_path.is_file():
+        try:
+            end = json.loads(end_path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError:
+            end = None
+    streams: dict[str, dict[str, NDArray[np.float64]]] = {}
+    for name, fname in STREAM_FILES.items():
+        f = p / fname
+        if not f.exists():
+            continue
+        header, data = _read_stream(f)
+        streams[name] = {c: data[:, i].copy() for i, c in enumerate(header)}
+    events: list[dict[str, Any]] = []
+    ev = p / EVENTS_FILE
+    if ev.is_file():
+        for line in ev.read_text(encoding="utf-8").splitlines():
+            try:
+                events.append(json.loads(line))
+            except json.JSONDecodeError:
+                break  # torn last line after a crash
+    return Recording(path=p, meta=meta, end=end, streams=streams, events=events)

@@ -1,0 +1,1 @@
+"""Simulated devices that are real protocol peers (Modbus server, slcan adapter, NMEA talker)."""
