@@ -70,6 +70,12 @@ class InstrumentConfig(Strict):
     eds: Path | None = None
     dbc: Path | None = None
     can_log: str | None = "can.blf"  # raw CAN frames beside the recording (.blf or .asc)
+    # slcan: seconds to wait after opening the serial port (None: 0 for a pseudo-terminal, else
+    # python-can's 2 s for a real adapter that resets on open)
+    sleep_after_open_s: NonNegative | None = None
+    # further keyword arguments for can.Bus (e.g. a hardware interface's own options)
+    can_options: dict[str, str | int | float | bool] = Field(default_factory=dict)
+    connect_timeout_s: Positive = 3.0  # SDO answers / the first broadcast frame within this
     # serial (nmea0183)
     serial_port: str | None = None
     baudrate: int = 115200
@@ -123,6 +129,7 @@ class SimInstrumentConfig(Strict):
     quantisation_deg: NonNegative = 0.0
     rate_hz: Positive = 100.0
     seed: int = 1
+    substep_hz: Positive = 4000.0  # exact first-order-hold integration rate of lag / 2nd order
 
 
 class SimConfig(Strict):

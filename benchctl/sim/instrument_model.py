@@ -1,0 +1,251 @@
+"""The simulated instrument's measurement model: pure computation, no I/O, no clock.
+
+What the instrument outputs at its output instant ``t`` (host monotonic seconds) for each axis:
+
+``y(t) = gain · (h * x)(t − L) + bias + drift · (t − t0) + n(t)``, then quantised,
+
+with ``x`` the true stand angle (deg), ``h`` the impulse response of the dynamics (identity, a
+first-order lag ``1 / (1 + τs)``, a second-order response ``ωn² / (s² + 2ζωn s + ωn²)``, or both
+in cascade), ``L`` the latency (s), ``n`` white Gaussian noise of standard deviation σ (deg,
+independent per output sample and axis) and ``t0`` the first output instant. Quantisation
+rounds to the nearest multiple of ``quantisation_deg``.
+
+The dynamics are integrated exactly for an input that is linear between sub-steps (first-order
+hold, by the matrix exponential of the augmented system) at ``substep_hz``. For a sine of
+frequency f the linear interpolation departs from the sine by a relative amplitude of at most
+``(π f h)² / 2`` (h the sub-step); at the default 4 kHz that is 3e-6 at 1 Hz and 3e-4 at 10 Hz,
+so ``transfer_function`` (the continuous system's) is the response the simulation really has,
+well inside 0.1 %, up to about 15 Hz.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm
+
+from benchctl.config import SimInstrumentConfig
+from benchctl.devices.base import AXES
+
+MotionFn = Callable[[float], Mapping[str, float]]
+
+
+def _state_space(cfg: SimInstrumentConfig) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                     NDArray[np.float64]]:
+    """Continuous (A, B, C) of the unit-DC-gain dynamics; zero states for a pure pass-through."""
+    blocks: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = []
+    if cfg.natural_freq_hz is not None:
+        wn = 2.0 * math.pi * cfg.natural_freq_hz
+        z = cfg.damping
+        blocks.append((np.array([[0.0, 1.0], [-wn * wn, -2.0 * z * wn]]),
+                       np.array([[0.0], [wn * wn]]), np.array([[1.0, 0.0]])))
+    if cfg.lag_s > 0:
+        tau = cfg.lag_s
+        blocks.append((np.array([[-1.0 / tau]]), np.array([[1.0 / tau]]), np.array([[1.0]])))
+    n = sum(b[0].shape[0] for b in blocks)
+    a = np.zeros((n, n))
+    b = np.zeros((n, 1))
+    c = np.zeros((1, n))
+    # cascade: the input drives block 0, block i drives block i+1, the last one is the output
+    i0 = 0
+    prev_c: NDArray[np.float64] | None = None
+    prev_i0 = 0
+    for ab, bb, cb in blocks:
+        k = ab.shape[0]
+        a[i0:i0 + k, i0:i0 + k] = ab
+        if prev_c is None:
+            b[i0:i0 + k] = bb
+        else:
+            a[i0:i0 + k, prev_i0:prev_i0 + prev_c.shape[1]] = bb @ prev_c
+        prev_c, prev_i0 = cb, i0
+        i0 += k
+    if prev_c is not None:
+        c[:, prev_i0:prev_i0 + prev_c.shape[1]] = prev_c
+    return a, b, c
+
+
+class InstrumentModel:
+    """Gain, dynamics, latency, bias, drift, white noise and quantisation of one instrument.
+
+    Parameters
+    ----------
+    cfg : SimInstrumentConfig
+        The model's parameters (degrees, seconds, Hz).
+    axes : sequence of str
+        The axes it reports, e.g. ``("roll", "pitch")``; each gets its own state and noise.
+
+    Notes
+    -----
+    Call :meth:`output` with increasing output instants; it samples the motion at the instant
+    minus the latency (and, with dynamics, at sub-steps since the previous instant). The first
+    call starts the dynamics at rest at the input's value (no start-up transient for a constant
+    input; a sine has a transient decaying with the lag's time constant).
+    """
+
+    def __init__(self, cfg: SimInstrumentConfig, axes: Sequence[str] = AXES) -> None:
+        self.cfg = cfg
+        self.axes = tuple(axes)
+        self.period_s = 1.0 / cfg.rate_hz
+        self._a, self._b, self._c = _state_space(cfg)
+        self._rng = np.random.default_rng(cfg.seed)
+        self._cache: dict[float, tuple[NDArray[np.float64], ...]] = {}
+        self._x: NDArray[np.float64] | None = None  # states x axes
+        self._u: NDArray[np.float64] | None = None  # last input per axis
+        self._tm: float | None = None  # last measurement instant
+        self._t0: float | None = None
+        self._h_max = 1.0 / cfg.substep_hz
+
+    # ------------------------------------------------------------------ frequency domain
+    def dynamics_response(self, f_hz: ArrayLike) -> NDArray[np.complex128]:
+        """Response of the dynamics alone (unit DC gain, no latency) at ``f_hz`` (Hz)."""
+        f = np.asarray(f_hz, dtype=float)
+        s = 2j * math.pi * f
+        h = np.ones_like(s)
+        if self.cfg.natural_freq_hz is not None:
+            wn = 2.0 * math.pi * self.cfg.natural_freq_hz
+            h = h * wn * wn / (s * s + 2.0 * self.cfg.damping * wn * s + wn * wn)
+        if self.cfg.lag_s > 0:
+            h = h / (1.0 + self.cfg.lag_s * s)
+        return np.asarray(h, dtype=np.complex128)
+
+    def transfer_function(self, f_hz: ArrayLike) -> NDArray[np.complex128]:
+        """True response from the stand angle to the instrument's output.
+
+        Parameters
+        ----------
+        f_hz : array_like
+            Frequencies in Hz (≥ 0).
+
+        Returns
+        -------
+        ndarray of complex
+            ``H(f) = gain · exp(−j2πfL) · H_dyn(j2πf)``: output/input amplitude ratio and
+            phase (negative = output lags) for a sine of the stand angle. Bias, drift, noise and
+            quantisation are not part of it.
+
+        Examples
+        --------
+        A 0.1 s first-order lag at its corner frequency halves the power:
+
+        >>> from benchctl.config import SimInstrumentConfig
+        >>> m = InstrumentModel(SimInstrumentConfig(lag_s=0.1))
+        >>> round(float(abs(m.transfer_function(1 / (2 * 3.141592653589793 * 0.1)))), 4)
+        0.7071
+        """
+        f = np.asarray(f_hz, dtype=float)
+        return np.asarray(self.cfg.gain * np.exp(-2j * math.pi * f * self.cfg.latency_s)
+                          * self.dynamics_response(f), dtype=np.complex128)
+
+    def expected_error_variance(
+        self,
+        amplitude_deg: ArrayLike,
+        freq_hz: ArrayLike,
+        *,
+        duration_s: float | None = None,
+        resolution_deg: float = 0.0,
+    ) -> float:
+        """Variance of the error ``ε = y − x`` about its mean for a harmonic stand motion.
+
+        Parameters
+        ----------
+        amplitude_deg, freq_hz : array_like
+            The motion of one axis, ``x(t) = Σ A_k cos(2π f_k t + φ_k)`` (deg, Hz; distinct
+            frequencies, phases irrelevant).
+        duration_s : float, optional
+            Record length (s); with a drift, its ramp adds ``(drift · T)² / 12``.
+        resolution_deg : float
+            A further quantisation step on the wire (e.g. 0.01° for a CANopen slope at
+            resolution 10); adds ``r² / 12``.
+
+        Returns
+        -------
+        float
+            ``Σ A_k² |H(f_k) − 1|² / 2 + σ² + q² / 12 + r² / 12 (+ (drift T)² / 12)`` in deg².
+
+        Notes
+        -----
+        Steady state (transients decayed); the quantisation terms assume steps small against
+        the signal's spread (uniform rounding error); the drift term neglects its small
+        correlation with the harmonics over a finite record.
+        """
+        a = np.atleast_1d(np.asarray(amplitude_deg, dtype=float))
+        f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+        if a.shape != f.shape:
+            raise ValueError(f"amplitude_deg and freq_hz differ in shape: {a.shape} vs {f.shape}")
+        dyn = float(np.sum(a * a * np.abs(self.transfer_function(f) - 1.0) ** 2) / 2.0)
+        var = dyn + self.cfg.noise_deg**2 + self.cfg.quantisation_deg**2 / 12.0
+        var += resolution_deg**2 / 12.0
+        if duration_s is not None:
+            var += (self.cfg.drift_deg_s * duration_s) ** 2 / 12.0
+        return var
+
+    # ------------------------------------------------------------------ time domain
+    def _discrete(self, h: float) -> tuple[NDArray[np.float64], ...]:
+        """(Φ, Γ0, Γ1) with x(h) = Φ x0 + Γ0 u0 + Γ1 (u1 − u0)/h, exact for linear u."""
+        key = round(h, 12)
+        got = self._cache.get(key)
+        if got is not None:
+            return got
+        n = self._a.shape[0]
+        m = np.zeros((n + 2, n + 2))
+        m[:n, :n] = self._a
+        m[:n, n:n + 1] = self._b
+        m[n, n + 1] = 1.0
+        e = expm(m * h)
+        got = (e[:n, :n], e[:n, n:n + 1], e[:n, n + 1:n + 2])
+        if len(self._cache) > 32:
+            self._cache.clear()
+        self._cache[key] = got
+        return got
+
+    def _input(self, motion: MotionFn, t: float) -> NDArray[np.float64]:
+        angles = motion(t)
+        return np.array([float(angles[a]) for a in self.axes])
+
+    def true_output(self, t: float, motion: MotionFn) -> NDArray[np.float64]:
+        """Noise-free ``gain · (h * x)(t − L)`` per axis (deg), advancing the dynamics to ``t``."""
+        tm = t - self.cfg.latency_s
+        n_states = self._a.shape[0]
+        if self._tm is None:
+            u = self._input(motion, tm)
+            self._u = u
+            self._tm = tm
+            self._t0 = t
+            # at rest at the input's value: x = −A⁻¹ B u
+            self._x = (-np.linalg.solve(self._a, self._b) @ u[None, :]) if n_states else None
+            return self.cfg.gain * u
+        if tm < self._tm:
+            last = self._tm + self.cfg.latency_s
+            raise ValueError(f"output instants must increase: t={t} s after t={last} s")
+        if n_states == 0:
+            self._tm = tm
+            return self.cfg.gain * self._input(motion, tm)
+        assert self._x is not None and self._u is not None
+        span = tm - self._tm
+        steps = max(1, math.ceil(span / self._h_max - 1e-9))
+        h = span / steps
+        if h <= 0:
+            return self.cfg.gain * (self._c @ self._x)[0]
+        phi, g0, g1 = self._discrete(h)
+        x, u0 = self._x, self._u
+        for i in range(1, steps + 1):
+            u1 = self._input(motion, self._tm + i * h)
+            x = phi @ x + g0 @ u0[None, :] + g1 @ ((u1 - u0)[None, :] / h)
+            u0 = u1
+        self._x, self._u, self._tm = x, u0, tm
+        return self.cfg.gain * (self._c @ x)[0]
+
+    def output(self, t: float, motion: MotionFn) -> dict[str, float]:
+        """The instrument's output at its output instant ``t`` (deg by axis), all effects on."""
+        y = self.true_output(t, motion)
+        assert self._t0 is not None
+        y = y + self.cfg.bias_deg + self.cfg.drift_deg_s * (t - self._t0)
+        if self.cfg.noise_deg > 0:
+            y = y + self._rng.normal(0.0, self.cfg.noise_deg, size=y.shape)
+        q = self.cfg.quantisation_deg
+        if q > 0:
+            y = q * np.round(y / q)
+        return {a: float(v) for a, v in zip(self.axes, y, strict=True)}
