@@ -1,0 +1,581 @@
+"""Multisine synthesis: lines on k/T_p, seeded phases, crest-factor reduction, fast sampling.
+
+Pure computation, no I/O. Angles in degrees, frequencies in Hz, phases in radians, spectra
+one-sided in deg²/Hz. A synthesised axis is a :class:`benchctl.harmonics.HarmonicTable`:
+
+    x(t) = e(t) · Σ_k A_k cos(2π f_k t + φ_k),   f_k = k / T_p,   Δf = 1 / T_p
+
+Amplitudes (``method``):
+
+- ``"point"``: ``A_k = √(2 G(f_k) Δf)``, the textbook rule (METHOD.md);
+- ``"cell"`` (default): ``A_k = √(2 ∫_cell G df)`` over the line's cell ``[f_k − Δf/2, f_k + Δf/2]``
+  clipped to the band, the first and last cells stretched to the band edges. It is the same
+  rule with G averaged over the cell, and makes ``Σ A_k²/2 = ∫_band G df`` hold exactly even
+  with few lines or a narrow peak.
+
+Phases come from ``numpy.random.Generator(PCG64(SeedSequence([seed, stream])))`` — PCG64 and
+SeedSequence are specified bit for bit, so one seed gives the same phases on any machine.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from benchctl.harmonics import HarmonicTable, fade_envelope
+
+FloatArray = NDArray[np.float64]
+Density = Callable[[FloatArray], FloatArray]
+
+AXIS_STREAM = {"roll": 0, "pitch": 1}
+"""Random stream per axis: roll and pitch get independent phases from one seed."""
+
+_FINE_PER_CELL = 32  # sub-intervals per line cell for the cell integral
+_FAST_MIN_SAMPLES = 2048  # below this a direct sum is as quick as the FFT path
+
+
+@dataclass(frozen=True)
+class LineDesign:
+    """Lines of one axis: frequencies, amplitudes, and what they should add up to."""
+
+    freq_hz: FloatArray
+    amp_deg: FloatArray
+    harmonic: NDArray[np.int64]  # k, with f_k = k / period_s
+    period_s: float
+    band_hz: tuple[float, float]
+    target_variance_deg2: float  # ∫_band G df
+    method: str
+
+    @property
+    def variance_deg2(self) -> float:
+        return float(np.sum(self.amp_deg**2) / 2.0)
+
+
+def line_harmonics(band_hz: tuple[float, float], period_s: float) -> NDArray[np.int64]:
+    """Harmonic numbers k ≥ 1 with ``k/T_p`` inside the closed band."""
+    lo, hi = band_hz
+    eps = 1e-9
+    k_lo = max(1, math.ceil(lo * period_s - eps))
+    k_hi = math.floor(hi * period_s + eps)
+    return np.arange(k_lo, k_hi + 1, dtype=np.int64)
+
+
+def band_integral(
+    density: Density, edges_hz: FloatArray, breakpoints_hz: ArrayLike | None = None
+) -> FloatArray:
+    """∫ G df over each interval between consecutive ``edges_hz`` (deg²).
+
+    Composite trapezoid on a grid of ``32`` sub-intervals per interval plus every breakpoint
+    of a piecewise-linear density (exact for those; O(h²) for smooth densities).
+    """
+    edges = np.asarray(edges_hz, dtype=float)
+    u = np.linspace(0.0, 1.0, _FINE_PER_CELL + 1)[:-1]
+    fine = (edges[:-1, None] + np.diff(edges)[:, None] * u[None, :]).ravel()
+    grid = np.concatenate([fine, edges[-1:]])
+    if breakpoints_hz is not None:
+        bp = np.asarray(breakpoints_hz, dtype=float)
+        bp = bp[(bp > edges[0]) & (bp < edges[-1])]
+        grid = np.union1d(grid, bp)
+    g = np.asarray(density(grid), dtype=float)
+    cum = np.concatenate([[0.0], np.cumsum(np.diff(grid) * (g[1:] + g[:-1]) / 2.0)])
+    at_edges = np.interp(edges, grid, cum)
+    return np.asarray(np.diff(at_edges))
+
+
+def design_lines(
+    density: Density,
+    band_hz: tuple[float, float],
+    period_s: float,
+    *,
+    method: str = "cell",
+    breakpoints_hz: ArrayLike | None = None,
+) -> LineDesign:
+    """Lines ``f_k = k/T_p`` inside ``band_hz`` with amplitudes from the one-sided density.
+
+    Parameters
+    ----------
+    density : callable
+        ``G(f)``, deg²/Hz, vectorised over an array of frequencies in Hz.
+    band_hz : (float, float)
+        Closed band ``[f_lo, f_hi]``, Hz.
+    period_s : float
+        Repetition period ``T_p``; the line spacing is ``Δf = 1/T_p``.
+    method : {"cell", "point"}
+        Amplitude rule (module docstring).
+    breakpoints_hz : array_like, optional
+        Kinks of a piecewise-linear density, integrated exactly.
+
+    Returns
+    -------
+    LineDesign
+        With ``target_variance_deg2 = ∫_band G df``. Raises ``ValueError`` if no line fits.
+    """
+    lo, hi = band_hz
+    k = line_harmonics(band_hz, period_s)
+    if k.size == 0:
+        raise ValueError(f"no line k/{period_s:g} s falls inside the band {lo:g}…{hi:g} Hz")
+    df = 1.0 / period_s
+    f = k / period_s
+    edges = np.concatenate([[lo], (f[:-1] + f[1:]) / 2.0, [hi]])
+    cells = band_integral(density, edges, breakpoints_hz)
+    target = float(np.sum(cells))
+    if method == "cell":
+        power = cells
+    elif method == "point":
+        power = np.asarray(density(f), dtype=float) * df
+    else:
+        raise ValueError(f"method must be 'cell' or 'point', got {method!r}")
+    amp = np.sqrt(2.0 * np.clip(power, 0.0, None))
+    return LineDesign(f, amp, k, float(period_s), (float(lo), float(hi)), target, method)
+
+
+def random_phases(n: int, seed: int, stream: int = 0) -> FloatArray:
+    """``n`` phases uniform in [0, 2π) from ``Generator(PCG64(SeedSequence([seed, stream])))``."""
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), int(stream)])))
+    return np.asarray(rng.uniform(0.0, 2.0 * np.pi, n))
+
+
+# --- crest factor -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CrestReport:
+    """What the crest-factor reduction did (crest factor = peak |x| / rms of one period)."""
+
+    method: str
+    crest_before: float
+    crest_after: float
+    iterations: int = 0
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "method": self.method,
+            "crest_before": round(self.crest_before, 4),
+            "crest_after": round(self.crest_after, 4),
+            "iterations": self.iterations,
+        }
+
+
+def _period_grid_size(k_max: int, oversample: int = 16) -> int:
+    return int(2 ** math.ceil(math.log2(max(64, oversample * k_max))))
+
+
+def _one_period(
+    harmonic: ArrayLike, amp: ArrayLike, phase: ArrayLike, n: int, derivative: int = 0
+) -> FloatArray:
+    """One period of ``Σ A_k cos(2πkt/T + φ_k)`` (or its d-th derivative in units of 2π/T per
+    power) on ``n`` equally spaced points, by inverse real FFT."""
+    k = np.asarray(harmonic, dtype=np.int64)
+    spec = np.zeros(n // 2 + 1, dtype=complex)
+    coef = np.asarray(amp, dtype=float) * np.exp(1j * np.asarray(phase, dtype=float))
+    if derivative:
+        coef = coef * (1j * k) ** derivative
+    np.add.at(spec, k, coef * (n / 2.0))
+    return np.asarray(np.fft.irfft(spec, n))
+
+
+def crest_factor(harmonic: ArrayLike, amp: ArrayLike, phase: ArrayLike) -> float:
+    """Crest factor of the steady multisine, from one period sampled 16× over its top line."""
+    a = np.asarray(amp, dtype=float)
+    rms = math.sqrt(float(np.sum(a**2)) / 2.0)
+    if rms == 0.0:
+        return 0.0
+    k = np.asarray(harmonic, dtype=np.int64)
+    x = _one_period(k, a, phase, _period_grid_size(int(k.max())))
+    return float(np.max(np.abs(x)) / rms)
+
+
+def schroeder_phases(amp: ArrayLike) -> FloatArray:
+    """Schroeder (1970) low-crest phases for an arbitrary power spectrum over contiguous lines.
+
+    ``φ_n = −2π Σ_{l<n} (n − l) p_l`` with ``p_l = A_l² / Σ A²``. Deterministic (no seed).
+    """
+    a = np.asarray(amp, dtype=float)
+    p = a**2 / np.sum(a**2)
+    n = np.arange(1, a.size + 1, dtype=float)
+    cum_p = np.concatenate([[0.0], np.cumsum(p)[:-1]])
+    cum_lp = np.concatenate([[0.0], np.cumsum(n * p)[:-1]])
+    return np.asarray(np.mod(-2.0 * np.pi * (n * cum_p - cum_lp), 2.0 * np.pi))
+
+
+def clip_phases(
+    harmonic: ArrayLike,
+    amp: ArrayLike,
+    phase: ArrayLike,
+    iterations: int = 100,
+    clip_ratio: float = 0.9,
+) -> tuple[FloatArray, int]:
+    """Iterative clipping (Van der Ouderaa, Schoukens & Renneboog 1988): clip one period at
+    ``clip_ratio`` of its peak, keep the clipped signal's phases at the lines, restore the
+    amplitudes, repeat. Returns the phases with the lowest crest factor seen and the number of
+    iterations run. Amplitudes (the spectrum) never change."""
+    k = np.asarray(harmonic, dtype=np.int64)
+    a = np.asarray(amp, dtype=float)
+    ph = np.asarray(phase, dtype=float).copy()
+    n = _period_grid_size(int(k.max()), oversample=8)
+    best, best_peak = ph.copy(), math.inf
+    for _ in range(iterations):
+        x = _one_period(k, a, ph, n)
+        peak = float(np.max(np.abs(x)))
+        if peak < best_peak:
+            best, best_peak = ph.copy(), peak
+        level = clip_ratio * peak
+        spec = np.fft.rfft(np.clip(x, -level, level))
+        ph = np.angle(spec[k])
+    return np.asarray(np.mod(best, 2.0 * np.pi)), iterations
+
+
+def reduce_crest(
+    harmonic: ArrayLike,
+    amp: ArrayLike,
+    phase: ArrayLike,
+    method: str = "none",
+    iterations: int = 100,
+) -> tuple[FloatArray, CrestReport]:
+    """Apply a crest-factor reduction by phase choice and report before/after."""
+    ph0 = np.asarray(phase, dtype=float)
+    before = crest_factor(harmonic, amp, ph0)
+    if method == "none" or np.asarray(amp).size < 2:
+        return ph0, CrestReport(method if np.asarray(amp).size >= 2 else "none", before, before)
+    if method == "schroeder":
+        ph = schroeder_phases(amp)
+        return ph, CrestReport("schroeder", before, crest_factor(harmonic, amp, ph))
+    if method == "clip":
+        ph, it = clip_phases(harmonic, amp, ph0, iterations)
+        return ph, CrestReport("clip", before, crest_factor(harmonic, amp, ph), it)
+    raise ValueError(f"crest method must be none, schroeder or clip, got {method!r}")
+
+
+# --- fast evaluation of a harmonic table ------------------------------------------------
+
+
+def _uniform_grid(t: FloatArray) -> tuple[float, int] | None:
+    """(dt, i0) when ``t == (i0 + i)·dt`` to rounding, else None."""
+    if t.size < 2:
+        return None
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    if not dt > 0:
+        return None
+    i0f = t[0] / dt
+    i0 = round(i0f)
+    scale = max(1.0, float(np.max(np.abs(t))))
+    if abs(i0f - i0) * dt > 1e-9 * scale:
+        return None
+    ideal = (i0 + np.arange(t.size)) * dt
+    if float(np.max(np.abs(t - ideal))) > 1e-9 * scale:
+        return None
+    return dt, i0
+
+
+def _steady(table: HarmonicTable, t: FloatArray, derivative: int) -> FloatArray:
+    """Unfaded sum of cosines: by tiling one inverse-FFT period when ``t`` is a uniform grid
+    holding a whole number of samples per period (exact), else by direct summation."""
+    tp = table.period_s
+    grid = _uniform_grid(t) if (tp and t.size >= _FAST_MIN_SAMPLES and table.n_lines) else None
+    if grid is not None and tp:
+        dt, i0 = grid
+        n_f = tp / dt
+        n = round(n_f)
+        k_f = table.freq_hz * tp
+        k = np.round(k_f).astype(np.int64)
+        if abs(n_f - n) < 1e-6 and np.all(np.abs(k_f - k) < 1e-6) and int(k.max()) < n // 2:
+            per = _one_period(k, table.amp_deg, table.phase_rad, n, derivative)
+            per *= (2.0 * np.pi / tp) ** derivative
+            idx = (i0 + np.arange(t.size)) % n
+            return np.asarray(per[idx])
+    return table.steady(t, derivative)
+
+
+def evaluate_table(table: HarmonicTable, t_s: ArrayLike, derivative: int = 0) -> FloatArray:
+    """``table.evaluate`` (same semantics: faded, zero outside [0, duration]) but fast on the
+    uniform sample grids a stand uses (see :func:`_steady`)."""
+    if derivative not in (0, 1, 2):
+        raise ValueError(f"derivative must be 0, 1 or 2, got {derivative}")
+    t = np.atleast_1d(np.asarray(t_s, dtype=float))
+    env = [
+        fade_envelope(t, table.duration_s, table.fade_in_s, table.fade_out_s, d)
+        for d in range(derivative + 1)
+    ]
+    s = [_steady(table, t, d) for d in range(derivative + 1)]
+    if derivative == 0:
+        return np.asarray(env[0] * s[0])
+    if derivative == 1:
+        return np.asarray(env[1] * s[0] + env[0] * s[1])
+    return np.asarray(env[2] * s[0] + 2.0 * env[1] * s[1] + env[0] * s[2])
+
+
+def sample_times(duration_s: float, rate_hz: float) -> FloatArray:
+    """``i/rate`` for i = 0 … ⌊duration·rate⌋ (both ends included when they fall on the grid)."""
+    n = math.floor(duration_s * rate_hz + 1e-9) + 1
+    return np.arange(n) / rate_hz
+
+
+# --- motions ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AxisTarget:
+    """The target spectrum of one axis, to compare the synthesis with."""
+
+    density: Density
+    band_hz: tuple[float, float]
+    variance_deg2: float  # ∫_band G df (already scaled)
+    scale: float = 1.0  # amplitude scale applied since design: G is multiplied by scale²
+
+    def psd(self, f_hz: ArrayLike) -> FloatArray:
+        return np.asarray(self.scale**2 * np.asarray(self.density(np.asarray(f_hz, dtype=float))))
+
+
+class Motion:
+    """A planned stand motion for one or more axes (abstract base).
+
+    Contract (relied on by the run layer): ``axes``, ``duration_s``,
+    ``evaluate(t_s, derivative=0|1|2) -> {axis: ndarray}`` (deg, deg/s, deg/s², zero outside
+    ``[0, duration_s]``), ``tables`` (one :class:`HarmonicTable` per axis, or ``None`` when the
+    motion is not one table per axis), ``target_psd(axis, f_hz)``, ``summary()`` (JSON-able),
+    ``scaled(factor)``.
+    """
+
+    name: str
+    kind: str
+    axes: tuple[str, ...]
+    duration_s: float
+    seed: int | None
+
+    @property
+    def tables(self) -> dict[str, HarmonicTable] | None:
+        return None
+
+    def evaluate(self, t_s: ArrayLike, derivative: int = 0) -> dict[str, FloatArray]:
+        raise NotImplementedError
+
+    def target_psd(self, axis: str, f_hz: ArrayLike) -> FloatArray | None:
+        """Target one-sided density at ``f_hz`` (deg²/Hz), or None if the kind has none."""
+        return None
+
+    def summary(self) -> dict[str, object]:
+        raise NotImplementedError
+
+    def scaled(self, factor: float) -> Motion:
+        raise NotImplementedError
+
+
+def _scaled_table(table: HarmonicTable, factor: float) -> HarmonicTable:
+    return HarmonicTable(
+        table.freq_hz,
+        table.amp_deg * factor,
+        table.phase_rad,
+        table.duration_s,
+        table.fade_in_s,
+        table.fade_out_s,
+        table.period_s,
+        dict(table.meta),
+    )
+
+
+@dataclass(frozen=True)
+class TableMotion(Motion):
+    """One :class:`HarmonicTable` per axis (sea_state, roll_spectrum, recorded, harmonics, sine)."""
+
+    name: str
+    kind: str
+    table_by_axis: Mapping[str, HarmonicTable]
+    targets: Mapping[str, AxisTarget | None]
+    seed: int | None
+    crest: Mapping[str, CrestReport] = field(default_factory=dict)
+    scale: float = 1.0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def axes(self) -> tuple[str, ...]:  # type: ignore[override]
+        return tuple(self.table_by_axis)
+
+    @property
+    def duration_s(self) -> float:  # type: ignore[override]
+        return next(iter(self.table_by_axis.values())).duration_s
+
+    @property
+    def tables(self) -> dict[str, HarmonicTable]:
+        return dict(self.table_by_axis)
+
+    def evaluate(self, t_s: ArrayLike, derivative: int = 0) -> dict[str, FloatArray]:
+        return {a: evaluate_table(tab, t_s, derivative) for a, tab in self.table_by_axis.items()}
+
+    def target_psd(self, axis: str, f_hz: ArrayLike) -> FloatArray | None:
+        target = self.targets.get(axis)
+        return None if target is None else target.psd(f_hz)
+
+    def scaled(self, factor: float) -> TableMotion:
+        if not factor > 0:
+            raise ValueError(f"scale factor must be > 0, got {factor!r}")
+        targets = {
+            a: None
+            if t is None
+            else AxisTarget(t.density, t.band_hz, t.variance_deg2 * factor**2, t.scale * factor)
+            for a, t in self.targets.items()
+        }
+        return TableMotion(
+            self.name,
+            self.kind,
+            {a: _scaled_table(t, factor) for a, t in self.table_by_axis.items()},
+            targets,
+            self.seed,
+            self.crest,
+            self.scale * factor,
+            self.notes,
+        )
+
+    def summary(self) -> dict[str, object]:
+        per_axis: dict[str, object] = {}
+        for a, tab in self.table_by_axis.items():
+            target = self.targets.get(a)
+            var = tab.variance_deg2
+            w = 2.0 * np.pi * tab.freq_hz
+            entry: dict[str, object] = {
+                "n_lines": tab.n_lines,
+                "period_s": tab.period_s,
+                "f_min_hz": float(tab.freq_hz.min()) if tab.n_lines else None,
+                "f_max_hz": float(tab.freq_hz.max()) if tab.n_lines else None,
+                "sigma_deg": math.sqrt(var),
+                "variance_deg2": var,
+                "rate_bound_deg_s": float(np.sum(w * tab.amp_deg)),
+                "accel_bound_deg_s2": float(np.sum(w**2 * tab.amp_deg)),
+            }
+            if target is not None:
+                entry["band_hz"] = list(target.band_hz)
+                entry["target_variance_deg2"] = target.variance_deg2
+                entry["target_sigma_deg"] = math.sqrt(target.variance_deg2)
+                entry["variance_error"] = (
+                    var / target.variance_deg2 - 1.0 if target.variance_deg2 > 0 else None
+                )
+            crest = self.crest.get(a)
+            if crest is not None:
+                entry["crest"] = crest.to_dict()
+                entry["crest_factor"] = crest.crest_after
+            elif tab.period_s and tab.n_lines:
+                k = np.round(tab.freq_hz * tab.period_s).astype(np.int64)
+                entry["crest_factor"] = crest_factor(k, tab.amp_deg, tab.phase_rad)
+            per_axis[a] = entry
+        first = next(iter(self.table_by_axis.values()))
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "axes": list(self.axes),
+            "duration_s": self.duration_s,
+            "fade_in_s": first.fade_in_s,
+            "fade_out_s": first.fade_out_s,
+            "seed": self.seed,
+            "scale": self.scale,
+            "per_axis": per_axis,
+            "notes": list(self.notes),
+        }
+
+
+@dataclass(frozen=True)
+class StepSegment:
+    """One sine of a step sequence: ``table`` played on ``axis`` from ``start_s``."""
+
+    axis: str
+    start_s: float
+    period_s: float
+    amplitude_deg: float
+    table: HarmonicTable
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.table.duration_s
+
+
+@dataclass(frozen=True)
+class StepMotion(Motion):
+    """A sequence of faded single sines with rests between (sine_steps): no single table."""
+
+    name: str
+    kind: str
+    axes: tuple[str, ...]
+    segments: tuple[StepSegment, ...]
+    duration_s: float
+    seed: int | None = None
+    scale: float = 1.0
+
+    def evaluate(self, t_s: ArrayLike, derivative: int = 0) -> dict[str, FloatArray]:
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        out = {a: np.zeros_like(t) for a in self.axes}
+        for seg in self.segments:
+            sel = (t >= seg.start_s) & (t <= seg.end_s)
+            if np.any(sel):
+                out[seg.axis][sel] += evaluate_table(seg.table, t[sel] - seg.start_s, derivative)
+        return out
+
+    def scaled(self, factor: float) -> StepMotion:
+        if not factor > 0:
+            raise ValueError(f"scale factor must be > 0, got {factor!r}")
+        segs = tuple(
+            StepSegment(
+                s.axis,
+                s.start_s,
+                s.period_s,
+                s.amplitude_deg * factor,
+                _scaled_table(s.table, factor),
+            )
+            for s in self.segments
+        )
+        return StepMotion(
+            self.name, self.kind, self.axes, segs, self.duration_s, self.seed, self.scale * factor
+        )
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "axes": list(self.axes),
+            "duration_s": self.duration_s,
+            "seed": self.seed,
+            "scale": self.scale,
+            "n_steps": len(self.segments),
+            "steps": [
+                {
+                    "axis": s.axis,
+                    "start_s": s.start_s,
+                    "end_s": s.end_s,
+                    "period_s": s.period_s,
+                    "amplitude_deg": s.amplitude_deg,
+                    "fade_s": s.table.fade_in_s,
+                }
+                for s in self.segments
+            ],
+        }
+
+
+def tables_to_csv(tables: Mapping[str, HarmonicTable]) -> str:
+    """Harmonic-table export: ``axis,freq_hz,period_s,amplitude_deg,phase_rad`` with ``#`` header
+    lines giving each axis's duration, fades and repetition period. Floats in ``repr``."""
+    lines = [
+        "# benchctl harmonic table: x(t) = e(t) * sum amplitude_deg*cos(2*pi*freq_hz*t + phase_rad)"
+    ]
+    for a, tab in tables.items():
+        lines.append(
+            f"# {a}: duration_s={tab.duration_s!r} fade_in_s={tab.fade_in_s!r} "
+            f"fade_out_s={tab.fade_out_s!r} period_s={tab.period_s!r}"
+        )
+    lines.append("axis,freq_hz,period_s,amplitude_deg,phase_rad")
+    for a, tab in tables.items():
+        for f, amp, ph in zip(tab.freq_hz, tab.amp_deg, tab.phase_rad, strict=True):
+            lines.append(f"{a},{float(f)!r},{1.0 / float(f)!r},{float(amp)!r},{float(ph)!r}")
+    return "\n".join(lines) + "\n"
+
+
+def periodogram_lines(x: ArrayLike, harmonic: ArrayLike, periods: int = 1) -> FloatArray:
+    """Variance at each line ``k`` of a record holding exactly ``periods`` whole periods, deg².
+
+    ``2 |X_{k·periods}|² / N²`` from the record's DFT: ``A_k²/2`` for a multisine sampled over
+    whole periods (no leakage).
+    """
+    xs = np.asarray(x, dtype=float)
+    spec = np.fft.rfft(xs)
+    k = np.asarray(harmonic, dtype=np.int64) * int(periods)
+    return np.asarray(2.0 * np.abs(spec[k]) ** 2 / xs.size**2)
