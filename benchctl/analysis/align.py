@@ -1,0 +1,211 @@
+"""Put the two streams on the instrument's own sample instants, and find the gaps.
+
+What is done, in order:
+
+1. Both time series are checked: finite, strictly increasing (no duplicates), enough samples.
+2. The device's nominal interval ``dt`` is the median of its time steps. Each device sample gets
+   a slot ``k`` on a uniform grid: ``k_i = k_{i−1} + max(1, round(Δt_i/dt))``, so a step of
+   about ``2·dt`` is one dropped sample, and jitter smaller than ``dt/2`` never moves a sample
+   to another slot. ``dt`` and the grid origin are then refined by a least-squares fit of
+   ``t_i ≈ t₀ + k_i·dt`` (a device clock a little off its nominal rate is followed).
+3. The reference is evaluated at each device instant (minus any compensated delay) by a cubic
+   interpolating spline through the reference samples (``scipy.interpolate.make_interp_spline``,
+   k = 3): the reference is smooth and oversampled, its interpolation error is negligible.
+   The device's output is never interpolated: the error ``ε_i = y_i − x(t_i)`` is formed at
+   the device's own instants.
+4. Device samples outside the span of the reference, or inside a gap of the reference
+   (a reference step longer than 1.6× its median step), are excluded.
+5. Slots without a sample (dropped device samples, excluded ones) are masked; the correlation
+   estimator uses only the pairs that exist (see ``correlation``), so gaps bias nothing and the
+   variance stays that of the analysed samples.
+
+With ``timebase="fitted"`` the device instants are replaced by the fitted grid instants
+``t₀ + k_i·dt`` (for an instrument that samples on its own clock but whose samples carry
+jittery receipt times); the default ``"given"`` takes the given times as the sample instants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import make_interp_spline
+
+from benchctl.errors import DataError
+
+FloatArray = NDArray[np.float64]
+
+GAP_FACTOR = 1.6
+MIN_SAMPLES = 64
+
+
+@dataclass(frozen=True)
+class StreamTiming:
+    """Timing of one stream: nominal step (s), rms jitter about its grid (s), gaps."""
+
+    dt: float
+    jitter_rms: float
+    gap_count: int
+    missing_samples: int
+    longest_gap_s: float
+
+
+@dataclass(frozen=True)
+class Aligned:
+    """Both streams on the device's grid.
+
+    ``x``, ``y``: reference and device (deg) per slot, meaningful where ``mask``; ``t``: the
+    instants used (s; NaN in empty slots); ``dt``: grid step (s); ``excluded``: device samples
+    dropped for lack of reference; ``shift``: the delay subtracted from the device instants
+    before the reference was evaluated (s).
+    """
+
+    t: FloatArray
+    x: FloatArray
+    y: FloatArray
+    mask: NDArray[np.bool_]
+    dt: float
+    device: StreamTiming
+    reference: StreamTiming
+    excluded: int
+    shift: float
+
+    @property
+    def n_valid(self) -> int:
+        return int(self.mask.sum())
+
+
+def check_times(t: FloatArray, name: str) -> None:
+    """Raise ``DataError`` unless ``t`` is finite and strictly increasing."""
+    if len(t) < MIN_SAMPLES:
+        raise DataError(f"{name}: {len(t)} samples, at least {MIN_SAMPLES} are needed")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(f"{name}: time at sample {i} is {t[i]}, expected a finite number")
+    d = np.diff(t)
+    if np.any(d <= 0):
+        i = int(np.argmax(d <= 0)) + 1
+        what = "duplicate" if d[i - 1] == 0 else "decreasing"
+        raise DataError(
+            f"{name}: {what} timestamp at sample {i}: {t[i]!r} after {t[i - 1]!r}; "
+            "times must be strictly increasing"
+        )
+
+
+def check_values(v: FloatArray, name: str) -> None:
+    """Raise ``DataError`` on NaN/inf or a constant signal."""
+    bad = ~np.isfinite(v)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(f"{name}: value at sample {i} is {v[i]}, expected a finite angle")
+    if float(np.ptp(v)) == 0.0:
+        raise DataError(f"{name}: the signal is constant ({v[0]!r} deg); nothing to analyse")
+
+
+def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:
+    """Grid slots of the instants ``t``, with the fitted step and origin (see module notes)."""
+    d = np.diff(t)
+    dt0 = float(np.median(d))
+    steps = np.maximum(1, np.rint(d / dt0)).astype(np.int64)
+    k = np.concatenate(([0], np.cumsum(steps)))
+    kc = k - k.mean()
+    dt = float(np.dot(kc, t - t.mean()) / np.dot(kc, kc))
+    t0 = float(t.mean() - dt * k.mean())
+    return k, dt, t0
+
+
+def _timing(t: FloatArray, k: NDArray[np.int64], dt: float, t0: float) -> StreamTiming:
+    steps = np.diff(k)
+    gaps = steps > 1
+    jitter = t - (t0 + k * dt)
+    return StreamTiming(
+        dt=dt,
+        jitter_rms=float(np.sqrt(np.mean((jitter - jitter.mean()) ** 2))),
+        gap_count=int(gaps.sum()),
+        missing_samples=int((steps[gaps] - 1).sum()),
+        longest_gap_s=float(np.max(np.diff(t)[gaps])) if gaps.any() else 0.0,
+    )
+
+
+def align(
+    t_ref: FloatArray,
+    x_ref: FloatArray,
+    t_dev: FloatArray,
+    y_dev: FloatArray,
+    *,
+    shift_s: float = 0.0,
+    timebase: Literal["given", "fitted"] = "given",
+) -> Aligned:
+    """Evaluate the reference at the device's instants and lay both on the device's grid.
+
+    Parameters
+    ----------
+    t_ref, x_ref : ndarray
+        Reference (stand) instants, s, and angles, deg.
+    t_dev, y_dev : ndarray
+        Device instants, s, and angles, deg.
+    shift_s : float
+        Delay to compensate, s: the reference is evaluated at ``t_dev − shift_s``.
+    timebase : {"given", "fitted"}
+        Use the given device instants, or the least-squares grid fitted through them.
+
+    Returns
+    -------
+    Aligned
+    """
+    for t, v, name in ((t_ref, x_ref, "reference"), (t_dev, y_dev, "device")):
+        if len(t) != len(v):
+            raise DataError(f"{name}: {len(t)} times but {len(v)} angles")
+        check_times(t, f"{name} time")
+        check_values(v, f"{name} angle")
+    k, dt, t0 = slot_indices(t_dev)
+    dev_timing = _timing(t_dev, k, dt, t0)
+    kr, dtr, t0r = slot_indices(t_ref)
+    ref_timing = _timing(t_ref, kr, dtr, t0r)
+    t_use = t0 + k * dt if timebase == "fitted" else t_dev
+    same = shift_s == 0.0 and len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_use)
+    t_eval = t_use - shift_s
+    ok = (t_eval >= t_ref[0]) & (t_eval <= t_ref[-1])
+    if not ok.any():
+        raise DataError(
+            f"the streams do not overlap in time: reference {t_ref[0]:.6g} … {t_ref[-1]:.6g} s, "
+            f"device {t_dev[0]:.6g} … {t_dev[-1]:.6g} s"
+            + (f" (shifted by {shift_s:.6g} s)" if shift_s else "")
+        )
+    d_ref = np.diff(t_ref)
+    gap_ref = d_ref > GAP_FACTOR * float(np.median(d_ref))
+    if gap_ref.any():
+        seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
+        ok &= ~(gap_ref[seg] & (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1]))
+    if same:
+        x_at = np.asarray(x_ref, dtype=float)
+    else:
+        spline = make_interp_spline(t_ref, x_ref, k=3)
+        x_at = np.full(len(t_eval), np.nan)
+        x_at[ok] = spline(t_eval[ok])
+    first, last = int(np.argmax(ok)), len(ok) - int(np.argmax(ok[::-1])) - 1
+    k_rel = k[first : last + 1] - k[first]
+    n = int(k_rel[-1]) + 1
+    sel = ok[first : last + 1]
+    mask = np.zeros(n, dtype=bool)
+    mask[k_rel[sel]] = True
+    x = np.zeros(n)
+    y = np.zeros(n)
+    t = np.full(n, np.nan)
+    x[k_rel[sel]] = x_at[first : last + 1][sel]
+    y[k_rel[sel]] = y_dev[first : last + 1][sel]
+    t[k_rel[sel]] = t_use[first : last + 1][sel]
+    return Aligned(
+        t=t,
+        x=x,
+        y=y,
+        mask=mask,
+        dt=dt,
+        device=dev_timing,
+        reference=ref_timing,
+        excluded=int(len(ok) - sel.sum()),
+        shift=shift_s,
+    )

@@ -1,0 +1,362 @@
+"""The analysis: from two angle streams to σ, its interval, the error PSD and H(f).
+
+Pure computation on arrays (no I/O). The steps follow Gryazin & Belova (2023), see
+``shared/METHOD.md``: align (``align``), correlations R_x, R_y, R_xy, R_yx and eq. 2
+(``correlation``), the error density by eq. 1 (``psd``), σ = √(area); then the cross-checks,
+the frequency response, the decomposition and the interval.
+
+Max-lag rule: ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length, gaps included),
+at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from benchctl.analysis import frf as frf_mod
+from benchctl.analysis.align import Aligned, align
+from benchctl.analysis.correlation import correlations, demean
+from benchctl.analysis.psd import (
+    SpectralGrid,
+    WelchEstimate,
+    auto_spectrum,
+    band_area,
+    cross_spectrum,
+    spectral_grid,
+    trapezoid_area,
+    welch_by_runs,
+)
+from benchctl.analysis.result import AnalysisResult
+from benchctl.analysis.uncertainty import (
+    density_interval,
+    dof_of_variance,
+    duration_for_precision,
+    sigma_interval,
+)
+from benchctl.errors import AnalysisError, DataError
+
+FloatArray = NDArray[np.float64]
+DelayMode = Literal["none", "auto"] | float
+
+MIN_LAG = 8
+PARSEVAL_RTOL = 1e-8
+WELCH_SIGMAS = 4.0
+
+
+def default_max_lag(n_grid: int) -> int:
+    """The max-lag rule: a tenth of the record, at least 8 samples."""
+    return max(MIN_LAG, n_grid // 10)
+
+
+@dataclass(frozen=True)
+class _Spectra:
+    grid: SpectralGrid
+    gxx: FloatArray
+    gyy: FloatArray
+    gxy: NDArray[np.complex128]
+    gee: FloatArray
+    r0_scale: float
+    n_valid: int
+
+
+def _spectra(al: Aligned, max_lag: int) -> _Spectra:
+    c = correlations(al.x, al.y, al.mask, max_lag)
+    grid = spectral_grid(max_lag, al.dt)
+    gxx = auto_spectrum(c.rx, grid)
+    gyy = auto_spectrum(c.ry, grid)
+    gxy = cross_spectrum(c.rxy, c.ryx, grid)
+    gee = auto_spectrum(c.error(), grid)  # eq. 2 then eq. 1
+    return _Spectra(grid, gxx, gyy, gxy, gee, float(c.rx[0] + c.ry[0]), c.n_valid)
+
+
+def _max_lag(al: Aligned, max_lag_s: float | None) -> int:
+    n = len(al.mask)
+    if max_lag_s is None:
+        lag = default_max_lag(n)
+    else:
+        if not np.isfinite(max_lag_s) or max_lag_s <= 0:
+            raise DataError(f"max lag: expected a positive number of seconds, got {max_lag_s!r}")
+        lag = round(max_lag_s / al.dt)
+        if lag < MIN_LAG:
+            raise DataError(
+                f"max lag {max_lag_s:g} s is {lag} samples at {1 / al.dt:.6g} Hz; "
+                f"expected at least {MIN_LAG} samples ({MIN_LAG * al.dt:.6g} s)"
+            )
+    if 2 * lag >= n:
+        raise DataError(
+            f"record too short: {n} samples ({n * al.dt:.6g} s) for a max lag of {lag} samples "
+            f"({lag * al.dt:.6g} s); expected at least {2 * lag + 1} samples"
+        )
+    return lag
+
+
+def _check_band(band_hz: tuple[float, float] | None, al: Aligned, resolution: float) -> None:
+    if band_hz is None:
+        return
+    lo, hi = float(band_hz[0]), float(band_hz[1])
+    nyq = 0.5 / al.dt
+    if not (0.0 <= lo < hi <= nyq):
+        raise DataError(
+            f"band {lo:g} … {hi:g} Hz: expected 0 ≤ lo < hi ≤ fs/2 = {nyq:.6g} Hz"
+        )
+    span = len(al.mask) * al.dt
+    if lo > 0 and span * lo < 2.0:
+        raise DataError(
+            f"record too short for the band {lo:g} … {hi:g} Hz: {span:.6g} s holds fewer than "
+            f"two periods of {lo:g} Hz; expected at least {2.0 / lo:.6g} s"
+        )
+    if hi - lo < resolution:
+        raise DataError(
+            f"band {lo:g} … {hi:g} Hz is narrower than the resolution {resolution:.4g} Hz of "
+            "the estimate; give a wider band or a longer max lag"
+        )
+
+
+def _delay_mode(compensate_delay: DelayMode) -> float | None:
+    """None: no compensation; nan: auto; else the delay in seconds."""
+    if isinstance(compensate_delay, str):
+        if compensate_delay == "none":
+            return None
+        if compensate_delay == "auto":
+            return float("nan")
+        raise DataError(
+            f"compensate_delay: expected 'none', 'auto' or seconds, got {compensate_delay!r}"
+        )
+    d = float(compensate_delay)
+    if not np.isfinite(d):
+        raise DataError(f"compensate_delay: expected a finite number of seconds, got {d!r}")
+    return d
+
+
+def analyze(
+    t_ref: ArrayLike,
+    x_ref_deg: ArrayLike,
+    t_dev: ArrayLike,
+    y_dev_deg: ArrayLike,
+    *,
+    max_lag_s: float | None = None,
+    band_hz: tuple[float, float] | None = None,
+    compensate_delay: DelayMode = "none",
+    timebase: Literal["given", "fitted"] = "given",
+    source: str = "",
+    axis: str | None = None,
+) -> AnalysisResult:
+    """Dynamic error of an instrument from its output and the measured stand angle.
+
+    Parameters
+    ----------
+    t_ref, x_ref_deg : array_like
+        Reference (measured stand angle) instants, s, and angles, deg.
+    t_dev, y_dev_deg : array_like
+        Instrument instants, s, and output, deg. Any rates; the reference is evaluated at
+        the instrument's instants (see ``align``); the instrument is never interpolated.
+    max_lag_s : float, optional
+        Maximum correlation lag, s. Default: a tenth of the record (see module notes).
+    band_hz : (lo, hi), optional
+        Band for the band-limited σ and for the frequency-response grid, Hz.
+    compensate_delay : "none" | "auto" | float
+        Remove an acquisition delay (s, positive when the device lags) before the analysis:
+        the reference is evaluated at ``t_dev − delay``. "auto" uses the delay estimated from
+        the phase of H1. The delay found before compensation is always reported.
+    timebase : {"given", "fitted"}
+        Device instants as given, or fitted to a uniform clock (jittery receipt times).
+    source, axis : str
+        Labels carried into the result.
+
+    Returns
+    -------
+    AnalysisResult
+        σ (deg, about the mean), its 95 % interval, the error PSD (one-sided, deg²/Hz),
+        H1, coherence, decomposition, gaps and cross-checks.
+
+    Raises
+    ------
+    DataError
+        Bad input: non-finite values, non-monotonic times, constant signals, no overlap,
+        a record too short for the lag or band.
+    AnalysisError
+        The area under the error PSD and the time-domain variance of ε disagree (Parseval).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(6000) * 0.05                     # 300 s at 20 Hz
+    >>> x = 5 * np.sin(2 * np.pi * 0.1 * t)
+    >>> noise = np.random.default_rng(1).normal(0, 0.1, t.size)
+    >>> r = analyze(t, x, t, 0.98 * x + noise)
+    >>> round(r.sigma, 2), round(r.periods[-1]["gain"], 3)   # σ² = (0.02·5)²/2 + 0.1²
+    (0.12, 0.98)
+    """
+    tr, xr = np.asarray(t_ref, dtype=float), np.asarray(x_ref_deg, dtype=float)
+    td, yd = np.asarray(t_dev, dtype=float), np.asarray(y_dev_deg, dtype=float)
+    mode = _delay_mode(compensate_delay)
+    al = align(tr, xr, td, yd, timebase=timebase)
+    lag = _max_lag(al, max_lag_s)
+    sp = _spectra(al, lag)
+    _check_band(band_hz, al, sp.grid.resolution_hz)
+    delay_raw = frf_mod.delay_from_phase(
+        frf_mod.frequency_response(sp.grid.freq, sp.gxx, sp.gyy, sp.gxy, band_hz)
+    )
+    shift = 0.0
+    if mode is not None:
+        shift = delay_raw if np.isnan(mode) else mode
+        if not np.isfinite(shift):
+            raise DataError("compensate_delay=auto: no delay could be estimated (no excited band)")
+        if shift != 0.0:
+            al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase)
+            lag = _max_lag(al, max_lag_s)
+            sp = _spectra(al, lag)
+    return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis)
+
+
+def _result(
+    al: Aligned,
+    sp: _Spectra,
+    lag: int,
+    band_hz: tuple[float, float] | None,
+    delay_raw: float,
+    shift: float,
+    mode: float | None,
+    source: str,
+    axis: str | None,
+) -> AnalysisResult:
+    grid = sp.grid
+    warnings: list[str] = []
+    eps_raw = np.where(al.mask, al.y - al.x, 0.0)
+    n = al.n_valid
+    mean_error = float(eps_raw.sum() / n)
+    eps = demean(eps_raw, al.mask)
+    variance = float(np.dot(eps, eps) / n)
+    area = trapezoid_area(grid.freq, sp.gee)
+    tol = PARSEVAL_RTOL * variance + 1e-13 * sp.r0_scale
+    if not abs(area - variance) <= tol:
+        raise AnalysisError(
+            f"Parseval check failed: area under the error PSD {area!r} deg² differs from the "
+            f"time-domain variance of ε {variance!r} deg² by more than {tol:.3g}"
+        )
+    sigma = float(np.sqrt(variance))
+    dof_f = grid.dof(n)
+    duration_eff = n * al.dt
+    resp = frf_mod.frequency_response(grid.freq, sp.gxx, sp.gyy, sp.gxy, band_hz)
+    dec = frf_mod.decompose(grid.freq, sp.gxx, sp.gxy, sp.gee, dof_f)
+    linear = trapezoid_area(grid.freq, dec.linear)
+    dof = dof_of_variance(grid.freq, dec.linear, dec.incoherent, duration_eff, dof_f)
+    dof_rand = dof_of_variance(
+        grid.freq, dec.linear, dec.incoherent, duration_eff, dof_f, motion_random=True
+    )
+    ci = sigma_interval(sigma, dof)
+    ci_rand = sigma_interval(sigma, dof_rand)
+    welch = welch_by_runs(eps, al.mask, al.dt, 2 * lag)
+    cross = _welch_check(welch, variance, dof_rand, warnings)
+    cross.update(
+        {
+            "parseval_area": area,
+            "time_variance": variance,
+            "parseval_rel_diff": abs(area - variance) / variance if variance > 0 else 0.0,
+        }
+    )
+    band = None
+    if band_hz is not None:
+        bv = band_area(grid.freq, sp.gee, band_hz[0], band_hz[1])
+        band = {
+            "lo": float(band_hz[0]),
+            "hi": float(band_hz[1]),
+            "variance": bv,
+            "sigma": float(np.sqrt(max(bv, 0.0))),
+        }
+    if al.device.gap_count:
+        warnings.append(
+            f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "
+            f"missing sample(s), longest {al.device.longest_gap_s:.6g} s; gaps are masked"
+        )
+    if al.excluded:
+        warnings.append(
+            f"{al.excluded} device sample(s) excluded: outside the reference's span or in its gaps"
+        )
+    if len(resp.freq) == 0:
+        warnings.append("no excited frequency in the band: no frequency response")
+    return AnalysisResult(
+        sigma=sigma,
+        variance=variance,
+        mean_error=mean_error,
+        rms_error=float(np.sqrt(variance + mean_error**2)),
+        sigma_ci95=ci,
+        dof=dof,
+        delay=delay_raw,
+        delay_compensated=shift,
+        n_samples=n,
+        duration=len(al.mask) * al.dt,
+        sample_rate=1.0 / al.dt,
+        max_lag=lag * al.dt,
+        max_lag_samples=lag,
+        resolution_hz=grid.resolution_hz,
+        dof_per_frequency=dof_f,
+        psd_freq=grid.freq,
+        psd_error=sp.gee,
+        psd_ci95=density_interval(sp.gee, dof_f),
+        welch_freq=None if welch is None else welch.freq,
+        welch_error=None if welch is None else welch.density,
+        frf_freq=resp.freq,
+        frf_gain=resp.gain,
+        frf_phase_deg=resp.phase_deg,
+        frf_coherence=resp.coherence,
+        periods=frf_mod.at_periods(resp),
+        linear=linear,
+        incoherent=variance - linear,
+        band=band,
+        gaps=_gaps(al),
+        timing={
+            "device_dt": al.device.dt,
+            "device_jitter_rms": al.device.jitter_rms,
+            "reference_dt": al.reference.dt,
+            "reference_jitter_rms": al.reference.jitter_rms,
+        },
+        cross_checks=cross,
+        uncertainty={
+            "dof_motion_random": dof_rand if np.isfinite(dof_rand) else None,
+            "sigma_ci95_motion_random": [ci_rand[0], ci_rand[1]],
+            "duration_for_5pct": duration_for_precision(duration_eff, dof),
+            "compensate_delay": "none" if mode is None else ("auto" if np.isnan(mode) else "fixed"),
+        },
+        source=source,
+        axis=axis,
+        warnings=warnings,
+    )
+
+
+def _welch_check(
+    welch: WelchEstimate | None, variance: float, dof: float, warnings: list[str]
+) -> dict[str, Any]:
+    if welch is None:
+        warnings.append("no gap-free run of 64 samples: Welch cross-check skipped")
+        return {"welch_area": None, "welch_tolerance": None, "welch_agrees": None}
+    area = welch.area
+    tol = WELCH_SIGMAS * variance * float(np.sqrt(2.0 / dof)) if np.isfinite(dof) else 0.0
+    tol += 1e-9 * variance
+    agrees = abs(area - variance) <= tol
+    if not agrees:
+        warnings.append(
+            f"Welch area {area:.6g} deg² differs from the variance {variance:.6g} deg² by more "
+            f"than its statistical tolerance {tol:.3g} (non-stationary record?)"
+        )
+    return {"welch_area": area, "welch_tolerance": tol, "welch_agrees": bool(agrees)}
+
+
+def _gaps(al: Aligned) -> dict[str, Any]:
+    return {
+        "device": {
+            "count": al.device.gap_count,
+            "missing_samples": al.device.missing_samples,
+            "longest_s": al.device.longest_gap_s,
+        },
+        "reference": {
+            "count": al.reference.gap_count,
+            "missing_samples": al.reference.missing_samples,
+            "longest_s": al.reference.longest_gap_s,
+        },
+        "excluded_samples": al.excluded,
+    }

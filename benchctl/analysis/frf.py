@@ -1,0 +1,161 @@
+"""Frequency response (H1), coherence, delay and the split of the error variance.
+
+Conventions: ``H(f) = G_xy(f)/G_xx(f)`` from the reference x (stand) to the device y; gain is
+``|H|``; ``phase_deg = angle(H)`` in degrees, negative when the device lags. Coherence
+``γ² = |G_xy|²/(G_xx G_yy)``. All densities one-sided, deg²/Hz, from the same lag-windowed
+correlations as the error density, so the identity
+``G_εε = |1 − H|² G_xx + (1 − γ²) G_yy`` holds at every frequency.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+TRADITIONAL_PERIODS_S = (3.0, 5.0, 7.0, 10.0)
+EXCITED_FRACTION = 1e-3  # the FRF is shown where G_xx ≥ this × max G_xx
+COHERENT_FRACTION = 1e-6  # the linear part is sought where G_xx ≥ this × max G_xx
+
+
+@dataclass(frozen=True)
+class FrequencyResponse:
+    """H1 on the frequencies where the reference is excited (and inside the band, if given)."""
+
+    freq: FloatArray
+    h: ComplexArray
+    coherence: FloatArray
+
+    @property
+    def gain(self) -> FloatArray:
+        return np.abs(self.h)
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        return np.degrees(np.unwrap(np.angle(self.h)))
+
+
+def excited(
+    freq: FloatArray, gxx: FloatArray, fraction: float = EXCITED_FRACTION
+) -> NDArray[np.bool_]:
+    """Frequencies (f > 0) where the reference density is at least ``fraction`` of its peak."""
+    pos = freq > 0
+    peak = float(np.max(gxx[pos]))
+    return pos & (gxx >= fraction * peak)
+
+
+def frequency_response(
+    freq: FloatArray,
+    gxx: FloatArray,
+    gyy: FloatArray,
+    gxy: ComplexArray,
+    band_hz: tuple[float, float] | None = None,
+) -> FrequencyResponse:
+    """H1 gain/phase and coherence on the excited frequencies (within ``band_hz`` if given).
+
+    Parameters
+    ----------
+    freq : ndarray
+        Frequencies, Hz.
+    gxx, gyy : ndarray
+        One-sided auto densities of reference and device, deg²/Hz.
+    gxy : ndarray of complex
+        One-sided cross density, deg²/Hz (``conj(X)·Y`` convention).
+    band_hz : (lo, hi), optional
+        Keep only ``lo ≤ f ≤ hi``.
+    """
+    keep = excited(freq, gxx)
+    if band_hz is not None:
+        keep &= (freq >= band_hz[0]) & (freq <= band_hz[1])
+    h = gxy[keep] / gxx[keep]
+    coh = np.abs(gxy[keep]) ** 2 / (gxx[keep] * gyy[keep])
+    return FrequencyResponse(freq=freq[keep], h=h, coherence=np.clip(coh, 0.0, 1.0))
+
+
+def at_periods(
+    frf: FrequencyResponse, periods_s: tuple[float, ...] = TRADITIONAL_PERIODS_S
+) -> list[dict[str, float]]:
+    """Gain, phase (deg) and coherence at the given periods that lie inside the FRF grid.
+
+    ``H`` is interpolated linearly (complex) between the two neighbouring grid frequencies,
+    which must be adjacent grid points (no gap of the excited set between them).
+    """
+    out: list[dict[str, float]] = []
+    if len(frf.freq) < 2:
+        return out
+    step = float(np.min(np.diff(frf.freq)))
+    for period in periods_s:
+        f = 1.0 / period
+        j = int(np.searchsorted(frf.freq, f))
+        if j == 0 or j >= len(frf.freq):
+            continue
+        f0, f1 = frf.freq[j - 1], frf.freq[j]
+        if f1 - f0 > 1.5 * step:
+            continue
+        a = (f - f0) / (f1 - f0)
+        h = (1 - a) * frf.h[j - 1] + a * frf.h[j]
+        coh = (1 - a) * frf.coherence[j - 1] + a * frf.coherence[j]
+        out.append(
+            {
+                "period_s": period,
+                "freq": f,
+                "gain": float(abs(h)),
+                "phase_deg": float(np.degrees(np.angle(h))),
+                "coherence": float(coh),
+            }
+        )
+    return out
+
+
+def delay_from_phase(frf: FrequencyResponse) -> float:
+    """Equivalent delay of the device behind the reference, s (positive: device lags).
+
+    Weighted least-squares fit of ``φ(f) = −2π f τ`` (through the origin) to the unwrapped
+    phase of H1, weights ``γ²/(1 − γ²)`` (the inverse of the phase estimate's variance, up to
+    a constant). For a pure delay this is the delay; for a lag it is the low-frequency group
+    delay seen in the band. NaN when fewer than two frequencies are available.
+    """
+    if len(frf.freq) < 2:
+        return float("nan")
+    phi = np.unwrap(np.angle(frf.h))
+    # the unwrapped phase must start in (−π, π] at the lowest frequency
+    w = frf.coherence / np.maximum(1.0 - frf.coherence, 1e-6)
+    f = frf.freq
+    return float(-np.sum(w * f * phi) / (2.0 * np.pi * np.sum(w * f * f)))
+
+
+@dataclass(frozen=True)
+class Decomposition:
+    """The error density split into its part coherent with the reference and the rest.
+
+    ``linear`` = ``|1 − H|² G_xx`` = ``|G_xε|²/G_xx`` where ``G_xx`` is above 1e-6 of its peak
+    (0 elsewhere: without excitation no linear response can be seen; the low threshold keeps
+    the window's leakage of the excited lines on the linear side);
+    ``incoherent`` = ``G_εε − linear``. Both deg²/Hz on the full grid.
+    """
+
+    linear: FloatArray
+    incoherent: FloatArray
+
+
+def decompose(
+    freq: FloatArray, gxx: FloatArray, gxy: ComplexArray, gee: FloatArray, dof_per_freq: float
+) -> Decomposition:
+    """Split ``G_εε`` into the linear dynamic part and the incoherent part (see class).
+
+    The residual ``G_εε − |G_xε|²/G_xx`` of a smoothed estimate with ν_f degrees of freedom
+    per frequency is low by the factor ``1 − 2/ν_f`` (two degrees of freedom go to fitting H);
+    the incoherent part is divided by it, within the limits ``0 ≤ linear ≤ G_εε``.
+    """
+    keep = excited(freq, gxx, COHERENT_FRACTION)
+    lin = np.zeros_like(gee)
+    gxe = gxy[keep] - gxx[keep]
+    g = np.maximum(gee[keep], 0.0)
+    resid = np.maximum(g - np.abs(gxe) ** 2 / gxx[keep], 0.0)
+    factor = 1.0 - 2.0 / dof_per_freq if dof_per_freq > 4.0 else 0.5
+    lin[keep] = np.clip(g - resid / factor, 0.0, g)
+    return Decomposition(linear=lin, incoherent=gee - lin)

@@ -1,0 +1,118 @@
+"""The result of one analysis, and its JSON form (keys documented in the README)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def _num(v: float) -> float | None:
+    """A JSON-safe float: NaN/inf become None."""
+    f = float(v)
+    return f if math.isfinite(f) else None
+
+
+def _list(a: NDArray[Any]) -> list[float | None]:
+    arr = np.asarray(a, dtype=float)
+    if np.isfinite(arr).all():
+        return [float(v) for v in arr.tolist()]
+    return [_num(v) for v in arr.tolist()]
+
+
+@dataclass
+class AnalysisResult:
+    """Everything one analysis says about one axis. Angles in deg, times in s, PSD deg²/Hz.
+
+    ``sigma`` is the dynamic error (about the mean), ``sigma_ci95`` its 95 % interval from
+    ``dof`` degrees of freedom; ``delay`` the device's equivalent delay behind the reference;
+    ``delay_compensated`` what was removed before the analysis (0 if nothing).
+    """
+
+    sigma: float
+    variance: float
+    mean_error: float
+    rms_error: float
+    sigma_ci95: tuple[float, float]
+    dof: float
+    delay: float
+    delay_compensated: float
+    n_samples: int
+    duration: float
+    sample_rate: float
+    max_lag: float
+    max_lag_samples: int
+    resolution_hz: float
+    dof_per_frequency: float
+    psd_freq: FloatArray
+    psd_error: FloatArray
+    psd_ci95: tuple[FloatArray, FloatArray]
+    welch_freq: FloatArray | None
+    welch_error: FloatArray | None
+    frf_freq: FloatArray
+    frf_gain: FloatArray
+    frf_phase_deg: FloatArray
+    frf_coherence: FloatArray
+    periods: list[dict[str, float]]
+    linear: float
+    incoherent: float
+    band: dict[str, float] | None
+    gaps: dict[str, Any]
+    timing: dict[str, float]
+    cross_checks: dict[str, Any]
+    uncertainty: dict[str, Any]
+    source: str = ""
+    axis: str | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (NaN/inf → null). See README "Analysis" for every key."""
+        return {
+            "source": self.source,
+            "axis": self.axis,
+            "sigma": _num(self.sigma),
+            "variance": _num(self.variance),
+            "mean_error": _num(self.mean_error),
+            "rms_error": _num(self.rms_error),
+            "sigma_ci95": [_num(self.sigma_ci95[0]), _num(self.sigma_ci95[1])],
+            "dof": _num(self.dof),
+            "delay": _num(self.delay),
+            "delay_compensated": _num(self.delay_compensated),
+            "n_samples": self.n_samples,
+            "duration": _num(self.duration),
+            "sample_rate": _num(self.sample_rate),
+            "max_lag": _num(self.max_lag),
+            "max_lag_samples": self.max_lag_samples,
+            "resolution_hz": _num(self.resolution_hz),
+            "components": {
+                "linear": _num(self.linear),
+                "incoherent": _num(self.incoherent),
+                "static": _num(self.mean_error**2),
+            },
+            "band": self.band,
+            "periods": self.periods,
+            "frf": {
+                "freq": _list(self.frf_freq),
+                "gain": _list(self.frf_gain),
+                "phase_deg": _list(self.frf_phase_deg),
+                "coherence": _list(self.frf_coherence),
+            },
+            "psd": {
+                "freq": _list(self.psd_freq),
+                "error": _list(self.psd_error),
+                "dof": _num(self.dof_per_frequency),
+                "welch": None
+                if self.welch_freq is None or self.welch_error is None
+                else {"freq": _list(self.welch_freq), "error": _list(self.welch_error)},
+            },
+            "gaps": self.gaps,
+            "timing": self.timing,
+            "cross_checks": self.cross_checks,
+            "uncertainty": self.uncertainty,
+            "warnings": list(self.warnings),
+        }

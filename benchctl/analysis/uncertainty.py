@@ -1,0 +1,107 @@
+"""Confidence interval of σ from the equivalent degrees of freedom of the variance estimate.
+
+The variance estimate is ``σ̂² = (1/N) Σ (ε_i − ε̄)²`` (= the area under the error density).
+For a Gaussian stationary error of one-sided density ``G`` over a record of ``T`` seconds,
+``var(σ̂²) ≈ (1/T) ∫ G² df``, so ``σ̂²·ν/σ²`` is close to χ² with
+
+    ν = 2 σ⁴ / var(σ̂²) = 2 T (∫G df)² / ∫G² df = 2 B_e T,   B_e = (∫G)²/∫G².
+
+Better, for a bench test: the stand's motion is known and is not a random sample, so the part
+of ε coherent with it (``G_lin``, see ``frf.decompose``) is a fixed function of the motion.
+Only the incoherent part ``G_inc`` is random; then
+``var(σ̂²) ≈ (1/T) [∫ G_inc² df + 2 ∫ G_lin G_inc df]`` (the ∫G_lin² term of the Gaussian
+formula is absent). This is the ``dof`` reported; the fully random ν (the motion itself a
+sample of the sea) is reported too as ``dof_motion_random``.
+
+``∫ Ĝ²`` of an estimate with ν_f degrees of freedom per frequency overestimates ``∫ G²`` by
+the factor ``1 + 2/ν_f``; the random parts are corrected for it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+FloatArray = NDArray[np.float64]
+
+
+def dof_of_variance(
+    freq: FloatArray,
+    linear: FloatArray,
+    incoherent: FloatArray,
+    duration_s: float,
+    dof_per_freq: float,
+    motion_random: bool = False,
+) -> float:
+    """Equivalent degrees of freedom ν of the variance estimate (see module notes).
+
+    Parameters
+    ----------
+    freq : ndarray
+        Frequencies, Hz.
+    linear, incoherent : ndarray
+        One-sided densities of the coherent and incoherent parts of ε, deg²/Hz.
+    duration_s : float
+        Effective record length ``N·Δt``, s.
+    dof_per_freq : float
+        ν_f of one spectral value of the estimate.
+    motion_random : bool
+        True: treat all of ε as a Gaussian random process (ν = 2 B_e T).
+
+    Returns
+    -------
+    float
+        ν, or ``inf`` when the estimate has no random part at all.
+    """
+    lin = np.maximum(linear, 0.0)
+    inc = np.maximum(incoherent, 0.0)
+    total = float(np.trapezoid(lin + inc, freq))
+    bias = 1.0 + 2.0 / dof_per_freq
+    if motion_random:
+        denom = float(np.trapezoid((lin + inc) ** 2, freq)) / bias
+    else:
+        cross = float(np.trapezoid(lin * inc, freq))
+        denom = float(np.trapezoid(inc**2, freq)) / bias + 2.0 * cross
+    if denom <= 0.0 or total <= 0.0:
+        return float("inf")
+    return 2.0 * duration_s * total**2 / denom
+
+
+def sigma_interval(sigma: float, dof: float, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``level`` interval for σ: ``σ̂ √(ν/χ²_{1−α/2,ν}) … σ̂ √(ν/χ²_{α/2,ν})``.
+
+    Examples
+    --------
+    >>> lo, hi = sigma_interval(1.0, 100.0)
+    >>> round(lo, 3), round(hi, 3)
+    (0.879, 1.161)
+    """
+    if not np.isfinite(dof):
+        return (sigma, sigma)
+    a = (1.0 - level) / 2.0
+    lo = sigma * float(np.sqrt(dof / chi2.ppf(1.0 - a, dof)))
+    hi = sigma * float(np.sqrt(dof / chi2.ppf(a, dof)))
+    return (lo, hi)
+
+
+def density_interval(
+    density: FloatArray, dof_per_freq: float, level: float = 0.95
+) -> tuple[FloatArray, FloatArray]:
+    """Pointwise ``level`` interval of a spectral density with ν_f degrees of freedom."""
+    a = (1.0 - level) / 2.0
+    return (
+        density * dof_per_freq / chi2.ppf(1.0 - a, dof_per_freq),
+        density * dof_per_freq / chi2.ppf(a, dof_per_freq),
+    )
+
+
+def duration_for_precision(duration_s: float, dof: float, rel_halfwidth: float = 0.05) -> float:
+    """Record length (s) for a 95 % interval of σ of ± ``rel_halfwidth`` (relative).
+
+    ν grows in proportion to T; the half-width of the σ interval is about ``1.96/√(2ν)``.
+    """
+    if not np.isfinite(dof) or dof <= 0:
+        return 0.0
+    needed = 0.5 * (1.959964 / rel_halfwidth) ** 2
+    return duration_s * needed / dof
