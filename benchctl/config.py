@@ -150,6 +150,8 @@ class RunConfig(Strict):
     limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
     output_dir: Path = Path("runs")
     min_free_disk_mb: Positive = 200.0
+    precheck_window_s: Positive = 1.0  # instrument rate and static agreement measured over this
+    instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.2  # ± fraction of expected_rate_hz
     profile_tolerance_deg: Positive = 1.0  # stand motion departing from the profile beyond this aborts
     analysis: AnalysisConfig = AnalysisConfig()
 

@@ -6,13 +6,21 @@
       meta.json         written once at start: format, version, config, profile (with seed),
                         device identities, serial number, operator, station, software version,
                         start time (UTC and monotonic), axes
-      stand.csv         t_host, rtt_s, <axis>_deg, <axis>_rate_deg_s…, <axis>_setpoint_deg…, status, fault_code
+      stand.csv         t_host, rtt_s, <axis>_deg…, <axis>_rate_deg_s…, <axis>_setpoint_deg…,
+                        status, fault_code
                         (t_host = midpoint of request and reply, monotonic seconds)
       instrument.csv    t_host, device_time_s, counter, <axis>_deg…   (t_host = receipt time)
-      setpoints.csv     t_send, <axis>_deg…                            (commanded motion)
+      setpoints.csv     t_send, t_slot, <axis>_deg…                    (commanded motion: the
+                        profile's value at its slot time t_slot, sent at t_send)
       events.jsonl      one JSON object a line: state changes, faults, notes
       end.json          written at close: state (done|aborted), reason, end time, counters
       can.blf|can.asc   raw CAN frames (python-can logger), when the instrument is on CAN
+
+``meta.json`` may be rewritten (atomically) while the run goes, as facts become known (device
+identities after connect); ``events.jsonl`` carries every state change of the run
+(``{"kind": "state", "from", "to", "reason"}``) and ``motion_start``; ``end.json`` also holds the
+``analysis_window`` ([t0, t1] monotonic seconds: the steady part of the profile, fades
+excluded) that the verdict was computed on, and the run's timing statistics.
 
 Every data line is written straight through to the OS (line-buffered), so ``kill -9`` at any
 moment loses nothing already written; a torn last line is dropped by the reader. A recording
@@ -48,7 +56,7 @@ def instrument_columns(axes: tuple[str, ...]) -> list[str]:
 
 
 def setpoint_columns(axes: tuple[str, ...]) -> list[str]:
-    return ["t_send"] + [f"{a}_deg" for a in axes]
+    return ["t_send", "t_slot"] + [f"{a}_deg" for a in axes]
 
 
 STREAM_COLUMNS = {

@@ -67,7 +67,9 @@ class Recording:
         except KeyError:
             raise DataError(f"{self.path}: stream {stream!r} has no column {name!r}") from None
 
-    def pair(self, axis: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def pair(
+        self, axis: str
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed."""
         if axis not in self.axes:
             raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")

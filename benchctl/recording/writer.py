@@ -74,6 +74,7 @@ class RecordingWriter:
             "start_monotonic": self.t0_monotonic,
             **meta,
         }
+        self._meta: dict[str, Any] = full_meta
         _atomic_json(self.path / META_FILE, full_meta)
         self._files: dict[str, IO[str]] = {}
         for name, fname in STREAM_FILES.items():
@@ -114,8 +115,18 @@ class RecordingWriter:
         fields += [_num(s.angle_deg.get(ax)) for ax in self.axes]
         self._write("instrument", fields)
 
-    def write_setpoint(self, t_send: float, angle_deg: Mapping[str, float]) -> None:
-        self._write("setpoints", [_num(t_send)] + [_num(angle_deg.get(ax)) for ax in self.axes])
+    def write_setpoint(
+        self, t_send: float, angle_deg: Mapping[str, float], t_slot: float | None = None
+    ) -> None:
+        """A commanded setpoint: sent at ``t_send``, the profile's value at slot time ``t_slot``."""
+        fields = [_num(t_send), _num(t_slot)] + [_num(angle_deg.get(ax)) for ax in self.axes]
+        self._write("setpoints", fields)
+
+    def update_meta(self, **fields: Any) -> None:
+        """Add or replace metadata fields (meta.json is rewritten atomically)."""
+        with self._lock:
+            self._meta = {**self._meta, **fields}
+            _atomic_json(self.path / META_FILE, self._meta)
 
     def event(self, kind: str, **fields: Any) -> None:
         rec = {"t_host": time.monotonic(), "utc": utc_now(), "kind": kind, **fields}
@@ -144,6 +155,12 @@ class RecordingWriter:
                 **extra,
             },
         )
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        """The metadata as written to meta.json (a copy)."""
+        with self._lock:
+            return dict(self._meta)
 
     @property
     def closed(self) -> bool:

@@ -1,0 +1,89 @@
+"""``benchctl run``: one whole test, from prechecks to verdict. Exit 0 PASS, 1 FAIL, 2 error/abort."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchctl.errors import ConfigError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run a dynamic-error test: prechecks, profile, analysis, verdict",
+        description=(
+            "Run a test: prechecks, fade-in, the profile, fade-out, analysis and a PASS/FAIL "
+            "verdict against run.limit_sigma_deg. Every way out (Ctrl-C, SIGTERM, a device "
+            "fault, a silent instrument, a breach) brings the stand to rest, closes the recording "
+            "marked aborted and exits 2."
+        ),
+    )
+    p.add_argument("--config", required=True, type=Path, help="bench config YAML")
+    p.add_argument("--profile", required=True, type=Path, help="motion profile YAML")
+    p.add_argument("--serial", help="serial number of the instrument under test")
+    p.add_argument("--operator", help="who runs the test")
+    p.add_argument("--duration", type=float, metavar="SEC", help="profile duration (s)")
+    p.add_argument("--seed", type=int, help="override the profile's seed")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default run.output_dir)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (report) on stdout")
+    p.add_argument("--quiet", action="store_true", help="no live progress on stderr")
+    p.set_defaults(handler=handle)
+
+
+def _ask(value: str | None, what: str, option: str) -> str:
+    if value:
+        return value
+    if sys.stdin.isatty() and sys.stderr.isatty():
+        while True:
+            sys.stderr.write(f"{what}: ")
+            sys.stderr.flush()
+            line = sys.stdin.readline()
+            if not line:
+                break
+            if line.strip():
+                return line.strip()
+    raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
+
+
+def handle(args: argparse.Namespace) -> int:
+    from benchctl.config import load_config
+    from benchctl.run import RunOptions, run_test
+    from benchctl.run.display import make_display
+    from benchctl.run.report import format_report
+
+    cfg = load_config(args.config)
+    serial = _ask(args.serial, "Serial number of the instrument", "--serial")
+    operator = _ask(args.operator, "Operator", "--operator")
+    if args.duration is not None and args.duration <= 0:
+        raise ConfigError(f"--duration = {args.duration}: expected a positive number of seconds")
+    opts = RunOptions(
+        serial=serial, operator=operator, duration_s=args.duration, out_dir=args.out, seed=args.seed
+    )
+    display = make_display(sys.stderr, quiet=args.quiet)
+    result = run_test(cfg, args.profile, opts, display=display)
+    if args.json:
+        print(json.dumps(result.to_dict(), default=_default))
+    elif result.report is not None:
+        print(format_report(result.report))
+    else:
+        print(f"ABORTED: {result.reason}")
+        if result.recording is not None:
+            print(f"  recording {result.recording} (closed, marked aborted)")
+    return result.exit_code
+
+
+def _default(o: object) -> object:
+    try:
+        import numpy as np
+
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+    except ImportError:  # pragma: no cover
+        pass
+    return str(o)

@@ -1,0 +1,222 @@
+"""The verdict and the report: PASS when σ ≤ the limit on every axis, FAIL otherwise.
+
+Written into the recording folder: ``report.json`` (machine-readable, the same object
+``benchctl run --json`` prints), ``report.txt`` (for the operator) and one analysis plot per
+axis (``analysis_<axis>.png``) when the analysis provides a plot. ``archive`` appends one line
+per run to ``<output_dir>/index.jsonl``: the results archive of a bench.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+REPORT_JSON = "report.json"
+REPORT_TXT = "report.txt"
+ARCHIVE_INDEX = "index.jsonl"
+
+
+@dataclass
+class AxisVerdict:
+    """σ of one axis against the limit (degrees)."""
+
+    axis: str
+    sigma_deg: float
+    sigma_ci95_deg: tuple[float, float]
+    dof: float
+    mean_error_deg: float
+    rms_error_deg: float
+    delay_s: float | None
+    limit_deg: float
+    analysis: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def passed(self) -> bool:
+        return math.isfinite(self.sigma_deg) and self.sigma_deg <= self.limit_deg
+
+    def to_dict(self, full: bool = True) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "axis": self.axis,
+            "verdict": "PASS" if self.passed else "FAIL",
+            "sigma": self.sigma_deg,
+            "sigma_ci95": list(self.sigma_ci95_deg),
+            "limit": self.limit_deg,
+            "dof": self.dof,
+            "mean_error": self.mean_error_deg,
+            "rms_error": self.rms_error_deg,
+            "delay": self.delay_s,
+        }
+        if full:
+            d["analysis"] = self.analysis
+        return d
+
+
+def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
+    """From an ``AnalysisResult`` (sigma, sigma_ci95, dof, mean_error, rms_error, delay)."""
+    ci = tuple(float(v) for v in result.sigma_ci95)
+    return AxisVerdict(
+        axis=axis,
+        sigma_deg=float(result.sigma),
+        sigma_ci95_deg=(ci[0], ci[1]),
+        dof=float(result.dof),
+        mean_error_deg=float(result.mean_error),
+        rms_error_deg=float(result.rms_error),
+        delay_s=None if getattr(result, "delay", None) is None else float(result.delay),
+        limit_deg=limit_deg,
+        analysis=result.to_dict() if hasattr(result, "to_dict") else {},
+    )
+
+
+@dataclass
+class Report:
+    axes: dict[str, AxisVerdict]
+    recording: Path
+    meta: dict[str, Any]  # serial, operator, station, profile, seed, start/end, mode …
+    stats: dict[str, Any]
+    window: tuple[float, float]
+
+    @property
+    def verdict(self) -> str:
+        return "PASS" if self.axes and all(v.passed for v in self.axes.values()) else "FAIL"
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.verdict == "PASS" else 1
+
+    def to_dict(self, full: bool = True) -> dict[str, Any]:
+        return {
+            "verdict": self.verdict,
+            "state": "done",
+            "exit_code": self.exit_code,
+            "recording": str(self.recording),
+            "axes": {a: v.to_dict(full) for a, v in self.axes.items()},
+            "analysis_window": list(self.window),
+            **self.meta,
+            "stats": self.stats,
+        }
+
+
+def format_report(rep: Report) -> str:
+    m = rep.meta
+    lines = [
+        f"{rep.verdict}   serial {m.get('serial', '?')}   operator {m.get('operator', '?')}   "
+        f"station {m.get('station', '?')}",
+        f"profile {m.get('profile_name', '?')} (seed {m.get('seed', '?')}), "
+        f"{m.get('duration_s', float('nan')):.1f} s, mode {m.get('mode', '?')}",
+    ]
+    for v in rep.axes.values():
+        lo, hi = v.sigma_ci95_deg
+        lines.append(
+            f"  {v.axis:<5} σ = {v.sigma_deg:.4f}°  95 % CI [{lo:.4f}, {hi:.4f}]°"
+            f"  limit {v.limit_deg:g}°"
+            f"  → {'PASS' if v.passed else 'FAIL'}   (mean error {v.mean_error_deg:+.4f}°, "
+            f"dof {v.dof:.0f})"
+        )
+    st = rep.stats
+    lat = st.get("cycle_lateness_s", {})
+    rtt = st.get("stand_rtt_s", {})
+    lines.append(
+        f"  cycles {st.get('cycles', 0)}, missed {st.get('missed_cycles', 0)}; lateness p50 "
+        f"{1e3 * lat.get('p50', math.nan):.2f} ms p99 {1e3 * lat.get('p99', math.nan):.2f} ms; "
+        f"stand round trip p50 {1e3 * rtt.get('p50', math.nan):.2f} ms p99 "
+        f"{1e3 * rtt.get('p99', math.nan):.2f} ms"
+    )
+    lines.append(
+        f"  instrument samples {st.get('instrument_samples', 0)}, "
+        f"lost {st.get('instrument_lost', 0)}, "
+        f"bad frames {st.get('instrument_bad_frames', 0)}"
+    )
+    lines.append(f"  recording {rep.recording}")
+    return "\n".join(lines)
+
+
+def _plot(result: Any, dest: Path) -> bool:
+    """Draw the analysis plot through the analysis package, if it offers one."""
+    try:
+        from benchctl.analysis import plot as plot_mod  # type: ignore[attr-defined]
+    except ImportError:
+        return False
+    fn = getattr(plot_mod, "plot_analysis", None) or getattr(plot_mod, "plot_result", None)
+    if fn is None:
+        return False
+    try:
+        fn(result, dest)
+    except Exception as e:  # a plot is a convenience; the verdict stands without it
+        log.warning("analysis plot %s not drawn: %s", dest, e)
+        return False
+    return True
+
+
+def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Path]:
+    """report.json, report.txt (and plots) into the recording folder; returns the files."""
+    folder = rep.recording
+    out = [folder / REPORT_JSON, folder / REPORT_TXT]
+    out[0].write_text(
+        json.dumps(rep.to_dict(), indent=2, default=_json_default) + "\n", encoding="utf-8"
+    )
+    out[1].write_text(format_report(rep) + "\n", encoding="utf-8")
+    for axis, res in (results or {}).items():
+        dest = folder / f"analysis_{axis}.png"
+        if _plot(res, dest):
+            out.append(dest)
+    return out
+
+
+def archive(output_dir: Path, rep: Report) -> Path:
+    """Append the run's summary to the bench's results archive ``index.jsonl``."""
+    index = output_dir / ARCHIVE_INDEX
+    line = json.dumps(
+        {
+            **{
+                k: rep.meta.get(k)
+                for k in ("serial", "operator", "station", "profile_name", "seed", "start_utc")
+            },
+            "verdict": rep.verdict,
+            "sigma": {a: v.sigma_deg for a, v in rep.axes.items()},
+            "limit": {a: v.limit_deg for a, v in rep.axes.items()},
+            "recording": str(rep.recording),
+        },
+        default=_json_default,
+    )
+    with index.open("a", encoding="utf-8") as f:
+        f.write(line + "\n")
+    return index
+
+
+def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reason: str) -> Path:
+    """An aborted run is archived too, with its reason."""
+    index = output_dir / ARCHIVE_INDEX
+    line = json.dumps(
+        {
+            **{
+                k: meta.get(k)
+                for k in ("serial", "operator", "station", "profile_name", "seed", "start_utc")
+            },
+            "verdict": "ABORTED",
+            "reason": reason,
+            "recording": str(recording),
+        },
+        default=_json_default,
+    )
+    with index.open("a", encoding="utf-8") as f:
+        f.write(line + "\n")
+    return index
+
+
+def _json_default(o: Any) -> Any:
+    try:
+        import numpy as np
+
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+    except ImportError:  # pragma: no cover
+        pass
+    return str(o)

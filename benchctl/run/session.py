@@ -1,0 +1,611 @@
+"""The whole test, start to verdict: ``run_test(cfg, profile_path, options) -> RunResult``.
+
+Order of things (each state change is an event in the recording):
+
+1. before anything opens: the profile is loaded, synthesised and checked against the stand
+   limits; its axes must be the stand's and the instrument's (bad input → ``BenchError``, exit 2,
+   nothing moves, no recording);
+2. the recording is created (metadata: config, profile with seed, serial, operator, station,
+   software version, start time); with a ``sim:`` section the simulators are started;
+3. **prechecks**: disk space, each device answers and identifies itself (identities into the
+   metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
+   stand at rest, then the stand is enabled and brought to zero (table mode: the table uploaded);
+4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
+5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
+   abort takes, here with nothing to ramp);
+6. **analysing**: per axis, on the steady part of the profile (fades excluded), verdict, report,
+   archive; → **done**, the recording closed ``done``.
+
+Any fault on the way — from any thread, a signal, or an exception here — goes to the
+supervisor, and the one cleanup path ends the run ``aborted`` with the first fault's reason.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchctl import __version__
+from benchctl.config import BenchConfig
+from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
+from benchctl.errors import AnalysisError, BenchError, ConfigError, DataError, SafetyAbort
+from benchctl.recording import RecordingWriter, load_recording
+from benchctl.run import prechecks as pc
+from benchctl.run.display import Display, NullDisplay, Snapshot
+from benchctl.run.report import Report, archive, archive_abort, axis_verdict, write_report
+from benchctl.run.state import RunState, StateMachine
+from benchctl.run.streaming import (
+    LoopLimits,
+    MotionPlan,
+    Recorder,
+    SerializedStand,
+    StandLoop,
+    make_plan,
+    start_instrument,
+)
+from benchctl.run.supervisor import Supervisor, describe, shutdown
+
+log = logging.getLogger(__name__)
+
+EXIT_PASS, EXIT_FAIL, EXIT_ABORT = 0, 1, 2
+STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
+
+
+@dataclass
+class RunOptions:
+    serial: str
+    operator: str
+    duration_s: float | None = None
+    out_dir: Path | None = None
+    seed: int | None = None
+
+
+@dataclass
+class RunResult:
+    state: str  # done | aborted
+    reason: str
+    exit_code: int
+    recording: Path | None
+    report: Report | None = None
+    stats: dict[str, Any] = field(default_factory=dict)
+    shutdown: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.report is not None:
+            return self.report.to_dict(full=True)
+        return {
+            "verdict": "ABORTED",
+            "state": self.state,
+            "reason": self.reason,
+            "exit_code": self.exit_code,
+            "recording": None if self.recording is None else str(self.recording),
+            "stats": self.stats,
+            "shutdown": self.shutdown,
+        }
+
+
+# -------------------------------------------------------------------------- profile and motion
+@dataclass
+class PreparedMotion:
+    profile: Any
+    motion: Any
+    plan: MotionPlan
+    check: pc.CheckResult
+    meta: dict[str, Any]
+
+
+def _fades(motion: Any) -> tuple[float, float]:
+    for obj in (motion, *(getattr(motion, "tables", None) or {}).values()):
+        fi, fo = getattr(obj, "fade_in_s", None), getattr(obj, "fade_out_s", None)
+        if fi is not None and fo is not None:
+            return float(fi), float(fo)
+    return 0.0, 0.0
+
+
+def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> PreparedMotion:
+    """Load, synthesise and check the profile against this bench; raises before anything moves."""
+    from benchctl.profiles import check_motion, load_profile, synthesize
+
+    profile = load_profile(profile_path)
+    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode == "stream" else cfg.stand.sample_rate_hz
+    motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
+    axes = tuple(motion.axes)
+    src = cfg.source or Path("<config>")
+    for section, have in (("stand", cfg.stand.axes), ("instrument", cfg.instrument.axes)):
+        missing = [a for a in axes if a not in have]
+        if missing:
+            raise ConfigError(
+                f"{src}: field {section}.axes = {list(have)}: the profile {profile_path} moves "
+                f"{list(axes)}, expected {section}.axes to include {missing}"
+            )
+    if cfg.stand.mode == "table" and not getattr(motion, "tables", None):
+        raise ConfigError(
+            f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
+            "table; expected mode 'stream' for this profile"
+        )
+    result = check_motion(motion, cfg.stand.limits)  # raises LimitError naming needed vs allowed
+    figures = result.to_dict() if hasattr(result, "to_dict") else {}
+    check = pc.CheckResult("profile within limits", True, "within the stand limits", figures)
+    fade_in, fade_out = _fades(motion)
+    tables = dict(motion.tables) if getattr(motion, "tables", None) else None
+
+    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
+        return {a: np.asarray(v, dtype=float) for a, v in motion.evaluate(t).items()}
+
+    plan = make_plan(
+        evaluate,
+        axes,
+        float(motion.duration_s),
+        rate,
+        fade_in,
+        fade_out,
+        mode=cfg.stand.mode,
+        tables=tables,
+    )
+    pdict = profile.to_dict() if hasattr(profile, "to_dict") else {}
+    meta = {
+        "profile_path": str(profile_path),
+        "profile_name": getattr(profile, "name", profile_path.stem),
+        "profile": pdict,
+        "seed": opts.seed if opts.seed is not None else getattr(profile, "seed", None),
+        "duration_s": float(motion.duration_s),
+        "fade_in_s": fade_in,
+        "fade_out_s": fade_out,
+        "motion_check": figures,
+    }
+    return PreparedMotion(profile, motion, plan, check, meta)
+
+
+# -------------------------------------------------------------------------- devices
+DeviceFactory = Callable[[BenchConfig, Path], tuple[Stand, AngleSensor]]
+
+
+def open_devices(cfg: BenchConfig, recording: Path) -> tuple[Stand, AngleSensor]:
+    """The real drivers for this config (also what talks to the simulators)."""
+    from benchctl.devices.instrument import open_instrument
+    from benchctl.devices.modbus import open_stand
+
+    can_log = None
+    if cfg.instrument.driver != "nmea0183" and cfg.instrument.can_log:
+        can_log = recording / cfg.instrument.can_log
+    stand = open_stand(cfg.stand)
+    try:
+        sensor = open_instrument(cfg.instrument, can_log_path=can_log)
+    except BaseException:
+        stand.close()
+        raise
+    return stand, sensor
+
+
+@contextlib.contextmanager
+def simulators(cfg: BenchConfig) -> Iterator[BenchConfig]:
+    """With a ``sim:`` section, run the simulators (a child process) for the length of the run."""
+    if cfg.sim is None:
+        yield cfg
+        return
+    from benchctl.sim.launch import start_simulators
+
+    with start_simulators(cfg) as sim:
+        yield sim.config
+
+
+def _safe_name(s: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", s).strip("_") or "unnamed"
+
+
+def recording_dir(out_dir: Path, serial: str) -> Path:
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    base = out_dir / f"{stamp}_{_safe_name(serial)}"
+    p, i = base, 1
+    while p.exists():
+        i += 1
+        p = base.with_name(f"{base.name}_{i}")
+    return p
+
+
+def _identity(d: DeviceIdentity) -> dict[str, Any]:
+    return {
+        "vendor": d.vendor,
+        "model": d.model,
+        "serial": d.serial,
+        "firmware": d.firmware,
+        "protocol": d.protocol,
+        "extra": dict(d.extra),
+    }
+
+
+# -------------------------------------------------------------------------- the run
+class Session:
+    """One run. ``run()`` returns a ``RunResult``; it never raises once the recording exists."""
+
+    def __init__(
+        self,
+        cfg: BenchConfig,
+        prepared: PreparedMotion,
+        opts: RunOptions,
+        display: Display | None = None,
+        device_factory: DeviceFactory = open_devices,
+    ) -> None:
+        self.cfg = cfg
+        self.prep = prepared
+        self.opts = opts
+        self.display: Display = display or NullDisplay()
+        self.device_factory = device_factory
+        self.out_dir = opts.out_dir or cfg.run.output_dir
+        self.path = recording_dir(self.out_dir, opts.serial)
+        self.axes = prepared.plan.axes
+        self.machine = StateMachine()
+        self.supervisor = Supervisor()
+        self.writer: RecordingWriter | None = None
+        self.stand: Stand | None = None
+        self.sensor: AngleSensor | None = None
+        self.loop: StandLoop | None = None
+        self.recorder: Recorder | None = None
+        self.moved = False
+        self.meta: dict[str, Any] = {}
+
+    # ---- helpers
+    def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
+        if self.writer is not None:
+            self.writer.event(
+                "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
+            )
+        self.display.state(str(new), reason)
+
+    def _precheck(self, result: pc.CheckResult) -> None:
+        assert self.writer is not None
+        self.writer.event("precheck", **result.to_dict())
+        self.display.message(
+            f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
+        )
+        pc.require(result)
+        self.supervisor.check()
+
+    def _wait(self, seconds: float) -> None:
+        """Wait on the main thread, leaving at once on a fault."""
+        if self.supervisor.stop_event.wait(seconds):
+            self.supervisor.check()
+
+    def _snapshot(self) -> Snapshot:
+        assert self.recorder is not None and self.loop is not None
+        live = self.recorder.live
+        elapsed = remaining = None
+        if live.t_motion_start is not None:
+            elapsed = time.monotonic() - live.t_motion_start
+            remaining = self.prep.plan.duration_s - elapsed
+        return Snapshot(
+            state=str(self.machine.state),
+            elapsed_s=elapsed,
+            remaining_s=remaining,
+            stand_deg=dict(live.stand.angle_deg) if live.stand else {},
+            instrument_deg={a: live.instrument.angle_deg.get(a, float("nan")) for a in self.axes}
+            if live.instrument
+            else {},
+            tracking_error_deg=dict(live.tracking_error_deg),
+            sigma_deg=self.recorder.sigma.sigma(),
+            missed_cycles=self.loop.missed_cycles,
+            instrument_samples=self.recorder.n_instrument,
+        )
+
+    def _base_meta(self) -> dict[str, Any]:
+        cfg = self.cfg
+        return {
+            "serial": self.opts.serial,
+            "operator": self.opts.operator,
+            "station": cfg.station,
+            "software_version": __version__,
+            "config_path": str(cfg.source) if cfg.source else None,
+            "config": cfg.model_dump(mode="json"),
+            "mode": cfg.stand.mode,
+            "limit_sigma_deg": cfg.run.limit_sigma_deg,
+            **self.prep.meta,
+        }
+
+    # ---- phases
+    def _prechecks(self) -> None:
+        cfg, w = self.cfg, self.writer
+        assert w is not None
+        self.machine.to(RunState.PRECHECKS)
+        self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb))
+        self._precheck(self.prep.check)
+        stand_raw, self.sensor = self.device_factory(cfg, self.path)
+        stand = SerializedStand(stand_raw).as_stand()
+        self.stand = stand
+        ids = {"stand": _identity(stand.connect())}
+        self._precheck(pc.CheckResult("stand answers", True, _id_text(ids["stand"]), ids["stand"]))
+        ids["instrument"] = _identity(self.sensor.connect())
+        self._precheck(
+            pc.CheckResult(
+                "instrument answers", True, _id_text(ids["instrument"]), ids["instrument"]
+            )
+        )
+        w.update_meta(devices=ids)
+        self._precheck(pc.check_stand_ready(stand.read_status(), stand.read_sample(), self.axes))
+
+        self.recorder = rec = Recorder(w, self.supervisor, self.axes)
+        self.loop = StandLoop(
+            stand,
+            rec,
+            self.supervisor,
+            self.machine,
+            self.prep.plan,
+            LoopLimits(
+                angle_deg=cfg.stand.limits.angle_deg,
+                tracking_tolerance_deg=cfg.stand.tracking_tolerance_deg,
+                profile_tolerance_deg=cfg.run.profile_tolerance_deg,
+                silence_timeout_s=cfg.instrument.silence_timeout_s,
+                heartbeat_period_s=cfg.stand.heartbeat_period_s,
+                sample_rate_hz=cfg.stand.sample_rate_hz,
+                zero_tolerance_deg=cfg.stand.zero_tolerance_deg,
+            ),
+        )
+        start_instrument(self.sensor, rec)
+        self.loop.start()  # hold: heartbeat and stand samples from now on
+
+        rec.collect(True)
+        t0 = time.monotonic()
+        self._wait(cfg.run.precheck_window_s)
+        samples = rec.collect(False)
+        window = time.monotonic() - t0
+        self._precheck(
+            pc.check_instrument_rate(
+                samples,
+                window,
+                cfg.instrument.expected_rate_hz,
+                cfg.run.instrument_rate_tolerance,
+                self.axes,
+            )
+        )
+        here = stand.read_sample()
+        self._precheck(
+            pc.check_static_agreement(
+                samples, here.angle_deg, cfg.instrument.static_tolerance_deg, self.axes
+            )
+        )
+        stand.enable()
+        self.moved = True  # from here on the cleanup ramps to zero
+        if any(abs(v) > cfg.stand.zero_tolerance_deg for v in here.angle_deg.values()):
+            self.display.message("bringing the stand to zero")
+            stand.go_to_zero()
+        self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
+        if self.prep.plan.mode == "table":
+            assert self.prep.plan.tables is not None
+            stand.upload_table(self.prep.plan.tables)
+            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+
+    def _motion(self) -> None:
+        loop = self.loop
+        assert loop is not None and self.recorder is not None
+        loop.begin_motion()
+        limit = (
+            self.prep.plan.duration_s + 60.0
+        )  # settle and slack; a hung loop cannot hang the run
+        t0 = time.monotonic()
+        while not loop.motion_done.wait(0.1):
+            if self.supervisor.faulted:
+                break
+            now = time.monotonic()
+            if not loop.alive:
+                raise SafetyAbort("stand loop ended without finishing the motion")
+            last = loop.t_last_cycle
+            stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
+            if last is not None and now - last > stall:
+                raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
+            t_ins = self.recorder.t_last_instrument
+            if t_ins is not None and now - t_ins > self.cfg.instrument.silence_timeout_s + 0.5:
+                raise SafetyAbort(
+                    f"instrument silent: no sample for {now - t_ins:.2f} s "
+                    f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
+                )
+            if now - t0 > limit:
+                raise SafetyAbort(f"motion did not finish within {limit:.0f} s")
+            self.display.update(self._snapshot())
+        self.supervisor.check()
+
+    def _stop_loops(self) -> None:
+        if self.loop is not None:
+            self.loop.stop()
+
+    def _stats(self) -> dict[str, Any]:
+        st: dict[str, Any] = self.loop.stats() if self.loop else {}
+        if self.sensor is not None:
+            st["instrument_bad_frames"] = self.sensor.stats.bad_total
+            st["instrument_bad_by_reason"] = dict(self.sensor.stats.bad)
+        if self.writer is not None:
+            st["rows"] = dict(self.writer.counts)
+        return st
+
+    def _window(self) -> tuple[float, float]:
+        assert self.loop is not None and self.loop.t_motion_start is not None
+        p = self.prep.plan
+        t0 = self.loop.t_motion_start
+        lo, hi = t0 + p.fade_in_s, t0 + p.duration_s - p.fade_out_s
+        if hi - lo < 0.5 * p.duration_s:  # mostly fades: analyse the whole motion
+            lo, hi = t0, t0 + p.duration_s
+        return lo, hi
+
+    def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
+        from benchctl.analysis import analyze
+
+        a = self.cfg.run.analysis
+        rec = load_recording(self.path)
+        lo, hi = window
+        results: dict[str, Any] = {}
+        verdicts = {}
+        for axis in self.axes:
+            tr, xr, td, yd = rec.pair(axis)
+            margin = 1.0  # reference a little beyond the window, so it can be evaluated at its ends
+            kr = (tr >= lo - margin) & (tr <= hi + margin)
+            kd = (td >= lo) & (td <= hi)
+            if kd.sum() < 16 or kr.sum() < 16:
+                raise DataError(
+                    f"{self.path}: too few samples for axis {axis} in the analysis window "
+                    f"({int(kr.sum())} stand, {int(kd.sum())} instrument)"
+                )
+            res = analyze(
+                tr[kr],
+                xr[kr],
+                td[kd],
+                yd[kd],
+                max_lag_s=a.max_lag_s,
+                band_hz=a.band_hz,
+                compensate_delay=a.compensate_delay,
+            )
+            results[axis] = res
+            verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
+        meta = {k: self.meta.get(k) for k in _REPORT_META}
+        return Report(verdicts, self.path, meta, self._stats(), window), results
+
+    # ---- the run
+    def run(self) -> RunResult:
+        self.meta = self._base_meta()
+        self.machine.subscribe(self._on_state)
+        try:
+            self.writer = RecordingWriter(self.path, self.axes, self.meta)
+        except OSError as e:
+            raise ConfigError(
+                f"{self.path}: cannot create the recording folder: {e.strerror}"
+            ) from None
+        self.meta = self.writer.meta
+        self.display.message(f"recording to {self.path}")
+        with self.supervisor.signals():
+            try:
+                self._prechecks()
+                self._motion()
+                # normal end: the stand is at rest; the same cleanup path, nothing to ramp
+                rep = shutdown(
+                    stop_loops=self._stop_loops,
+                    stand=self.stand,
+                    sensor=self.sensor,
+                    writer=None,
+                    state="done",
+                    reason="",
+                    moved=False,
+                )
+                for step in rep.steps:
+                    if not step["ok"]:
+                        raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
+                self.supervisor.check()
+                self.machine.advance_to(RunState.ANALYSING)
+                window = self._window()
+                report, results = self._analyse(window)
+                files = write_report(report, results)
+                archive(self.out_dir, report)
+                self.writer.event("verdict", **report.to_dict(full=False))
+                self.machine.to(RunState.DONE)
+                self.writer.close(
+                    "done",
+                    report.verdict,
+                    analysis_window=list(window),
+                    stats=report.stats,
+                    report=[f.name for f in files],
+                )
+                self.display.message(f"{report.verdict}: recording closed")
+                return RunResult(
+                    "done", report.verdict, report.exit_code, self.path, report, report.stats
+                )
+            except BaseException as e:  # every way out, the same path
+                if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
+                    self.supervisor.fault(e, _source(e))
+                return self._abort()
+            finally:
+                self.display.close()
+
+    def _abort(self) -> RunResult:
+        f = self.supervisor.first
+        reason = f.reason if f else "aborted"
+        self.machine.abort(reason)
+        self.display.message(f"ABORTED: {reason}")
+        self.display.message("bringing the stand to rest and closing the recording")
+        stats = self._stats()
+        extra: dict[str, Any] = {"stats": stats}
+        if self.supervisor.later:
+            extra["later_faults"] = [g.reason for g in self.supervisor.later]
+        rep = shutdown(
+            stop_loops=self._stop_loops,
+            stand=self.stand,
+            sensor=self.sensor,
+            writer=self.writer,
+            state="aborted",
+            reason=reason,
+            table_mode=self.prep.plan.mode == "table"
+            and self.loop is not None
+            and self.loop.t_motion_start is not None,
+            moved=self.moved,
+            extra=extra,
+        )
+        for s in rep.steps:
+            self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
+        try:
+            archive_abort(self.out_dir, self.meta, self.path, reason)
+        except OSError as e:
+            log.warning("archive not updated: %s", e)
+        return RunResult("aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps)
+
+
+_REPORT_META = (
+    "serial",
+    "operator",
+    "station",
+    "profile_name",
+    "profile_path",
+    "seed",
+    "duration_s",
+    "mode",
+    "start_utc",
+    "software_version",
+    "limit_sigma_deg",
+)
+
+
+def _id_text(d: dict[str, Any]) -> str:
+    return " ".join(
+        str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
+    )
+
+
+def _source(e: BaseException) -> str:
+    if isinstance(e, KeyboardInterrupt):
+        return "signal"
+    if isinstance(e, AnalysisError | DataError):
+        return "analysis"
+    if isinstance(e, BenchError):
+        return "run"
+    return "run (exception)"
+
+
+def run_test(
+    cfg: BenchConfig,
+    profile_path: str | Path,
+    opts: RunOptions,
+    display: Display | None = None,
+    device_factory: DeviceFactory | None = None,
+) -> RunResult:
+    """Run one test. Bad input raises ``BenchError`` before anything opens; after that, every
+    outcome is a ``RunResult`` (done → exit 0/1 by verdict, aborted → exit 2)."""
+    prepared = prepare_motion(cfg, Path(profile_path), opts)
+    if device_factory is not None:
+        return Session(cfg, prepared, opts, display, device_factory).run()
+    with simulators(cfg) as live_cfg:
+        return Session(live_cfg, prepared, opts, display).run()
+
+
+__all__ = [
+    "EXIT_ABORT",
+    "EXIT_FAIL",
+    "EXIT_PASS",
+    "RunOptions",
+    "RunResult",
+    "Session",
+    "describe",
+    "run_test",
+]

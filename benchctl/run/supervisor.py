@@ -1,0 +1,196 @@
+"""Safety supervision: the first fault wins, and ONE cleanup path serves every way out.
+
+Ways out: Ctrl-C (SIGINT), SIGTERM, a lost link, a stand fault or E-stop, a silent instrument,
+a limit or tracking-error breach, an exception in any thread. Each calls
+``Supervisor.fault(error, source)``; the first one is kept, later ones are logged as
+secondary. The run's threads watch ``Supervisor.stop_event`` and leave; the main thread then
+calls ``shutdown`` (stop loops → stop table → ramp to zero within limits if the stand answers →
+disable → stop heartbeat → stop instrument → close the recording ``aborted`` with the reason).
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from types import FrameType
+from typing import Any
+
+from benchctl.devices.base import AngleSensor, Stand
+from benchctl.errors import BenchError, SafetyAbort
+from benchctl.recording import RecordingWriter
+
+log = logging.getLogger(__name__)
+
+
+def describe(exc: BaseException) -> str:
+    """A one-line reason for an exception: the message, with the type when it is not ours."""
+    if isinstance(exc, SafetyAbort):
+        return exc.reason
+    if isinstance(exc, BenchError):
+        return f"{type(exc).__name__}: {exc}"
+    return f"unexpected {type(exc).__name__}: {exc}"
+
+
+@dataclass
+class Fault:
+    error: BaseException
+    source: str
+    t_host: float
+
+    @property
+    def reason(self) -> str:
+        return f"{self.source}: {describe(self.error)}"
+
+
+class Supervisor:
+    """Collects faults from every thread; the first one decides the reason of the abort."""
+
+    def __init__(self, on_fault: Callable[[Fault], None] | None = None) -> None:
+        self._lock = threading.Lock()
+        self.first: Fault | None = None
+        self.later: list[Fault] = []
+        self.stop_event = threading.Event()
+        self._on_fault = on_fault
+
+    @property
+    def faulted(self) -> bool:
+        return self.first is not None
+
+    def fault(self, error: BaseException, source: str) -> None:
+        """Report a fault; thread-safe, never raises. The first one wins."""
+        f = Fault(error, source, time.monotonic())
+        with self._lock:
+            if self.first is None:
+                self.first = f
+                first = True
+            else:
+                self.later.append(f)
+                first = False
+        if first:
+            log.error("run fault from %s: %s", source, describe(error))
+            if not isinstance(error, BenchError):
+                log.error("".join(traceback.format_exception(error)))
+        else:
+            log.warning("further fault from %s (after the first): %s", source, describe(error))
+        self.stop_event.set()
+        if self._on_fault is not None:
+            try:
+                self._on_fault(f)
+            except Exception:  # a broken listener must not hide the fault
+                log.exception("fault listener failed")
+
+    def check(self) -> None:
+        """Raise the first fault as a ``SafetyAbort`` if there is one (for blocking phases)."""
+        f = self.first
+        if f is not None:
+            raise SafetyAbort(f.reason)
+
+    def guard(self, source: str, target: Callable[[], None]) -> Callable[[], None]:
+        """Wrap a thread's body: any exception becomes a fault of ``source``; never dies quietly."""
+
+        def run() -> None:
+            try:
+                target()
+            except BaseException as e:
+                self.fault(e, source)
+
+        return run
+
+    def thread(self, name: str, target: Callable[[], None]) -> threading.Thread:
+        return threading.Thread(target=self.guard(name, target), name=name, daemon=True)
+
+    @contextmanager
+    def signals(self) -> Iterator[None]:
+        """Turn SIGINT and SIGTERM into faults while the run lasts (main thread only)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def handler(signum: int, frame: FrameType | None) -> None:
+            name = signal.Signals(signum).name
+            self.fault(SafetyAbort(f"interrupted by {name}"), "signal")
+
+        old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+
+
+@dataclass
+class ShutdownReport:
+    """What the cleanup did, step by step (recorded in end.json and printed)."""
+
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    stand_at_rest: bool | None = None
+
+    def add(self, step: str, ok: bool, detail: str = "") -> None:
+        self.steps.append({"step": step, "ok": ok, "detail": detail})
+
+
+def _try(report: ShutdownReport, step: str, fn: Callable[[], object]) -> bool:
+    try:
+        fn()
+    except BaseException as e:  # cleanup goes on whatever one step does
+        report.add(step, False, describe(e))
+        log.warning("cleanup step %s failed: %s", step, describe(e))
+        return False
+    report.add(step, True)
+    return True
+
+
+def shutdown(
+    *,
+    stop_loops: Callable[[], None],
+    stand: Stand | None,
+    sensor: AngleSensor | None,
+    writer: RecordingWriter | None,
+    state: str,
+    reason: str,
+    table_mode: bool = False,
+    moved: bool = True,
+    ramp_timeout_s: float = 30.0,
+    extra: dict[str, Any] | None = None,
+) -> ShutdownReport:
+    """The one cleanup path, for a normal end and for every abort alike.
+
+    Each step is attempted whatever the previous one did; nothing here raises. ``moved`` says
+    whether the stand may be away from rest (False before the motion began: no ramp needed).
+    """
+    rep = ShutdownReport()
+    _try(rep, "stop loops", stop_loops)
+    if stand is not None:
+        if table_mode:
+            _try(rep, "stop table", stand.stop_table)
+        if moved:
+            _try(rep, "ramp to zero", lambda: stand.ramp_to_zero(ramp_timeout_s))
+        _try(rep, "disable", stand.disable)
+
+        def at_rest() -> None:
+            s = stand.read_sample()
+            rep.stand_at_rest = (
+                all(abs(v) <= 1.0 for v in s.rate_deg_s.values()) and not s.status.moving
+            )
+            rep.add("final angle", True, ", ".join(f"{a}={v:.3f}°" for a, v in s.angle_deg.items()))
+
+        _try(rep, "read final state", at_rest)
+    if sensor is not None:
+        _try(rep, "stop instrument", sensor.stop)
+    if writer is not None:
+        writer.event("shutdown", state=state, reason=reason, steps=rep.steps)
+        _try(
+            rep,
+            "close recording",
+            lambda: writer.close(state, reason, shutdown=rep.steps, **(extra or {})),
+        )
+    for name, dev in (("stand", stand), ("instrument", sensor)):
+        if dev is not None:
+            _try(rep, f"close {name}", dev.close)
+    return rep

@@ -1,0 +1,309 @@
+"""Small in-test fakes of the ``Stand`` and ``AngleSensor`` protocols for the run layer's unit tests.
+
+They exercise the state machine, the loop and the one cleanup path; the end-to-end tests use the
+real simulators over the real protocols. The fake stand follows its setpoint at once (or plays
+its table), so the reference is exact; faults are injected at a motion time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchctl.config import BenchConfig, parse_config
+from benchctl.devices.base import (
+    DeviceIdentity,
+    FrameStats,
+    InstrumentSample,
+    StandLimitsView,
+    StandSample,
+    StandStatus,
+)
+from benchctl.errors import ConnectionLost, DeviceTimeout
+from benchctl.harmonics import HarmonicTable
+from benchctl.run import prechecks as pc
+from benchctl.run.session import PreparedMotion
+from benchctl.run.streaming import make_plan
+
+
+class FakeStand:
+    """Follows each setpoint at once. ``fault_at``/``estop_at``/``drop_at``/``raise_at``: motion
+    time (s) at which a fault appears; ``lag_deg``: a constant offset (a stand off its track)."""
+
+    def __init__(self, axes: tuple[str, ...] = ("roll",), angle_limit: float = 20.0) -> None:
+        self.axes = axes
+        self.limits = StandLimitsView(angle_limit, 50.0, 300.0)
+        self._lock = threading.Lock()
+        self.angle = dict.fromkeys(axes, 0.0)
+        self.setpoint = dict.fromkeys(axes, 0.0)
+        self.enabled = False
+        self.fault = False
+        self.estop_on = False
+        self.t_motion: float | None = None
+        self.table: dict[str, HarmonicTable] | None = None
+        self.table_t0: float | None = None
+        self.calls: list[str] = []
+        self.fault_at: float | None = None
+        self.estop_at: float | None = None
+        self.drop_at: float | None = None
+        self.raise_at: float | None = None
+        self.stall_at: float | None = None
+        self.stall_s = 0.0
+        self.offset_deg = 0.0
+        self.on_motion_time: Callable[[float], None] | None = None
+        self.ramped = False
+        self.closed = False
+        self.heartbeats = 0
+        self.sent: list[tuple[float, dict[str, float]]] = []
+
+    # fault schedule, by motion time
+    def _tick(self) -> None:
+        if self.t_motion is None:
+            return
+        tm = time.monotonic() - self.t_motion
+        if self.on_motion_time is not None:
+            self.on_motion_time(tm)
+        if self.drop_at is not None and tm >= self.drop_at:
+            raise ConnectionLost("fake stand: connection reset by peer")
+        if self.raise_at is not None and tm >= self.raise_at:
+            raise RuntimeError("fake stand: driver bug")
+        if self.fault_at is not None and tm >= self.fault_at:
+            self.fault = True
+        if self.estop_at is not None and tm >= self.estop_at:
+            self.estop_on = True
+        if self.stall_at is not None and tm >= self.stall_at:
+            self.stall_at = None
+            time.sleep(self.stall_s)
+
+    def true_angle(self) -> dict[str, float]:
+        with self._lock:
+            if self.table is not None and self.table_t0 is not None:
+                t = time.monotonic() - self.table_t0
+                return {a: self.table[a].at(t) + self.offset_deg for a in self.axes}
+            return {a: v + self.offset_deg for a, v in self.angle.items()}
+
+    def connect(self) -> DeviceIdentity:
+        self.calls.append("connect")
+        return DeviceIdentity("fake", "stand", "S1", "1.0", "fake")
+
+    def close(self) -> None:
+        self.calls.append("close")
+        self.closed = True
+
+    def read_status(self) -> StandStatus:
+        return StandStatus(
+            ready=not (self.fault or self.estop_on),
+            enabled=self.enabled,
+            moving=False,
+            fault=self.fault,
+            estop=self.estop_on,
+            limit=False,
+            table_running=self.table_t0 is not None,
+            fault_code=7 if self.fault else 0,
+        )
+
+    def read_sample(self) -> StandSample:
+        self._tick()
+        t0 = time.monotonic()
+        ang = self.true_angle()
+        t1 = time.monotonic()
+        return StandSample(
+            t_host=0.5 * (t0 + t1),
+            rtt_s=t1 - t0,
+            angle_deg=ang,
+            rate_deg_s=dict.fromkeys(self.axes, 0.0),
+            setpoint_deg={a: v - self.offset_deg for a, v in ang.items()},
+            status=self.read_status(),
+        )
+
+    def enable(self) -> None:
+        self.calls.append("enable")
+        self.enabled = True
+
+    def disable(self) -> None:
+        self.calls.append("disable")
+        self.enabled = False
+
+    def heartbeat(self) -> None:
+        self.heartbeats += 1
+
+    def send_setpoint(self, angle_deg: dict[str, float]) -> float:
+        if self.t_motion is None:
+            self.t_motion = time.monotonic()
+        self._tick()
+        t = time.monotonic()
+        with self._lock:
+            self.angle = dict(angle_deg)
+            self.setpoint = dict(angle_deg)
+        self.sent.append((t, dict(angle_deg)))
+        return t
+
+    def upload_table(self, tables: dict[str, HarmonicTable]) -> None:
+        self.calls.append("upload_table")
+        self._pending = tables
+
+    def start_table(self) -> float:
+        self.calls.append("start_table")
+        t = time.monotonic()
+        with self._lock:
+            self.table, self.table_t0 = self._pending, t
+        self.t_motion = t
+        return t
+
+    def stop_table(self) -> None:
+        self.calls.append("stop_table")
+        with self._lock:
+            if self.table is not None and self.table_t0 is not None:
+                t = time.monotonic() - self.table_t0
+                self.angle = {a: self.table[a].at(t) for a in self.axes}
+            self.table, self.table_t0 = None, None
+
+    def go_to_zero(self, timeout_s: float = 30.0) -> None:
+        self.calls.append("go_to_zero")
+        with self._lock:
+            self.angle = dict.fromkeys(self.axes, 0.0)
+
+    def ramp_to_zero(self, timeout_s: float = 30.0) -> None:
+        self.calls.append("ramp_to_zero")
+        if self.drop_at is not None and self.t_motion is not None:
+            raise ConnectionLost("fake stand: no link")
+        with self._lock:
+            self.angle = dict.fromkeys(self.axes, 0.0)
+            self.offset_deg = 0.0
+        self.ramped = True
+
+    def stop(self) -> None:
+        self.calls.append("stop")
+
+    def estop(self) -> None:
+        self.calls.append("estop")
+
+    def reset_fault(self) -> None:
+        self.fault = False
+
+
+class FakeSensor:
+    """Streams the fake stand's angle ×gain + bias at ``rate_hz`` from a reader thread.
+
+    ``silent_after`` (s of motion): stop sending; ``error_after``: the reader dies and reports it.
+    """
+
+    def __init__(
+        self, stand: FakeStand, rate_hz: float = 100.0, gain: float = 1.0, bias: float = 0.0
+    ) -> None:
+        self.stand = stand
+        self.axes = stand.axes
+        self.stats = FrameStats()
+        self.rate_hz = rate_hz
+        self.gain = gain
+        self.bias = bias
+        self.noise = 0.0
+        self.silent_after: float | None = None
+        self.error_after: float | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.stopped = False
+        self.closed = False
+
+    def connect(self) -> DeviceIdentity:
+        return DeviceIdentity("fake", "inclinometer", "I1", "2.0", "fake")
+
+    def start(self, on_sample: Callable[[InstrumentSample], None], on_error: Callable[[BaseException], None]) -> None:
+        rng = np.random.default_rng(3)
+
+        def run() -> None:
+            n = 0
+            period = 1.0 / self.rate_hz
+            t0 = time.monotonic()
+            while not self._stop.wait(max(0.0, t0 + n * period - time.monotonic())):
+                tm = None if self.stand.t_motion is None else time.monotonic() - self.stand.t_motion
+                if tm is not None and self.error_after is not None and tm >= self.error_after:
+                    on_error(DeviceTimeout("fake instrument: bus error"))
+                    return
+                if not (tm is not None and self.silent_after is not None and tm >= self.silent_after):
+                    x = self.stand.true_angle()
+                    y = {a: self.gain * v + self.bias + self.noise * rng.standard_normal() for a, v in x.items()}
+                    on_sample(InstrumentSample(time.monotonic(), y, counter=n))
+                n += 1
+
+        self._thread = threading.Thread(target=run, name="fake instrument", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self.stopped = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+
+    def close(self) -> None:
+        self.stop()
+        self.closed = True
+
+
+def bench_config(tmp: Path, **run: Any) -> BenchConfig:
+    data = {
+        "station": "test-bench",
+        "stand": {
+            "driver": "modbus-tcp",
+            "limits": {"angle_deg": 20.0, "rate_deg_s": 50.0, "accel_deg_s2": 300.0},
+            "setpoint_rate_hz": 100.0,
+            "sample_rate_hz": 100.0,
+            "tracking_tolerance_deg": 0.5,
+        },
+        "instrument": {
+            "driver": "nmea0183",
+            "serial_port": "/dev/null",
+            "axes": ["roll", "pitch"],
+            "silence_timeout_s": 0.5,
+            "static_tolerance_deg": 0.2,
+        },
+        "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp), "precheck_window_s": 0.5, **run},
+    }
+    return parse_config(data, tmp / "bench.yaml")
+
+
+def sine_motion(
+    axes: tuple[str, ...] = ("roll",), duration_s: float = 4.0, mode: str = "stream", fade_s: float = 1.0
+) -> PreparedMotion:
+    """A 0.5 Hz, 5° sine per axis with raised-cosine fades."""
+    tables = {
+        a: HarmonicTable(
+            np.array([0.5 + 0.25 * i]), np.array([5.0]), np.array([0.3 * i]), duration_s, fade_s, fade_s
+        )
+        for i, a in enumerate(axes)
+    }
+
+    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
+        return {a: tb.evaluate(t) for a, tb in tables.items()}
+
+    plan = make_plan(evaluate, axes, duration_s, 100.0, fade_s, fade_s, mode=mode, tables=tables)
+    check = pc.CheckResult("profile within limits", True, "fake sine", {})
+    meta = {
+        "profile_name": "fake-sine",
+        "seed": 1,
+        "duration_s": duration_s,
+        "fade_in_s": fade_s,
+        "fade_out_s": fade_s,
+        "profile": {"kind": "fake"},
+    }
+    return PreparedMotion(None, None, plan, check, meta)
+
+
+def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.01)
+    return cond()
+
+
+def sigma_sine_gain(amp: float, gain: float) -> float:
+    """σ of (g−1)·A·sin over whole periods: |g−1|·A/√2."""
+    return abs(gain - 1.0) * amp / math.sqrt(2.0)

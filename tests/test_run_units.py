@@ -1,0 +1,323 @@
+"""Unit tests of the run layer's pieces: state machine, histogram, running σ, plan, prechecks,
+supervisor, recorder format extensions and the stream loop's deadline discipline."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
+from benchctl.errors import ConnectionLost, SafetyAbort
+from benchctl.recording import RecordingWriter, load_recording
+from benchctl.run import prechecks as pc
+from benchctl.run.state import RunState, StateMachine, TransitionError
+from benchctl.run.streaming import (
+    Histogram,
+    LoopLimits,
+    Recorder,
+    RunningSigma,
+    SerializedStand,
+    StandLoop,
+)
+from benchctl.run.supervisor import Supervisor
+from run_fakes import FakeSensor, FakeStand, sine_motion, wait_for
+
+# ----------------------------------------------------------------------------- state machine
+
+
+def test_state_machine_normal_order_and_events() -> None:
+    sm = StateMachine()
+    seen: list[tuple[str, str]] = []
+    sm.subscribe(lambda old, new, t, reason: seen.append((str(old), str(new))))
+    sm.to(RunState.PRECHECKS)
+    sm.advance_to(RunState.RUNNING)  # passes through fade-in
+    sm.to(RunState.FADE_OUT)
+    sm.to(RunState.ANALYSING)
+    sm.to(RunState.DONE)
+    assert seen == [
+        ("idle", "prechecks"),
+        ("prechecks", "fade-in"),
+        ("fade-in", "running"),
+        ("running", "fade-out"),
+        ("fade-out", "analysing"),
+        ("analysing", "done"),
+    ]
+    assert sm.final
+    with pytest.raises(TransitionError):
+        sm.to(RunState.ABORTED)
+    assert sm.abort("late") is False
+
+
+@pytest.mark.parametrize(
+    ("start", "bad"),
+    [
+        (RunState.IDLE, RunState.RUNNING),
+        (RunState.PRECHECKS, RunState.DONE),
+        (RunState.RUNNING, RunState.FADE_IN),
+        (RunState.FADE_IN, RunState.ANALYSING),
+    ],
+)
+def test_state_machine_refuses_illegal_moves(start: RunState, bad: RunState) -> None:
+    sm = StateMachine()
+    if start is not RunState.IDLE:
+        sm.advance_to(start)
+    with pytest.raises(TransitionError, match=f"{start} cannot move to {bad}"):
+        sm.to(bad)
+    assert sm.state is start
+
+
+def test_every_non_final_state_can_abort() -> None:
+    for target in (RunState.IDLE, RunState.PRECHECKS, RunState.RUNNING, RunState.ANALYSING):
+        sm = StateMachine()
+        if target is not RunState.IDLE:
+            sm.advance_to(target)
+        assert sm.abort("why") is True
+        assert sm.state is RunState.ABORTED
+        assert sm.history[-1][0] is RunState.ABORTED
+
+
+# ----------------------------------------------------------------------------- statistics
+
+
+def test_histogram_quantiles_match_numpy_within_resolution() -> None:
+    rng = np.random.default_rng(0)
+    x = rng.exponential(0.002, 5000)
+    h = Histogram(resolution_s=1e-5)
+    for v in x:
+        h.add(float(v))
+    for q in (0.5, 0.99):
+        assert abs(h.quantile(q) - np.quantile(x, q)) <= 1.5e-5
+    assert h.max == pytest.approx(x.max())
+    assert h.n == 5000
+
+
+def test_running_sigma_of_a_known_error() -> None:
+    """x a ramp sampled at 100 Hz; y = x(t) + 0.3 + ±0.2 alternating at instants between stand
+    samples: the interpolation is exact for a ramp, so σ = 0.2·√(n/(n−1)) exactly."""
+    rs = RunningSigma(("roll",))
+    rs.active = True
+    n = 200
+    for k in range(n + 2):
+        t = k * 0.01
+        if k >= 1:
+            tm = t - 0.005
+            e = 0.2 if k % 2 else -0.2
+            rs.add_instrument(InstrumentSample(tm, {"roll": 3.0 * tm + 0.3 + e}))
+        rs.add_stand(t, {"roll": 3.0 * t})
+    m = rs.n["roll"]
+    assert m == n + 1
+    expect = 0.2 * math.sqrt(m / (m - 1)) if m % 2 == 0 else None
+    sig = rs.sigma()["roll"]
+    # with an odd count the mean is off by 0.2/m; compute the exact sample σ directly
+    e = np.array([0.2 if k % 2 else -0.2 for k in range(1, n + 2)])
+    assert sig == pytest.approx(float(np.std(e, ddof=1)), rel=1e-9)
+    if expect is not None:
+        assert sig == pytest.approx(expect, rel=1e-9)
+
+
+def test_plan_grid_and_states() -> None:
+    prep = sine_motion(duration_s=4.0, fade_s=1.0)
+    plan = prep.plan
+    assert plan.n_slots == 401
+    assert plan.values["roll"][0] == 0.0 and abs(plan.values["roll"][-1]) < 1e-12
+    assert plan.state_at(0.5) is RunState.FADE_IN
+    assert plan.state_at(2.0) is RunState.RUNNING
+    assert plan.state_at(3.5) is RunState.FADE_OUT
+    t = 2.003  # between grid points: linear interpolation of the exact sine within 1e-3°
+    assert plan.at(t)["roll"] == pytest.approx(5.0 * math.cos(2 * math.pi * 0.5 * t), abs=2e-3)
+
+
+# ----------------------------------------------------------------------------- prechecks
+
+
+def _status(**kw: bool) -> StandStatus:
+    base = dict(ready=True, enabled=False, moving=False, fault=False, estop=False, limit=False)
+    base.update(kw)
+    return StandStatus(**base)  # type: ignore[arg-type]
+
+
+def _sample(angle: float = 0.0, rate: float = 0.0) -> StandSample:
+    return StandSample(0.0, 0.001, {"roll": angle}, {"roll": rate}, {"roll": 0.0}, _status())
+
+
+def test_precheck_stand_ready_names_the_problem() -> None:
+    ok = pc.check_stand_ready(_status(), _sample(), ("roll",))
+    assert ok.ok
+    r = pc.check_stand_ready(_status(estop=True, ready=False), _sample(rate=2.0), ("roll", "pitch"))
+    assert not r.ok
+    for part in ("E-stop", "not ready", "moving at +2.00°/s", "no axis ['pitch']"):
+        assert part in r.detail
+    with pytest.raises(pc.PrecheckFailed, match="stand ready and at rest"):
+        pc.require(r)
+
+
+def test_precheck_instrument_rate_and_static() -> None:
+    samples = [InstrumentSample(i * 0.01, {"roll": 1.05}) for i in range(100)]
+    assert pc.check_instrument_rate(samples, 1.0, 100.0, 0.2, ("roll",)).ok
+    slow = pc.check_instrument_rate(samples[:50], 1.0, 100.0, 0.2, ("roll",))
+    assert not slow.ok and "50.0 Hz, expected 100 Hz" in slow.detail
+    assert not pc.check_instrument_rate(samples, 1.0, 100.0, 0.2, ("roll", "pitch")).ok
+    st = pc.check_static_agreement(samples, {"roll": 1.0}, 0.1, ("roll",))
+    assert st.ok and st.values["difference_deg"]["roll"] == pytest.approx(0.05)
+    bad = pc.check_static_agreement(samples, {"roll": 0.5}, 0.1, ("roll",))
+    assert not bad.ok and "+0.550°" in bad.detail
+
+
+def test_precheck_disk(tmp_path: Path) -> None:
+    assert pc.check_disk(tmp_path / "not" / "yet", 1.0).ok
+    r = pc.check_disk(tmp_path, 1e15)
+    assert not r.ok and "run.min_free_disk_mb" in r.detail
+
+
+# ----------------------------------------------------------------------------- supervisor
+
+
+def test_supervisor_first_fault_wins_and_threads_never_die_quietly() -> None:
+    sup = Supervisor()
+
+    def boom() -> None:
+        raise ConnectionLost("link gone")
+
+    t = sup.thread("reader", boom)
+    t.start()
+    t.join()
+    sup.fault(SafetyAbort("second"), "other")
+    assert sup.stop_event.is_set()
+    assert sup.first is not None and sup.first.reason == "reader: ConnectionLost: link gone"
+    assert [f.reason for f in sup.later] == ["other: second"]
+    with pytest.raises(SafetyAbort, match="link gone"):
+        sup.check()
+
+
+# ----------------------------------------------------------------------------- recording
+
+
+def test_writer_setpoint_slot_column_and_meta_update(tmp_path: Path) -> None:
+    w = RecordingWriter(tmp_path / "r", ("roll", "pitch"), {"serial": "X"})
+    w.write_setpoint(10.5, {"roll": 1.25, "pitch": -0.5}, t_slot=10.49)
+    w.update_meta(devices={"stand": {"vendor": "v"}})
+    w.close("done", "PASS")
+    rec = load_recording(tmp_path / "r")
+    assert rec.streams["setpoints"]["t_slot"].tolist() == [10.49]
+    assert rec.streams["setpoints"]["pitch_deg"].tolist() == [-0.5]
+    assert rec.meta["serial"] == "X" and rec.meta["devices"]["stand"]["vendor"] == "v"
+    assert rec.state == "done"
+
+
+# ----------------------------------------------------------------------------- stand loop
+
+
+def _loop(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, duration: float = 1.0):
+    w = RecordingWriter(tmp_path / "rec", stand.axes, {})
+    sup = Supervisor()
+    rec = Recorder(w, sup, stand.axes)
+    sm = StateMachine()
+    sm.to(RunState.PRECHECKS)
+    prep = sine_motion(stand.axes, duration_s=duration, fade_s=0.25)
+    lim = LoopLimits(20.0, 0.5, 1.0, 0.5, 0.1, 100.0, 0.05)
+    loop = StandLoop(SerializedStand(stand).as_stand(), rec, sup, sm, prep.plan, lim)
+    return w, sup, rec, sm, loop
+
+
+def test_stream_loop_skips_after_a_stall_without_a_burst(tmp_path: Path) -> None:
+    """A 0.2 s stall at 100 Hz: ~19 slots are skipped and counted; the setpoint after the stall is
+    the current slot's, and no two setpoints go out closer than half a period apart."""
+    stand = FakeStand()
+    stand.stall_at, stand.stall_s = 0.3, 0.2
+    sensor = FakeSensor(stand)
+    w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
+    from benchctl.run.streaming import start_instrument
+
+    start_instrument(sensor, rec)
+    loop.start()
+    loop.begin_motion()
+    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0)
+    loop.stop()
+    sensor.stop()
+    w.close("done")
+    assert not sup.faulted, sup.first
+    assert 15 <= loop.missed_cycles <= 40
+    sp = load_recording(tmp_path / "rec").streams["setpoints"]
+    slots = np.round((sp["t_slot"] - sp["t_slot"][0]) / 0.01).astype(int)
+    assert np.all(np.diff(slots) >= 1)
+    assert slots.max() - slots.min() + 1 == len(slots) + loop.missed_cycles
+    big = int(np.argmax(np.diff(slots)))
+    assert np.diff(slots)[big] >= 15
+    # after the stall, the next setpoint is the slot current at its send time (no catch-up)
+    assert sp["t_send"][big + 1] - sp["t_slot"][big + 1] < 0.01
+    assert sm.state is RunState.FADE_OUT
+
+
+def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
+    stand = FakeStand()
+    sensor = FakeSensor(stand)
+    w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
+    loop.plan.mode = "table"
+    from benchctl.run.streaming import start_instrument
+
+    assert loop.plan.tables is not None
+    stand.upload_table(loop.plan.tables)
+    start_instrument(sensor, rec)
+    loop.start()
+    loop.begin_motion()
+    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0)
+    loop.stop()
+    sensor.stop()
+    w.close("done")
+    assert not sup.faulted, sup.first
+    assert "start_table" in stand.calls and "stop_table" in stand.calls
+    st = load_recording(tmp_path / "rec").streams["stand"]
+    t = st["t_host"] - loop.t_motion_start
+    inside = (t > 0) & (t < 1.0)
+    assert inside.sum() >= 50  # polled at ~100 Hz over 1 s on a noisy machine
+    expect = loop.plan.tables["roll"].evaluate(t[inside])
+    assert np.max(np.abs(st["roll_deg"][inside] - expect)) < 0.05  # sampled vs stamped instants
+
+
+def test_loop_fault_reaches_the_supervisor_at_once(tmp_path: Path) -> None:
+    stand = FakeStand()
+    stand.fault_at = 0.2
+    sensor = FakeSensor(stand)
+    w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
+    from benchctl.run.streaming import start_instrument
+
+    start_instrument(sensor, rec)
+    loop.start()
+    loop.begin_motion()
+    assert wait_for(lambda: sup.faulted, 5.0)
+    t_fault = sup.first.t_host  # type: ignore[union-attr]
+    assert t_fault - stand.t_motion < 0.2 + 0.5  # type: ignore[operator]
+    loop.stop()
+    sensor.stop()
+    w.close("aborted")
+    assert "fault code 7" in sup.first.reason  # type: ignore[union-attr]
+    assert not loop.alive
+
+
+def test_serialized_stand_excludes_concurrent_calls() -> None:
+    inside = []
+    lock_seen = threading.Lock()
+
+    class Slow:
+        axes = ("roll",)
+        limits = None
+
+        def op(self) -> None:
+            if not lock_seen.acquire(blocking=False):
+                inside.append("overlap")
+                return
+            time.sleep(0.01)
+            lock_seen.release()
+
+    s = SerializedStand(Slow())  # type: ignore[arg-type]
+    ts = [threading.Thread(target=lambda: [s.op() for _ in range(5)]) for _ in range(3)]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join()
+    assert inside == []
