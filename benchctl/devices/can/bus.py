@@ -1,0 +1,52 @@
+"""Open a python-can bus from an instrument config: the one place that knows interface quirks."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import can
+
+from benchctl.config import InstrumentConfig
+from benchctl.errors import DeviceError
+
+#: python-can waits this long after opening a real slcan adapter (many reset on open).
+SLCAN_DEFAULT_SLEEP_S = 2.0
+
+
+def _is_pty(channel: str) -> bool:
+    """True if ``channel`` (possibly a symlink, possibly ``path@baud``) is a pseudo-terminal."""
+    path = os.path.realpath(channel.split("@", 1)[0])
+    return path.startswith("/dev/pts/")
+
+
+def can_bus_kwargs(cfg: InstrumentConfig) -> dict[str, Any]:
+    """Keyword arguments for ``can.Bus`` from ``cfg`` (interface, channel, bitrate, options).
+
+    For ``slcan`` the serial baud rate is ``cfg.baudrate`` and the wait after opening is
+    ``cfg.sleep_after_open_s``, or 0 for a pseudo-terminal and 2 s otherwise.
+    """
+    if not cfg.interface or cfg.channel is None:
+        raise DeviceError(f"instrument driver {cfg.driver}: needs interface and channel for CAN")
+    kwargs: dict[str, Any] = {"interface": cfg.interface, "channel": cfg.channel,
+                              "bitrate": cfg.bitrate}
+    if cfg.interface == "slcan":
+        sleep = cfg.sleep_after_open_s
+        if sleep is None:
+            sleep = 0.0 if _is_pty(cfg.channel) else SLCAN_DEFAULT_SLEEP_S
+        kwargs["sleep_after_open"] = sleep
+        kwargs["tty_baudrate"] = cfg.baudrate
+    kwargs.update(cfg.can_options)
+    return kwargs
+
+
+def open_can_bus(cfg: InstrumentConfig) -> can.BusABC:
+    """Open the CAN bus ``cfg`` names; a failure raises ``DeviceError`` naming the channel."""
+    kwargs = can_bus_kwargs(cfg)
+    try:
+        return can.Bus(**kwargs)
+    except (can.CanError, OSError, ValueError, ImportError) as e:
+        raise DeviceError(
+            f"instrument CAN bus interface={cfg.interface!r} channel={cfg.channel!r} "
+            f"bitrate={cfg.bitrate}: cannot open: {e}"
+        ) from e

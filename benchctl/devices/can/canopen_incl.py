@@ -1,0 +1,174 @@
+"""CANopen CiA 410 inclinometer through the ``canopen`` library and an EDS file.
+
+``connect`` reads the identity by SDO (1008h name, 1009h hardware, 100Ah software versions,
+1018h vendor-ID, product code, revision, serial number) and the resolution 6000h (units of
+0.001°), reads TPDO1's mapping from the EDS, and switches the node to OPERATIONAL (NMT start).
+Samples come from TPDO1 (COB-ID 0x180 + node id): 6010h slope long16 is pitch, 6020h slope
+lateral16 is roll (INTEGER16; 6110h/6120h INTEGER32 if an EDS maps those), in degrees
+``raw · resolution / 1000``. A TPDO of the wrong length is ``length``; a slope at the integer's
+extreme (overflow marker) or beyond ±180° is ``range``. Frames on other ids than the node's
+TPDO1, SDO response, EMCY and NMT error control are ``id``. CiA 410 carries no counter or time.
+
+The reader thread feeds ``canopen.Network.notify`` (the library's hook for a custom receive
+loop), so the SDO client and the PDO decoding are the library's own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+
+from benchctl.config import InstrumentConfig
+from benchctl.devices.base import DeviceIdentity, InstrumentSample
+from benchctl.devices.can.reader import BAD_ID, BAD_LENGTH, BAD_RANGE, BadFrame, CanInstrument
+from benchctl.errors import ConfigError, DeviceTimeout, ProtocolError
+
+#: CiA 410 slope objects by axis: (16-bit, 32-bit)
+SLOPE_OBJECTS = {"pitch": (0x6010, 0x6110), "roll": (0x6020, 0x6120)}
+RESOLUTION_INDEX = 0x6000
+MAX_ABS_DEG = 180.0
+
+
+class CanopenInclinometer(CanInstrument):
+    """A CiA 410 inclinometer on CANopen; implements ``AngleSensor``."""
+
+    protocol = "CANopen CiA 410"
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        cfg: InstrumentConfig,
+        *,
+        can_log_path: Path | None = None,
+        owns_bus: bool = True,
+    ) -> None:
+        if cfg.eds is None:
+            raise ConfigError("instrument driver canopen: needs eds (an EDS file in drivers/)")
+        self._net = canopen.Network(bus)  # never .connect(): our reader feeds notify()
+        try:
+            self._node = self._net.add_node(cfg.node_id, str(cfg.eds))
+        except (OSError, KeyError, ValueError) as e:
+            raise ConfigError(f"{cfg.eds}: cannot load EDS: {e}") from e
+        self._node.sdo.RESPONSE_TIMEOUT = min(1.0, cfg.connect_timeout_s)
+        self._tpdo = self._node.tpdo[1]
+        try:
+            self._node.tpdo.read(from_od=True)
+        except (KeyError, ValueError) as e:
+            raise ConfigError(f"{cfg.eds}: cannot read the TPDO1 mapping: {e}") from e
+        self._slopes: dict[str, Any] = {}
+        for axis in cfg.axes:
+            var = next((v for v in self._tpdo if v.index in SLOPE_OBJECTS[axis]), None)
+            if var is None:
+                raise ConfigError(
+                    f"{cfg.eds}: TPDO1 maps no slope for axis {axis} "
+                    f"(expected {SLOPE_OBJECTS[axis][0]:04X}h or {SLOPE_OBJECTS[axis][1]:04X}h)"
+                )
+            self._slopes[axis] = var
+        self._tpdo_len = (self._tpdo.length + 7) // 8
+        n = cfg.node_id
+        self._tpdo_id = self._tpdo.cob_id
+        self._known_ids = {0x580 + n, 0x80 + n, 0x700 + n}
+        self.resolution_deg = self._od_resolution() / 1000.0
+        self._rx_t = 0.0
+        self._last: InstrumentSample | None = None
+        self._tpdo.add_callback(self._on_tpdo)
+        super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus)
+
+    def _od_resolution(self) -> int:
+        od = self._node.object_dictionary
+        default = getattr(od[RESOLUTION_INDEX], "default", None) if RESOLUTION_INDEX in od else None
+        return int(default or 10)
+
+    # ------------------------------------------------------------------ identification
+    def _upload(self, index: int, sub: int | None = None, *, required: bool = True) -> Any:
+        try:
+            obj = self._node.sdo[index] if sub is None else self._node.sdo[index][sub]
+            return obj.raw
+        except canopen.SdoAbortedError as e:
+            if not required:
+                return None
+            raise ProtocolError(
+                f"instrument CANopen node {self.cfg.node_id} on {self._where}: SDO upload "
+                f"{index:04X}h{'' if sub is None else f' sub {sub}'} aborted: {e}"
+            ) from e
+        except canopen.SdoCommunicationError as e:
+            if self._fault is not None:
+                raise self._fault from e
+            raise DeviceTimeout(
+                f"instrument CANopen node {self.cfg.node_id} on {self._where}: no SDO answer "
+                f"for {index:04X}h{'' if sub is None else f' sub {sub}'}: {e}"
+            ) from e
+
+    def _identify(self) -> DeviceIdentity:
+        name = self._upload(0x1008, required=False) or ""
+        hw = self._upload(0x1009, required=False) or ""
+        sw = self._upload(0x100A, required=False) or ""
+        vendor = int(self._upload(0x1018, 1))
+        product = int(self._upload(0x1018, 2))
+        revision = int(self._upload(0x1018, 3))
+        serial = int(self._upload(0x1018, 4))
+        resolution = self._upload(RESOLUTION_INDEX, required=False)
+        if resolution is not None:
+            if int(resolution) <= 0:
+                raise ProtocolError(
+                    f"instrument CANopen node {self.cfg.node_id}: resolution 6000h = "
+                    f"{resolution}, expected a positive number of 0.001° units"
+                )
+            self.resolution_deg = int(resolution) / 1000.0
+        self._node.nmt.state = "OPERATIONAL"
+        return DeviceIdentity(
+            vendor=f"CiA vendor-ID 0x{vendor:08X}",
+            model=str(name),
+            serial=str(serial),
+            firmware=str(sw),
+            protocol=self.protocol,
+            extra={
+                "hardware": str(hw),
+                "product_code": f"0x{product:08X}",
+                "revision": f"0x{revision:08X}",
+                "node_id": str(self.cfg.node_id),
+                "resolution_deg": repr(self.resolution_deg),
+            },
+        )
+
+    # ------------------------------------------------------------------ decoding
+    def decode_tpdo(self, data: bytes, t_host: float) -> InstrumentSample:
+        """Decode a TPDO1 payload; ``BadFrame`` for a wrong length or an out-of-range slope."""
+        if len(data) != self._tpdo_len:
+            raise BadFrame(BAD_LENGTH)
+        self._rx_t = t_host
+        self._last = None
+        self._net.notify(self._tpdo_id, bytearray(data), t_host)
+        if self._last is None:  # the library did not call back: not our TPDO's map
+            raise BadFrame(BAD_ID)
+        return self._last
+
+    def _on_tpdo(self, pdo_map: Any) -> None:
+        angles: dict[str, float] = {}
+        for axis, var in self._slopes.items():
+            raw = int(var.raw)
+            bits = var.length
+            if raw in (2 ** (bits - 1) - 1, -(2 ** (bits - 1))):
+                raise BadFrame(BAD_RANGE)
+            deg = raw * self.resolution_deg
+            if abs(deg) > MAX_ABS_DEG:
+                raise BadFrame(BAD_RANGE)
+            angles[axis] = deg
+        self._last = InstrumentSample(t_host=self._rx_t, angle_deg=angles)
+
+    def _handle(self, msg: can.Message, t_host: float) -> None:
+        cid = msg.arbitration_id
+        if msg.is_extended_id:
+            raise BadFrame(BAD_ID)
+        if cid == self._tpdo_id:
+            self._emit(self.decode_tpdo(bytes(msg.data), t_host))
+        elif cid in self._known_ids:
+            self._net.notify(cid, bytearray(msg.data), msg.timestamp)
+        else:
+            raise BadFrame(BAD_ID)
+
+    def _close_protocol(self) -> None:
+        self._tpdo.callbacks.clear()

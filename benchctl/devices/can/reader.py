@@ -1,0 +1,116 @@
+"""The CAN half of the instrument drivers: a ``SensorReader`` over a handed-in ``can.Bus``.
+
+A protocol fills in ``_identify()`` and ``_handle(msg, t_host)`` (see ``benchctl.devices.reader``).
+A garbled adapter line (python-can's slcan parser raising ``ValueError``) counts as ``decode``;
+any other exception from ``bus.recv`` means the link is gone (``ConnectionLost``). Every received
+frame, good or bad, goes to the raw log (``can.Logger``: ``.blf``, ``.asc`` …) when a path is
+given; ``can.LogReader`` reads it back.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+from benchctl.config import InstrumentConfig
+from benchctl.devices.reader import (
+    BAD_DECODE,
+    BAD_ID,
+    BAD_LENGTH,
+    BAD_RANGE,
+    BAD_STATUS,
+    BadFrame,
+    LinkLost,
+    SensorReader,
+)
+from benchctl.errors import DeviceError
+
+__all__ = ["BAD_DECODE", "BAD_ID", "BAD_LENGTH", "BAD_RANGE", "BAD_STATUS", "BadFrame",
+           "CanInstrument"]
+
+log = logging.getLogger(__name__)
+
+_RECV_TIMEOUT_S = 0.05
+
+
+class CanInstrument(SensorReader):
+    """Base of the CAN instrument drivers.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The open bus (see ``benchctl.devices.can.bus.open_can_bus``).
+    cfg : InstrumentConfig
+        Axes, timeouts, node id / source address, EDS / DBC.
+    can_log_path : Path, optional
+        Write every received frame there (format from the suffix: ``.blf``, ``.asc`` …).
+    owns_bus : bool
+        Shut the bus down in ``close``.
+    """
+
+    protocol = "CAN"
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        cfg: InstrumentConfig,
+        *,
+        can_log_path: Path | None = None,
+        owns_bus: bool = True,
+    ) -> None:
+        super().__init__(cfg, f"{cfg.interface}:{cfg.channel}")
+        self._bus = bus
+        self._owns_bus = owns_bus
+        self._can_logger: Any = None
+        if can_log_path is not None:
+            try:
+                self._can_logger = can.Logger(str(can_log_path))
+            except (OSError, ValueError) as e:
+                raise DeviceError(f"{can_log_path}: cannot write the raw CAN log: {e}") from e
+
+    def _poll(self) -> list[tuple[Any, float]]:
+        try:
+            msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
+        except (ValueError, IndexError):  # a garbled adapter line
+            self.stats.count_bad(BAD_DECODE)
+            return []
+        except Exception as e:  # serial port gone, interface down
+            raise LinkLost(str(e)) from e
+        if msg is None:
+            return []
+        t_host = time.monotonic()
+        self._log_frame(msg)
+        if msg.is_error_frame or msg.is_remote_frame:
+            return []
+        return [(msg, t_host)]
+
+    def _log_frame(self, msg: can.Message) -> None:
+        if self._can_logger is not None:
+            try:
+                self._can_logger.on_message_received(msg)
+            except Exception as e:
+                self._can_logger = None
+                self._report(DeviceError(f"raw CAN log: cannot write: {e}"))
+        if self.cfg.wire_trace:
+            log.debug("rx %s", msg)
+
+    def _close_transport(self) -> None:
+        self._close_protocol()
+        if self._can_logger is not None:
+            try:
+                self._can_logger.stop()
+            except Exception as e:  # a full disk must not keep the bus open
+                log.error("raw CAN log: cannot close: %s", e)
+            self._can_logger = None
+        if self._owns_bus:
+            try:
+                self._bus.shutdown()
+            except Exception as e:  # the link may already be gone (dropped pty)
+                log.debug("CAN bus shutdown on %s: %s", self._where, e)
+
+    def _close_protocol(self) -> None:
+        """Release protocol state (override if needed)."""

@@ -1,0 +1,225 @@
+"""The shared half of every instrument driver: a background reader that never dies quietly.
+
+A driver fills in ``_identify()`` (called by ``connect``, the reader already running),
+``_poll()`` (one bounded wait for input, returning the frames/lines that arrived, each with
+its host receipt time on the monotonic clock) and
+``_handle(item, t_host)``, which decodes one frame and either calls ``_emit`` with a sample or
+raises ``BadFrame(reason)``; the reader counts the reason in ``stats`` and goes on.
+
+Faults go to ``on_error`` at once:
+
+- the link fails (serial port gone, CAN interface down) → ``ConnectionLost``; the reader ends;
+- no valid sample for ``silence_timeout_s`` after ``start`` → ``DeviceTimeout`` (once per silence;
+  samples that come back are delivered again);
+- an unexpected exception while decoding (a bug) → passed on as it is; the reader goes on;
+- an exception raised by ``on_sample`` → passed to ``on_error``; the reader goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+from benchctl.config import InstrumentConfig
+from benchctl.devices.base import (
+    DeviceIdentity,
+    ErrorCallback,
+    FrameStats,
+    InstrumentSample,
+    SampleCallback,
+)
+from benchctl.errors import ConnectionLost, DeviceError, DeviceTimeout
+
+log = logging.getLogger(__name__)
+
+#: reasons a frame is counted as bad in ``FrameStats.bad``
+BAD_CHECKSUM = "checksum"  # NMEA 0183 checksum missing or wrong
+BAD_LENGTH = "length"  # wrong DLC / field count / an over-long line
+BAD_RANGE = "range"  # a value outside its valid range, or a "not available"/"error" code
+BAD_ID = "id"  # an identifier, source address or sentence the driver does not expect
+BAD_DECODE = "decode"  # an adapter line or payload that cannot be parsed
+BAD_STATUS = "status"  # the device flags the value as erroneous (e.g. J1939 figure of merit)
+
+
+class BadFrame(Exception):
+    """Raised by a driver's ``_handle`` for a frame to count and skip (internal)."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(reason)
+
+
+class LinkLost(Exception):
+    """Raised by ``_poll`` when the transport is gone (internal; becomes ``ConnectionLost``)."""
+
+
+class SensorReader:
+    """Base of the instrument drivers: implements ``AngleSensor`` around three hooks."""
+
+    protocol = "instrument"
+
+    def __init__(self, cfg: InstrumentConfig, where: str) -> None:
+        self.cfg = cfg
+        self.axes: tuple[str, ...] = tuple(cfg.axes)
+        self.stats = FrameStats()
+        self._where = where
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stop_evt = threading.Event()
+        self._on_sample: SampleCallback | None = None
+        self._on_error: ErrorCallback | None = None
+        self._fault: BaseException | None = None
+        self._first_good = threading.Event()
+        self._started_t: float | None = None
+        self._last_good_t: float | None = None
+        self._silence_reported = False
+        self._closed = False
+        self.identity: DeviceIdentity | None = None
+
+    # ------------------------------------------------------------------ AngleSensor
+    def connect(self) -> DeviceIdentity:
+        """Start the reader and identify the device (protocol specific); raise on failure."""
+        if self._closed:
+            raise DeviceError(f"instrument {self.protocol} on {self._where}: already closed")
+        self._start_reader()
+        self.identity = self._identify()
+        if self._fault is not None:
+            raise self._fault
+        return self.identity
+
+    def start(self, on_sample: SampleCallback, on_error: ErrorCallback) -> None:
+        """Deliver samples to ``on_sample`` and faults to ``on_error`` from the reader thread."""
+        if self._closed:
+            raise DeviceError(f"instrument {self.protocol} on {self._where}: already closed")
+        with self._lock:
+            self._on_sample = on_sample
+            self._on_error = on_error
+            self._started_t = time.monotonic()
+            self._last_good_t = None
+            self._silence_reported = False
+        self._start_reader()
+        if self._fault is not None:
+            on_error(self._fault)
+
+    def stop(self) -> None:
+        """Stop delivering samples and stop the reader thread (idempotent)."""
+        with self._lock:
+            self._on_sample = None
+            self._on_error = None
+            self._started_t = None
+        self._stop_reader()
+
+    def close(self) -> None:
+        """Stop and release the transport if owned (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stop()
+        self._close_transport()
+
+    def __enter__(self) -> SensorReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ for the drivers
+    def _identify(self) -> DeviceIdentity:
+        raise NotImplementedError
+
+    def _poll(self) -> list[tuple[Any, float]]:
+        raise NotImplementedError
+
+    def _handle(self, item: Any, t_host: float) -> None:
+        raise NotImplementedError
+
+    def _close_transport(self) -> None:
+        """Release the transport (override)."""
+
+    def _emit(self, sample: InstrumentSample) -> None:
+        self.stats.good += 1
+        self._first_good.set()
+        with self._lock:
+            cb, err = self._on_sample, self._on_error
+            self._last_good_t = sample.t_host
+            self._silence_reported = False
+        if cb is None:
+            return
+        try:
+            cb(sample)
+        except Exception as e:
+            if err is not None:
+                err(e)
+
+    def _wait_first_frame(self) -> None:
+        """Block until the first valid sample (identification of broadcast-only protocols)."""
+        if not self._first_good.wait(self.cfg.connect_timeout_s):
+            if self._fault is not None:
+                raise self._fault
+            raise DeviceTimeout(
+                f"instrument {self.protocol} on {self._where}: no valid frame within "
+                f"connect_timeout_s={self.cfg.connect_timeout_s} s "
+                f"(frames seen: {self.stats.good} good, bad {self.stats.bad})"
+            )
+
+    # ------------------------------------------------------------------ reader thread
+    def _start_reader(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            return
+        if isinstance(self._fault, ConnectionLost):
+            return
+        self._stop_evt.clear()
+        self._thread = threading.Thread(
+            target=self._run, name=f"{self.protocol}-reader-{self._where}", daemon=True
+        )
+        self._thread.start()
+
+    def _stop_reader(self) -> None:
+        self._stop_evt.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=5.0)
+        self._thread = None
+
+    def _report(self, exc: BaseException) -> None:
+        if isinstance(exc, ConnectionLost):  # the one fault that outlives the reader
+            self._fault = exc
+        with self._lock:
+            err = self._on_error
+        log.error("instrument %s on %s: %s", self.protocol, self._where, exc)
+        if err is not None:
+            err(exc)
+
+    def _check_silence(self, now: float) -> None:
+        with self._lock:
+            if self._started_t is None or self._silence_reported:
+                return
+            since = self._last_good_t if self._last_good_t is not None else self._started_t
+            if now - since <= self.cfg.silence_timeout_s:
+                return
+            self._silence_reported = True
+        self._report(DeviceTimeout(
+            f"instrument {self.protocol} on {self._where}: no valid sample for "
+            f"{now - since:.2f} s (silence_timeout_s={self.cfg.silence_timeout_s})"
+        ))
+
+    def _run(self) -> None:
+        while not self._stop_evt.is_set():
+            try:
+                items = self._poll()
+            except LinkLost as e:
+                self._report(ConnectionLost(
+                    f"instrument {self.protocol} on {self._where}: link lost: {e}"
+                ))
+                return
+            for item, t_host in items:
+                try:
+                    self._handle(item, t_host)
+                except BadFrame as b:
+                    self.stats.count_bad(b.reason)
+                except Exception as e:  # a bug in a decoder: never silent
+                    self.stats.count_bad(BAD_DECODE)
+                    self._report(e)
+            self._check_silence(time.monotonic())
