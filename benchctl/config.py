@@ -38,6 +38,8 @@ class StandConfig(Strict):
     port: int = Field(default=502, ge=0, le=65535)
     serial_port: str | None = None  # modbus-rtu: a device path or a pyserial URL
     baudrate: int = 115200
+    parity: Literal["N", "E", "O"] = "N"  # modbus-rtu
+    stopbits: Literal[1, 2] = 1  # modbus-rtu
     device_id: int = Field(default=1, ge=0, le=247)
     register_map: Path = Path("../drivers/stand_generic.yaml")
     timeout_s: Positive = 0.5
@@ -101,6 +103,15 @@ class InstrumentConfig(Strict):
         return self
 
 
+class SimStandFault(Strict):
+    """A fault the simulated stand injects by itself, ``after_s`` seconds after it starts."""
+
+    kind: Literal["drop_connection", "stall", "modbus_exception", "stand_fault", "estop"]
+    after_s: NonNegative = 0.0
+    duration_s: Positive | None = None  # drop/stall/modbus_exception; None = until cleared
+    code: int | None = Field(default=None, ge=1, le=65535)  # modbus_exception or stand_fault code
+
+
 class SimStandConfig(Strict):
     """Physics of the simulated servo stand."""
 
@@ -113,6 +124,8 @@ class SimStandConfig(Strict):
     watchdog_s: Positive = 1.0  # heartbeat silence that stops the stand
     tick_hz: Positive = 1000.0
     rtu_wire_delay: bool = True  # emulate serial byte time on the RTU pty
+    baudrate: int = Field(default=115200, gt=0)  # byte time of the emulated RTU wire
+    faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
 
 
 class SimInstrumentConfig(Strict):
