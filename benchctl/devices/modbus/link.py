@@ -1,0 +1,219 @@
+"""The one module that imports the pymodbus client: a Modbus link whose errors raise.
+
+pymodbus returns error responses as values (``isError()``) and renamed its keywords between
+releases (``slave=`` → ``device_id=`` in 3.10); this wrapper stops that churn here. Every call is
+synchronous and serialised by a lock, so one link can be shared by a streaming thread and a
+supervisor thread.
+
+Error mapping:
+
+- an exception response → :class:`benchctl.errors.ModbusException` (function and exception code)
+- no reply within the timeout (after the configured retries) → :class:`DeviceTimeout`
+- bytes came back but no valid frame (bad CRC, truncated frame, garbage) → :class:`ProtocolError`
+- the connection dropped or cannot be opened → :class:`ConnectionLost`
+
+With ``wire_trace`` every frame sent and received is logged at DEBUG on the logger
+``benchctl.wire``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from pymodbus import FramerType
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusIOException
+from pymodbus.exceptions import ModbusException as PymodbusError
+from pymodbus.pdu import ExceptionResponse
+
+from benchctl.errors import ConnectionLost, DeviceTimeout, ModbusException, ProtocolError
+
+wire_log = logging.getLogger("benchctl.wire")
+
+EXCEPTION_NAMES = {
+    1: "illegal function",
+    2: "illegal data address",
+    3: "illegal data value",
+    4: "server device failure",
+    5: "acknowledge",
+    6: "server device busy",
+    8: "memory parity error",
+    10: "gateway path unavailable",
+    11: "gateway target device failed to respond",
+}
+
+
+class ModbusLink:
+    """A synchronous Modbus client link (TCP or RTU) for one device id.
+
+    Build one with :func:`tcp_link` or :func:`rtu_link`. Addresses passed here are PDU
+    addresses (0-based); :func:`benchctl.devices.modbus.regmap.pdu_address` produces them.
+    """
+
+    def __init__(
+        self,
+        make_client: Callable[[Callable[[bool, bytes], bytes]], Any],
+        *,
+        device_id: int,
+        endpoint: str,
+        timeout_s: float,
+        wire_trace: bool = False,
+    ) -> None:
+        self.device_id = device_id
+        self.endpoint = endpoint
+        self.timeout_s = timeout_s
+        self.wire_trace = wire_trace
+        self._lock = threading.RLock()
+        self._rx: list[bytes] = []  # raw receive buffers seen during the current exchange
+        self._client = make_client(self._trace)
+
+    # -- tracing ------------------------------------------------------------------------
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        if not sending and data:
+            self._rx.append(bytes(data))
+        if self.wire_trace and data:
+            wire_log.debug("%s %s %s", self.endpoint, "->" if sending else "<-", data.hex(" "))
+        return data
+
+    # -- connection ---------------------------------------------------------------------
+    def connect(self) -> None:
+        with self._lock:
+            if not self._client.connect():
+                raise ConnectionLost(f"{self.endpoint}: cannot connect")
+
+    def close(self) -> None:
+        with self._lock:
+            self._client.close()
+
+    @property
+    def connected(self) -> bool:
+        return bool(self._client.connected)
+
+    # -- requests -----------------------------------------------------------------------
+    def read_registers(self, address: int, count: int) -> list[int]:
+        """Read ``count`` holding registers (function code 3) from PDU ``address``."""
+        rsp = self._call(
+            f"read {count} registers at {address}",
+            lambda: self._client.read_holding_registers(
+                address, count=count, device_id=self.device_id
+            ),
+        )
+        regs = list(rsp.registers)
+        if len(regs) != count:
+            raise ProtocolError(
+                f"{self.endpoint}: asked for {count} registers at {address}, got {len(regs)}"
+            )
+        return regs
+
+    def write_registers(self, address: int, values: Sequence[int]) -> None:
+        """Write holding registers (function code 16) from PDU ``address``."""
+        vals = [int(v) for v in values]
+        self._call(
+            f"write {len(vals)} registers at {address}",
+            lambda: self._client.write_registers(address, vals, device_id=self.device_id),
+        )
+
+    def write_register(self, address: int, value: int) -> None:
+        """Write one holding register (function code 6)."""
+        self._call(
+            f"write register {address}",
+            lambda: self._client.write_register(address, int(value), device_id=self.device_id),
+        )
+
+    def _call(self, what: str, fn: Callable[[], Any]) -> Any:
+        with self._lock:
+            self._rx = []
+            try:
+                rsp = fn()
+            except ConnectionException as e:
+                self._client.close()
+                raise ConnectionLost(
+                    f"{self.endpoint}: connection lost during {what}: {e}"
+                ) from None
+            except ModbusIOException as e:
+                raise self._no_reply(what, e) from None
+            except PymodbusError as e:
+                raise ProtocolError(f"{self.endpoint}: {what}: {e}") from None
+            if isinstance(rsp, ExceptionResponse) or rsp.isError():
+                fc = int(getattr(rsp, "function_code", 0)) & 0x7F
+                code = int(getattr(rsp, "exception_code", 0))
+                name = EXCEPTION_NAMES.get(code, "unknown exception")
+                raise ModbusException(
+                    fc,
+                    code,
+                    f"{self.endpoint}: {what}: Modbus exception {code} ({name}) "
+                    f"in reply to function code {fc}",
+                )
+            return rsp
+
+    def _no_reply(self, what: str, err: Exception) -> Exception:
+        """Classify a failed exchange: silence is a timeout; bytes but no frame a protocol error."""
+        seen = max(self._rx, key=len, default=b"")
+        if seen:
+            return ProtocolError(
+                f"{self.endpoint}: {what}: invalid reply (bad CRC, truncated or malformed frame): "
+                f"{seen.hex(' ')}"
+            )
+        return DeviceTimeout(f"{self.endpoint}: {what}: no reply within {self.timeout_s} s ({err})")
+
+
+def tcp_link(
+    host: str,
+    port: int,
+    *,
+    device_id: int = 1,
+    timeout_s: float = 0.5,
+    retries: int = 1,
+    wire_trace: bool = False,
+) -> ModbusLink:
+    """A Modbus TCP link (MBAP framing) to ``host:port``; not yet connected."""
+
+    def make(trace: Callable[[bool, bytes], bytes]) -> Any:
+        return ModbusTcpClient(
+            host, port=port, timeout=timeout_s, retries=retries, trace_packet=trace
+        )
+
+    return ModbusLink(
+        make,
+        device_id=device_id,
+        endpoint=f"modbus-tcp {host}:{port}",
+        timeout_s=timeout_s,
+        wire_trace=wire_trace,
+    )
+
+
+def rtu_link(
+    port: str,
+    *,
+    baudrate: int = 115200,
+    parity: str = "N",
+    stopbits: int = 1,
+    device_id: int = 1,
+    timeout_s: float = 0.5,
+    retries: int = 1,
+    wire_trace: bool = False,
+) -> ModbusLink:
+    """A Modbus RTU link over a serial device path or pyserial URL; not yet connected."""
+
+    def make(trace: Callable[[bool, bytes], bytes]) -> Any:
+        return ModbusSerialClient(
+            port,
+            framer=FramerType.RTU,
+            baudrate=baudrate,
+            parity=parity,
+            stopbits=stopbits,
+            timeout=timeout_s,
+            retries=retries,
+            trace_packet=trace,
+        )
+
+    return ModbusLink(
+        make,
+        device_id=device_id,
+        endpoint=f"modbus-rtu {port}@{baudrate}",
+        timeout_s=timeout_s,
+        wire_trace=wire_trace,
+    )

@@ -1,0 +1,444 @@
+"""A stand's Modbus register map, loaded from YAML in ``drivers/`` and validated.
+
+Pure data and conversions, no I/O besides reading the file. Addresses in the map are 0-based
+protocol (PDU) addresses; :func:`pdu_address` is the one place a map address becomes a wire
+address. Values are encoded to and decoded from 16-bit register words here, so the driver
+(client side) and the simulated stand (server side) agree to the bit.
+
+Engineering value = raw × scale + offset. 32-bit types follow the map's ``word_order``; bytes
+within a register are big-endian (Modbus). Strings hold two characters per register, the
+first in the high byte, NUL padded.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from benchctl.errors import ConfigError, LimitError
+
+FieldType = Literal["uint16", "int16", "uint32", "int32", "float32", "string"]
+_TYPES: dict[str, int] = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
+_INT_RANGE: dict[str, tuple[int, int]] = {
+    "uint16": (0, 0xFFFF),
+    "int16": (-0x8000, 0x7FFF),
+    "uint32": (0, 0xFFFFFFFF),
+    "int32": (-0x80000000, 0x7FFFFFFF),
+}
+_FLOAT32_MAX = 3.4028234663852886e38
+_STATUS_BITS = ("ready", "enabled", "moving", "fault", "estop", "limit", "table_running")
+_CONTROL_BITS = ("enable", "start_table", "stop", "fault_reset", "estop")
+_AXIS_FIELDS = ("angle", "rate", "setpoint", "fault_code", "command")
+
+
+def pdu_address(map_address: int) -> int:
+    """The protocol (PDU) address of a register-map address.
+
+    The map is written in 0-based PDU addresses, so this is the identity, checked to lie in
+    0…65535. It is the one named place where a map address becomes a wire address: a map in
+    another numbering would be converted here and nowhere else.
+    """
+    if not 0 <= map_address <= 0xFFFF:
+        raise ValueError(f"Modbus address must be 0..65535, got {map_address}")
+    return map_address
+
+
+@dataclass(frozen=True)
+class Field:
+    """One value in the register map: where it lives and how it is encoded."""
+
+    name: str  # dotted path in the map file, for messages
+    address: int  # 0-based PDU address of the first register
+    type: FieldType
+    scale: float = 1.0
+    offset: float = 0.0
+    length: int = 0  # strings: characters
+    writable: bool = False
+
+    @property
+    def n_registers(self) -> int:
+        return (self.length + 1) // 2 if self.type == "string" else _TYPES[self.type]
+
+    def shifted(self, base: int, name: str) -> Field:
+        """The same field at ``base`` + its address (table layouts hold offsets)."""
+        return Field(
+            name,
+            base + self.address,
+            self.type,
+            self.scale,
+            self.offset,
+            self.length,
+            self.writable,
+        )
+
+
+@dataclass(frozen=True)
+class AxisMap:
+    angle: Field
+    rate: Field
+    setpoint: Field
+    fault_code: Field
+    command: Field
+    table_address: int
+    table_max_lines: int
+
+
+@dataclass(frozen=True)
+class TableLayout:
+    n_lines: Field  # addresses here are offsets from an axis's table address
+    duration_s: Field
+    fade_in_s: Field
+    fade_out_s: Field
+    lines_offset: int
+    line_stride: int
+    freq_hz: Field
+    amp_deg: Field
+    phase_rad: Field
+
+    def size(self, max_lines: int) -> int:
+        """Registers spanned by a table area holding ``max_lines`` lines."""
+        return self.lines_offset + max_lines * self.line_stride
+
+
+@dataclass(frozen=True)
+class RegisterMap:
+    """A validated register map. Build it with :func:`load_register_map`."""
+
+    source: Path
+    name: str
+    word_order: Literal["big", "little"]
+    max_read: int
+    max_write: int
+    identity: dict[str, Field]
+    control_word: Field
+    heartbeat: Field
+    status_word: Field
+    fault_code: Field
+    heartbeat_echo: Field
+    control_bits: dict[str, int]
+    status_bits: dict[str, int]
+    fault_codes: dict[int, str]
+    axes: dict[str, AxisMap]
+    table: TableLayout
+
+    # -- encoding -------------------------------------------------------------------------
+    def encode(self, field: Field, value: float | int | str) -> list[int]:
+        """Register words for ``value`` (engineering units) in ``field``; out of range raises."""
+        if field.type == "string":
+            return _encode_string(field, str(value))
+        v = float(value)
+        if not math.isfinite(v):
+            raise LimitError(f"{self.source}: {field.name}: value {value!r} is not finite")
+        raw = (v - field.offset) / field.scale
+        if field.type == "float32":
+            if abs(raw) > _FLOAT32_MAX:
+                raise LimitError(f"{self.source}: {field.name}: value {value!r} overflows float32")
+            return self._order(list(struct.unpack(">HH", struct.pack(">f", raw))))
+        n = round(raw)
+        lo, hi = _INT_RANGE[field.type]
+        if not lo <= n <= hi:
+            raise LimitError(
+                f"{self.source}: {field.name}: value {value!r} is raw {n}, outside {field.type} "
+                f"range {lo}..{hi}"
+            )
+        if field.n_registers == 1:
+            return [n & 0xFFFF]
+        return self._order([(n >> 16) & 0xFFFF, n & 0xFFFF])
+
+    def decode(self, field: Field, words: Sequence[int]) -> Any:
+        """The engineering value of ``field`` from its register words."""
+        if len(words) != field.n_registers:
+            raise ValueError(f"{field.name}: need {field.n_registers} registers, got {len(words)}")
+        if field.type == "string":
+            raw = b"".join(int(w).to_bytes(2, "big") for w in words)
+            return raw.rstrip(b"\x00").decode("ascii", errors="replace")
+        if field.type == "float32":
+            hi, lo = self._order(list(words))
+            raw_f = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+            return raw_f * field.scale + field.offset
+        if field.n_registers == 1:
+            n = int(words[0])
+            if field.type == "int16" and n >= 0x8000:
+                n -= 0x10000
+        else:
+            hi, lo = self._order(list(words))
+            n = (hi << 16) | lo
+            if field.type == "int32" and n >= 0x80000000:
+                n -= 0x100000000
+        if field.scale == 1.0 and field.offset == 0.0:
+            return n
+        return n * field.scale + field.offset
+
+    def decode_in(self, field: Field, block_address: int, block: Sequence[int]) -> Any:
+        """Decode ``field`` out of a block of registers read from ``block_address`` onwards."""
+        i = field.address - block_address
+        if i < 0 or i + field.n_registers > len(block):
+            raise ValueError(f"{field.name} at {field.address} is outside the block read")
+        return self.decode(field, block[i : i + field.n_registers])
+
+    def _order(self, words: list[int]) -> list[int]:
+        return words if self.word_order == "big" else words[::-1]
+
+    # -- spans ----------------------------------------------------------------------------
+    def feedback_fields(self) -> list[Field]:
+        """Everything read each cycle: status, fault code, heartbeat echo, per-axis feedback."""
+        out = [self.status_word, self.fault_code, self.heartbeat_echo]
+        for ax in self.axes.values():
+            out += [ax.angle, ax.rate, ax.setpoint, ax.fault_code]
+        return out
+
+    def feedback_span(self) -> tuple[int, int]:
+        """(address, count) of one read covering every feedback field."""
+        return span(self.feedback_fields())
+
+    def command_span(self, axes: Sequence[str]) -> tuple[int, int]:
+        return span([self.axes[a].command for a in axes])
+
+    def table_field(self, axis: str, part: str, line: int | None = None) -> Field:
+        """Absolute field of a table header part, or of line ``line``'s freq/amp/phase."""
+        ax = self.axes[axis]
+        layout_field: Field = getattr(self.table, part)
+        base = ax.table_address
+        if line is not None:
+            base += self.table.lines_offset + line * self.table.line_stride
+        return layout_field.shifted(base, f"axes.{axis}.table.{part}")
+
+    def status_from_word(self, word: int) -> dict[str, bool]:
+        return {name: bool(word >> bit & 1) for name, bit in self.status_bits.items()}
+
+    def word_from_bits(self, bits: Mapping[str, int], names: Sequence[str]) -> int:
+        word = 0
+        for n in names:
+            word |= 1 << bits[n]
+        return word
+
+
+def span(fields: Sequence[Field]) -> tuple[int, int]:
+    """(first address, register count) covering all ``fields``."""
+    start = min(f.address for f in fields)
+    end = max(f.address + f.n_registers for f in fields)
+    return start, end - start
+
+
+def _encode_string(field: Field, text: str) -> list[int]:
+    raw = text.encode("ascii", errors="replace")[: field.length]
+    raw = raw.ljust(2 * field.n_registers, b"\x00")
+    return [int.from_bytes(raw[i : i + 2], "big") for i in range(0, len(raw), 2)]
+
+
+# -- loading and validation ---------------------------------------------------------------
+class _Loader:
+    def __init__(self, source: Path) -> None:
+        self.source = source
+
+    def fail(self, where: str, value: object, expected: str) -> ConfigError:
+        return ConfigError(f"{self.source}: field {where} = {value!r}: expected {expected}")
+
+    def section(self, data: Mapping[str, Any], key: str, where: str = "") -> Mapping[str, Any]:
+        path = f"{where}.{key}" if where else key
+        value = data.get(key)
+        if not isinstance(value, Mapping):
+            raise self.fail(path, value, "a mapping")
+        return value
+
+    def integer(self, data: Mapping[str, Any], key: str, where: str, lo: int, hi: int) -> int:
+        value = data.get(key)
+        if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+            raise self.fail(f"{where}.{key}", value, f"an integer {lo}..{hi}")
+        return value
+
+    def field(
+        self, data: Any, where: str, *, offset_key: str = "address", writable: bool = False
+    ) -> Field:
+        if not isinstance(data, Mapping):
+            raise self.fail(where, data, "a mapping with address and type")
+        known = {offset_key, "type", "scale", "offset", "length", "access", "unit"}
+        for k in data:
+            if k not in known:
+                raise self.fail(f"{where}.{k}", data[k], f"one of the keys {sorted(known)}")
+        address = self.integer(data, offset_key, where, 0, 0xFFFF)
+        ftype = data.get("type")
+        if ftype not in (*_TYPES, "string"):
+            raise self.fail(f"{where}.type", ftype, f"one of {[*_TYPES, 'string']}")
+        length = 0
+        if ftype == "string":
+            length = self.integer(data, "length", where, 1, 250)
+        scale = data.get("scale", 1.0)
+        offset = data.get("offset", 0.0)
+        if (
+            not isinstance(scale, int | float)
+            or isinstance(scale, bool)
+            or scale == 0
+            or not math.isfinite(scale)
+        ):
+            raise self.fail(f"{where}.scale", scale, "a finite non-zero number")
+        if (
+            not isinstance(offset, int | float)
+            or isinstance(offset, bool)
+            or not math.isfinite(offset)
+        ):
+            raise self.fail(f"{where}.offset", offset, "a finite number")
+        access = data.get("access", "r")
+        if access not in ("r", "rw"):
+            raise self.fail(f"{where}.access", access, "r or rw")
+        if writable and access != "rw":
+            raise self.fail(f"{where}.access", access, "rw (the host writes this register)")
+        return Field(where, address, ftype, float(scale), float(offset), length, access == "rw")
+
+    def bits(self, data: Mapping[str, Any], key: str, names: Sequence[str]) -> dict[str, int]:
+        sec = self.section(data, key)
+        out: dict[str, int] = {}
+        for n in names:
+            out[n] = self.integer(sec, n, key, 0, 15)
+        extra = set(sec) - set(names)
+        if extra:
+            raise self.fail(
+                f"{key}.{sorted(extra)[0]}", sec[sorted(extra)[0]], f"one of {list(names)}"
+            )
+        if len(set(out.values())) != len(out):
+            raise self.fail(key, dict(sec), "distinct bit numbers")
+        return out
+
+
+def load_register_map(path: str | Path) -> RegisterMap:
+    """Read and validate a register-map YAML file (see ``drivers/stand_generic.yaml``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, the field, the value and what was expected.
+    """
+    source = Path(path)
+    try:
+        data = yaml.safe_load(source.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ConfigError(f"{source}: cannot read register map: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{source}: register map is not valid YAML: {e}") from None
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: expected a YAML mapping at the top level")
+    return parse_register_map(data, source)
+
+
+def parse_register_map(data: Mapping[str, Any], source: Path) -> RegisterMap:
+    """Validate a register map already parsed from YAML (``source`` names it in errors)."""
+    ld = _Loader(source)
+    word_order = data.get("word_order", "big")
+    if word_order not in ("big", "little"):
+        raise ld.fail("word_order", word_order, "big or little")
+    max_read = ld.integer(
+        {"v": data.get("max_read_registers", 125)}, "v", "max_read_registers", 8, 125
+    )
+    max_write = ld.integer(
+        {"v": data.get("max_write_registers", 123)}, "v", "max_write_registers", 8, 123
+    )
+
+    ident_sec = ld.section(data, "identity")
+    identity = {k: ld.field(v, f"identity.{k}") for k, v in ident_sec.items()}
+    for k in ("vendor", "model"):
+        if k not in identity:
+            raise ld.fail(f"identity.{k}", None, "a field (vendor and model are required)")
+
+    ctl = ld.section(data, "control")
+    st = ld.section(data, "status")
+    fault_codes_raw = data.get("fault_codes", {})
+    if not isinstance(fault_codes_raw, Mapping):
+        raise ld.fail("fault_codes", fault_codes_raw, "a mapping code: text")
+    axes_sec = ld.section(data, "axes")
+    axes: dict[str, AxisMap] = {}
+    for name, ax in axes_sec.items():
+        if name not in ("roll", "pitch"):
+            raise ld.fail(f"axes.{name}", ax, "axes named roll and/or pitch")
+        if not isinstance(ax, Mapping):
+            raise ld.fail(f"axes.{name}", ax, "a mapping")
+        f = {
+            k: ld.field(ax.get(k), f"axes.{name}.{k}", writable=(k == "command"))
+            for k in _AXIS_FIELDS
+        }
+        tab = ld.section(ax, "table", f"axes.{name}")
+        axes[name] = AxisMap(
+            **f,
+            table_address=ld.integer(tab, "address", f"axes.{name}.table", 0, 0xFFFF),
+            table_max_lines=ld.integer(tab, "max_lines", f"axes.{name}.table", 1, 1000),
+        )
+    if not axes:
+        raise ld.fail("axes", dict(axes_sec), "at least one axis (roll, pitch)")
+
+    lay = ld.section(data, "table_layout")
+    line = ld.section(lay, "line", "table_layout")
+    table = TableLayout(
+        **{
+            k: ld.field(lay.get(k), f"table_layout.{k}", offset_key="offset")
+            for k in ("n_lines", "duration_s", "fade_in_s", "fade_out_s")
+        },
+        lines_offset=ld.integer(lay, "lines_offset", "table_layout", 0, 1000),
+        line_stride=ld.integer(lay, "line_stride", "table_layout", 1, 100),
+        **{
+            k: ld.field(line.get(k), f"table_layout.line.{k}", offset_key="offset")
+            for k in ("freq_hz", "amp_deg", "phase_rad")
+        },
+    )
+    rmap = RegisterMap(
+        source=source,
+        name=str(data.get("name", source.stem)),
+        word_order=word_order,
+        max_read=max_read,
+        max_write=max_write,
+        identity=identity,
+        control_word=ld.field(ctl.get("control_word"), "control.control_word", writable=True),
+        heartbeat=ld.field(ctl.get("heartbeat"), "control.heartbeat", writable=True),
+        status_word=ld.field(st.get("status_word"), "status.status_word"),
+        fault_code=ld.field(st.get("fault_code"), "status.fault_code"),
+        heartbeat_echo=ld.field(st.get("heartbeat_echo"), "status.heartbeat_echo"),
+        control_bits=ld.bits(data, "control_bits", _CONTROL_BITS),
+        status_bits=ld.bits(data, "status_bits", _STATUS_BITS),
+        fault_codes={int(k): str(v) for k, v in fault_codes_raw.items()},
+        axes=axes,
+        table=table,
+    )
+    _check_layout(ld, rmap)
+    return rmap
+
+
+def _check_layout(ld: _Loader, m: RegisterMap) -> None:
+    """No two fields overlap; spans read or written in one request fit the request limits."""
+    for f in (m.control_word, m.heartbeat, m.status_word, m.fault_code, m.heartbeat_echo):
+        if f.type not in ("uint16", "int16"):
+            raise ld.fail(f"{f.name}.type", f.type, "uint16 (a 16-bit word)")
+    line_fields = (m.table.freq_hz, m.table.amp_deg, m.table.phase_rad)
+    for lf in line_fields:
+        if lf.address + lf.n_registers > m.table.line_stride:
+            raise ld.fail(
+                f"{lf.name}.offset", lf.address, f"a field inside line_stride {m.table.line_stride}"
+            )
+    taken: list[tuple[int, int, str]] = []
+    fields: list[Field] = [*m.identity.values(), m.control_word, m.heartbeat, *m.feedback_fields()]
+    fields += [ax.command for ax in m.axes.values()]
+    for f in fields:
+        taken.append((f.address, f.address + f.n_registers, f.name))
+    for name, ax in m.axes.items():
+        taken.append(
+            (
+                ax.table_address,
+                ax.table_address + m.table.size(ax.table_max_lines),
+                f"axes.{name}.table",
+            )
+        )
+    taken.sort()
+    for (a0, a1, n0), (b0, _b1, n1) in itertools.pairwise(taken):
+        if b0 < a1:
+            raise ld.fail(n1, b0, f"an address not overlapping {n0} ({a0}..{a1 - 1})")
+    if taken[-1][1] > 0x10000:
+        raise ld.fail(taken[-1][2], taken[-1][0], "a span ending within 0..65535")
+    _, count = m.feedback_span()
+    if count > m.max_read:
+        raise ld.fail(
+            "status/axes", count, f"a feedback span of at most max_read_registers={m.max_read}"
+        )
