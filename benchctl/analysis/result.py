@@ -106,9 +106,6 @@ class AnalysisResult:
                 "freq": _list(self.psd_freq),
                 "error": _list(self.psd_error),
                 "dof": _num(self.dof_per_frequency),
-                "welch": None
-                if self.welch_freq is None or self.welch_error is None
-                else {"freq": _list(self.welch_freq), "error": _list(self.welch_error)},
             },
             "gaps": self.gaps,
             "timing": self.timing,

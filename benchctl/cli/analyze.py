@@ -1,0 +1,157 @@
+"""``benchctl analyze``: σ, its interval, the error PSD and H(f) from a recording or CSV files."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from benchctl.errors import DataError
+
+if TYPE_CHECKING:
+    from benchctl.analysis import AnalysisResult
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "analyze",
+        help="dynamic error σ, its 95 %% interval, error PSD and H(f) of a recording or CSV",
+        description=(
+            "Analyse a benchctl recording folder, a CSV with columns time,reference,device, "
+            "or two CSVs (--reference, --device) each with time and one angle column."
+        ),
+    )
+    p.add_argument("source", nargs="?", help="recording folder or CSV file (time,reference,device)")
+    p.add_argument("--reference", metavar="CSV", help="reference (stand) CSV: time + angle")
+    p.add_argument("--device", metavar="CSV", help="instrument CSV: time + angle")
+    p.add_argument("--axis", choices=("roll", "pitch", "all"), default="all",
+                   help="axis of a recording (default all: one result per recorded axis)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", metavar="FILE.png", help="draw error PSD, gain, phase, coherence")
+    p.add_argument("--max-lag", type=float, metavar="SECONDS",
+                   help="maximum correlation lag (default: a tenth of the record)")
+    p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="band (Hz) for the band-limited σ and the frequency-response grid")
+    p.add_argument("--compensate-delay", metavar="SECONDS|auto", default="none",
+                   help="remove an acquisition delay (s, device lagging) or 'auto'")
+    p.add_argument("--time-col", default="time", help="time column name (default time)")
+    p.add_argument("--reference-col", help="reference angle column (default reference, or "
+                   "the only angle column of --reference)")
+    p.add_argument("--device-col", help="device angle column (default device, or the only "
+                   "angle column of --device)")
+    p.add_argument("--units", choices=("deg", "rad"), default="deg", help="angle units of CSVs")
+    p.add_argument("--timebase", choices=("given", "fitted"), default="given",
+                   help="device instants as given, or fitted to a uniform clock (jittery "
+                   "receipt times)")
+    p.set_defaults(handler=run)
+
+
+def _delay_option(text: str) -> str | float:
+    if text in ("none", "auto"):
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise DataError(
+            f"--compensate-delay: expected seconds or 'auto', got {text!r}"
+        ) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchctl.analysis import analyze
+    from benchctl.analysis.inputs import load_csv_pair, load_single_csv
+    from benchctl.recording import is_recording, load_recording
+
+    opts: dict[str, Any] = {
+        "max_lag_s": args.max_lag,
+        "band_hz": tuple(args.band) if args.band else None,
+        "compensate_delay": _delay_option(args.compensate_delay),
+        "timebase": args.timebase,
+    }
+    pair = args.reference is not None or args.device is not None
+    if pair and (args.reference is None or args.device is None or args.source is not None):
+        raise DataError("give --reference and --device together, and no other source")
+    if not pair and args.source is None:
+        raise DataError("nothing to analyse: give a recording folder, a CSV, or "
+                        "--reference and --device")
+    results: dict[str, AnalysisResult] = {}
+    single_axis = True
+    if pair:
+        s = load_csv_pair(args.reference, args.device, time_col=args.time_col,
+                          reference_col=args.reference_col, device_col=args.device_col,
+                          units=args.units)
+        results[""] = analyze(s.t_ref, s.x_ref, s.t_dev, s.y_dev, source=s.source, **opts)
+    elif is_recording(args.source):
+        rec = load_recording(args.source)
+        axes = list(rec.axes) if args.axis == "all" else [args.axis]
+        single_axis = args.axis != "all"
+        for ax in axes:
+            tr, xr, td, yd = rec.pair(ax)
+            results[ax] = analyze(tr, xr, td, yd, source=str(args.source), axis=ax, **opts)
+    else:
+        src = Path(args.source)
+        if src.is_dir():
+            raise DataError(f"{src}: a folder but not a benchctl recording (no meta.json)")
+        if not src.is_file():
+            raise DataError(f"{src}: no such file or recording folder")
+        s = load_single_csv(src, time_col=args.time_col,
+                            reference_col=args.reference_col or "reference",
+                            device_col=args.device_col or "device", units=args.units)
+        results[""] = analyze(s.t_ref, s.x_ref, s.t_dev, s.y_dev, source=s.source, **opts)
+    if args.plot:
+        from benchctl.analysis.plot import plot_result
+
+        dest = Path(args.plot)
+        for ax, r in results.items():
+            out = dest if len(results) == 1 else dest.with_name(f"{dest.stem}_{ax}{dest.suffix}")
+            plot_result(r, out)
+    if args.json:
+        if single_axis:
+            doc = next(iter(results.values())).to_dict()
+        else:
+            doc = {"axes": {ax: r.to_dict() for ax, r in results.items()}}
+        json.dump(doc, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        for r in results.values():
+            print(summary(r))
+    return 0
+
+
+def summary(r: AnalysisResult) -> str:
+    """A readable summary of one result."""
+    g = r.gaps
+    lines = [
+        f"benchctl analyze: {r.source}" + (f"  [{r.axis}]" if r.axis else ""),
+        f"  {r.n_samples} samples over {r.duration:.6g} s at {r.sample_rate:.6g} Hz; "
+        f"max lag {r.max_lag:.6g} s ({r.max_lag_samples} samples), "
+        f"resolution {r.resolution_hz:.3g} Hz",
+        f"  gaps: device {g['device']['count']} ({g['device']['missing_samples']} missing, "
+        f"longest {g['device']['longest_s']:.3g} s), reference {g['reference']['count']}, "
+        f"excluded samples {g['excluded_samples']}",
+        f"  σ (dynamic error, about the mean) = {r.sigma:.5g}°   "
+        f"95 % CI {r.sigma_ci95[0]:.5g} … {r.sigma_ci95[1]:.5g}°   (ν = {r.dof:.4g})",
+        f"  mean error (static) = {r.mean_error:.5g}°   rms error = {r.rms_error:.5g}°",
+        f"  delay = {r.delay * 1e3:.4g} ms"
+        + (f", compensated {r.delay_compensated * 1e3:.4g} ms" if r.delay_compensated
+           else " (not compensated)"),
+        f"  variance {r.variance:.5g} deg² = linear {r.linear:.5g} + incoherent "
+        f"{r.incoherent:.5g} deg²",
+    ]
+    if r.band:
+        b = r.band
+        lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")
+    if r.periods:
+        lines.append("  period   gain     phase      γ²")
+        for p in r.periods:
+            lines.append(f"  {p['period_s']:4.0f} s  {p['gain']:.4f}  {p['phase_deg']:7.2f}°  "
+                         f"{p['coherence']:.4f}")
+    c = r.cross_checks
+    welch = ("skipped" if c["welch_area"] is None else
+             f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "
+             + ("agrees" if c["welch_agrees"] else "DISAGREES"))
+    lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
+    lines.extend(f"  warning: {w}" for w in r.warnings)
+    return "\n".join(lines)
