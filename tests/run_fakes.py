@@ -1,4 +1,4 @@
-"""Small in-test fakes of the ``Stand`` and ``AngleSensor`` protocols for the run layer's unit tests.
+"""Small in-test fakes of the ``Stand`` and ``AngleSensor`` protocols for the run layer tests.
 
 They exercise the state machine, the loop and the one cleanup path; the end-to-end tests use the
 real simulators over the real protocols. The fake stand follows its setpoint at once (or plays
@@ -214,7 +214,11 @@ class FakeSensor:
     def connect(self) -> DeviceIdentity:
         return DeviceIdentity("fake", "inclinometer", "I1", "2.0", "fake")
 
-    def start(self, on_sample: Callable[[InstrumentSample], None], on_error: Callable[[BaseException], None]) -> None:
+    def start(
+        self,
+        on_sample: Callable[[InstrumentSample], None],
+        on_error: Callable[[BaseException], None],
+    ) -> None:
         rng = np.random.default_rng(3)
 
         def run() -> None:
@@ -226,9 +230,14 @@ class FakeSensor:
                 if tm is not None and self.error_after is not None and tm >= self.error_after:
                     on_error(DeviceTimeout("fake instrument: bus error"))
                     return
-                if not (tm is not None and self.silent_after is not None and tm >= self.silent_after):
+                if not (
+                    tm is not None and self.silent_after is not None and tm >= self.silent_after
+                ):
                     x = self.stand.true_angle()
-                    y = {a: self.gain * v + self.bias + self.noise * rng.standard_normal() for a, v in x.items()}
+                    y = {
+                        a: self.gain * v + self.bias + self.noise * rng.standard_normal()
+                        for a, v in x.items()
+                    }
                     on_sample(InstrumentSample(time.monotonic(), y, counter=n))
                 n += 1
 
@@ -269,12 +278,20 @@ def bench_config(tmp: Path, **run: Any) -> BenchConfig:
 
 
 def sine_motion(
-    axes: tuple[str, ...] = ("roll",), duration_s: float = 4.0, mode: str = "stream", fade_s: float = 1.0
+    axes: tuple[str, ...] = ("roll",),
+    duration_s: float = 4.0,
+    mode: str = "stream",
+    fade_s: float = 1.0,
 ) -> PreparedMotion:
-    """A 0.5 Hz, 5° sine per axis with raised-cosine fades."""
+    """A 5° sine per axis (roll 0.5 Hz, pitch 1 Hz) with raised-cosine fades."""
     tables = {
         a: HarmonicTable(
-            np.array([0.5 + 0.25 * i]), np.array([5.0]), np.array([0.3 * i]), duration_s, fade_s, fade_s
+            np.array([0.5 * (1 + i)]),
+            np.array([5.0]),
+            np.array([0.3 * i]),
+            duration_s,
+            fade_s,
+            fade_s,
         )
         for i, a in enumerate(axes)
     }

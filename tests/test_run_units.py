@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from run_fakes import FakeSensor, FakeStand, sine_motion, wait_for
 
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import ConnectionLost, SafetyAbort
@@ -25,7 +26,6 @@ from benchctl.run.streaming import (
     StandLoop,
 )
 from benchctl.run.supervisor import Supervisor
-from run_fakes import FakeSensor, FakeStand, sine_motion, wait_for
 
 # ----------------------------------------------------------------------------- state machine
 
@@ -256,7 +256,7 @@ def test_stream_loop_skips_after_a_stall_without_a_burst(tmp_path: Path) -> None
 def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
     stand = FakeStand()
     sensor = FakeSensor(stand)
-    w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
+    w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
     loop.plan.mode = "table"
     from benchctl.run.streaming import start_instrument
 
@@ -283,7 +283,7 @@ def test_loop_fault_reaches_the_supervisor_at_once(tmp_path: Path) -> None:
     stand = FakeStand()
     stand.fault_at = 0.2
     sensor = FakeSensor(stand)
-    w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
+    w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
     from benchctl.run.streaming import start_instrument
 
     start_instrument(sensor, rec)

@@ -1,4 +1,4 @@
-"""``benchctl run``: one whole test, from prechecks to verdict. Exit 0 PASS, 1 FAIL, 2 error/abort."""
+"""``benchctl run``: one whole test, prechecks to verdict. Exit 0 PASS, 1 FAIL, 2 error/abort."""
 
 from __future__ import annotations
 

@@ -132,11 +132,14 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
             "table; expected mode 'stream' for this profile"
         )
-    result = check_motion(motion, cfg.stand.limits)  # raises LimitError naming needed vs allowed
-    figures = result.to_dict() if hasattr(result, "to_dict") else {}
+    # raises LimitError naming needed vs allowed, before anything opens
+    result = check_motion(motion, cfg.stand.limits, rate_hz=rate)
+    motion = result.motion
+    figures = result.to_dict()
     check = pc.CheckResult("profile within limits", True, "within the stand limits", figures)
     fade_in, fade_out = _fades(motion)
-    tables = dict(motion.tables) if getattr(motion, "tables", None) else None
+    tables = motion.tables
+    tables = dict(tables) if tables else None
 
     def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
         return {a: np.asarray(v, dtype=float) for a, v in motion.evaluate(t).items()}
@@ -459,6 +462,8 @@ class Session:
                 max_lag_s=a.max_lag_s,
                 band_hz=a.band_hz,
                 compensate_delay=a.compensate_delay,
+                source=str(self.path),
+                axis=axis,
             )
             results[axis] = res
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)

@@ -295,7 +295,7 @@ def make_plan(
     """Evaluate the profile once on the loop's grid ``k / rate_hz`` for k = 0 … duration·rate."""
     period = 1.0 / rate_hz
     n = math.floor(duration_s * rate_hz + 1e-9) + 1
-    t = np.arange(n) * period
+    t = np.arange(n, dtype=np.float64) * period
     vals = evaluate(t)
     values = {a: np.asarray(vals[a], dtype=float) for a in axes}
     return MotionPlan(axes, period, values, duration_s, fade_in_s, fade_out_s, mode, tables)

@@ -1,0 +1,196 @@
+"""The whole session against in-process fakes of the Stand and AngleSensor protocols: the
+state machine's course, the verdict, and the one cleanup path for each way out.
+
+(The end-to-end tests over the real protocols and simulators are in test_run_e2e.py.)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+from pathlib import Path
+from typing import Any
+
+import pytest
+from run_fakes import FakeSensor, FakeStand, bench_config, sigma_sine_gain, sine_motion
+
+from benchctl.config import BenchConfig
+from benchctl.recording import load_recording
+from benchctl.run.session import RunOptions, RunResult, Session
+
+DURATION, FADE = 5.0, 0.5  # steady part 4 s: whole periods of 0.5 Hz and 1 Hz
+
+
+def _run(
+    tmp_path: Path,
+    stand: FakeStand,
+    sensor: FakeSensor,
+    *,
+    mode: str = "table",
+    cfg: BenchConfig | None = None,
+    duration: float = DURATION,
+) -> RunResult:
+    cfg = cfg or bench_config(tmp_path)
+    prep = sine_motion(stand.axes, duration_s=duration, mode=mode, fade_s=FADE)
+    sess = Session(
+        cfg, prep, RunOptions("SN-1", "tester"), device_factory=lambda c, p: (stand, sensor)
+    )
+    return sess.run()
+
+
+def _events(path: Path) -> list[dict[str, Any]]:
+    return load_recording(path).events
+
+
+def _states(path: Path) -> list[str]:
+    return [e["to"] for e in _events(path) if e["kind"] == "state"]
+
+
+@pytest.mark.parametrize("axes", [("roll",), ("roll", "pitch")])
+def test_full_run_pass_per_axis_sigma(tmp_path: Path, axes: tuple[str, ...]) -> None:
+    """Gain 1.05 on a 5° sine over whole periods: σ = 0.05·5/√2 = 0.177° per axis → PASS."""
+    stand = FakeStand(axes)
+    sensor = FakeSensor(stand, gain=1.05)
+    res = _run(tmp_path, stand, sensor)
+    assert res.state == "done" and res.exit_code == 0, res.reason
+    assert res.report is not None and res.report.verdict == "PASS"
+    expect = sigma_sine_gain(5.0, 1.05)
+    for a in axes:
+        v = res.report.axes[a]
+        assert v.sigma_deg == pytest.approx(expect, rel=0.02)
+        assert v.sigma_ci95_deg[0] <= expect <= v.sigma_ci95_deg[1]
+    rec = load_recording(res.recording)  # type: ignore[arg-type]
+    assert rec.state == "done" and rec.end is not None and rec.end["reason"] == "PASS"
+    assert _states(rec.path) == ["prechecks", "fade-in", "running", "fade-out", "analysing", "done"]
+    assert rec.meta["serial"] == "SN-1" and rec.meta["operator"] == "tester"
+    assert rec.meta["station"] == "test-bench" and rec.meta["seed"] == 1
+    assert rec.meta["devices"]["stand"]["model"] == "stand"
+    assert rec.meta["config"]["run"]["limit_sigma_deg"] == 0.4
+    rep = json.loads((rec.path / "report.json").read_text())
+    assert rep["verdict"] == "PASS" and set(rep["axes"]) == set(axes)
+    assert "PASS" in (rec.path / "report.txt").read_text()
+    index = (tmp_path / "index.jsonl").read_text().splitlines()
+    assert json.loads(index[-1])["verdict"] == "PASS"
+    assert stand.enabled is False and stand.closed and sensor.closed
+    names = [e["name"] for e in _events(rec.path) if e["kind"] == "precheck"]
+    assert names[:2] == ["disk space", "profile within limits"]
+    assert "static agreement" in names and "stand at zero" in names
+
+
+def test_full_run_fail_and_stream_mode(tmp_path: Path) -> None:
+    """Gain 1.2: σ = 0.2·5/√2 = 0.707° > 0.4° → FAIL, exit 1 (stream mode)."""
+    stand = FakeStand()
+    sensor = FakeSensor(stand, gain=1.2)
+    res = _run(tmp_path, stand, sensor, mode="stream")
+    assert res.state == "done" and res.exit_code == 1
+    assert res.report is not None and res.report.verdict == "FAIL"
+    assert res.report.axes["roll"].sigma_deg > 0.4
+    sp = load_recording(res.recording).streams["setpoints"]  # type: ignore[arg-type]
+    assert sp["t_send"].size + res.stats["missed_cycles"] == int(DURATION * 100) + 1
+
+
+def _assert_aborted(
+    res: RunResult, stand: FakeStand, sensor: FakeSensor, match: str
+) -> dict[str, Any]:
+    assert res.state == "aborted" and res.exit_code == 2
+    assert match in res.reason, res.reason
+    assert res.recording is not None
+    rec = load_recording(res.recording)
+    assert rec.state == "aborted" and match in rec.end["reason"]  # type: ignore[index]
+    assert _states(rec.path)[-1] == "aborted"
+    assert not stand.enabled and "disable" in stand.calls
+    assert stand.closed and sensor.stopped
+    # what the recording holds is readable by the analysis
+    from benchctl.analysis import analyze_recording
+
+    if rec.streams["instrument"]["t_host"].size > 50:
+        r = analyze_recording(rec.path, stand.axes[0])
+        assert math.isfinite(r.sigma)
+    return rec.end  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize(
+    ("inject", "match"),
+    [
+        ("fault", "fault code 7"),
+        ("estop", "E-stop"),
+        ("drop", "ConnectionLost"),
+        ("exception", "unexpected RuntimeError"),
+        ("silent", "instrument silent"),
+        ("reader", "instrument reader"),
+        ("tracking", "tracking error"),
+    ],
+)
+def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, match: str) -> None:
+    stand = FakeStand()
+    sensor = FakeSensor(stand)
+    at = 1.2
+    if inject == "fault":
+        stand.fault_at = at
+    elif inject == "estop":
+        stand.estop_at = at
+    elif inject == "drop":
+        stand.drop_at = at
+    elif inject == "exception":
+        stand.raise_at = at
+    elif inject == "silent":
+        sensor.silent_after = at
+    elif inject == "reader":
+        sensor.error_after = at
+    elif inject == "tracking":
+
+        def off(tm: float) -> None:
+            if tm >= at:
+                stand.offset_deg = 0.8
+
+        stand.on_motion_time = off
+    res = _run(tmp_path, stand, sensor, mode="stream")
+    end = _assert_aborted(res, stand, sensor, match)
+    steps = {s["step"]: s["ok"] for s in end["shutdown"]}
+    assert steps["stop loops"] and steps["disable"]
+    if inject == "drop":
+        assert steps["ramp to zero"] is False  # the stand did not answer: noted, cleanup went on
+    else:
+        assert stand.ramped and steps["ramp to zero"]
+    assert end["stats"]["setpoints_sent"] > 100  # it was moving when it happened
+
+
+def test_sigint_mid_motion(tmp_path: Path) -> None:
+    stand = FakeStand()
+    sensor = FakeSensor(stand)
+    sent = []
+
+    def kill(tm: float) -> None:
+        if tm >= 1.2 and not sent:
+            sent.append(tm)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    stand.on_motion_time = kill
+    res = _run(tmp_path, stand, sensor, mode="stream")
+    _assert_aborted(res, stand, sensor, "interrupted by SIGINT")
+    assert stand.ramped
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+def test_precheck_failure_never_moves_the_stand(tmp_path: Path) -> None:
+    """An instrument 1° off the stand at rest: refused in prechecks, the stand never enabled."""
+    stand = FakeStand()
+    sensor = FakeSensor(stand, bias=1.0)
+    res = _run(tmp_path, stand, sensor)
+    assert res.exit_code == 2 and "static agreement" in res.reason and "+1.000°" in res.reason
+    assert "enable" not in stand.calls and "ramp_to_zero" not in stand.calls
+    assert load_recording(res.recording).state == "aborted"  # type: ignore[arg-type]
+
+
+def test_precheck_slow_instrument(tmp_path: Path) -> None:
+    stand = FakeStand()
+    sensor = FakeSensor(stand, rate_hz=40.0)
+    res = _run(tmp_path, stand, sensor)
+    assert (
+        res.exit_code == 2
+        and "instrument streams" in res.reason
+        and "expected 100 Hz" in res.reason
+    )
+    assert "enable" not in stand.calls
