@@ -103,7 +103,7 @@ def _format_error(source: Path | str, err: ValidationError, kind: object) -> str
         shown = "" if isinstance(value, dict) else f" = {value!r}"
         msg = e["msg"]
         if e["type"] == "union_tag_invalid":
-            where = "kind"
+            where, shown = "kind", f" = {kind!r}"
             msg = f"unknown kind; expected one of {', '.join(_kinds())}"
         lines.append(f"  field {where}{shown}: {msg}")
     return "\n".join(lines)

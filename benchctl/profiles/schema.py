@@ -9,21 +9,24 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 Axis = Literal["roll", "pitch"]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Band = tuple[Positive, Positive]
+
+
+def _check_band(band: tuple[float, float]) -> tuple[float, float]:
+    if not band[0] < band[1]:
+        raise ValueError(f"expected [low, high] in Hz with low < high, got {list(band)}")
+    return band
+
+
+Band = Annotated[tuple[Positive, Positive], AfterValidator(_check_band)]
 
 
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-def _check_band(band: Band | None) -> None:
-    if band is not None and not band[0] < band[1]:
-        raise ValueError(f"band_hz must be [low, high] with low < high, got {list(band)}")
 
 
 # --- common ---------------------------------------------------------------------------
@@ -58,19 +61,9 @@ class SpectralBase(TimedBase):
     crest: CrestSpec = CrestSpec()
     min_lines: int = Field(default=3, ge=1)
 
-    @model_validator(mode="after")
-    def _band(self) -> SpectralBase:
-        _check_band(self.band_hz)
-        return self
-
 
 class AxisBand(Strict):
     band_hz: Band | None = None  # overrides the profile's band_hz for this axis
-
-    @model_validator(mode="after")
-    def _band(self) -> AxisBand:
-        _check_band(self.band_hz)
-        return self
 
 
 # --- sea_state ----------------------------------------------------------------------------
