@@ -130,7 +130,7 @@ def test_sine_steps_are_checked_too() -> None:
     p = measure_peaks(m, 1000.0)["roll"]
     assert p.angle_deg == pytest.approx(10.0, rel=1e-6)
     assert p.rate_deg_s == pytest.approx(2 * np.pi / 3 * 10, rel=1e-4)
-    with pytest.raises(LimitError, match="peak rate needed 20.944 deg/s, allowed 20.000 deg/s"):
+    with pytest.raises(LimitError, match=r"peak rate needed 20\.944 deg/s, allowed 20\.000 deg/s"):
         check_motion(m, StandLimits(angle_deg=30, rate_deg_s=20, accel_deg_s2=500), rate_hz=1000.0)
     scaled = check_motion(
         m,
