@@ -28,6 +28,11 @@ def register(sub: Any) -> None:
     p.add_argument("--operator", help="who runs the test")
     p.add_argument("--duration", type=float, metavar="SEC", help="profile duration (s)")
     p.add_argument("--seed", type=int, help="override the profile's seed")
+    p.add_argument(
+        "--scale-to-fit",
+        action="store_true",
+        help="scale a profile over the stand limits down (the report says by how much)",
+    )
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default run.output_dir)")
     p.add_argument("--json", action="store_true", help="print one JSON object (report) on stdout")
     p.add_argument("--quiet", action="store_true", help="no live progress on stderr")
@@ -61,7 +66,12 @@ def handle(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration = {args.duration}: expected a positive number of seconds")
     opts = RunOptions(
-        serial=serial, operator=operator, duration_s=args.duration, out_dir=args.out, seed=args.seed
+        serial=serial,
+        operator=operator,
+        duration_s=args.duration,
+        out_dir=args.out,
+        seed=args.seed,
+        scale_to_fit=args.scale_to_fit,
     )
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)

@@ -110,6 +110,9 @@ def format_report(rep: Report) -> str:
         f"profile {m.get('profile_name', '?')} (seed {m.get('seed', '?')}), "
         f"{m.get('duration_s', float('nan')):.1f} s, mode {m.get('mode', '?')}",
     ]
+    scale = m.get("scale")
+    if scale is not None and scale != 1.0:
+        lines.append(f"  profile scaled by {scale:g} to fit the stand limits")
     for v in rep.axes.values():
         lo, hi = v.sigma_ci95_deg
         lines.append(

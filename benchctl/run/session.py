@@ -37,7 +37,14 @@ import numpy as np
 from benchctl import __version__
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
-from benchctl.errors import AnalysisError, BenchError, ConfigError, DataError, SafetyAbort
+from benchctl.errors import (
+    AnalysisError,
+    BenchError,
+    ConfigError,
+    DataError,
+    LimitError,
+    SafetyAbort,
+)
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, Snapshot
@@ -67,6 +74,7 @@ class RunOptions:
     duration_s: float | None = None
     out_dir: Path | None = None
     seed: int | None = None
+    scale_to_fit: bool = False  # scale a profile over the limits down instead of refusing it
 
 
 @dataclass
@@ -133,7 +141,12 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             "table; expected mode 'stream' for this profile"
         )
     # raises LimitError naming needed vs allowed, before anything opens
-    result = check_motion(motion, cfg.stand.limits, rate_hz=rate)
+    try:
+        result = check_motion(
+            motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=opts.scale_to_fit
+        )
+    except LimitError as e:
+        raise LimitError(f"{profile_path} on {src} (field stand.limits): {e}") from None
     motion = result.motion
     figures = result.to_dict()
     check = pc.CheckResult("profile within limits", True, "within the stand limits", figures)
@@ -164,6 +177,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         "fade_in_s": fade_in,
         "fade_out_s": fade_out,
         "motion_check": figures,
+        "scale": result.scale,
     }
     return PreparedMotion(profile, motion, plan, check, meta)
 
@@ -569,6 +583,7 @@ _REPORT_META = (
     "start_utc",
     "software_version",
     "limit_sigma_deg",
+    "scale",
 )
 
 
