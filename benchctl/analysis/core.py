@@ -251,7 +251,7 @@ def _result(
     ci = sigma_interval(sigma, dof)
     ci_rand = sigma_interval(sigma, dof_rand)
     welch = welch_by_runs(eps, al.mask, al.dt, 2 * lag)
-    cross = _welch_check(welch, variance, dof_rand, warnings)
+    cross = _welch_check(welch, variance, dof_rand * (welch.n_used / n if welch else 1.0), warnings)
     cross.update(
         {
             "parseval_area": area,
@@ -331,6 +331,8 @@ def _result(
 def _welch_check(
     welch: WelchEstimate | None, variance: float, dof: float, warnings: list[str]
 ) -> dict[str, Any]:
+    """Welch's area against the variance, within ``WELCH_SIGMAS`` standard deviations of a
+    variance estimate with ``dof`` (the fully random ν, scaled to the samples Welch used)."""
     if welch is None:
         warnings.append("no gap-free run of 64 samples: Welch cross-check skipped")
         return {"welch_area": None, "welch_tolerance": None, "welch_agrees": None}

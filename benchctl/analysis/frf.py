@@ -18,8 +18,7 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 TRADITIONAL_PERIODS_S = (3.0, 5.0, 7.0, 10.0)
-EXCITED_FRACTION = 1e-3  # the FRF is shown where G_xx ≥ this × max G_xx
-COHERENT_FRACTION = 1e-6  # the linear part is sought where G_xx ≥ this × max G_xx
+EXCITED_FRACTION = 1e-3  # a frequency is excited where G_xx ≥ this × max G_xx
 
 
 @dataclass(frozen=True)
@@ -132,10 +131,11 @@ def delay_from_phase(frf: FrequencyResponse) -> float:
 class Decomposition:
     """The error density split into its part coherent with the reference and the rest.
 
-    ``linear`` = ``|1 − H|² G_xx`` = ``|G_xε|²/G_xx`` where ``G_xx`` is above 1e-6 of its peak
-    (0 elsewhere: without excitation no linear response can be seen; the low threshold keeps
-    the window's leakage of the excited lines on the linear side);
-    ``incoherent`` = ``G_εε − linear``. Both deg²/Hz on the full grid.
+    ``linear`` = ``|1 − H|² G_xx`` = ``|G_xε|²/G_xx`` on the excited frequencies (0 elsewhere:
+    without excitation no linear response can be seen, and the estimate's floors there are
+    not to be read as coherence); ``incoherent`` = ``G_εε − linear``. The lag window's leakage
+    of a linear error just outside the excited band counts as incoherent (conservative).
+    Both deg²/Hz on the full grid.
     """
 
     linear: FloatArray
@@ -151,7 +151,7 @@ def decompose(
     per frequency is low by the factor ``1 − 2/ν_f`` (two degrees of freedom go to fitting H);
     the incoherent part is divided by it, within the limits ``0 ≤ linear ≤ G_εε``.
     """
-    keep = excited(freq, gxx, COHERENT_FRACTION)
+    keep = excited(freq, gxx)
     lin = np.zeros_like(gee)
     gxe = gxy[keep] - gxx[keep]
     g = np.maximum(gee[keep], 0.0)

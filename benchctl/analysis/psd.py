@@ -137,6 +137,7 @@ class WelchEstimate:
     density: FloatArray
     nperseg: int
     n_windows: int
+    n_used: int
 
     @property
     def area(self) -> float:
@@ -150,18 +151,24 @@ def welch_by_runs(
 
     ``eps`` must already have its mean (over the valid samples) removed; segments are not
     detrended again, so power below the segment's resolution stays in the area. Hann window,
-    50 % overlap; each run contributes in proportion to its number of segments. Returns None
-    when no run holds 64 samples.
+    50 % overlap; each run contributes in proportion to its number of segments. The segment
+    length is ``nperseg``, halved until runs of at least that length hold half the valid
+    samples (not below 64). Returns None when no run holds 64 samples.
     """
     edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.view(np.int8), [0]))))
     runs = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    longest = max((b - a for a, b in runs), default=0)
-    if longest < 64:
+    lengths = np.array([b - a for a, b in runs])
+    if len(lengths) == 0 or lengths.max() < 64:
         return None
-    nperseg = min(nperseg, longest)
+    total = int(lengths.sum())
+    nperseg = max(64, nperseg)
+    while nperseg > 64 and lengths[lengths >= nperseg].sum() < total / 2:
+        nperseg //= 2
+    nperseg = min(max(nperseg, 64), int(lengths.max()))
     acc: FloatArray | None = None
     freq: FloatArray | None = None
     count = 0
+    used = 0
     step = nperseg // 2
     for a, b in runs:
         n = b - a
@@ -174,5 +181,8 @@ def welch_by_runs(
         )
         acc = p * k if acc is None else acc + p * k
         count += k
+        used += nperseg + (k - 1) * step
     assert acc is not None and freq is not None
-    return WelchEstimate(freq=freq, density=acc / count, nperseg=nperseg, n_windows=count)
+    return WelchEstimate(
+        freq=freq, density=acc / count, nperseg=nperseg, n_windows=count, n_used=used
+    )
