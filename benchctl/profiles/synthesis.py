@@ -459,6 +459,12 @@ class TableMotion(Motion):
             elif tab.period_s and tab.n_lines:
                 k = np.round(tab.freq_hz * tab.period_s).astype(np.int64)
                 entry["crest_factor"] = crest_factor(k, tab.amp_deg, tab.phase_rad)
+            elif tab.n_lines and var > 0:  # not periodic: estimate over a long stretch
+                span = min(tab.duration_s, 20.0 / float(tab.freq_hz.min()))
+                ts = np.linspace(
+                    0.0, span, max(2, math.ceil(span * 20.0 * float(tab.freq_hz.max())))
+                )
+                entry["crest_factor"] = float(np.max(np.abs(tab.steady(ts)))) / math.sqrt(var)
             per_axis[a] = entry
         first = next(iter(self.table_by_axis.values()))
         return {
