@@ -263,10 +263,10 @@ def _uniform_grid(t: FloatArray) -> tuple[float, int] | None:
     i0f = t[0] / dt
     i0 = round(i0f)
     scale = max(1.0, float(np.max(np.abs(t))))
-    if abs(i0f - i0) * dt > 1e-9 * scale:
+    if abs(i0f - i0) * dt > 1e-11 * scale:
         return None
     ideal = (i0 + np.arange(t.size)) * dt
-    if float(np.max(np.abs(t - ideal))) > 1e-9 * scale:
+    if float(np.max(np.abs(t - ideal))) > 1e-11 * scale:
         return None
     return dt, i0
 
