@@ -100,8 +100,9 @@ class SimInstrument:
     serial_port, channel : str
         The pty path the driver opens (set by ``start``), for serial and CAN configs alike.
     counts : dict
-        ``samples`` produced, ``sent`` frames, ``garbled``, ``overflow`` (host not reading),
-        ``skipped`` instants (simulator stalled), ``sdo`` requests answered.
+        ``samples`` produced, ``sent`` data frames (TPDO / broadcast / sentence, garbled ones
+        included; not SDO answers), ``garbled``, ``overflow`` (host not reading: frame lost),
+        ``skipped`` instants (simulator stalled), ``sdo`` requests received.
     """
 
     def __init__(
@@ -330,25 +331,28 @@ class SimInstrument:
         if self.is_can:
             adapter = self._adapter
             assert adapter is not None
+            if not adapter.forwarding:  # adapter closed or at another bitrate: nothing
+                return
             for msg in self._frames(k, t, y):
                 item: can.Message | bytes = msg
-                if garbled is not None and self._rng.random() < garbled["fraction"]:
-                    item = self._garble_frame(msg, garbled["how"])
-                    self.counts["garbled"] += 1
+                bad = garbled is not None and self._rng.random() < garbled["fraction"]
+                if bad:
+                    item = self._garble_frame(msg, garbled["how"])  # type: ignore[index]
                 line = item if isinstance(item, bytes) else adapter.line_for(item, t)
-                self._write(port, line)
+                self._write(port, line, bad)
         else:
             line = nmea_talker.sentence(self.sentence, t + self._utc_offset, y["roll"], y["pitch"])
-            if garbled is not None and self._rng.random() < garbled["fraction"]:
-                line = nmea_talker.garble(line, garbled["how"], self._rng)
-                self.counts["garbled"] += 1
-            self._write(port, line)
+            bad = garbled is not None and self._rng.random() < garbled["fraction"]
+            if bad:
+                line = nmea_talker.garble(line, garbled["how"], self._rng)  # type: ignore[index]
+            self._write(port, line, bad)
 
-    def _write(self, port: PtyPort, line: bytes | None) -> None:
+    def _write(self, port: PtyPort, line: bytes | None, garbled: bool) -> None:
         if not line:
             return
         if port.write(line):
             self.counts["sent"] += 1
+            self.counts["garbled"] += garbled
         else:
             self.counts["overflow"] += 1
 
@@ -365,7 +369,9 @@ class SimInstrument:
         port.write(answers)
         out, self._bus_out[:] = list(self._bus_out), []
         for msg in out:  # the node's answers (SDO) reach the host after the adapter's acks
-            self._write(port, self._adapter.line_for(msg, time.monotonic()))
+            line = self._adapter.line_for(msg, time.monotonic())
+            if line:
+                port.write(line)
 
     def _run(self) -> None:
         port = self._port
