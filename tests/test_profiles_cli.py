@@ -170,3 +170,14 @@ def test_plot_writes_an_image(tmp_path: Path) -> None:
         == 0
     )
     assert out2.stat().st_size > 1000
+
+
+def test_sine_steps_have_no_table_and_no_duration_override(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    steps = str(ROOT / "profiles" / "linearity_sine_steps.yaml")
+    out, table = str(tmp_path / "s.csv"), str(tmp_path / "t.csv")
+    assert main(["profile", "synth", steps, "--out", out, "--table", table, "--rate", "10"]) == 2
+    assert "no --table export" in capsys.readouterr().err
+    assert main(["profile", "show", steps, "--duration", "120"]) == 2
+    assert "lasts 701 s" in capsys.readouterr().err

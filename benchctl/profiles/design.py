@@ -227,8 +227,9 @@ def _sine_steps(profile: Profile, duration: float | None) -> StepMotion:
     total = sine_steps_duration(spec)
     if duration is not None and abs(duration - total) > 1e-6:
         raise ConfigError(
-            f"{profile.label('duration')}: a sine_steps profile lasts {total:g} s (its grid of "
-            f"periods x amplitudes), a duration of {duration:g} s cannot be imposed"
+            f"{profile.source or '<profile>'}: a sine_steps profile lasts {total:g} s (its grid "
+            f"of periods x amplitudes); a duration override of {duration:g} s cannot be imposed "
+            "(omit the duration)"
         )
     segs: list[StepSegment] = []
     t = 0.0
