@@ -179,5 +179,6 @@ def test_sine_steps_have_no_table_and_no_duration_override(
     out, table = str(tmp_path / "s.csv"), str(tmp_path / "t.csv")
     assert main(["profile", "synth", steps, "--out", out, "--table", table, "--rate", "10"]) == 2
     assert "no --table export" in capsys.readouterr().err
+    assert not Path(out).exists()
     assert main(["profile", "show", steps, "--duration", "120"]) == 2
     assert "lasts 701 s" in capsys.readouterr().err

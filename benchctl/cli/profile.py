@@ -157,6 +157,12 @@ def handle_synth(args: argparse.Namespace) -> int:
     from benchctl.profiles import sample_times, tables_to_csv
 
     profile, motion, check, rate = _prepare(args)
+    tables = motion.tables
+    if args.table is not None and tables is None:
+        raise InputError(
+            f"{args.profile}: kind {profile.kind} is not one harmonic table per axis; "
+            "no --table export"
+        )
     t = sample_times(motion.duration_s, rate)
     x = motion.evaluate(t)
     cols = [t] + [x[a] for a in motion.axes]
@@ -165,19 +171,10 @@ def handle_synth(args: argparse.Namespace) -> int:
         np.savetxt(
             args.out, np.column_stack(cols), fmt="%.6f", delimiter=",", header=header, comments=""
         )
-    except OSError as e:
-        raise InputError(f"{args.out}: cannot write: {e.strerror}") from None
-    if args.table is not None:
-        tables = motion.tables
-        if tables is None:
-            raise InputError(
-                f"{args.profile}: kind {profile.kind} is not one harmonic table per axis; "
-                "no --table export"
-            )
-        try:
+        if args.table is not None:
             args.table.write_text(tables_to_csv(tables), encoding="utf-8")
-        except OSError as e:
-            raise InputError(f"{args.table}: cannot write: {e.strerror}") from None
+    except OSError as e:
+        raise InputError(f"{e.filename}: cannot write: {e.strerror}") from None
     report = _report(profile, motion, check, rate)
     report.update(
         {
