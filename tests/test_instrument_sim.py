@@ -1,0 +1,279 @@
+"""Back-to-back: each instrument driver against the simulated instrument over a pseudo-terminal."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+from benchctl.config import InstrumentConfig, SimInstrumentConfig
+from benchctl.devices.base import AngleSensor, InstrumentSample
+from benchctl.devices.instrument import open_instrument
+from benchctl.errors import ConfigError, ConnectionLost, DeviceTimeout
+from benchctl.sim.instrument import SimInstrument
+
+ROOT = Path(__file__).resolve().parent.parent
+DRIVERS = ROOT / "drivers"
+
+ROLL_OFFSET, ROLL_AMP, ROLL_F = 2.0, 5.0, 0.5
+PITCH = -3.0
+
+
+class SineRoll:
+    """Roll 2 + 5 sin(2π 0.5 t) deg, pitch −3 deg: a closed-form stand motion."""
+
+    def true_angles(self, t: float) -> dict[str, float]:
+        return {"roll": ROLL_OFFSET + ROLL_AMP * math.sin(2 * math.pi * ROLL_F * t),
+                "pitch": PITCH}
+
+
+class Static:
+    def true_angles(self, t: float) -> dict[str, float]:
+        return {"roll": 1.25, "pitch": -0.5}
+
+
+def instrument_cfg(driver: str, **kw: Any) -> InstrumentConfig:
+    base: dict[str, Any] = {"driver": driver}
+    if driver == "nmea0183":
+        base["serial_port"] = "set-by-the-simulator"
+    else:
+        base.update(interface="slcan", channel="set-by-the-simulator")
+    if driver == "canopen":
+        base["eds"] = DRIVERS / "cia410_inclinometer.eds"
+    if driver == "j1939":
+        base["dbc"] = DRIVERS / "j1939_slope.dbc"
+    if driver == "nmea2000":
+        base["dbc"] = DRIVERS / "nmea2000_attitude.dbc"
+    base.update(kw)
+    return InstrumentConfig(**base)
+
+
+class Collector:
+    def __init__(self) -> None:
+        self.samples: list[InstrumentSample] = []
+        self.errors: list[BaseException] = []
+
+    def wait(self, cond: Callable[[], bool], timeout: float = 5.0) -> float:
+        t0 = time.monotonic()
+        while not cond():
+            if time.monotonic() - t0 > timeout:
+                raise AssertionError(f"not within {timeout} s; errors {self.errors}")
+            time.sleep(0.01)
+        return time.monotonic() - t0
+
+
+@contextmanager
+def back_to_back(
+    driver: str, model: SimInstrumentConfig, motion: Any = None, *,
+    log: Path | None = None, **kw: Any,
+) -> Iterator[tuple[SimInstrument, AngleSensor, Collector]]:
+    sim = SimInstrument(model, instrument_cfg(driver, **kw), motion or SineRoll())
+    sim.inject("silent")  # pyserial flushes input on open: start counting from a clean line
+    sim.start()
+    dev = None
+    try:
+        dev = open_instrument(sim.instrument_config(), can_log_path=log)
+        sim.clear_faults()
+        dev.connect()
+        col = Collector()
+        dev.start(col.samples.append, col.errors.append)
+        yield sim, dev, col
+    finally:
+        if dev is not None:
+            dev.close()
+        sim.stop()
+    assert sim.error is None
+
+
+def drain(sim: SimInstrument, dev: AngleSensor, col: Collector) -> None:
+    """Silence the simulator and wait until the driver has seen every frame it sent."""
+    sim.inject("silent")
+    col.wait(lambda: dev.stats.good + dev.stats.bad_total >= sim.counts["sent"])
+
+
+@pytest.mark.parametrize(
+    ("driver", "extra"),
+    [("canopen", {}), ("j1939", {}), ("nmea2000", {}), ("nmea0183", {}),
+     ("nmea0183", {"sentence": "XDR"})],
+)
+def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
+    gain, bias, noise, rate = 0.97, 0.3, 0.05, 100.0
+    model = SimInstrumentConfig(gain=gain, bias_deg=bias, noise_deg=noise, latency_s=0.01,
+                                rate_hz=rate, seed=11)
+    with back_to_back(driver, model, **extra) as (sim, dev, col):
+        col.wait(lambda: len(col.samples) >= 250)
+        drain(sim, dev, col)
+        s = list(col.samples)
+        assert col.errors == []
+        assert dev.stats.bad == {}
+        assert dev.stats.good == sim.counts["sent"]  # no loss
+    t = np.array([x.t_host for x in s])
+    roll = np.array([x.angle_deg["roll"] for x in s])
+    pitch = np.array([x.angle_deg["pitch"] for x in s])
+    # rate: the simulator's own clock, seen through host receipt times (10 %: a stall of the
+    # shared machine at either end of ≈2.5 s shifts it by a few %)
+    assert (len(t) - 1) / (t[-1] - t[0]) == pytest.approx(rate, rel=0.10)
+    # pitch is static: mean = g·(−3) + b, spread = noise ⊕ wire resolution
+    expected_var = sim.model.expected_error_variance([], [], resolution_deg=sim.wire_resolution_deg)
+    n = len(pitch)
+    assert np.std(pitch, ddof=1) == pytest.approx(math.sqrt(expected_var), rel=0.2)  # SE ≈ 4.5 %
+    # roll: amplitude and offset by least squares on receipt times (their ms jitter costs
+    # < 1e-3 of the amplitude)
+    w = 2 * math.pi * ROLL_F
+    x = np.c_[np.sin(w * t), np.cos(w * t), np.ones_like(t)]
+    (a, b, c), *_ = np.linalg.lstsq(x, roll, rcond=None)
+    se = noise / math.sqrt(n) * 2  # LS standard error of a coefficient, generously
+    assert math.hypot(a, b) / ROLL_AMP == pytest.approx(gain, abs=5 * se / ROLL_AMP + 2e-3)
+    g_static = (c - np.mean(pitch)) / (ROLL_OFFSET - PITCH)
+    assert g_static == pytest.approx(gain, abs=0.01)
+    assert c - gain * ROLL_OFFSET == pytest.approx(bias, abs=0.02)
+    if driver == "nmea2000":
+        sid = np.array([x.counter for x in s])
+        assert np.all(np.diff(sid) % 253 == 1)  # consecutive sequence ids: nothing lost
+    if driver == "j1939":
+        lat = np.array([x.t_host - x.device_time_s for x in s if x.device_time_s is not None])
+        np.testing.assert_allclose(lat, 0.010, atol=1e-9)
+    if driver == "nmea0183" and not extra:
+        dt = np.diff([x.device_time_s for x in s if x.device_time_s is not None])
+        np.testing.assert_allclose(dt, 1 / rate, atol=1.5e-3)  # ms timestamps of PASHR
+
+
+@pytest.mark.parametrize(
+    ("driver", "how", "reason"),
+    [
+        ("canopen", "length", "length"),
+        ("canopen", "range", "range"),
+        ("canopen", "id", "id"),
+        ("j1939", "line", "decode"),
+        ("j1939", "range", "range"),
+        ("nmea2000", "length", "length"),
+        ("nmea2000", "id", "id"),
+        ("nmea0183", "checksum", "checksum"),
+        ("nmea0183", "truncated", "checksum"),
+        ("nmea0183", "range", "range"),
+    ],
+)
+def test_garbled_frames_counted_and_skipped(driver: str, how: str, reason: str) -> None:
+    model = SimInstrumentConfig(rate_hz=200.0, seed=2)
+    with back_to_back(driver, model, Static()) as (sim, dev, col):
+        sim.inject("garbled", fraction=0.3, how=how)
+        col.wait(lambda: sim.counts["garbled"] >= 40)
+        drain(sim, dev, col)
+        assert col.errors == []
+        garbled, sent = sim.counts["garbled"], sim.counts["sent"]
+        bad, good = dict(dev.stats.bad), dev.stats.good
+        assert good + sum(bad.values()) == sent
+        assert bad == {reason: garbled}
+        # nothing garbled passed as data: every sample is the static angle
+        res = sim.wire_resolution_deg
+        for smp in col.samples:
+            assert smp.angle_deg["roll"] == pytest.approx(1.25, abs=res)
+            assert smp.angle_deg["pitch"] == pytest.approx(-0.5, abs=res)
+
+
+@pytest.mark.parametrize("driver", ["nmea2000", "nmea0183"])
+def test_silent_instrument_reported_then_recovers(driver: str) -> None:
+    model = SimInstrumentConfig(rate_hz=100.0)
+    with back_to_back(driver, model, silence_timeout_s=0.3) as (sim, dev, col):
+        col.wait(lambda: len(col.samples) >= 10)
+        sim.inject("silent")
+        took = col.wait(lambda: len(col.errors) >= 1, timeout=3.0)
+        assert isinstance(col.errors[0], DeviceTimeout)
+        assert 0.25 < took < 2.0
+        n = len(col.samples)
+        sim.clear_faults()
+        col.wait(lambda: len(col.samples) >= n + 10)
+        assert len(col.errors) == 1
+
+
+@pytest.mark.parametrize("driver", ["j1939", "nmea0183"])
+def test_stuck_instrument_repeats_its_last_value(driver: str) -> None:
+    model = SimInstrumentConfig(rate_hz=100.0, noise_deg=0.2, seed=4)
+    with back_to_back(driver, model) as (sim, dev, col):
+        col.wait(lambda: len(col.samples) >= 20)
+        before = [x.angle_deg["roll"] for x in col.samples]
+        assert len(set(before)) > 10  # noisy while alive
+        sim.inject("stuck")
+        time.sleep(0.05)  # frames already in flight
+        n = len(col.samples)
+        col.wait(lambda: len(col.samples) >= n + 30)
+        after = {(x.angle_deg["roll"], x.angle_deg["pitch"]) for x in col.samples[n:]}
+        assert len(after) == 1
+        assert col.errors == []
+
+
+@pytest.mark.parametrize("driver", ["canopen", "nmea0183"])
+def test_dropped_link_is_reported(driver: str, tmp_path: Path) -> None:
+    link = tmp_path / "instrument"
+    sim = SimInstrument(SimInstrumentConfig(), instrument_cfg(driver), Static(), link_path=link)
+    sim.start()
+    try:
+        assert link.is_symlink() and str(link.resolve()) == sim.channel
+        key = "serial_port" if driver == "nmea0183" else "channel"
+        cfg = sim.instrument_config().model_copy(update={key: str(link)})  # the stable name
+        dev = open_instrument(cfg)
+        try:
+            ident = dev.connect()
+            col = Collector()
+            dev.start(col.samples.append, col.errors.append)
+            col.wait(lambda: len(col.samples) >= 5)
+            sim.inject("drop")
+            took = col.wait(lambda: len(col.errors) >= 1, timeout=3.0)
+            assert isinstance(col.errors[0], ConnectionLost)
+            assert took < 2.0
+            assert not link.exists()
+        finally:
+            dev.close()
+    finally:
+        sim.stop()
+    if driver == "canopen":
+        assert ident.model == "SIM-INCL410" and ident.serial == "1"
+        assert ident.firmware == "1.0.0" and ident.extra["resolution_deg"] == "0.01"
+
+
+def test_canopen_connect_fails_cleanly_when_silent_or_wrong_bitrate() -> None:
+    for fault, kw in (("silent", {}), (None, {"bitrate": 250000})):
+        sim = SimInstrument(SimInstrumentConfig(), instrument_cfg("canopen"), Static())
+        sim.start()
+        try:
+            if fault:
+                sim.inject(fault)
+            cfg = sim.instrument_config().model_copy(update={"connect_timeout_s": 0.3, **kw})
+            dev = open_instrument(cfg)
+            try:
+                with pytest.raises(DeviceTimeout, match="SDO"):
+                    dev.connect()
+            finally:
+                dev.close()
+        finally:
+            sim.stop()
+
+
+def test_raw_can_log_blf_readable(tmp_path: Path) -> None:
+    log = tmp_path / "can.blf"
+    model = SimInstrumentConfig(rate_hz=200.0)
+    with back_to_back("nmea2000", model, Static(), log=log) as (sim, dev, col):
+        col.wait(lambda: len(col.samples) >= 50)
+        drain(sim, dev, col)
+        n = dev.stats.good
+    frames = list(can.LogReader(str(log)))
+    assert len(frames) == n
+    assert all(f.arbitration_id == 0x09F11980 and f.is_extended_id for f in frames)
+
+
+def test_inject_rejects_bad_faults() -> None:
+    sim = SimInstrument(SimInstrumentConfig(), instrument_cfg("nmea0183"), Static())
+    with pytest.raises(ConfigError, match="fault 'melt'"):
+        sim.inject("melt")
+    with pytest.raises(ConfigError, match="fraction"):
+        sim.inject("garbled", fraction=1.5)
+    with pytest.raises(ConfigError, match="how"):
+        sim.inject("garbled", how="length")  # a CAN garbling on a serial talker
+    sim.stop()  # never started: idempotent no-op
