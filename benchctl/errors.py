@@ -7,7 +7,7 @@
     │   ├── ConfigError             bench config or profile YAML fails validation
     │   ├── DataError               a recording/CSV is unusable (NaN, non-monotonic time, gaps…)
     │   └── LimitError              a motion exceeds the stand limits (needed vs allowed)
-    ├── AnalysisError               an internal cross-check failed (e.g. Parseval): a bug, never silent
+    ├── AnalysisError               an internal cross-check failed (Parseval): a bug, never silent
     ├── DeviceError                 a device answered with an error or could not be used
     │   ├── DeviceTimeout           no answer in time (also a TimeoutError)
     │   ├── ConnectionLost          a link dropped mid-run

@@ -108,9 +108,11 @@ class HarmonicTable:
         return out
 
     def evaluate(self, t_s: ArrayLike, derivative: int = 0) -> FloatArray:
-        """The faded motion x(t) (derivative 0), its rate (1) or acceleration (2), deg, deg/s, deg/s²."""
+        """The faded motion x(t) (0), its rate (1) or acceleration (2): deg, deg/s, deg/s²."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        env = [fade_envelope(t, self.duration_s, self.fade_in_s, self.fade_out_s, d) for d in range(3)]
+        env = [
+            fade_envelope(t, self.duration_s, self.fade_in_s, self.fade_out_s, d) for d in range(3)
+        ]
         s = [self.steady(t, d) for d in range(derivative + 1)]
         if derivative == 0:
             return env[0] * s[0]
@@ -124,7 +126,11 @@ class HarmonicTable:
         """x(t) at one instant, cheap enough for a 1 kHz simulation tick."""
         if t_s < 0.0 or t_s > self.duration_s:
             return 0.0
-        e = float(fade_envelope(np.array([t_s]), self.duration_s, self.fade_in_s, self.fade_out_s)[0])
+        e = float(
+            fade_envelope(np.array([t_s]), self.duration_s, self.fade_in_s, self.fade_out_s)[0]
+        )
         if e == 0.0:
             return 0.0
-        return e * float(np.dot(self.amp_deg, np.cos(2.0 * np.pi * self.freq_hz * t_s + self.phase_rad)))
+        return e * float(
+            np.dot(self.amp_deg, np.cos(2.0 * np.pi * self.freq_hz * t_s + self.phase_rad))
+        )

@@ -34,7 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Dynamic-error tests of navigation instruments on a roll/pitch motion stand.",
     )
     parser.add_argument("--version", action="version", version=f"benchctl {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv: wire trace)")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more logging (-vv: wire trace)"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in SUBCOMMANDS:

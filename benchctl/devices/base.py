@@ -79,7 +79,9 @@ class FrameStats:
     """Counts of frames a reader saw. Bad frames are counted and skipped, never passed as data."""
 
     good: int = 0
-    bad: dict[str, int] = field(default_factory=dict)  # reason -> count (checksum, length, range, id)
+    bad: dict[str, int] = field(
+        default_factory=dict
+    )  # reason -> count (checksum, length, range, id)
 
     def count_bad(self, reason: str) -> None:
         self.bad[reason] = self.bad.get(reason, 0) + 1

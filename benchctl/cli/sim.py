@@ -1,0 +1,80 @@
+"""``benchctl sim``: the simulated stand and instrument as one standalone process."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "sim",
+        help="run the simulated stand and instrument (real protocol peers) until stopped",
+        description=(
+            "Start the simulated stand (Modbus TCP or RTU) and the simulated instrument on it "
+            "(CANopen/J1939/NMEA 2000 over slcan, or NMEA 0183, on a pseudo-terminal) where "
+            "the config says, print where they listen, and run until Ctrl-C or SIGTERM."
+        ),
+    )
+    p.add_argument("--config", required=True, type=Path, help="bench config with a sim: section")
+    p.add_argument(
+        "--private",
+        action="store_true",
+        help="free TCP port and private ptys instead of the config's port and paths",
+    )
+    p.add_argument(
+        "--ready-json",
+        action="store_true",
+        help="print one JSON line with the endpoints when ready; exit when stdin closes",
+    )
+    p.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from benchctl.config import load_config
+    from benchctl.sim.bench import SimBench
+
+    cfg = load_config(args.config)
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    bench = SimBench(cfg, private=args.private)
+    try:
+        bench.start()
+    except Exception as e:
+        if args.ready_json:
+            print(json.dumps({"ready": False, "error": str(e)}), flush=True)
+        raise
+    try:
+        if args.ready_json:
+            print(json.dumps({"ready": True, **bench.endpoints()}), flush=True)
+            watcher = threading.Thread(target=_wait_eof, args=(done,), daemon=True)
+            watcher.start()
+        else:
+            print(f"benchctl sim: {cfg.source}", flush=True)
+            for line in bench.describe():
+                print(f"  {line}", flush=True)
+            print("  Ctrl-C to stop", flush=True)
+        done.wait()
+    finally:
+        bench.stop()
+    return 0
+
+
+def _wait_eof(done: threading.Event) -> None:
+    try:
+        while os.read(sys.stdin.fileno(), 4096):
+            pass
+    except (OSError, ValueError):
+        pass
+    done.set()

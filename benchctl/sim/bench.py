@@ -1,0 +1,153 @@
+"""The simulated bench: the simulated stand and the instrument on it, as one unit.
+
+``SimBench(cfg)`` builds both simulators from a bench config's ``stand``, ``instrument`` and
+``sim`` sections — the instrument measures the stand's true motion — starts them, and runs the
+config's fault schedule (``sim.faults``, timed from the moment the stand first moves).
+
+Two ways to place them:
+
+- ``private=False`` (``benchctl sim``): where the config says — the Modbus TCP port in
+  ``stand.port``, and stable symlinks to the ptys at ``stand.serial_port`` (RTU),
+  ``instrument.channel`` (CAN over slcan) or ``instrument.serial_port`` (NMEA 0183) — so a
+  hardware config pointed at them works unchanged;
+- ``private=True`` (``benchctl run`` on a config with a ``sim:`` section): a free TCP port and
+  private ptys; ``config`` is then the bench config pointed at them.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from benchctl.config import BenchConfig, SimConfig
+from benchctl.errors import ConfigError
+from benchctl.sim.instrument import SimInstrument
+from benchctl.sim.stand import SimStand
+
+
+class SimBench:
+    """Simulated stand + simulated instrument on it, started and stopped together."""
+
+    def __init__(self, cfg: BenchConfig, *, private: bool = False) -> None:
+        if cfg.sim is None:
+            raise ConfigError(
+                f"{cfg.source}: field sim: missing; the simulators need a sim: section "
+                "(see config/sim.yaml)"
+            )
+        self.cfg = cfg
+        self.sim: SimConfig = cfg.sim
+        self.private = private
+        sc = cfg.stand
+        rtu = sc.driver == "modbus-rtu"
+        stand_link = None if private or not rtu else _link(sc.serial_port)
+        self.stand = SimStand(
+            self.sim.stand,
+            limits=sc.limits,
+            register_map=sc.register_map,
+            transport="rtu" if rtu else "tcp",
+            host=sc.host if not private else "127.0.0.1",
+            port=0 if private else sc.port,
+            link_path=stand_link,
+            device_id=sc.device_id,
+        )
+        ic = cfg.instrument
+        where = ic.serial_port if ic.driver == "nmea0183" else ic.channel
+        self.instrument = SimInstrument(
+            self.sim.instrument,
+            ic,
+            self.stand,
+            link_path=None if private else _link(where),
+        )
+        self._stop = threading.Event()
+        self._scheduler: threading.Thread | None = None
+        self.motion_started_at: float | None = None
+        self.injected: list[tuple[float, str, str]] = []  # (time, target, kind)
+
+    # -- life cycle -------------------------------------------------------------------------
+    def start(self) -> SimBench:
+        self.stand.start()
+        try:
+            self.instrument.start()
+        except BaseException:
+            self.stand.stop()
+            raise
+        if self.sim.faults:
+            self._scheduler = threading.Thread(
+                target=self._run_schedule, name="sim-fault-schedule", daemon=True
+            )
+            self._scheduler.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop both simulators and the fault schedule; idempotent."""
+        self._stop.set()
+        if self._scheduler is not None:
+            self._scheduler.join(timeout=5)
+            self._scheduler = None
+        self.instrument.stop()
+        self.stand.stop()
+
+    def __enter__(self) -> SimBench:
+        return self.start()
+
+    def __exit__(
+        self, t: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+    # -- where they are -------------------------------------------------------------------
+    def endpoints(self) -> dict[str, dict[str, Any]]:
+        """Where the drivers should connect: {"stand": {...}, "instrument": {...}}."""
+        if self.stand.transport == "tcp":
+            stand: dict[str, Any] = {"host": self.stand.host, "port": self.stand.port}
+        else:
+            stand = {"serial_port": self.stand.serial_port}
+        if self.instrument.is_can:
+            instrument: dict[str, Any] = {"interface": "slcan", "channel": self.instrument.channel}
+        else:
+            instrument = {"serial_port": self.instrument.serial_port}
+        return {"stand": stand, "instrument": instrument}
+
+    def describe(self) -> list[str]:
+        """Human lines: what listens where."""
+        ep = self.endpoints()
+        lines = [f"stand:      {self.stand.endpoint}"]
+        if self.stand.transport == "rtu" and self.stand.link_path is not None:
+            lines[-1] += f" (linked at {self.stand.link_path})"
+        where = ep["instrument"].get("channel") or ep["instrument"].get("serial_port")
+        kind = "slcan" if self.instrument.is_can else "serial"
+        line = f"instrument: {self.instrument.driver} over {kind} {where}"
+        if self.instrument.link_path is not None:
+            line += f" (linked at {self.instrument.link_path})"
+        lines.append(line)
+        return lines
+
+    # -- fault schedule -----------------------------------------------------------------------
+    def _moving(self) -> bool:
+        angles = self.stand.true_angles(time.monotonic())
+        return any(abs(v) > self.sim.motion_threshold_deg for v in angles.values())
+
+    def _run_schedule(self) -> None:
+        while not self._stop.wait(0.005):
+            if self._moving():
+                self.motion_started_at = time.monotonic()
+                break
+        else:
+            return
+        for fault in sorted(self.sim.faults, key=lambda f: f.after_motion_s):
+            due = self.motion_started_at + fault.after_motion_s
+            if self._stop.wait(max(0.0, due - time.monotonic())):
+                return
+            target = self.stand if fault.target == "stand" else self.instrument
+            target.inject(fault.kind, **fault.params)
+            self.injected.append((time.monotonic(), fault.target, fault.kind))
+
+
+def _link(where: str | None) -> Path | None:
+    """A config's device path becomes a stable symlink to the simulator's pty."""
+    if not where or "://" in where:
+        return None
+    return Path(where)
