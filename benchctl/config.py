@@ -145,12 +145,27 @@ class SimInstrumentConfig(Strict):
     substep_hz: Positive = 4000.0  # exact first-order-hold integration rate of lag / 2nd order
 
 
+class SimFault(Strict):
+    """A fault the simulators inject by themselves, ``after_motion_s`` after the stand first moves.
+
+    ``target`` stand: kinds of ``SimStand.inject`` (drop_connection, stall, modbus_exception,
+    stand_fault, estop); instrument: kinds of ``SimInstrument.inject`` (garbled, silent, stuck,
+    drop). ``params`` are that method's keyword arguments.
+    """
+
+    target: Literal["stand", "instrument"]
+    kind: str
+    after_motion_s: NonNegative = 0.0
+    params: dict[str, str | int | float] = Field(default_factory=dict)
+
+
 class SimConfig(Strict):
     """Present in a config → ``benchctl run`` starts the simulators itself (``benchctl sim``)."""
 
     stand: SimStandConfig = SimStandConfig()
     instrument: SimInstrumentConfig = SimInstrumentConfig()
-    link_dir: Path = Path("/tmp/benchctl-sim")  # stable symlinks to the simulators' pty paths
+    faults: tuple[SimFault, ...] = ()
+    motion_threshold_deg: Positive = 0.01  # "the stand first moves": |true angle| beyond this
 
 
 class AnalysisConfig(Strict):
@@ -164,8 +179,10 @@ class RunConfig(Strict):
     output_dir: Path = Path("runs")
     min_free_disk_mb: Positive = 200.0
     precheck_window_s: Positive = 1.0  # instrument rate and static agreement measured over this
-    instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.2  # ± fraction of expected_rate_hz
-    profile_tolerance_deg: Positive = 1.0  # stand motion departing from the profile beyond this aborts
+    # ± fraction of instrument.expected_rate_hz
+    instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.2
+    # stand motion departing from the profile beyond this aborts the run
+    profile_tolerance_deg: Positive = 1.0
     analysis: AnalysisConfig = AnalysisConfig()
 
 
@@ -200,7 +217,9 @@ def _format_error(path: Path, err: ValidationError) -> str:
 def parse_config(data: Any, source: Path) -> BenchConfig:
     """Validate a config mapping; relative paths resolve against ``source``'s folder."""
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a YAML mapping at the top level, got {type(data).__name__}")
+        raise ConfigError(
+            f"{source}: expected a YAML mapping at the top level, got {type(data).__name__}"
+        )
     try:
         cfg = BenchConfig.model_validate({**data, "source": source})
     except ValidationError as err:
