@@ -72,7 +72,7 @@ def test_constant_input_starts_at_rest_and_bias_drift_add() -> None:
 
 def test_noise_sigma_and_quantisation() -> None:
     cfg = SimInstrumentConfig(rate_hz=100.0, noise_deg=0.05, seed=3)
-    t, y = _run(cfg, lambda _t: {"roll": 1.0}, 100.0)
+    _t, y = _run(cfg, lambda _t: {"roll": 1.0}, 100.0)
     n = len(y)
     # σ estimate from n = 10 000 normal samples: relative SE 1/√(2n) = 0.7 %; allow 4 %
     assert np.std(y, ddof=1) == pytest.approx(0.05, rel=0.04)

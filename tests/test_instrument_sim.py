@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -181,7 +182,7 @@ def test_garbled_frames_counted_and_skipped(driver: str, how: str, reason: str) 
 @pytest.mark.parametrize("driver", ["nmea2000", "nmea0183"])
 def test_silent_instrument_reported_then_recovers(driver: str) -> None:
     model = SimInstrumentConfig(rate_hz=100.0)
-    with back_to_back(driver, model, silence_timeout_s=0.3) as (sim, dev, col):
+    with back_to_back(driver, model, silence_timeout_s=0.3) as (sim, _dev, col):
         col.wait(lambda: len(col.samples) >= 10)
         sim.inject("silent")
         took = col.wait(lambda: len(col.errors) >= 1, timeout=3.0)
@@ -196,7 +197,7 @@ def test_silent_instrument_reported_then_recovers(driver: str) -> None:
 @pytest.mark.parametrize("driver", ["j1939", "nmea0183"])
 def test_stuck_instrument_repeats_its_last_value(driver: str) -> None:
     model = SimInstrumentConfig(rate_hz=100.0, noise_deg=0.2, seed=4)
-    with back_to_back(driver, model) as (sim, dev, col):
+    with back_to_back(driver, model) as (sim, _dev, col):
         col.wait(lambda: len(col.samples) >= 20)
         before = [x.angle_deg["roll"] for x in col.samples]
         assert len(set(before)) > 10  # noisy while alive
@@ -211,6 +212,7 @@ def test_stuck_instrument_repeats_its_last_value(driver: str) -> None:
 
 @pytest.mark.parametrize("driver", ["canopen", "nmea0183"])
 def test_dropped_link_is_reported(driver: str, tmp_path: Path) -> None:
+    fds_before = len(os.listdir("/proc/self/fd"))
     link = tmp_path / "instrument"
     sim = SimInstrument(SimInstrumentConfig(), instrument_cfg(driver), Static(), link_path=link)
     sim.start()
@@ -233,6 +235,7 @@ def test_dropped_link_is_reported(driver: str, tmp_path: Path) -> None:
             dev.close()
     finally:
         sim.stop()
+    assert len(os.listdir("/proc/self/fd")) == fds_before  # no pty, serial or pipe left open
     if driver == "canopen":
         assert ident.model == "SIM-INCL410" and ident.serial == "1"
         assert ident.firmware == "1.0.0" and ident.extra["resolution_deg"] == "0.01"

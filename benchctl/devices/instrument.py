@@ -66,11 +66,11 @@ def open_instrument(cfg: InstrumentConfig, *, can_log_path: Path | None = None) 
         except BaseException:
             port.close()
             raise
-    from benchctl.devices.can.bus import open_can_bus
+    from benchctl.devices.can.bus import open_can_bus, shutdown_bus
 
     bus = open_can_bus(cfg)
     try:
         return cls(bus, cfg, can_log_path=can_log_path)
     except BaseException:
-        bus.shutdown()
+        shutdown_bus(bus)
         raise

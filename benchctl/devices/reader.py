@@ -188,7 +188,7 @@ class SensorReader:
             self._fault = exc
         with self._lock:
             err = self._on_error
-        log.error("instrument %s on %s: %s", self.protocol, self._where, exc)
+        log.error("%s", exc)
         if err is not None:
             err(exc)
 

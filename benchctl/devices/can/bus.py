@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from typing import Any
 
@@ -50,3 +51,19 @@ def open_can_bus(cfg: InstrumentConfig) -> can.BusABC:
             f"instrument CAN bus interface={cfg.interface!r} channel={cfg.channel!r} "
             f"bitrate={cfg.bitrate}: cannot open: {e}"
         ) from e
+
+
+def shutdown_bus(bus: can.BusABC) -> None:
+    """Shut ``bus`` down, releasing its port even when the link is already gone.
+
+    python-can's slcan ``shutdown`` writes ``C`` before closing its serial port; on a hung-up
+    line that write raises and the port (and its pipes) would stay open, so close it here.
+    """
+    try:
+        bus.shutdown()
+    except Exception:
+        port = getattr(bus, "serialPortOrig", None)  # python-can slcan's serial port
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.close()
+        raise

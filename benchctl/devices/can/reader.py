@@ -17,6 +17,7 @@ from typing import Any
 import can
 
 from benchctl.config import InstrumentConfig
+from benchctl.devices.can.bus import shutdown_bus
 from benchctl.devices.reader import (
     BAD_DECODE,
     BAD_ID,
@@ -108,7 +109,7 @@ class CanInstrument(SensorReader):
             self._can_logger = None
         if self._owns_bus:
             try:
-                self._bus.shutdown()
+                shutdown_bus(self._bus)
             except Exception as e:  # the link may already be gone (dropped pty)
                 log.debug("CAN bus shutdown on %s: %s", self._where, e)
 
