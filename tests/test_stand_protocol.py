@@ -16,7 +16,7 @@ import socket
 import threading
 import time
 import tty
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -76,7 +76,7 @@ def test_crc_helper_matches_the_specification_example() -> None:
 class ScriptedPeer:
     """The device end of a link, playing ordered (expected request, reply or None) pairs."""
 
-    def __init__(self, pairs: list[tuple[bytes, bytes | None]]) -> None:
+    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]]) -> None:
         self.pairs = pairs
         self.used = 0
         self.errors: list[str] = []
@@ -120,7 +120,7 @@ class ScriptedPeer:
 
 
 class TcpPeer(ScriptedPeer):
-    def __init__(self, pairs: list[tuple[bytes, bytes | None]]) -> None:
+    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]]) -> None:
         super().__init__(pairs)
         self._srv = socket.create_server(("127.0.0.1", 0))
         self.port = self._srv.getsockname()[1]
@@ -156,7 +156,7 @@ class TcpPeer(ScriptedPeer):
 
 
 class PtyPeer(ScriptedPeer):
-    def __init__(self, pairs: list[tuple[bytes, bytes | None]]) -> None:
+    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]]) -> None:
         super().__init__(pairs)
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
@@ -193,7 +193,7 @@ class PtyPeer(ScriptedPeer):
 
 @contextlib.contextmanager
 def expected_protocol(
-    transport: str, pairs: list[tuple[bytes, bytes | None]], timeout_s: float = 0.3
+    transport: str, pairs: Sequence[tuple[bytes, bytes | None]], timeout_s: float = 0.3
 ) -> Iterator[ModbusStand]:
     """A ``ModbusStand`` wired to a scripted peer; checks the script when the block ends."""
     peer: TcpPeer | PtyPeer

@@ -477,7 +477,8 @@ class SimStand:
         return b"" if sending and silent else data
 
     def _close_clients(self) -> None:
-        if self._server is None:
+        """TCP: close every client connection (on RTU the relay cuts the line instead)."""
+        if self._server is None or self.transport != "tcp":
             return
         for conn in list(getattr(self._server, "active_connections", {}).values()):
             conn.close()

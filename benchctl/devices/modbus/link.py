@@ -133,6 +133,11 @@ class ModbusLink:
                 raise ConnectionLost(
                     f"{self.endpoint}: connection lost during {what}: {e}"
                 ) from None
+            except OSError as e:  # e.g. a reset connection pymodbus did not wrap
+                self._client.close()
+                raise ConnectionLost(
+                    f"{self.endpoint}: connection lost during {what}: {e}"
+                ) from None
             except ModbusIOException as e:
                 raise self._no_reply(what, e) from None
             except PymodbusError as e:

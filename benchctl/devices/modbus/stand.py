@@ -35,6 +35,7 @@ from benchctl.errors import (
 from benchctl.harmonics import HarmonicTable
 
 RAMP_MARGIN = 0.8  # ramps use this fraction of the rate and acceleration limits
+REST_HOLD_S = 0.1  # "at rest" must hold this long
 _REL_TOL = 1e-9
 
 
@@ -62,8 +63,11 @@ class ModbusStand:
     axes
         The axes driven (a subset of the map's axes).
     setpoint_period_s
-        Nominal streaming period. Implied rates use max(time since the last setpoint, this
-        period): a setpoint sent early after a late one is judged as the stand will see it.
+        Nominal streaming period T. The rate implied by a setpoint is its step over
+        dt = max(time since the previous setpoint, T); the acceleration is the change of that
+        rate over the longer of the two steps' dt. A caller that evaluates its profile at
+        max(now, previous + T) (the run loop does) is judged exactly, and a host stall between
+        two setpoints never shows up as a false acceleration.
     zero_tolerance_deg
         "At zero" means every axis within this of 0 and at rest.
     clock
@@ -261,7 +265,7 @@ class ModbusStand:
                     f"setpoint {a} = {x:.4f}° after {prev.angle_deg:.4f}° {dt * 1e3:.1f} ms "
                     f"earlier: needs rate {abs(v):.3f}°/s, allowed {lim.rate_deg_s}°/s"
                 )
-            acc = (v - prev.rate_deg_s) / (0.5 * (dt + prev.dt))
+            acc = (v - prev.rate_deg_s) / max(dt, prev.dt)
             if abs(acc) > lim.accel_deg_s2 * (1 + _REL_TOL):
                 raise LimitError(
                     f"setpoint {a} = {x:.4f}°: rate changes {prev.rate_deg_s:.3f} → {v:.3f}°/s "
@@ -383,7 +387,8 @@ class ModbusStand:
 
         A running table is stopped first. The ramp uses ``RAMP_MARGIN`` of the rate and
         acceleration limits, is streamed at the setpoint period, keeps the heartbeat, and ends
-        when every axis is within ``zero_tolerance_deg`` of zero and at rest.
+        when every axis has been within ``zero_tolerance_deg`` of zero and at rest for
+        ``REST_HOLD_S``.
 
         Raises
         ------
@@ -433,10 +438,15 @@ class ModbusStand:
                 t_hb = self._clock()
             self._check_deadline(deadline, "ramping to zero")
         tol = self.zero_tolerance_deg
+        rest_since: float | None = None
         while True:
             s = self.read_sample()
             if all(abs(s.angle_deg[a]) <= tol for a in self.axes) and not s.status.moving:
-                return
+                rest_since = s.t_host if rest_since is None else rest_since
+                if s.t_host - rest_since >= REST_HOLD_S:  # an overshoot's turning point is no rest
+                    return
+            else:
+                rest_since = None
             if self._clock() - t_hb >= self.heartbeat_period_s:
                 self.heartbeat()
                 t_hb = self._clock()

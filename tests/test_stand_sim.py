@@ -1,0 +1,374 @@
+"""Back-to-back: the real stand driver against the simulated stand over Modbus TCP and RTU (pty)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchctl.config import SimStandConfig, SimStandFault, StandConfig, StandLimits
+from benchctl.devices.base import Stand, StandSample
+from benchctl.devices.modbus import ModbusStand, open_stand
+from benchctl.errors import (
+    ConnectionLost,
+    DeviceError,
+    DeviceTimeout,
+    LimitError,
+    ModbusException,
+    StandFault,
+)
+from benchctl.harmonics import HarmonicTable
+from benchctl.sim.stand import FAULT_ESTOP, FAULT_SOFT_LIMIT, FAULT_WATCHDOG, SimStand
+
+MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
+# a slow servo, so its dynamics are plainly visible at 1 Hz: |H| ≈ 0.97, arg H ≈ −43°
+SLOW = SimStandConfig(bandwidth_hz=2.0, damping=0.7, watchdog_s=0.5)
+TIMEOUT_S = 0.3
+
+
+def wait_for(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(0.01)
+
+
+def connect(sim: SimStand) -> ModbusStand:
+    common = {
+        "limits": LIMITS,
+        "register_map": MAP,
+        "timeout_s": TIMEOUT_S,
+        "retries": 0,
+        "setpoint_rate_hz": 50.0,
+    }
+    if sim.transport == "tcp":
+        cfg = StandConfig.model_validate({"driver": "modbus-tcp", "port": sim.port, **common})
+    else:
+        cfg = StandConfig.model_validate(
+            {"driver": "modbus-rtu", "serial_port": sim.serial_port, **common}
+        )
+    stand = open_stand(cfg)
+    stand.connect()
+    return stand
+
+
+@pytest.fixture(params=["tcp", "rtu"])
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[SimStand, ModbusStand]]:
+    with SimStand(SLOW, limits=LIMITS, register_map=MAP, transport=request.param) as sim:
+        stand = connect(sim)
+        try:
+            yield sim, stand
+        finally:
+            stand.close()
+
+
+def stream(
+    stand: ModbusStand, motion: Callable[[float], float], duration_s: float, rate_hz: float = 50.0
+) -> tuple[float, list[StandSample]]:
+    """Stream ``motion(t)`` to roll on absolute times (late cycles skip, never burst).
+
+    Returns the start time t0 (``motion`` is evaluated at host time t0 + t) and the samples.
+    """
+    period = 1.0 / rate_hz
+    t0 = time.monotonic()
+    k = 0
+    t = 0.0
+    samples: list[StandSample] = []
+    while True:
+        k += 1
+        due = t0 + k * period
+        now = time.monotonic()
+        if due > now:
+            time.sleep(due - now)
+        elif now - due > period:
+            k = int((now - t0) / period)  # slipped: next due time from now on
+        # the profile at the time it is sent, advancing at least one period per setpoint
+        t = max(time.monotonic() - t0, t + period)
+        if t > duration_s:
+            return t0, samples
+        stand.send_setpoint({"roll": motion(t)})
+        samples.append(stand.read_sample())
+        if k % 5 == 0:
+            stand.heartbeat()
+
+
+def fit_phasor(t: np.ndarray, x: np.ndarray, f_hz: float) -> complex:
+    """Least-squares complex amplitude c of x(t) ≈ Re(c e^{j2πft}) + offset."""
+    w = 2 * np.pi * f_hz
+    a = np.column_stack([np.cos(w * t), -np.sin(w * t), np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(a, x, rcond=None)
+    return complex(coef[0], coef[1])
+
+
+def test_driver_satisfies_the_stand_protocol(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    assert isinstance(stand, Stand)
+    ident = stand.identity
+    assert ident is not None and ident.vendor == "benchctl" and ident.serial == "SIM-0001"
+    st = stand.read_status()
+    assert st.ready and not st.enabled and not st.fault
+
+
+def test_streamed_sine_follows_the_servo_response(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    stand.enable()
+    f, amp = 1.0, 2.0
+    motion = HarmonicTable(
+        np.array([f]),
+        np.array([amp]),
+        np.array([-np.pi / 2]),
+        duration_s=3.5,
+        fade_in_s=0.5,
+        fade_out_s=0.5,
+    )  # a sine, faded in and out
+    t0, samples = stream(stand, lambda t: motion.at(t), 3.5)
+    t = np.array([s.t_host for s in samples]) - t0
+    x = np.array([s.angle_deg["roll"] for s in samples])
+    steady = (t > 1.2) & (t < 2.9)
+    measured = fit_phasor(t[steady], x[steady], f)
+    # the stand sees a staircase held for one period: ≈ the motion delayed by half a period
+    period = 1.0 / 50.0
+    expected = (
+        amp * np.exp(-1j * np.pi / 2) * sim.servo_response(f) * np.exp(-1j * np.pi * f * period)
+    )
+    assert abs(measured) == pytest.approx(abs(expected), rel=0.04)
+    phase_err = math.degrees(np.angle(measured / expected))
+    assert abs(phase_err) < 4.0, (
+        f"phase {math.degrees(np.angle(measured)):.1f}° vs expected "
+        f"{math.degrees(np.angle(expected)):.1f}°"
+    )
+    # and the ideal (no dynamics) answer is clearly rejected: arg H(1 Hz) ≈ −43°
+    assert abs(math.degrees(np.angle(measured / (amp * np.exp(-1j * np.pi / 2))))) > 30
+    stand.ramp_to_zero(timeout_s=10)
+    assert abs(stand.read_sample().angle_deg["roll"]) <= stand.zero_tolerance_deg
+
+
+def test_harmonic_table_runs_in_the_stand(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    stand.enable()
+    f = 1.0
+    roll = HarmonicTable(
+        np.array([f]),
+        np.array([2.0]),
+        np.array([0.3]),
+        duration_s=2.5,
+        fade_in_s=0.5,
+        fade_out_s=0.5,
+    )
+    pitch = HarmonicTable(
+        np.array([0.5, 1.5]),
+        np.array([1.0, 0.5]),
+        np.array([0.0, 1.0]),
+        duration_s=2.5,
+        fade_in_s=0.5,
+        fade_out_s=0.5,
+    )
+    stand.upload_table({"roll": roll, "pitch": pitch})
+    t_start = stand.start_table()
+    samples: list[StandSample] = []
+    while time.monotonic() - t_start < 2.7:
+        samples.append(stand.read_sample())
+        stand.heartbeat()
+        time.sleep(0.02)
+    assert any(s.status.table_running for s in samples)
+    wait_for(lambda: not stand.read_status().table_running, 2.0, "the table to end")
+    h = sim.servo_response(f)
+    checked = 0
+    for s in samples:
+        t = s.t_host - t_start
+        # the stand's active setpoint is the table itself
+        assert s.setpoint_deg["pitch"] == pytest.approx(float(pitch.at(t)), abs=0.03)
+        if 1.0 < t < 1.9:  # steady part of the roll line: angle = Re(H · A e^{j(ωt+φ)})
+            pred = float(np.real(h * 2.0 * np.exp(1j * (2 * np.pi * f * t + 0.3))))
+            assert s.angle_deg["roll"] == pytest.approx(pred, abs=0.1)
+            checked += 1
+    assert checked >= 15
+    final = stand.read_sample()
+    assert abs(final.angle_deg["roll"]) < 0.05 and abs(final.angle_deg["pitch"]) < 0.05
+
+
+def test_true_angles_match_the_encoder(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    stand.enable()
+    stream(stand, lambda t: 2.0 * (1 - math.cos(2 * math.pi * t)) / 2, 0.6)
+    s = stand.read_sample()
+    true = sim.true_angles(s.t_host)["roll"]
+    # the read is stamped at the request/reply midpoint; the stand moves ≤ 6.3°/s here
+    assert s.angle_deg["roll"] == pytest.approx(true, abs=0.001 + 6.3 * (s.rtt_s / 2 + 0.001))
+
+
+def test_table_beyond_limits_is_rejected_before_upload(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    fast = HarmonicTable(
+        np.array([3.0]),
+        np.array([5.0]),
+        np.array([0.0]),
+        duration_s=2.0,
+        fade_in_s=0.5,
+        fade_out_s=0.5,
+    )  # needs ~94°/s
+    with pytest.raises(LimitError, match="needs rate"):
+        stand.upload_table({"roll": fast})
+    with pytest.raises(DeviceError, match="without an uploaded table"):
+        stand.start_table()
+
+
+def test_ramp_to_zero_from_motion_respects_limits(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    stand.enable()
+    stream(stand, lambda t: 8.0 * t * t, 0.5)  # accelerating away: 8 °/s at the end, 2° out
+    stand.ramp_to_zero(timeout_s=10)
+    s = stand.read_sample()
+    assert abs(s.angle_deg["roll"]) <= stand.zero_tolerance_deg and not s.status.moving
+
+
+# -- faults --------------------------------------------------------------------------------
+def expect_within(
+    exc: type[BaseException], fn: Callable[[], object], bound_s: float
+) -> BaseException:
+    """``fn`` must raise ``exc`` (repeating until it does) within ``bound_s``."""
+    t0 = time.monotonic()
+    while True:
+        try:
+            fn()
+        except exc as e:
+            return e
+        if time.monotonic() - t0 > bound_s:
+            raise AssertionError(f"no {exc.__name__} within {bound_s} s")
+        time.sleep(0.01)
+
+
+def test_stall_gives_timeout_then_recovers(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    sim.inject("stall", duration_s=0.6)
+    t0 = time.monotonic()
+    expect_within(DeviceTimeout, stand.read_sample, TIMEOUT_S + 1.0)
+    assert time.monotonic() - t0 < TIMEOUT_S + 1.0
+    wait_for(lambda: time.monotonic() - t0 > 0.7, 2.0, "the stall to end")
+    assert stand.read_status().ready
+
+
+def test_modbus_exception_is_typed(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    sim.inject("modbus_exception", code=6, count=1)
+    err = expect_within(ModbusException, stand.read_sample, 1.0)
+    assert isinstance(err, ModbusException) and err.exception_code == 6 and err.function_code == 3
+    assert stand.read_status().ready  # one exception only
+
+
+def test_dropped_connection(rig: tuple[SimStand, ModbusStand]) -> None:
+    sim, stand = rig
+    sim.inject("drop_connection")
+    # TCP: the server closes the socket; RTU: the line goes dead
+    expected = ConnectionLost if sim.transport == "tcp" else DeviceTimeout
+    expect_within(expected, stand.read_sample, TIMEOUT_S + 1.5)
+    sim.clear_faults()
+    wait_for(lambda: _answers(stand), 3.0, "the link to come back")
+
+
+def _answers(stand: ModbusStand) -> bool:
+    try:
+        stand.read_status()
+    except DeviceError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize(("kind", "code"), [("stand_fault", 10), ("estop", FAULT_ESTOP)])
+def test_stand_fault_and_estop(rig: tuple[SimStand, ModbusStand], kind: str, code: int) -> None:
+    sim, stand = rig
+    stand.enable()
+    if kind == "stand_fault":
+        sim.inject(kind, code=code)
+    else:
+        sim.inject(kind)
+    err = expect_within(StandFault, stand.read_sample, 1.0)
+    assert isinstance(err, StandFault) and err.code == code
+    st = stand.read_status()
+    assert st.fault and not st.enabled and st.estop == (kind == "estop")
+    with pytest.raises(StandFault):
+        stand.enable()
+    stand.reset_fault()
+    stand.enable()
+    assert stand.read_status().enabled
+
+
+def test_estop_over_modbus(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    stand.enable()
+    stand.estop()
+    err = expect_within(StandFault, stand.read_sample, 1.0)
+    assert isinstance(err, StandFault) and err.code == FAULT_ESTOP
+
+
+def test_watchdog_stops_the_stand_when_heartbeat_stops(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    stand.enable()
+    stream(
+        stand, lambda t: 3.0 * (1 - math.cos(2 * math.pi * 0.5 * t)) / 2, 0.5
+    )  # moving, heartbeat kept
+    t_last = time.monotonic()  # no heartbeat from here on
+    err = expect_within(StandFault, stand.read_sample, SLOW.watchdog_s + 1.0)
+    assert isinstance(err, StandFault) and err.code == FAULT_WATCHDOG
+    assert (
+        time.monotonic() - t_last >= SLOW.watchdog_s - 0.15
+    )  # not before its time (heartbeat at k%5)
+    wait_for(lambda: not stand.read_status().moving, 2.0, "the stand to brake to rest")
+    assert not stand.read_status().enabled
+
+
+def test_soft_limit_faults_the_stand() -> None:
+    # tighter than the driver's 20° limit, and a lightly damped servo that overshoots
+    cfg = SimStandConfig(soft_limit_deg=3.0, bandwidth_hz=2.0, damping=0.2)
+    with SimStand(cfg, limits=LIMITS, register_map=MAP) as sim:
+        stand = connect(sim)
+        try:
+            stand.enable()
+            with pytest.raises(ModbusException) as exc:  # a setpoint beyond it: illegal value
+                stand.link.write_registers(300, [0x4120, 0x0000])  # roll 10.0°
+            assert exc.value.exception_code == 3
+            move = HarmonicTable(
+                np.array([0.0, 1 / 0.6]), np.array([1.475, -1.475]), np.zeros(2), duration_s=0.3
+            )  # 0 → 2.95° in 0.3 s, smooth
+            with pytest.raises(StandFault) as err:  # the overshoot passes 3°
+                stream(stand, lambda t: float(move.at(min(t, 0.3))), 2.0)
+            assert err.value.code == FAULT_SOFT_LIMIT
+            st = stand.read_status()
+            assert st.limit and st.fault and not st.enabled
+        finally:
+            stand.close()
+
+
+def test_scheduled_fault_from_config() -> None:
+    cfg = SimStandConfig(
+        faults=(SimStandFault(kind="modbus_exception", after_s=0.3, duration_s=0.3, code=4),)
+    )
+    with SimStand(cfg, limits=LIMITS, register_map=MAP) as sim:
+        stand = connect(sim)
+        try:
+            stand.read_status()
+            err = expect_within(ModbusException, stand.read_status, 2.0)
+            assert isinstance(err, ModbusException) and err.exception_code == 4
+            wait_for(lambda: _answers(stand), 2.0, "the scheduled fault to end")
+        finally:
+            stand.close()
+
+
+def test_stop_is_idempotent_and_leaves_nothing_behind(tmp_path: Path) -> None:
+    link = tmp_path / "stand.pty"
+    sim = SimStand(
+        SimStandConfig(), limits=LIMITS, register_map=MAP, transport="rtu", link_path=link
+    )
+    with sim:
+        assert link.is_symlink() and str(link.resolve()) == sim.serial_port
+        stand = connect(sim)
+        stand.close()
+        stand.close()
+    sim.stop()
+    assert not link.exists()
