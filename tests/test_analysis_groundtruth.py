@@ -44,7 +44,7 @@ def record(h: Response, variant: str, seed: int = 5):
         x = MS.reference(td)
         y0 = MS.through(h, td)
         return td, x, td, y0 + orthogonal_noise(rng, SN, y0 - x)
-    nr = int(600 * 50) + 50  # reference at 50 Hz, Modbus-like jitter of ±2 ms
+    nr = 600 * 50 + 50  # reference at 50 Hz, Modbus-like jitter of ±2 ms
     tr = np.arange(nr) / 50.0 - 0.5 + rng.uniform(-0.002, 0.002, nr)
     if variant in ("jitter", "gaps"):
         td = td + rng.uniform(-0.005, 0.005, N)

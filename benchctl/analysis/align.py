@@ -3,11 +3,18 @@
 What is done, in order:
 
 1. Both time series are checked: finite, strictly increasing (no duplicates), enough samples.
-2. The device's nominal interval ``dt`` is the median of its time steps. Each device sample gets
-   a slot ``k`` on a uniform grid: ``k_i = k_{i−1} + max(1, round(Δt_i/dt))``, so a step of
-   about ``2·dt`` is one dropped sample, and jitter smaller than ``dt/2`` never moves a sample
-   to another slot. ``dt`` and the grid origin are then refined by a least-squares fit of
-   ``t_i ≈ t₀ + k_i·dt`` (a device clock a little off its nominal rate is followed).
+2. Each device sample gets a slot ``k`` on a uniform grid. First guess from the median step
+   ``dt₀``: ``k_i = k_{i−1} + 1 + drops``, where a drop is a lasting jump of
+   ``t_i − i·dt₀``: the medians over ``h`` samples after and before a boundary differ by
+   about ``dt₀`` (``h`` ≥ 7, larger for larger jitter; jitter and short bursts of late
+   receipts do not move a median). Then, until it settles: fit ``t_i ≈ t₀ + k_i·dt`` by
+   least squares, take the slow wander of the instants about that grid (circular means of
+   their phase over blocks of 500 samples, so that samples in wrong slots do not bias it,
+   unwrapped and interpolated), and re-slot every sample by
+   ``k_i = round((t_i − t₀ − wander_i)/dt)``, kept strictly increasing by moving samples
+   that collide back into the free slots before them. So jitter about the device's clock
+   (and bursts of late receipts) does not move samples to other slots or fake drops, and a
+   clock off its nominal rate, or slowly wandering, is followed.
 3. The reference is evaluated at each device instant (minus any compensated delay) by a cubic
    interpolating spline through the reference samples (``scipy.interpolate.make_interp_spline``,
    k = 3): the reference is smooth and oversampled, its interpolation error is negligible.
@@ -32,12 +39,14 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import make_interp_spline
+from scipy.ndimage import median_filter
 
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
 
 GAP_FACTOR = 1.6
+HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeking a drop
 MIN_SAMPLES = 64
 
 
@@ -105,15 +114,80 @@ def check_values(v: FloatArray, name: str) -> None:
         raise DataError(f"{name}: the signal is constant ({v[0]!r} deg); nothing to analyse")
 
 
-def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:
-    """Grid slots of the instants ``t``, with the fitted step and origin (see module notes)."""
-    d = np.diff(t)
-    dt0 = float(np.median(d))
-    steps = np.maximum(1, np.rint(d / dt0)).astype(np.int64)
-    k = np.concatenate(([0], np.cumsum(steps)))
+def _line(k: NDArray[np.int64], t: FloatArray) -> tuple[float, float]:
     kc = k - k.mean()
     dt = float(np.dot(kc, t - t.mean()) / np.dot(kc, kc))
-    t0 = float(t.mean() - dt * k.mean())
+    return dt, float(t.mean() - dt * k.mean())
+
+
+def _wander(u: FloatArray, dt: float, block: int = 500) -> FloatArray:
+    """Slow offset of the instants ``u`` from the grid ``k·dt``, whatever their slots.
+
+    Circular means of the phase ``2π u/dt`` over blocks of samples (a sample in a wrong slot
+    has the same phase), unwrapped across blocks and interpolated to every sample.
+    """
+    n = len(u)
+    nb = max(1, n // block)
+    z = np.exp(2j * np.pi * (u - u[0]) / dt)
+    size = n // nb
+    means = z[: nb * size].reshape(nb, size).mean(axis=1)
+    offset = np.unwrap(np.angle(means)) * dt / (2.0 * np.pi) + u[0]
+    if nb == 1:
+        return np.full(n, offset[0])
+    centres = np.arange(nb) * size + (size - 1) / 2.0
+    return np.interp(np.arange(n), centres, offset)
+
+
+def _first_steps(t: FloatArray, dt0: float) -> NDArray[np.int64]:
+    """Slots advanced between consecutive samples: 1, plus the drops found between them.
+
+    A drop shifts every later sample by ``dt₀``: it is found as a jump between the median of
+    ``t_i − i·dt₀`` over the ``h`` samples after and the ``h`` samples before a boundary (a
+    burst of late receipts, fewer than ``h/2`` samples, does not move a median), placed at
+    the boundary where that jump is largest.
+    """
+    n = len(t)
+    d = np.diff(t)
+    jitter = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    h = int(np.clip(np.ceil((14.2 * jitter / dt0) ** 2), HALF_WINDOW, 101)) | 1
+    if n < 4 * h:
+        return np.maximum(1, np.rint(d / dt0)).astype(np.int64)
+    med = median_filter(t - dt0 * np.arange(n), size=h, mode="nearest")  # centred, width h
+    c = h // 2
+    b = np.arange(1, n)  # boundary between samples b−1 and b
+    jump = (med[np.clip(b + c, 0, n - 1)] - med[np.clip(b - 1 - c, 0, n - 1)]) / dt0
+    steps = np.ones(n - 1, dtype=np.int64)
+    cand = jump >= 0.5
+    if cand.any():
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], cand.view(np.int8), [0]))))
+        for a, e in zip(edges[::2], edges[1::2], strict=True):
+            # boundaries a … e−1 (boundary j between samples j and j+1): the level change
+            # across the whole run counts the drops; they sit at its largest raw steps
+            total = (med[min(e + c, n - 1)] - med[max(a - c, 0)]) / dt0
+            m = max(1, round(total))
+            order = a + np.argsort(d[a:e])[::-1]
+            for i in range(m):
+                steps[order[i % len(order)]] += 1
+    return steps
+
+
+def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:
+    """Grid slots of the instants ``t``, with the fitted step and origin (see module notes)."""
+    dt0 = float(np.median(np.diff(t)))
+    idx = np.arange(len(t))
+    k = np.concatenate(([0], np.cumsum(_first_steps(t, dt0))))
+    for _ in range(5):
+        dt, t0 = _line(k, t)
+        wander = _wander(t - t0, dt)
+        k_new = np.rint((t - t0 - wander) / dt).astype(np.int64)
+        # strictly increasing: a sample that shares a slot with a later one moves back into
+        # the free slots before it (a burst of late receipts), never pushes later ones on
+        k_new = idx + np.minimum.accumulate((k_new - idx)[::-1])[::-1]
+        k_new -= k_new[0]
+        if np.array_equal(k_new, k):
+            break
+        k = k_new
+    dt, t0 = _line(k, t)
     return k, dt, t0
 
 
