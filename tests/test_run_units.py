@@ -243,13 +243,14 @@ def test_stream_loop_skips_after_a_stall_without_a_burst(tmp_path: Path) -> None
     assert not sup.faulted, sup.first
     assert 15 <= loop.missed_cycles <= 40
     sp = load_recording(tmp_path / "rec").streams["setpoints"]
-    slots = np.round((sp["t_slot"] - sp["t_slot"][0]) / 0.01).astype(int)
-    assert np.all(np.diff(slots) >= 1)
-    assert slots.max() - slots.min() + 1 == len(slots) + loop.missed_cycles
-    big = int(np.argmax(np.diff(slots)))
-    assert np.diff(slots)[big] >= 15
-    # after the stall, the next setpoint is the slot current at its send time (no catch-up)
-    assert sp["t_send"][big + 1] - sp["t_slot"][big + 1] < 0.01
+    assert sp["t_send"].size + loop.missed_cycles == 101  # every slot sent or counted missed
+    d = np.diff(sp["t_slot"])
+    assert np.all(d >= 0.01 - 1e-12)  # profile time advances ≥ one period per setpoint
+    big = int(np.argmax(d))
+    assert d[big] >= 0.15  # the stall, skipped over in one step
+    # after the stall the setpoint carries the profile at its own send time (no catch-up)
+    assert abs(sp["t_send"][big + 1] - sp["t_slot"][big + 1]) < 0.01
+    assert np.all(np.diff(sp["t_send"]) > 0)
     assert sm.state is RunState.FADE_OUT
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,54 @@ def _read_stream(path: Path) -> tuple[list[str], NDArray[np.float64]]:
     return header, data
 
 
+def resolve_batches(
+    t_host: NDArray[np.float64], device_time_s: NDArray[np.float64] | None = None
+) -> NDArray[np.float64]:
+    """Receipt times with batches told apart: strictly increasing where the reader stamped
+    several samples with one receipt time (lines that arrived in one read).
+
+    The last sample of a batch keeps the receipt time; the earlier ones are dated back by their
+    own device-time differences when the instrument sends a time, else by the median interval
+    of the stream (the instrument's own period), and spread evenly after the previous sample
+    when that would not leave them after it. Times that are already increasing are
+    returned unchanged (the same array). Receipt times of one reader never decrease; a
+    decrease is left for the analysis to reject.
+
+    Parameters
+    ----------
+    t_host : ndarray
+        Receipt instants, monotonic seconds.
+    device_time_s : ndarray, optional
+        The instrument's own time stamps (s), NaN where absent.
+    """
+    t = np.asarray(t_host, dtype=float)
+    if t.size < 2:
+        return t
+    d = np.diff(t)
+    if not np.any(d == 0):
+        return t
+    pos = d[d > 0]
+    step = float(np.median(pos)) if pos.size else 0.0
+    out = t.copy()
+    i = t.size - 1
+    while i > 0:
+        j = i
+        while j > 0 and t[j - 1] == t[i]:
+            j -= 1
+        for m in range(i - 1, j - 1, -1):  # date back m = i-1 … j from the batch's last sample
+            dd = math.nan
+            if device_time_s is not None:
+                dd = float(device_time_s[m + 1] - device_time_s[m])
+            if not (math.isfinite(dd) and 0.0 < dd < 10.0 * step):
+                dd = step
+            out[m] = out[m + 1] - dd
+        if j > 0 and out[j] <= t[j - 1]:  # the batch came soon after the previous sample
+            lb, n = t[j - 1], i - j + 1
+            out[j:i] = lb + (t[i] - lb) * np.arange(1, n) / n
+        i = j - 1
+    return out
+
+
 @dataclass
 class Recording:
     """A loaded recording: metadata, end record (None if the writer never closed) and streams."""
@@ -77,7 +126,9 @@ class Recording:
         td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
         okr = np.isfinite(tr) & np.isfinite(xr)
         okd = np.isfinite(td) & np.isfinite(yd)
-        return tr[okr], xr[okr], td[okd], yd[okd]
+        dev_t = self.streams["instrument"].get("device_time_s")
+        td_ok = resolve_batches(td[okd], None if dev_t is None else dev_t[okd])
+        return tr[okr], xr[okr], td_ok, yd[okd]
 
     def export_csv(self, folder: str | Path) -> list[Path]:
         """One CSV per stream into ``folder``; returns the files written."""

@@ -140,16 +140,11 @@ def format_report(rep: Report) -> str:
 
 
 def _plot(result: Any, dest: Path) -> bool:
-    """Draw the analysis plot through the analysis package, if it offers one."""
+    """Draw the analysis plot (error PSD, gain, phase, coherence) beside the report."""
     try:
-        from benchctl.analysis import plot as plot_mod  # type: ignore[attr-defined]
-    except ImportError:
-        return False
-    fn = getattr(plot_mod, "plot_analysis", None) or getattr(plot_mod, "plot_result", None)
-    if fn is None:
-        return False
-    try:
-        fn(result, dest)
+        from benchctl.analysis.plot import plot_result
+
+        plot_result(result, dest)
     except Exception as e:  # a plot is a convenience; the verdict stands without it
         log.warning("analysis plot %s not drawn: %s", dest, e)
         return False

@@ -267,7 +267,7 @@ class MotionPlan:
 
     def at(self, t: float) -> dict[str, float]:
         """The profile at profile time ``t`` (linear between grid points; 0 outside)."""
-        if t <= 0.0 or t >= self.duration_s:
+        if t <= 0.0 or t >= self.duration_s or self.n_slots < 2:
             return dict.fromkeys(self.axes, 0.0)
         x = t / self.period_s
         i = min(int(x), self.n_slots - 2)
@@ -472,6 +472,8 @@ class StandLoop:
         target = self.plan.state_at(t_profile)
         if self.machine.state is not target:
             self.machine.advance_to(target)
+            # the running σ shown live covers the steady part, like the verdict
+            self.rec.sigma.active = target is RunState.RUNNING
 
     def _start_motion(self, t_start: float) -> None:
         self.t_motion_start = t_start
@@ -485,6 +487,7 @@ class StandLoop:
         t_start = self.clock() + period  # first slot one period ahead
         self._start_motion(t_start)
         k = 0
+        t_eval = t_start - period
         while True:
             deadline = t_start + k * period
             if not self._wait_until(deadline):
@@ -500,9 +503,14 @@ class StandLoop:
             if k >= plan.n_slots:
                 break
             self.lateness.add(late)
-            sp = {a: float(plan.values[a][k]) for a in plan.axes}
+            # The profile at the time it is sent (not at the slot): a late send carries the value
+            # for its own instant, so the rate it implies is the profile's. Profile time advances
+            # at least one period per setpoint, as the stand (and the driver's limit check)
+            # assumes one period between setpoints.
+            t_eval = max(now, t_eval + period)
+            sp = plan.at(t_eval - t_start)
             t_send = self.stand.send_setpoint(sp)
-            self.rec.writer.write_setpoint(t_send, sp, t_slot=deadline)
+            self.rec.writer.write_setpoint(t_send, sp, t_slot=t_eval)
             self.setpoints_sent += 1
             self._heartbeat(now)
             s = self.stand.read_sample()
