@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,10 +101,12 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
     header = _header(p)
     cols = [_find(p, header, n, opt) for n, opt in names]
     try:
-        data = np.loadtxt(
-            p, delimiter=",", skiprows=1, usecols=cols, ndmin=2, dtype=float,
-            comments="#", encoding="utf-8-sig",
-        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
+            data = np.loadtxt(
+                p, delimiter=",", skiprows=1, usecols=cols, ndmin=2, dtype=float,
+                comments="#", encoding="utf-8-sig",
+            )
     except ValueError:
         raise _locate_bad(p, header, cols) from None
     if data.shape[0] == 0:
