@@ -67,11 +67,12 @@ def live_bench(
     model: SimInstrumentConfig | None = None,
     run: dict[str, Any] | None = None,
     stand: dict[str, Any] | None = None,
+    sim_stand: dict[str, Any] | None = None,
 ) -> Iterator[LiveBench]:
     model = model or SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0)
     limits = StandLimits(**LIMITS)
     sim_stand = SimStand(
-        SimStandConfig(),
+        SimStandConfig(**(sim_stand or {})),
         limits=limits,
         register_map=ROOT / "drivers/stand_generic.yaml",
         transport="rtu" if transport == "rtu" else "tcp",

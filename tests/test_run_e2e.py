@@ -1,0 +1,246 @@
+"""`benchctl run` end to end against the real simulators over the real protocols.
+
+- Modbus TCP + CANopen over slcan: a two-axis profile in table mode; Modbus RTU + NMEA 0183 over
+  a pty: a roll profile streamed. The simulated instrument states its transfer function, so the
+  σ to expect is known (tests/run_sim.py: ``expected_sigma``): measured within 5 %, inside its CI.
+- Every way out, with a REAL child ``benchctl run`` process driven by signals or by the
+  simulators' fault knobs: exit code 2, the recording closed ``aborted`` with the reason and
+  readable by ``benchctl analyze``, the stand at rest (at zero when it still answered).
+- ``kill -9`` mid-profile: the recording (never closed) is readable by ``benchctl analyze``, and
+  the stand's watchdog has brought it to rest.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from run_sim import LiveBench, expected_sigma, live_bench
+
+from benchctl.cli import main
+from benchctl.recording import load_recording
+from benchctl.run import RunOptions, run_test
+from benchctl.run.session import prepare_motion
+
+pytestmark = pytest.mark.slow
+
+TWO_AXIS = """
+name: e2e_two_axis
+description: short two-axis roll and pitch for the run layer's end-to-end tests
+reference: exp-cos roll model (as ci_short), two axes, shortened
+kind: roll_spectrum
+duration_s: 20
+fade_in_s: 2
+fade_out_s: 2
+seed: 5
+band_hz: [0.1, 0.5]
+axes:
+  roll: {model: exp_cos, sigma_deg: 2.0, period_s: 6.0, damping: 0.2}
+  pitch: {model: exp_cos, sigma_deg: 1.0, period_s: 4.0, damping: 0.3}
+"""
+ROLL = TWO_AXIS.replace("e2e_two_axis", "e2e_roll").split("  pitch:")[0]
+
+
+def _profile(tmp_path: Path, text: str, name: str) -> Path:
+    p = tmp_path / f"{name}.yaml"
+    p.write_text(text)
+    return p
+
+
+def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
+    prep = prepare_motion(bench.cfg, profile, RunOptions("x", "y"))
+    assert res.report is not None
+    for axis in prep.plan.axes:
+        expect = expected_sigma(bench, prep.motion, axis)
+        v = res.report.axes[axis]
+        assert v.sigma_deg == pytest.approx(expect, rel=0.05), (axis, v.sigma_deg, expect)
+        lo, hi = v.sigma_ci95_deg
+        assert lo <= expect <= hi, (axis, lo, expect, hi)
+
+
+@pytest.mark.parametrize(
+    ("transport", "instrument", "mode", "text"),
+    [
+        ("tcp", "canopen", "table", TWO_AXIS),
+        ("rtu", "nmea0183", "stream", ROLL),
+    ],
+    ids=["tcp-canopen-table-2axis", "rtu-nmea0183-stream-roll"],
+)
+def test_run_end_to_end_sigma_as_stated(
+    tmp_path: Path, transport: str, instrument: str, mode: str, text: str
+) -> None:
+    profile = _profile(tmp_path, text, "profile")
+    stand: dict[str, Any] = {"mode": mode}
+    sim: dict[str, Any] = {}
+    if transport == "rtu":  # RS-485 at 460800 Bd: a 100 Hz write + read cycle fits in 10 ms
+        stand["baudrate"] = sim["baudrate"] = 460800
+    with live_bench(
+        tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim
+    ) as b:
+        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"))
+        assert res.state == "done" and res.exit_code == 0, res.reason
+        _check_sigma(b, res, profile)
+        assert b.stand_at_rest()
+    rec = load_recording(res.recording)  # type: ignore[arg-type]
+    assert rec.meta["devices"]["stand"]["protocol"].startswith(f"modbus-{transport}")
+    assert rec.meta["mode"] == mode and rec.meta["seed"] == 5
+    st = res.stats
+    assert st["instrument_lost"] == 0 and st["instrument_bad_frames"] == 0
+    rows = rec.streams["stand"]["t_host"]
+    assert rows.size > 0.8 * 100 * 20  # the reference at ~100 Hz over the profile
+    assert (rec.path / "report.json").is_file() and (rec.path / "analysis_roll.png").is_file()
+    if instrument == "canopen":
+        assert (rec.path / "can.blf").stat().st_size > 0  # raw frames beside the recording
+    assert json.loads((rec.path / "report.json").read_text())["verdict"] == "PASS"
+
+
+# ------------------------------------------------------------------------------ child process
+
+
+def _child(cfg: Path, profile: Path, *extra: str) -> subprocess.Popen[str]:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(cfg), "--profile", str(profile)]
+    cmd += ["--serial", "SAFE-1", "--operator", "ci", *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if cond():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _recording(runs: Path) -> Path | None:
+    found = [p.parent for p in runs.glob("*/meta.json")]
+    return found[0] if found else None
+
+
+def _motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
+    """True once the child's recording shows ``seconds`` of motion (from its own events)."""
+
+    def cond() -> bool:
+        rec = _recording(runs)
+        if rec is None or not (rec / "events.jsonl").is_file():
+            return False
+        for line in (rec / "events.jsonl").read_text().splitlines():
+            if '"motion_start"' in line:
+                t0 = json.loads(line)["t_host"]
+                return time.monotonic() - t0 >= seconds
+        return False
+
+    return cond
+
+
+def _at_rest(bench: LiveBench) -> bool:
+    a = bench.stand.true_angles(time.monotonic())
+    time.sleep(0.1)
+    b = bench.stand.true_angles(time.monotonic())
+    return all(abs(b[k] - a[k]) < 0.002 for k in a)
+
+
+def _finish(proc: subprocess.Popen[str], timeout_s: float = 30.0) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"child did not finish: {err[-2000:]}") from None
+    return proc.returncode, out, err
+
+
+def _analyze_reads(rec: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
+    capsys.readouterr()
+    assert main(["analyze", str(rec), "--axis", "roll", "--json"]) == 0, capsys.readouterr().err
+    out: dict[str, Any] = json.loads(capsys.readouterr().out)
+    return out
+
+
+WAYS = {
+    # name: (injection, expected words in the reason, stand still answers → back at zero)
+    "sigint": (lambda b, p: p.send_signal(signal.SIGINT), "interrupted by SIGINT", True),
+    "sigterm": (lambda b, p: p.send_signal(signal.SIGTERM), "interrupted by SIGTERM", True),
+    "stand-fault": (lambda b, p: b.stand.inject("stand_fault", code=12), "fault 12", False),
+    "estop": (lambda b, p: b.stand.inject("estop"), "E-stop", False),
+    "stand-link": (lambda b, p: b.stand.inject("drop_connection"), "stand loop", False),
+    "instrument-silent": (lambda b, p: b.instrument.inject("silent"), "instrument silent", True),
+    "instrument-link": (lambda b, p: b.instrument.inject("drop"), "instrument", True),
+    "tracking": (None, "tracking error", True),
+}
+
+
+@pytest.mark.parametrize("way", list(WAYS))
+def test_every_way_out_of_a_real_child_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], way: str
+) -> None:
+    inject, words, answers = WAYS[way]
+    profile = _profile(tmp_path, ROLL, "roll")
+    stand = {"tracking_tolerance_deg": 0.02} if way == "tracking" else {}
+    with live_bench(tmp_path, stand=stand) as b:
+        runs = tmp_path / "runs"
+        proc = _child(b.config_path, profile)
+        try:
+            if inject is not None:
+                _wait(_motion_for(runs, 1.5), 30.0, "the child's motion")
+                inject(b, proc)
+            code, out, err = _finish(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert code == 2, (out, err[-3000:])
+        assert "ABORTED" in out and words in out, out
+        _wait(lambda: _at_rest(b), 10.0, "the stand at rest")
+        if answers:
+            assert all(abs(v) <= 0.05 for v in b.stand.true_angles(time.monotonic()).values())
+    rec = _recording(runs)
+    assert rec is not None
+    r = load_recording(rec)
+    assert r.state == "aborted" and words in r.end["reason"]  # type: ignore[index]
+    steps = {s["step"]: s["ok"] for s in r.end["shutdown"]}  # type: ignore[index]
+    assert steps["stop loops"]  # end.json itself shows the recording was closed
+    if answers:
+        assert steps["ramp to zero"] and steps["disable"]
+    states = [e["to"] for e in r.events if e["kind"] == "state"]
+    assert states[-1] == "aborted"
+    res = _analyze_reads(rec, capsys)
+    assert math.isfinite(res["sigma"])
+
+
+def test_kill_9_mid_profile_leaves_a_readable_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    profile = _profile(tmp_path, ROLL, "roll")
+    with live_bench(tmp_path) as b:
+        runs = tmp_path / "runs"
+        proc = _child(b.config_path, profile)
+        try:
+            _wait(_motion_for(runs, 3.0), 30.0, "the child's motion")
+            t_kill = time.monotonic()
+            proc.kill()  # SIGKILL: no cleanup at all
+            proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        # nothing ramps the stand now: its watchdog must stop it (heartbeat gone)
+        _wait(lambda: _at_rest(b), 10.0, "the watchdog to stop the stand")
+    rec = _recording(runs)
+    assert rec is not None
+    r = load_recording(rec)
+    assert r.state == "incomplete" and r.end is None
+    t_last = max(r.streams["stand"]["t_host"][-1], r.streams["instrument"]["t_host"][-1])
+    assert t_kill - t_last < 1.0  # lost at most the last second
+    res = _analyze_reads(rec, capsys)
+    assert math.isfinite(res["sigma"]) and res["n_samples"] > 300
