@@ -118,3 +118,15 @@ def test_cross_spectrum_of_a_delay() -> None:
     assert np.allclose(np.abs(h[sel]), 1.0, atol=0.05)
     expected = np.degrees(-2 * np.pi * f[sel] * k * dt)
     assert np.max(np.abs(np.degrees(np.angle(h[sel])) - expected)) < 3.0
+
+
+@pytest.mark.parametrize("nperseg", [256, 255])
+def test_welch_density_is_scipys(nperseg: int) -> None:
+    from scipy.signal import welch
+
+    from benchctl.analysis.psd import welch_density
+
+    e = np.random.default_rng(5).normal(size=5000)
+    f, p = welch_density(e, 0.02, nperseg)
+    fs, ps = welch(e, fs=50.0, nperseg=nperseg, detrend=False)
+    assert np.allclose(f, fs) and np.allclose(p, ps, rtol=1e-12)

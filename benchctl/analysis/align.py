@@ -38,7 +38,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import make_interp_spline
 from scipy.ndimage import median_filter
 
 from benchctl.errors import DataError
@@ -257,6 +256,8 @@ def align(
     if same:
         x_at = np.asarray(x_ref, dtype=float)
     else:
+        from scipy.interpolate import make_interp_spline  # slow import, needed only here
+
         spline = make_interp_spline(t_ref, x_ref, k=3)
         x_at = np.full(len(t_eval), np.nan)
         x_at[ok] = spline(t_eval[ok])

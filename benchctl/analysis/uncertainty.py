@@ -21,9 +21,14 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 FloatArray = NDArray[np.float64]
+
+
+def chi2_ppf(q: float, dof: float | FloatArray) -> FloatArray:
+    """Quantile ``q`` of χ² with ``dof`` degrees of freedom (= scipy.stats.chi2.ppf)."""
+    return np.asarray(2.0 * gammaincinv(np.asarray(dof) / 2.0, q), dtype=float)
 
 
 def dof_of_variance(
@@ -80,8 +85,8 @@ def sigma_interval(sigma: float, dof: float, level: float = 0.95) -> tuple[float
     if not np.isfinite(dof):
         return (sigma, sigma)
     a = (1.0 - level) / 2.0
-    lo = sigma * float(np.sqrt(dof / chi2.ppf(1.0 - a, dof)))
-    hi = sigma * float(np.sqrt(dof / chi2.ppf(a, dof)))
+    lo = sigma * float(np.sqrt(dof / chi2_ppf(1.0 - a, dof)))
+    hi = sigma * float(np.sqrt(dof / chi2_ppf(a, dof)))
     return (lo, hi)
 
 
@@ -91,8 +96,8 @@ def density_interval(
     """Pointwise ``level`` interval of a spectral density with ν_f degrees of freedom."""
     a = (1.0 - level) / 2.0
     return (
-        density * dof_per_freq / chi2.ppf(1.0 - a, dof_per_freq),
-        density * dof_per_freq / chi2.ppf(a, dof_per_freq),
+        density * dof_per_freq / chi2_ppf(1.0 - a, dof_per_freq),
+        density * dof_per_freq / chi2_ppf(a, dof_per_freq),
     )
 
 

@@ -112,8 +112,7 @@ def run(args: argparse.Namespace) -> int:
             doc = next(iter(results.values())).to_dict()
         else:
             doc = {"axes": {ax: r.to_dict() for ax, r in results.items()}}
-        json.dump(doc, sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        sys.stdout.write(json.dumps(doc, allow_nan=False) + "\n")  # dumps: the C encoder
     else:
         for r in results.values():
             print(summary(r))
