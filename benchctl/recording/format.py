@@ -11,7 +11,7 @@
                         (t_host = midpoint of request and reply, monotonic seconds)
       instrument.csv    t_host, device_time_s, counter, <axis>_deg…   (t_host = receipt time)
       setpoints.csv     t_send, t_slot, <axis>_deg…                    (commanded motion: the
-                        profile's value for host time t_slot, sent at t_send)
+                        profile's value at its slot time t_slot, sent at t_send)
       events.jsonl      one JSON object a line: state changes, faults, notes
       end.json          written at close: state (done|aborted), reason, end time, counters
       can.blf|can.asc   raw CAN frames (python-can logger), when the instrument is on CAN

@@ -118,7 +118,7 @@ class RecordingWriter:
     def write_setpoint(
         self, t_send: float, angle_deg: Mapping[str, float], t_slot: float | None = None
     ) -> None:
-        """A commanded setpoint sent at ``t_send``: the profile's value for host time ``t_slot``."""
+        """A commanded setpoint sent at ``t_send``: the profile's value at slot time ``t_slot``."""
         fields = [_num(t_send), _num(t_slot)] + [_num(angle_deg.get(ax)) for ax in self.axes]
         self._write("setpoints", fields)
 

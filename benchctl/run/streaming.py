@@ -487,7 +487,6 @@ class StandLoop:
         t_start = self.clock() + period  # first slot one period ahead
         self._start_motion(t_start)
         k = 0
-        t_eval = t_start - period
         while True:
             deadline = t_start + k * period
             if not self._wait_until(deadline):
@@ -503,14 +502,12 @@ class StandLoop:
             if k >= plan.n_slots:
                 break
             self.lateness.add(late)
-            # The profile at the time it is sent (not at the slot): a late send carries the value
-            # for its own instant, so the rate it implies is the profile's. Profile time advances
-            # at least one period per setpoint, as the stand (and the driver's limit check)
-            # assumes one period between setpoints.
-            t_eval = max(now, t_eval + period)
-            sp = plan.at(t_eval - t_start)
+            # The profile on the uniform slot grid: the stand plays setpoints on its own
+            # period, so a late send carries its slot's value and the commanded trajectory
+            # does not depend on host jitter.
+            sp = {a: float(plan.values[a][k]) for a in plan.axes}
             t_send = self.stand.send_setpoint(sp)
-            self.rec.writer.write_setpoint(t_send, sp, t_slot=t_eval)
+            self.rec.writer.write_setpoint(t_send, sp, t_slot=deadline)
             self.setpoints_sent += 1
             self._heartbeat(now)
             s = self.stand.read_sample()
