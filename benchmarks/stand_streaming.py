@@ -2,14 +2,16 @@
 
 Each cycle starts on an absolute deadline t0 + k·T (host monotonic clock), sends one position
 setpoint (FC16, both axes), reads the feedback block (FC3) and every 10th cycle writes the
-heartbeat (FC6) — the stream mode's cycle. A cycle that starts a whole period late skips to the
-current slot (no burst of catch-up setpoints) and the skipped slots are counted as slips.
+heartbeat (FC6) — the stream mode's cycle; "+fc23" runs send the setpoint and read the feedback
+in one FC23 request (``ModbusStand.send_setpoint_and_read``). A cycle that starts a whole
+period late skips to the current slot (no burst of catch-up setpoints) and the skipped slots
+are counted as slips.
 
 The simulated stand runs in a child process (as ``benchctl sim`` would), so its physics and
 server threads do not share this process's interpreter lock. The baseline is the same
 scheduling loop with no I/O, measured in the same run.
 
-    python benchmarks/stand_streaming.py                 # 60 s each: baseline, TCP, RTU at 100 Hz
+    python benchmarks/stand_streaming.py    # 60 s each: baseline, TCP, TCP+FC23, RTU, RTU+FC23
     python benchmarks/stand_streaming.py --seconds 10 --rate-hz 50 --json
 """
 
@@ -42,8 +44,8 @@ def serve(transport: str, conn: Connection) -> None:
         SimStandConfig(watchdog_s=2.0),
         limits=StandLimits(**LIMITS),
         register_map=MAP,
-        transport=transport,
-    ) as sim:  # type: ignore[arg-type]
+        transport="rtu" if transport == "rtu" else "tcp",
+    ) as sim:
         conn.send({"port": sim.port, "serial_port": sim.serial_port, "endpoint": sim.endpoint})
         conn.recv()  # stop
         conn.send({"requests": sim.requests})
@@ -111,7 +113,7 @@ def baseline(seconds: float, rate_hz: float) -> dict[str, Any]:
     return run_loop(seconds, rate_hz, lambda k, t: sink.append(math.sin(t)))
 
 
-def streaming(transport: str, seconds: float, rate_hz: float) -> dict[str, Any]:
+def streaming(transport: str, seconds: float, rate_hz: float, fc23: bool) -> dict[str, Any]:
     from benchctl.config import StandConfig
     from benchctl.devices.modbus import open_stand
 
@@ -141,8 +143,11 @@ def streaming(transport: str, seconds: float, rate_hz: float) -> dict[str, Any]:
 
         def cycle(k: int, t: float) -> None:
             x = amp * (1.0 - math.cos(2 * math.pi * f * t)) / 2.0  # starts at rest
-            stand.send_setpoint({"roll": x, "pitch": -x})
-            rtts.append(stand.read_sample().rtt_s)
+            if fc23:
+                rtts.append(stand.send_setpoint_and_read({"roll": x, "pitch": -x})[1].rtt_s)
+            else:
+                stand.send_setpoint({"roll": x, "pitch": -x})
+                rtts.append(stand.read_sample().rtt_s)
             if k % 10 == 0:
                 stand.heartbeat()
 
@@ -171,12 +176,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="duration of each run (default 60)")
     ap.add_argument("--rate-hz", type=float, default=100.0, help="setpoint rate (default 100)")
     ap.add_argument("--transports", default="tcp,rtu", help="comma list of tcp, rtu")
+    ap.add_argument(
+        "--cycle",
+        choices=("separate", "fc23", "both"),
+        default="both",
+        help="setpoint write and feedback read as two requests (FC16 + FC3), as one "
+        "(FC23), or both in turn (default)",
+    )
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     args = ap.parse_args(argv)
     results: dict[str, Any] = {"seconds": args.seconds, "rate_hz_nominal": args.rate_hz}
     results["baseline"] = baseline(args.seconds, args.rate_hz)
+    runs: list[str] = []
     for tr in args.transports.split(","):
-        results[tr] = streaming(tr, args.seconds, args.rate_hz)
+        for fc23 in {"separate": [False], "fc23": [True], "both": [False, True]}[args.cycle]:
+            name = f"{tr}+fc23" if fc23 else tr
+            results[name] = streaming(tr, args.seconds, args.rate_hz, fc23)
+            runs.append(name)
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
@@ -186,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'late p50':>8} {'late p99':>8} {'busy p50':>8} {'busy p99':>8} "
         f"{'rtt p50':>8} {'rtt p99':>8}"
     )
-    for name in ("baseline", *args.transports.split(",")):
+    for name in ("baseline", *runs):
         r = results[name]
         rtt = r.get("read_rtt_ms", {"p50": float("nan"), "p99": float("nan")})
         print(
@@ -198,7 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     print(
         "(ms; jitter = |period between cycle starts − T|; late = start after its deadline; "
-        "busy = setpoint write + feedback read (+ heartbeat); rtt = feedback read round trip)"
+        "busy = setpoint write + feedback read (+ heartbeat); rtt = feedback read round trip "
+        "(+fc23: of the combined write+read))"
     )
     return 0
 

@@ -193,7 +193,10 @@ class PtyPeer(ScriptedPeer):
 
 @contextlib.contextmanager
 def expected_protocol(
-    transport: str, pairs: Sequence[tuple[bytes, bytes | None]], timeout_s: float = 0.3
+    transport: str,
+    pairs: Sequence[tuple[bytes, bytes | None]],
+    timeout_s: float = 0.3,
+    register_map: Path = MAP,
 ) -> Iterator[ModbusStand]:
     """A ``ModbusStand`` wired to a scripted peer; checks the script when the block ends."""
     peer: TcpPeer | PtyPeer
@@ -206,7 +209,7 @@ def expected_protocol(
         link = rtu_link(peer.path, timeout_s=timeout_s, retries=0)
     stand = ModbusStand(
         link,
-        load_register_map(MAP),
+        load_register_map(register_map),
         limits=StandLimitsView(30.0, 20.0, 100.0),
         setpoint_period_s=0.01,
     )
@@ -304,3 +307,30 @@ def test_silence_is_a_device_timeout(transport: str) -> None:
     ):
         stand.read_sample()
     assert time.monotonic() - t0 < 5.0
+
+
+@pytest.mark.parametrize("transport", ["tcp", "rtu"])
+def test_setpoint_and_read_is_one_fc23_transaction(transport: str) -> None:
+    # FC23: read 19 at 200, write 4 at 300 (8 bytes): roll 1.5, pitch -2.0; reply: 38 bytes read
+    fc23 = H("17 00C8 0013 012C 0004 08 3FC00000 C0000000")
+    pairs = [
+        (frame(transport, 1, READ_PDU), frame(transport, 1, READ_REPLY_PDU)),
+        (frame(transport, 2, fc23), frame(transport, 2, H("17 26") + FEEDBACK)),
+    ]
+    with expected_protocol(transport, pairs) as stand:
+        t_send, s = stand.send_setpoint_and_read({"roll": 1.5, "pitch": -2.0})
+    assert s.angle_deg == {"roll": 1.5, "pitch": -2.0} and t_send <= s.t_host
+
+
+def test_setpoint_and_read_without_fc23_is_two_requests(tmp_path: Path) -> None:
+    rmap = tmp_path / "no_fc23.yaml"
+    rmap.write_text(
+        MAP.read_text().replace("read_write_multiple: true", "read_write_multiple: false")
+    )
+    pairs = [
+        (frame("tcp", 1, READ_PDU), frame("tcp", 1, READ_REPLY_PDU)),
+        (frame("tcp", 2, SETPOINT_PDU), frame("tcp", 2, SETPOINT_REPLY_PDU)),
+        (frame("tcp", 3, READ_PDU), frame("tcp", 3, READ_REPLY_PDU)),
+    ]
+    with expected_protocol("tcp", pairs, register_map=rmap) as stand:
+        stand.send_setpoint_and_read({"roll": 1.5, "pitch": -2.0})

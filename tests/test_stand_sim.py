@@ -228,6 +228,22 @@ def test_ramp_to_zero_from_motion_respects_limits(rig: tuple[SimStand, ModbusSta
     assert abs(s.angle_deg["roll"]) <= stand.zero_tolerance_deg and not s.status.moving
 
 
+def test_setpoint_and_read_in_one_transaction(rig: tuple[SimStand, ModbusStand]) -> None:
+    _, stand = rig
+    stand.enable()
+    t0 = time.monotonic()
+    t = 0.0
+    while t < 0.6:
+        t = max(time.monotonic() - t0, t + 0.02)
+        x = 2.0 * (1 - math.cos(2 * math.pi * t)) / 2
+        t_send, s = stand.send_setpoint_and_read({"roll": x})
+        # the write precedes the read in the same request: the stand already holds it
+        assert s.setpoint_deg["roll"] == pytest.approx(x, rel=1e-6, abs=1e-6)
+        assert t_send <= s.t_host
+        stand.heartbeat()
+        time.sleep(0.02)
+
+
 # -- faults --------------------------------------------------------------------------------
 def expect_within(
     exc: type[BaseException], fn: Callable[[], object], bound_s: float

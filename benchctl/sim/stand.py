@@ -568,6 +568,7 @@ class SimStand:
                     return ExcCodes.ILLEGAL_VALUE
             if self._enabled and self._mode == "stream":
                 self._stream_target.update(commands)
+                self._target.update(commands)  # in effect from now on
         if touches(m.heartbeat):
             hb = int(value(m.heartbeat))
             if hb != self._hb_value:

@@ -123,6 +123,29 @@ class ModbusLink:
             lambda: self._client.write_register(address, int(value), device_id=self.device_id),
         )
 
+    def read_write_registers(
+        self, read_address: int, read_count: int, write_address: int, values: Sequence[int]
+    ) -> list[int]:
+        """One FC23 transaction: write ``values`` at ``write_address``, then read registers."""
+        vals = [int(v) for v in values]
+        rsp = self._call(
+            f"write {len(vals)} at {write_address} and read {read_count} at {read_address}",
+            lambda: self._client.readwrite_registers(
+                read_address=read_address,
+                read_count=read_count,
+                write_address=write_address,
+                values=vals,
+                device_id=self.device_id,
+            ),
+        )
+        regs = list(rsp.registers)
+        if len(regs) != read_count:
+            raise ProtocolError(
+                f"{self.endpoint}: asked for {read_count} registers at "
+                f"{read_address}, got {len(regs)}"
+            )
+        return regs
+
     def _call(self, what: str, fn: Callable[[], Any]) -> Any:
         with self._lock:
             self._rx = []

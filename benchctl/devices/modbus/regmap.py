@@ -116,6 +116,7 @@ class RegisterMap:
     word_order: Literal["big", "little"]
     max_read: int
     max_write: int
+    read_write_multiple: bool  # the stand takes FC23 (write then read in one request)
     identity: dict[str, Field]
     control_word: Field
     heartbeat: Field
@@ -340,6 +341,10 @@ def parse_register_map(data: Mapping[str, Any], source: Path) -> RegisterMap:
         {"v": data.get("max_write_registers", 123)}, "v", "max_write_registers", 8, 123
     )
 
+    rwm = data.get("read_write_multiple", False)
+    if not isinstance(rwm, bool):
+        raise ld.fail("read_write_multiple", rwm, "true or false")
+
     ident_sec = ld.section(data, "identity")
     identity = {k: ld.field(v, f"identity.{k}") for k, v in ident_sec.items()}
     for k in ("vendor", "model"):
@@ -391,6 +396,7 @@ def parse_register_map(data: Mapping[str, Any], source: Path) -> RegisterMap:
         word_order=word_order,
         max_read=max_read,
         max_write=max_write,
+        read_write_multiple=rwm,
         identity=identity,
         control_word=ld.field(ctl.get("control_word"), "control.control_word", writable=True),
         heartbeat=ld.field(ctl.get("heartbeat"), "control.heartbeat", writable=True),
