@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
-from benchctl.analysis.correlation import correlations, demean
+from benchctl.analysis.correlation import Correlations, correlations, demean
 from benchctl.analysis.psd import (
     SpectralGrid,
     WelchEstimate,
@@ -61,6 +61,7 @@ class _Spectra:
     gee: FloatArray
     r0_scale: float
     n_valid: int
+    corr: Correlations
 
 
 def _spectra(al: Aligned, max_lag: int) -> _Spectra:
@@ -70,7 +71,18 @@ def _spectra(al: Aligned, max_lag: int) -> _Spectra:
     gyy = auto_spectrum(c.ry, grid)
     gxy = cross_spectrum(c.rxy, c.ryx, grid)
     gee = auto_spectrum(c.error(), grid)  # eq. 2 then eq. 1
-    return _Spectra(grid, gxx, gyy, gxy, gee, float(c.rx[0] + c.ry[0]), c.n_valid)
+    return _Spectra(grid, gxx, gyy, gxy, gee, float(c.rx[0] + c.ry[0]), c.n_valid, c)
+
+
+def _delay(sp: _Spectra, al: Aligned) -> float:
+    pos = sp.grid.freq > 0
+    f_peak = float(sp.grid.freq[pos][np.argmax(sp.gxx[pos])])
+    c = sp.corr
+    raw = c.pairs * c.n / (c.n - np.arange(c.max_lag + 1))  # undo the estimator's scaling
+    x, y = demean(al.x, al.mask), demean(al.y, al.mask)
+    return frf_mod.delay_from_correlation(
+        c.rxy * raw, c.ryx * raw, x, y, al.mask, al.dt, f_peak
+    )
 
 
 def _max_lag(al: Aligned, max_lag_s: float | None) -> int:
@@ -161,7 +173,7 @@ def analyze(
     compensate_delay : "none" | "auto" | float
         Remove an acquisition delay (s, positive when the device lags) before the analysis:
         the reference is evaluated at ``t_dev − delay``. "auto" uses the delay estimated from
-        the phase of H1. The delay found before compensation is always reported.
+        the cross-correlation peak. The delay found before compensation is always reported.
     timebase : {"given", "fitted"}
         Device instants as given, or fitted to a uniform clock (jittery receipt times).
     source, axis : str
@@ -198,9 +210,7 @@ def analyze(
     lag = _max_lag(al, max_lag_s)
     sp = _spectra(al, lag)
     _check_band(band_hz, al, sp.grid.resolution_hz)
-    delay_raw = frf_mod.delay_from_phase(
-        frf_mod.frequency_response(sp.grid.freq, sp.gxx, sp.gyy, sp.gxy, band_hz)
-    )
+    delay_raw = _delay(sp, al)
     shift = 0.0
     if mode is not None:
         shift = delay_raw if np.isnan(mode) else mode

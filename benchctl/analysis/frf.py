@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.fft import irfft, next_fast_len, rfft
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -28,6 +29,7 @@ class FrequencyResponse:
     freq: FloatArray
     h: ComplexArray
     coherence: FloatArray
+    gxx: FloatArray
 
     @property
     def gain(self) -> FloatArray:
@@ -72,7 +74,9 @@ def frequency_response(
         keep &= (freq >= band_hz[0]) & (freq <= band_hz[1])
     h = gxy[keep] / gxx[keep]
     coh = np.abs(gxy[keep]) ** 2 / (gxx[keep] * gyy[keep])
-    return FrequencyResponse(freq=freq[keep], h=h, coherence=np.clip(coh, 0.0, 1.0))
+    return FrequencyResponse(
+        freq=freq[keep], h=h, coherence=np.clip(coh, 0.0, 1.0), gxx=gxx[keep]
+    )
 
 
 def at_periods(
@@ -110,21 +114,75 @@ def at_periods(
     return out
 
 
-def delay_from_phase(frf: FrequencyResponse) -> float:
-    """Equivalent delay of the device behind the reference, s (positive: device lags).
+def _pair_energies(
+    x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], lag: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """For τ = 0 … lag: Σ x_i² and Σ y_{i+τ}² over the pairs (i, i+τ) that exist, and the
+    same for the pairs (i+τ, i): (ex_pos, ey_pos, ex_neg, ey_neg). By FFT when there are gaps,
+    by cumulative sums when there are none."""
+    n = len(x)
+    t = np.arange(lag + 1)
+    if bool(mask.all()):
+        cx = np.concatenate(([0.0], np.cumsum(x * x)))  # cx[k] = Σ_{i<k} x_i²
+        cy = np.concatenate(([0.0], np.cumsum(y * y)))
+        return cx[n - t], cy[n] - cy[t], cx[n] - cx[t], cy[n - t]
+    nfft = next_fast_len(n + lag, real=True)
+    fm = rfft(mask.astype(float), nfft)
+    p = irfft(np.conj(rfft(x * x, nfft)) * fm, nfft)  # Σ x_i² m_{i+τ}
+    q = irfft(np.conj(fm) * rfft(y * y, nfft), nfft)  # Σ m_i y_{i+τ}²
+    neg = np.concatenate(([0], nfft - t[1:]))
+    return p[t], q[t], q[neg], p[neg]
 
-    Weighted least-squares fit of ``φ(f) = −2π f τ`` (through the origin) to the unwrapped
-    phase of H1, weights ``γ²/(1 − γ²)`` (the inverse of the phase estimate's variance, up to
-    a constant). For a pure delay this is the delay; for a lag it is the low-frequency group
-    delay seen in the band. NaN when fewer than two frequencies are available.
+
+def delay_from_correlation(
+    rxy: FloatArray,
+    ryx: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    mask: NDArray[np.bool_],
+    dt: float,
+    f_peak: float,
+) -> float:
+    """Delay of the device behind the reference, s (positive: the device lags).
+
+    The lag of the maximum of the normalised cross-correlation
+    ``ρ(τ) = Σ x_i y_{i+τ} / √(Σ x_i² · Σ y_{i+τ}²)``, each sum over the pairs the lag
+    leaves and that exist (so neither gaps nor the ends of a record whose amplitude
+    changes, a fade, pull the peak),
+    refined below a sample by a parabola through the maximum and its neighbours. The search
+    is limited to ``|τ| < 1/(2 f_peak)``, half the period where the reference has most power,
+    so that a periodic motion cannot make a whole period look like a delay. For a pure delay
+    this is the delay; otherwise the shift that makes the two records most alike.
+
+    Parameters
+    ----------
+    rxy, ryx : ndarray
+        ``Σ x_i y_{i+τ}`` and ``Σ y_i x_{i+τ}`` for τ = 0 … L (raw sums, deg²).
+    x, y : ndarray
+        The gridded series, means removed, zero in the gaps (deg).
+    mask : ndarray of bool
+        True where a slot holds a sample.
+    dt : float
+        Grid step, s.
+    f_peak : float
+        Frequency of the reference's PSD maximum, Hz.
     """
-    if len(frf.freq) < 2:
-        return float("nan")
-    phi = np.unwrap(np.angle(frf.h))
-    # the unwrapped phase must start in (−π, π] at the lowest frequency
-    w = frf.coherence / np.maximum(1.0 - frf.coherence, 1e-6)
-    f = frf.freq
-    return float(-np.sum(w * f * phi) / (2.0 * np.pi * np.sum(w * f * f)))
+    lag = len(rxy) - 1
+    w = lag if f_peak <= 0 else min(lag, max(1, int(0.5 / (f_peak * dt))))
+    ex_pos, ey_pos, ex_neg, ey_neg = _pair_energies(x, y, mask, w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pos = rxy[: w + 1] / np.sqrt(ex_pos * ey_pos)  # τ ≥ 0
+        neg = ryx[: w + 1] / np.sqrt(ex_neg * ey_neg)  # τ ≤ 0, as −τ
+    c = np.nan_to_num(np.concatenate((neg[1:][::-1], pos)), nan=-np.inf)
+    tau = np.arange(-w, w + 1)
+    i = int(np.argmax(c))
+    frac = 0.0
+    if 0 < i < len(c) - 1 and np.all(np.isfinite(c[i - 1 : i + 2])):
+        a, b, d = c[i - 1], c[i], c[i + 1]
+        den = a - 2.0 * b + d
+        if den < 0:
+            frac = 0.5 * (a - d) / den
+    return float((tau[i] + frac) * dt)
 
 
 @dataclass(frozen=True)
