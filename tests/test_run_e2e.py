@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from run_sim import LiveBench, expected_sigma, live_bench
+from run_sim import ROOT, LiveBench, expected_sigma, live_bench
 
 from benchctl.cli import main
 from benchctl.recording import load_recording
@@ -244,3 +244,58 @@ def test_kill_9_mid_profile_leaves_a_readable_recording(
     assert t_kill - t_last < 1.0  # lost at most the last second
     res = _analyze_reads(rec, capsys)
     assert math.isfinite(res["sigma"]) and res["n_samples"] > 300
+
+
+def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) -> None:
+    """The README's first command, shortened: `config/sim.yaml` has a `sim:` section, so
+    `benchctl run` starts the simulators itself; `--json` gives the report; σ is as the
+    simulated instrument states (its model in the config, through the simulated servo)."""
+    import numpy as np
+
+    from benchctl.config import load_config
+    from benchctl.sim.instrument_model import InstrumentModel
+    from benchctl.sim.servo import ServoModel
+
+    cfg_path = ROOT / "config/sim.yaml"
+    profile = ROOT / "profiles/ci_short.yaml"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "benchctl",
+            "run",
+            "--config",
+            str(cfg_path),
+            "--profile",
+            str(profile),
+        ]
+        + ["--serial", "DEMO-1", "--operator", "ci", "--out", str(tmp_path / "runs"), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rep = json.loads(proc.stdout)
+    assert rep["verdict"] == "PASS" and rep["state"] == "done" and rep["exit_code"] == 0
+    cfg = load_config(cfg_path)
+    assert cfg.sim is not None
+    prep = prepare_motion(cfg, profile, RunOptions("x", "y"))
+    tab = prep.motion.tables["roll"]
+    s = cfg.sim.stand
+    servo = ServoModel(
+        s.bandwidth_hz, s.damping, s.rate_limit_deg_s, s.accel_limit_deg_s2, 1 / s.tick_hz
+    )
+    hs = np.abs(servo.response(tab.freq_hz))
+    var = InstrumentModel(cfg.sim.instrument).expected_error_variance(
+        tab.amp_deg * hs,
+        tab.freq_hz,
+        resolution_deg=0.01,  # CiA 410 slope at resolution 10
+    )
+    roll = rep["axes"]["roll"]
+    assert roll["sigma"] == pytest.approx(math.sqrt(var), rel=0.05)
+    assert roll["sigma_ci95"][0] <= math.sqrt(var) <= roll["sigma_ci95"][1]
+    assert roll["mean_error"] == pytest.approx(cfg.sim.instrument.bias_deg, abs=0.01)
+    for key in ("serial", "operator", "station", "seed", "stats", "recording", "analysis_window"):
+        assert key in rep
+    assert rep["stats"]["missed_cycles"] == 0 or rep["stats"]["missed_cycles"] < 25
+    assert load_recording(rep["recording"]).state == "done"

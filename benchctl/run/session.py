@@ -269,6 +269,7 @@ class Session:
         self.recorder: Recorder | None = None
         self.moved = False
         self.meta: dict[str, Any] = {}
+        self._final_stats: dict[str, Any] | None = None
 
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
@@ -433,6 +434,8 @@ class Session:
             self.loop.stop()
 
     def _stats(self) -> dict[str, Any]:
+        if self._final_stats is not None:
+            return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
         st: dict[str, Any] = self.loop.stats() if self.loop else {}
         if self.sensor is not None:
             st["instrument_bad_frames"] = self.sensor.stats.bad_total
@@ -510,6 +513,9 @@ class Session:
                     reason="",
                     moved=False,
                 )
+                self._final_stats = self._stats()
+                self.stand = self.sensor = None  # closed: an abort from here has nothing to move
+                self.moved = False
                 for step in rep.steps:
                     if not step["ok"]:
                         raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")

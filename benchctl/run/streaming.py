@@ -7,8 +7,10 @@ One thread (``StandLoop``) owns the stand's cycle from connect to shutdown:
 - **stream** mode — setpoints at ``setpoint_rate_hz`` on ABSOLUTE deadlines
   ``t_start + k·period`` (``time.monotonic``). After a stall the loop skips to the current slot
   (no burst of catch-up setpoints, the stand holds or interpolates) and counts the missed
-  cycles. Each cycle sends the slot's setpoint, reads the stand sample (recorded as the
-  reference), checks it and keeps the heartbeat;
+  cycles; a setpoint goes out within ``SEND_WINDOW`` of a period after its slot or its slot is
+  missed, so setpoints are always a whole number of periods apart. Each cycle sends the
+  slot's setpoint, reads the stand sample (recorded as the reference), checks it and keeps the
+  heartbeat;
 - **table** mode — the harmonic table is uploaded and started; the loop polls the stand's angle
   at ``sample_rate_hz`` and compares it to the profile evaluated from the start time.
 
@@ -45,6 +47,7 @@ from benchctl.run.supervisor import Supervisor
 
 log = logging.getLogger(__name__)
 
+SEND_WINDOW = 0.25  # a setpoint goes out within this fraction of a period after its slot, or not
 DEBOUNCE = 3  # consecutive stand samples over a tolerance before the run aborts
 SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
 REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
@@ -493,12 +496,15 @@ class StandLoop:
                 return
             now = self.clock()
             late = now - deadline
-            if late >= period:  # stalled: skip to the current slot, no burst
-                skip = int(late / period)
+            if late >= SEND_WINDOW * period:
+                # stalled: no burst. A slot whose moment has passed by more than the send window
+                # is missed (counted); the loop waits for the next slot. Sending only close to
+                # its slot keeps the interval between setpoints a whole number of periods, as
+                # the stand plays them.
+                skip = int(late / period) + 1
                 self.missed_cycles += skip
                 k += skip
-                deadline = t_start + k * period
-                late = now - deadline
+                continue
             if k >= plan.n_slots:
                 break
             self.lateness.add(late)
