@@ -324,3 +324,40 @@ def test_serialized_stand_excludes_concurrent_calls() -> None:
     for t in ts:
         t.join()
     assert inside == []
+
+
+# ----------------------------------------------------------------------------- display
+
+
+def test_displays_tty_redraws_in_place_and_log_prints_lines() -> None:
+    import io
+
+    from benchctl.run.display import LogDisplay, Snapshot, TtyDisplay, make_display
+
+    snap = Snapshot(
+        "running",
+        elapsed_s=65.0,
+        remaining_s=835.0,
+        stand_deg={"roll": 1.234},
+        instrument_deg={"roll": 1.3},
+        tracking_error_deg={"roll": 0.012},
+        sigma_deg={"roll": float("nan")},
+    )
+    tty = io.StringIO()
+    d = TtyDisplay(tty, fps=1e6)
+    d.update(snap)
+    d.update(snap)
+    out = tty.getvalue()
+    assert "\x1b[5F\x1b[J" in out  # the second frame overwrote the first (5 lines up)
+    assert "elapsed 01:05  remaining 13:55" in out and "roll   +1.23°" in out
+    d.message("state → fade-out")
+    assert "state → fade-out" in tty.getvalue()
+    log = io.StringIO()
+    ld = LogDisplay(log, period_s=3600.0)
+    ld.update(snap)
+    ld.update(snap)  # within the period: not printed again
+    ld.state("aborted", "interrupted by SIGINT")
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 2 and "\x1b" not in log.getvalue()
+    assert lines[1].endswith("state → aborted (interrupted by SIGINT)")
+    assert isinstance(make_display(io.StringIO()), LogDisplay)  # not a terminal

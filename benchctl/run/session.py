@@ -523,6 +523,7 @@ class Session:
                 self.machine.advance_to(RunState.ANALYSING)
                 window = self._window()
                 report, results = self._analyse(window)
+                self.supervisor.check()  # a signal during the analysis still ends the run
                 files = write_report(report, results)
                 archive(self.out_dir, report)
                 self.writer.event("verdict", **report.to_dict(full=False))
