@@ -186,3 +186,15 @@ def test_delay_through_a_fade_and_gaps(d: float) -> None:
     assert r.delay == pytest.approx(d, abs=0.001)
     comp = analyze(tr, faded(tr), td, y, compensate_delay="auto")
     assert comp.sigma == pytest.approx(0.02, rel=0.05)
+
+
+def test_to_dict_is_strict_json_even_with_nan() -> None:
+    import json
+
+    r = analyze(*record(gain(0.98), "same"))
+    r.delay = float("nan")
+    r.cross_checks["welch_area"] = float("inf")
+    r.periods[0]["coherence"] = float("nan")
+    d = json.loads(json.dumps(r.to_dict(), allow_nan=False))
+    assert d["delay"] is None and d["cross_checks"]["welch_area"] is None
+    assert d["periods"][0]["coherence"] is None

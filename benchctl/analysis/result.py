@@ -18,6 +18,21 @@ def _num(v: float) -> float | None:
     return f if math.isfinite(f) else None
 
 
+def _clean(v: Any) -> Any:
+    """Nested dicts/lists with every non-finite float replaced by None (strict JSON)."""
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, float | np.floating):
+        return _num(float(v))
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
 def _list(a: NDArray[Any]) -> list[float | None]:
     arr = np.asarray(a, dtype=float)
     if np.isfinite(arr).all():
@@ -94,8 +109,8 @@ class AnalysisResult:
                 "incoherent": _num(self.incoherent),
                 "static": _num(self.mean_error**2),
             },
-            "band": self.band,
-            "periods": self.periods,
+            "band": _clean(self.band),
+            "periods": _clean(self.periods),
             "frf": {
                 "freq": _list(self.frf_freq),
                 "gain": _list(self.frf_gain),
@@ -107,9 +122,9 @@ class AnalysisResult:
                 "error": _list(self.psd_error),
                 "dof": _num(self.dof_per_frequency),
             },
-            "gaps": self.gaps,
-            "timing": self.timing,
-            "cross_checks": self.cross_checks,
-            "uncertainty": self.uncertainty,
+            "gaps": _clean(self.gaps),
+            "timing": _clean(self.timing),
+            "cross_checks": _clean(self.cross_checks),
+            "uncertainty": _clean(self.uncertainty),
             "warnings": list(self.warnings),
         }
