@@ -125,3 +125,16 @@ def test_heavy_jitter_with_random_drops(jitter: float) -> None:
     k, _, _ = slot_indices(t[keep])
     expected = np.flatnonzero(keep)
     assert np.array_equal(k, expected - expected[0])
+
+
+def test_short_reference_gaps_are_bridged_and_reported() -> None:
+    tr = np.arange(0, 100, 0.01)
+    keep = np.ones(tr.size, dtype=bool)
+    keep[[1000, 3000, 3001, 3002, 5000, 5001, 5002, 5003]] = False  # 1, 3 and 4 missing
+    td = np.arange(0.5, 99.5, 0.02)
+    al = align(tr[keep], MS.reference(tr[keep]), td, MS.reference(td))
+    assert al.reference.gap_count == 3 and al.reference.missing_samples == 8
+    # the 1- and 3-sample holes are bridged (error far below 1e-4 deg); the 4-sample one not
+    in_long = np.sum((td > tr[4999]) & (td < tr[5004]))
+    assert al.excluded == in_long == 2
+    assert np.max(np.abs(al.x[al.mask] - MS.reference(al.t[al.mask]))) < 1e-4

@@ -20,8 +20,11 @@ What is done, in order:
    k = 3): the reference is smooth and oversampled, its interpolation error is negligible.
    The device's output is never interpolated: the error ``ε_i = y_i − x(t_i)`` is formed at
    the device's own instants.
-4. Device samples outside the span of the reference, or inside a gap of the reference
-   (a reference step longer than 1.6× its median step), are excluded.
+4. Device samples outside the span of the reference, or inside a long gap of the reference
+   (a step longer than 4.5× its median step), are excluded. Shorter reference gaps (up to
+   three missing samples, e.g. a slipped Modbus cycle) are bridged by the spline: for a
+   motion below 1 Hz sampled at 100 Hz its error across 40 ms is below 10⁻⁴ of the
+   amplitude. All reference gaps are reported.
 5. Slots without a sample (dropped device samples, excluded ones) are masked; the correlation
    estimator uses only the pairs that exist (see ``correlation``), so gaps bias nothing and the
    variance stays that of the analysed samples.
@@ -44,7 +47,7 @@ from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
 
-GAP_FACTOR = 1.6
+BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
 HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeking a drop
 MIN_SAMPLES = 64
 
@@ -249,7 +252,7 @@ def align(
             + (f" (shifted by {shift_s:.6g} s)" if shift_s else "")
         )
     d_ref = np.diff(t_ref)
-    gap_ref = d_ref > GAP_FACTOR * float(np.median(d_ref))
+    gap_ref = d_ref > BRIDGE_STEPS * float(np.median(d_ref))
     if gap_ref.any():
         seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
         ok &= ~(gap_ref[seg] & (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1]))
