@@ -76,7 +76,12 @@ def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
     ids=["tcp-canopen-table-2axis", "rtu-nmea0183-stream-roll"],
 )
 def test_run_end_to_end_sigma_as_stated(
-    tmp_path: Path, transport: str, instrument: str, mode: str, text: str
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    transport: str,
+    instrument: str,
+    mode: str,
+    text: str,
 ) -> None:
     profile = _profile(tmp_path, text, "profile")
     stand: dict[str, Any] = {"mode": mode}
@@ -101,6 +106,10 @@ def test_run_end_to_end_sigma_as_stated(
     if instrument == "canopen":
         assert (rec.path / "can.blf").stat().st_size > 0  # raw frames beside the recording
     assert json.loads((rec.path / "report.json").read_text())["verdict"] == "PASS"
+    # `benchctl analyze` on the finished recording reproduces the verdict's σ (its window)
+    assert main(["analyze", str(rec.path), "--axis", "roll", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["sigma"] == pytest.approx(res.report.axes["roll"].sigma_deg, rel=1e-9)
 
 
 # ------------------------------------------------------------------------------ child process
@@ -258,18 +267,11 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
 
     cfg_path = ROOT / "config/sim.yaml"
     profile = ROOT / "profiles/ci_short.yaml"
+    cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(cfg_path)]
+    cmd += ["--profile", str(profile), "--serial", "DEMO-1", "--operator", "ci"]
+    cmd += ["--out", str(tmp_path / "runs"), "--json"]
     proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "benchctl",
-            "run",
-            "--config",
-            str(cfg_path),
-            "--profile",
-            str(profile),
-        ]
-        + ["--serial", "DEMO-1", "--operator", "ci", "--out", str(tmp_path / "runs"), "--json"],
+        cmd,
         capture_output=True,
         text=True,
         timeout=120,

@@ -361,3 +361,34 @@ def test_displays_tty_redraws_in_place_and_log_prints_lines() -> None:
     assert len(lines) == 2 and "\x1b" not in log.getvalue()
     assert lines[1].endswith("state → aborted (interrupted by SIGINT)")
     assert isinstance(make_display(io.StringIO()), LogDisplay)  # not a terminal
+
+
+def test_resolve_batches_dates_back_one_read() -> None:
+    from benchctl.recording.reader import resolve_batches
+
+    t = np.array([1.00, 1.01, 1.04, 1.04, 1.04, 1.05])
+    # no device time: dated back by the median interval (10 ms) from the batch's receipt
+    assert np.allclose(resolve_batches(t), [1.00, 1.01, 1.02, 1.03, 1.04, 1.05])
+    dev = np.array([0.0, 0.01, 0.02, 0.025, 0.03, 0.04])  # the instrument's own times
+    assert np.allclose(resolve_batches(t, dev), [1.00, 1.01, 1.03, 1.035, 1.04, 1.05])
+    # a batch right after the previous sample: spread evenly after it
+    t2 = np.array([1.00, 1.01, 1.015, 1.015, 1.015])
+    out = resolve_batches(t2)
+    assert np.all(np.diff(out) > 0) and out[-1] == 1.015 and out[1] == 1.01
+    inc = np.array([1.0, 1.1, 1.3])
+    assert resolve_batches(inc) is inc  # already increasing: untouched
+
+
+def test_pair_of_a_finished_recording_is_its_analysis_window(tmp_path: Path) -> None:
+    w = RecordingWriter(tmp_path / "r", ("roll",), {})
+    st = StandStatus(True, True, False, False, False, False)
+    for k in range(1000):
+        t = 10.0 + 0.01 * k
+        w.write_stand(StandSample(t, 0.001, {"roll": 1.0}, {"roll": 0.0}, {"roll": 1.0}, st))
+        w.write_instrument(InstrumentSample(t + 0.003, {"roll": 1.0}))
+    w.close("done", "PASS", analysis_window=[13.0, 17.0])
+    rec = load_recording(tmp_path / "r")
+    tr, _, td, _ = rec.pair("roll")
+    assert td.min() >= 13.0 and td.max() <= 17.0 and td.size == 400
+    assert tr.min() == pytest.approx(12.0) and tr.max() == pytest.approx(18.0)
+    assert rec.pair("roll", window=False)[2].size == 1000

@@ -91,6 +91,9 @@ def resolve_batches(
     return out
 
 
+WINDOW_MARGIN_S = 1.0  # reference kept beyond the analysis window, to evaluate it at the ends
+
+
 @dataclass
 class Recording:
     """A loaded recording: metadata, end record (None if the writer never closed) and streams."""
@@ -117,9 +120,15 @@ class Recording:
             raise DataError(f"{self.path}: stream {stream!r} has no column {name!r}") from None
 
     def pair(
-        self, axis: str
+        self, axis: str, window: bool = True
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed."""
+        """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed.
+
+        A finished run's recording (``end.json`` with ``analysis_window`` [t0, t1]) gives the
+        instrument's samples inside that window and the reference up to ``WINDOW_MARGIN_S``
+        beyond it, so ``benchctl analyze`` on it reproduces the verdict's σ; pass
+        ``window=False`` for everything recorded (prechecks, fades, settling).
+        """
         if axis not in self.axes:
             raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")
         tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
@@ -128,7 +137,22 @@ class Recording:
         okd = np.isfinite(td) & np.isfinite(yd)
         dev_t = self.streams["instrument"].get("device_time_s")
         td_ok = resolve_batches(td[okd], None if dev_t is None else dev_t[okd])
-        return tr[okr], xr[okr], td_ok, yd[okd]
+        tr, xr, yd = tr[okr], xr[okr], yd[okd]
+        win = self.analysis_window if window else None
+        if win is not None:
+            lo, hi = win
+            kr = (tr >= lo - WINDOW_MARGIN_S) & (tr <= hi + WINDOW_MARGIN_S)
+            kd = (td_ok >= lo) & (td_ok <= hi)
+            return tr[kr], xr[kr], td_ok[kd], yd[kd]
+        return tr, xr, td_ok, yd
+
+    @property
+    def analysis_window(self) -> tuple[float, float] | None:
+        """[t0, t1] (monotonic s) the run's verdict was computed on, if it finished."""
+        w = (self.end or {}).get("analysis_window")
+        if not (isinstance(w, list) and len(w) == 2):
+            return None
+        return float(w[0]), float(w[1])
 
     def export_csv(self, folder: str | Path) -> list[Path]:
         """One CSV per stream into ``folder``; returns the files written."""

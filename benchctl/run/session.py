@@ -46,6 +46,7 @@ from benchctl.errors import (
     SafetyAbort,
 )
 from benchctl.recording import RecordingWriter, load_recording
+from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, Snapshot
 from benchctl.run.report import Report, archive, archive_abort, axis_verdict, write_report
@@ -462,8 +463,8 @@ class Session:
         results: dict[str, Any] = {}
         verdicts = {}
         for axis in self.axes:
-            tr, xr, td, yd = rec.pair(axis)
-            margin = 1.0  # reference a little beyond the window, so it can be evaluated at its ends
+            tr, xr, td, yd = rec.pair(axis, window=False)
+            margin = WINDOW_MARGIN_S  # the same crop as Recording.pair once end.json is written
             kr = (tr >= lo - margin) & (tr <= hi + margin)
             kd = (td >= lo) & (td <= hi)
             if kd.sum() < 16 or kr.sum() < 16:
