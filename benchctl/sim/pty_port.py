@@ -3,7 +3,8 @@
 The slave is set raw and kept open by the simulator (so the driver may close and reopen it);
 ``close`` hangs the line up (the driver's next read fails: a dropped link). Output that the
 driver does not read fills a bounded buffer, like a device's transmit FIFO; beyond it whole
-writes are refused and counted in ``overflows`` instead of blocking the simulator.
+writes are refused and counted in ``overflows`` instead of blocking the simulator. Not
+thread-safe for writing: one thread writes and flushes.
 """
 
 from __future__ import annotations
