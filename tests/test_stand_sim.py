@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 from benchctl.config import SimStandConfig, SimStandFault, StandConfig, StandLimits
@@ -244,6 +246,33 @@ def test_setpoint_and_read_in_one_transaction(rig: tuple[SimStand, ModbusStand])
         time.sleep(0.02)
 
 
+def test_two_threads_share_one_driver(rig: tuple[SimStand, ModbusStand]) -> None:
+    """A heartbeat thread and a streaming loop interleave their requests on one link."""
+    _, stand = rig
+    stand.enable()
+    stop = threading.Event()
+    errors: list[BaseException] = []
+
+    def beat() -> None:
+        while not stop.wait(0.013):
+            try:
+                stand.heartbeat()
+            except BaseException as e:  # surfaced below, never lost
+                errors.append(e)
+                return
+
+    hb = threading.Thread(target=beat, name="test-heartbeat")
+    hb.start()
+    try:
+        _, samples = stream(stand, lambda t: 1.0 * (1 - math.cos(2 * math.pi * t)) / 2, 0.8)
+    finally:
+        stop.set()
+        hb.join()
+    assert not errors
+    echoes = [s.status.heartbeat for s in samples]
+    assert echoes[-1] > echoes[0] + 10  # the stand saw the other thread's heartbeats
+
+
 # -- faults --------------------------------------------------------------------------------
 def expect_within(
     exc: type[BaseException], fn: Callable[[], object], bound_s: float
@@ -378,6 +407,7 @@ def test_scheduled_fault_from_config() -> None:
 
 def test_stop_is_idempotent_and_leaves_nothing_behind(tmp_path: Path) -> None:
     link = tmp_path / "stand.pty"
+    fds_before = psutil.Process().num_fds()
     sim = SimStand(
         SimStandConfig(), limits=LIMITS, register_map=MAP, transport="rtu", link_path=link
     )
@@ -388,3 +418,4 @@ def test_stop_is_idempotent_and_leaves_nothing_behind(tmp_path: Path) -> None:
         stand.close()
     sim.stop()
     assert not link.exists()
+    assert psutil.Process().num_fds() == fds_before  # ptys, sockets, event loop: all closed
