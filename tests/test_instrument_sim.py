@@ -115,6 +115,7 @@ def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
         assert col.errors == []
         assert dev.stats.bad == {}
         assert dev.stats.good == sim.counts["sent"]  # no loss
+        skipped = sim.counts["skipped"]
     t = np.array([x.t_host for x in s])
     roll = np.array([x.angle_deg["roll"] for x in s])
     pitch = np.array([x.angle_deg["pitch"] for x in s])
@@ -125,13 +126,16 @@ def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
     expected_var = sim.model.expected_error_variance([], [], resolution_deg=sim.wire_resolution_deg)
     n = len(pitch)
     assert np.std(pitch, ddof=1) == pytest.approx(math.sqrt(expected_var), rel=0.2)  # SE ≈ 4.5 %
-    # roll: amplitude and offset by least squares on receipt times (their ms jitter costs
-    # < 1e-3 of the amplitude)
+    # roll: amplitude and offset by least squares on the instrument's own output grid (every
+    # sample arrived, none skipped: sample i was taken at t_first + i / rate_hz); receipt times
+    # would carry the shared machine's stalls into the fit
+    assert skipped == 0
+    tg = np.arange(n) / rate
     w = 2 * math.pi * ROLL_F
-    x = np.c_[np.sin(w * t), np.cos(w * t), np.ones_like(t)]
+    x = np.c_[np.sin(w * tg), np.cos(w * tg), np.ones_like(tg)]
     (a, b, c), *_ = np.linalg.lstsq(x, roll, rcond=None)
-    se = noise / math.sqrt(n) * 2  # LS standard error of a coefficient, generously
-    assert math.hypot(a, b) / ROLL_AMP == pytest.approx(gain, abs=5 * se / ROLL_AMP + 2e-3)
+    se = noise * math.sqrt(2 / n)  # LS standard error of a sine coefficient
+    assert math.hypot(a, b) / ROLL_AMP == pytest.approx(gain, abs=5 * se / ROLL_AMP + 1e-3)
     g_static = (c - np.mean(pitch)) / (ROLL_OFFSET - PITCH)
     assert g_static == pytest.approx(gain, abs=0.01)
     assert c - gain * ROLL_OFFSET == pytest.approx(bias, abs=0.02)
