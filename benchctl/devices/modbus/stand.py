@@ -63,11 +63,11 @@ class ModbusStand:
     axes
         The axes driven (a subset of the map's axes).
     setpoint_period_s
-        Nominal streaming period T. The rate implied by a setpoint is its step over
-        dt = max(time since the previous setpoint, T); the acceleration is the change of that
-        rate over the longer of the two steps' dt. A caller that evaluates its profile at
-        max(now, previous + T) (the run loop does) is judged exactly, and a host stall between
-        two setpoints never shows up as a false acceleration.
+        Nominal streaming period T. The rate implied by a setpoint is its step over dt = the
+        time since the previous setpoint in whole periods, T·max(1, round(Δt/T)) (the stand
+        plays setpoints on its own period, so host jitter below T/2 does not change dt); the
+        acceleration is the change of that rate over the longer of the two steps' dt, so a
+        host stall between two setpoints never shows up as a false acceleration.
     zero_tolerance_deg
         "At zero" means every axis within this of 0 and at rest.
     clock
