@@ -17,7 +17,7 @@ import can
 import pytest
 
 from benchctl.config import InstrumentConfig
-from benchctl.devices.base import InstrumentSample
+from benchctl.devices.base import AngleSensor, InstrumentSample
 from benchctl.devices.instrument import open_instrument
 from benchctl.devices.nmea0183 import parse_line
 from benchctl.devices.reader import BadFrame
@@ -277,6 +277,7 @@ def test_unknown_driver_and_leaks_fds(pty: PtyPort) -> None:
     cfg = InstrumentConfig(driver="nmea0183", serial_port=pty.path)
     for _ in range(3):
         dev = open_instrument(cfg)
+        assert isinstance(dev, AngleSensor)
         dev.start(lambda s: None, lambda e: None)
         dev.close()
         dev.close()  # idempotent
