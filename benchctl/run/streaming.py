@@ -14,11 +14,11 @@ One thread (``StandLoop``) owns the stand's cycle from connect to shutdown:
 - **table** mode — the harmonic table is uploaded and started; the loop polls the stand's angle
   at ``sample_rate_hz`` and compares it to the profile evaluated from the start time.
 
-Checks on every stand sample: fault / E-stop, angle limit, tracking error (measured vs the
-stand's own setpoint) and profile departure (measured vs the profile), each over its
-tolerance for ``DEBOUNCE`` consecutive samples; and a silent instrument (no sample for
-``silence_timeout_s``). A breach raises inside the loop thread; the supervisor turns it into the
-run's fault at once.
+Checks on every stand sample: fault / E-stop and angle limit (at once); tracking error
+(measured vs the stand's own setpoint) and profile departure (measured vs the profile), each
+over its tolerance for ``DEBOUNCE`` consecutive samples and ``BREACH_HOLD_S`` seconds; and a
+silent instrument (no sample for ``silence_timeout_s``). A breach raises inside the loop
+thread; the supervisor turns it into the run's fault at once.
 
 The instrument's background reader calls ``Recorder.on_sample`` (straight into the recording)
 and ``Recorder.on_error`` (straight to the supervisor).
@@ -48,7 +48,10 @@ from benchctl.run.supervisor import Supervisor
 log = logging.getLogger(__name__)
 
 SEND_WINDOW = 0.25  # a setpoint goes out within this fraction of a period after its slot, or not
-DEBOUNCE = 3  # consecutive stand samples over a tolerance before the run aborts
+DEBOUNCE = 3  # consecutive stand samples over a tolerance before the run aborts …
+# … held for this long: after a host stall the stand's setpoint jumps and its servo needs
+# ~1/bandwidth to catch up; a stand that really does not follow stays over for longer
+BREACH_HOLD_S = 0.25
 SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
 REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
 
@@ -346,7 +349,7 @@ class StandLoop:
         self.t_motion_end: float | None = None
         self.t_last_cycle: float | None = None
         self._t_heartbeat = -math.inf
-        self._over: dict[str, int] = {}
+        self._over: dict[str, tuple[int, float]] = {}
         self._thread: threading.Thread | None = None
 
     # control from the main thread
@@ -419,10 +422,14 @@ class StandLoop:
         self._check_sample(s, profile_t)
         return s
 
-    def _over_tol(self, key: str, over: bool) -> bool:
-        n = self._over.get(key, 0) + 1 if over else 0
-        self._over[key] = n
-        return n >= DEBOUNCE
+    def _over_tol(self, key: str, over: bool, t: float) -> bool:
+        """True once ``over`` has held for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds."""
+        if not over:
+            self._over.pop(key, None)
+            return False
+        n, t0 = self._over.get(key, (0, t))
+        self._over[key] = (n + 1, t0)
+        return n + 1 >= DEBOUNCE and t - t0 >= BREACH_HOLD_S
 
     def _check_sample(self, s: StandSample, profile_t: float | None) -> None:
         st = s.status
@@ -443,13 +450,13 @@ class StandLoop:
         self.rec.live.tracking_error_deg = track
         self.rec.live.departure_deg = dep
         for a, e in track.items():
-            if self._over_tol("track " + a, abs(e) > self.lim.tracking_tolerance_deg):
+            if self._over_tol("track " + a, abs(e) > self.lim.tracking_tolerance_deg, s.t_host):
                 raise SafetyAbort(
                     f"tracking error on {a}: {e:+.3f}° (measured − stand setpoint) beyond "
                     f"±{self.lim.tracking_tolerance_deg}° (stand.tracking_tolerance_deg)"
                 )
         for a, e in dep.items():
-            if self._over_tol("depart " + a, abs(e) > self.lim.profile_tolerance_deg):
+            if self._over_tol("depart " + a, abs(e) > self.lim.profile_tolerance_deg, s.t_host):
                 raise SafetyAbort(
                     f"stand departs from the profile on {a}: {e:+.3f}° at t = {profile_t:.2f} s "
                     f"beyond ±{self.lim.profile_tolerance_deg}° (run.profile_tolerance_deg)"
