@@ -236,15 +236,19 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
     return cfg
 
 
+def read_yaml(path: Path, what: str) -> Any:
+    """Parse a YAML file; ``ConfigError`` naming the file (and ``what`` it is) on any problem."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read {what}: {e.strerror}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not valid YAML: {e}") from None
+
+
 def load_config(path: str | Path) -> BenchConfig:
     """Read and validate a bench config YAML file."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read bench config: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{p}: not valid YAML: {e}") from None
-    return parse_config(data, p)
+    return parse_config(read_yaml(p, "bench config"), p)

@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from pydantic import TypeAdapter, ValidationError
 
+from benchctl.config import read_yaml
 from benchctl.errors import ConfigError, DataError
 from benchctl.profiles.records import RecordedSpectrum, estimate_psd
 from benchctl.profiles.schema import (
@@ -145,15 +145,7 @@ def load_profile(path: str | Path) -> Profile:
     recorded CSV is unusable. Relative CSV paths resolve against the profile file's folder.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{p}: cannot read profile: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{p}: not valid YAML: {e}") from None
-    return parse_profile(data, p)
+    return parse_profile(read_yaml(p, "profile"), p)
 
 
 def read_angle_csv(
