@@ -1,8 +1,8 @@
 """A harmonic table: the stand motion as a sum of cosines with a smooth fade in and out.
 
 Pure computation, no I/O. This is the one definition of a polyharmonic motion shared by the
-synthesis (``benchctl.profiles.synthesis``), the stand driver (table upload), and the simulated stand
-(which plays an uploaded table itself), so all three agree to the last bit.
+synthesis (``benchctl.profiles.synthesis``), the stand driver (table upload), and the simulated
+stand (which plays an uploaded table itself), so all three agree to the last bit.
 
     x(t) = e(t) · Σ_k A_k cos(2π f_k t + φ_k),   0 ≤ t ≤ duration
 

@@ -27,7 +27,13 @@ def no_leaks() -> Iterator[None]:
     deadline = time.monotonic() + 5.0
     while True:
         leaked = [t for t in _threads() - before if not t.name.startswith(("pydevd", "asyncio_"))]
-        kids = [p for p in me.children(recursive=True) if p.pid not in children_before and p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+        kids = [
+            p
+            for p in me.children(recursive=True)
+            if p.pid not in children_before
+            and p.is_running()
+            and p.status() != psutil.STATUS_ZOMBIE
+        ]
         if not leaked and not kids:
             return
         if time.monotonic() > deadline:
@@ -35,7 +41,9 @@ def no_leaks() -> Iterator[None]:
         time.sleep(0.05)
     for p in kids:
         p.kill()
-    pytest.fail(f"test leaked threads {[t.name for t in leaked]} / child processes {[p.pid for p in kids]}")
+    pytest.fail(
+        f"test leaked threads {[t.name for t in leaked]} / child processes {[p.pid for p in kids]}"
+    )
 
 
 @pytest.fixture
