@@ -56,6 +56,7 @@ class FakeStand:
         self.stall_at: float | None = None
         self.stall_s = 0.0
         self.offset_deg = 0.0
+        self.motion_gain = 1.0  # a stand that scales its motion (and reports that as its setpoint)
         self.on_motion_time: Callable[[float], None] | None = None
         self.ramped = False
         self.closed = False
@@ -139,7 +140,7 @@ class FakeStand:
         self._tick()
         t = time.monotonic()
         with self._lock:
-            self.angle = dict(angle_deg)
+            self.angle = {a: self.motion_gain * v for a, v in angle_deg.items()}
             self.setpoint = dict(angle_deg)
         self.sent.append((t, dict(angle_deg)))
         return t

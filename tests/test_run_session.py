@@ -122,6 +122,7 @@ def _assert_aborted(
         ("reader", "instrument reader"),
         ("tracking", "tracking error"),
         ("limit", "limit breach: roll angle"),
+        ("departure", "departs from the profile on roll"),
     ],
 )
 def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, match: str) -> None:
@@ -147,6 +148,8 @@ def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, m
                 stand.offset_deg = 0.8
 
         stand.on_motion_time = off
+    elif inject == "departure":  # follows its own setpoint, but its motion is 1.3× the profile
+        stand.motion_gain = 1.3
     cfg = bench_config(tmp_path)
     if inject == "limit":  # the stand goes beyond the limit (a profile checked would not)
         lim = cfg.stand.limits.model_copy(update={"angle_deg": 4.0})
