@@ -145,6 +145,9 @@ class FakeStand:
         self.sent.append((t, dict(angle_deg)))
         return t
 
+    def send_setpoint_and_read(self, angle_deg: dict[str, float]) -> tuple[float, StandSample]:
+        return self.send_setpoint(angle_deg), self.read_sample()
+
     def upload_table(self, tables: dict[str, HarmonicTable]) -> None:
         self.calls.append("upload_table")
         self._pending = tables

@@ -519,11 +519,11 @@ class StandLoop:
             # period, so a late send carries its slot's value and the commanded trajectory
             # does not depend on host jitter.
             sp = {a: float(plan.values[a][k]) for a in plan.axes}
-            t_send = self.stand.send_setpoint(sp)
+            # one transaction where the stand takes it (Modbus FC23): write, then read back
+            t_send, s = self.stand.send_setpoint_and_read(sp)
             self.rec.writer.write_setpoint(t_send, sp, t_slot=deadline)
             self.setpoints_sent += 1
             self._heartbeat(now)
-            s = self.stand.read_sample()
             self.rec.on_stand(s)
             self._check_sample(s, s.t_host - t_start)
             self._check_instrument(now)
