@@ -58,7 +58,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.config import load_config
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
-    from benchctl.run.report import format_report
+    from benchctl.run.report import format_report, json_default
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -79,7 +79,7 @@ def handle(args: argparse.Namespace) -> int:
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)
     if args.json:
-        print(json.dumps(result.to_dict(), default=_default))
+        print(json.dumps(result.to_dict(), default=json_default))
     elif result.report is not None:
         print(format_report(result.report))
     else:
@@ -88,15 +88,3 @@ def handle(args: argparse.Namespace) -> int:
             print(f"  recording {result.recording} (closed, marked aborted)")
     return result.exit_code
 
-
-def _default(o: object) -> object:
-    try:
-        import numpy as np
-
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, np.generic):
-            return o.item()
-    except ImportError:  # pragma: no cover
-        pass
-    return str(o)

@@ -156,7 +156,7 @@ def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Pat
     folder = rep.recording
     out = [folder / REPORT_JSON, folder / REPORT_TXT]
     out[0].write_text(
-        json.dumps(rep.to_dict(), indent=2, default=_json_default) + "\n", encoding="utf-8"
+        json.dumps(rep.to_dict(), indent=2, default=json_default) + "\n", encoding="utf-8"
     )
     out[1].write_text(format_report(rep) + "\n", encoding="utf-8")
     for axis, res in (results or {}).items():
@@ -180,7 +180,7 @@ def archive(output_dir: Path, rep: Report) -> Path:
             "limit": {a: v.limit_deg for a, v in rep.axes.items()},
             "recording": str(rep.recording),
         },
-        default=_json_default,
+        default=json_default,
     )
     with index.open("a", encoding="utf-8") as f:
         f.write(line + "\n")
@@ -200,14 +200,15 @@ def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reaso
             "reason": reason,
             "recording": str(recording),
         },
-        default=_json_default,
+        default=json_default,
     )
     with index.open("a", encoding="utf-8") as f:
         f.write(line + "\n")
     return index
 
 
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
+    """``json.dumps`` fallback: numpy arrays and scalars as lists and numbers, else ``str``."""
     try:
         import numpy as np
 
