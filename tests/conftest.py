@@ -1,4 +1,4 @@
-"""Shared fixtures. Every test is checked for leaked threads and child processes."""
+"""Shared fixtures. Every test is checked for leaked threads, child processes, sockets and ptys."""
 
 from __future__ import annotations
 
@@ -17,11 +17,30 @@ def _threads() -> set[threading.Thread]:
     return {t for t in threading.enumerate() if t.is_alive()}
 
 
+def _ports_and_ptys(me: psutil.Process) -> set[str]:
+    """This process's open inet sockets and pseudo-terminal fds, as readable names."""
+    found = {
+        f"socket {c.laddr.ip}:{c.laddr.port} {c.status}" for c in me.net_connections(kind="inet")
+    }
+    fd_dir = Path("/proc/self/fd")
+    if fd_dir.is_dir():
+        for fd in fd_dir.iterdir():
+            try:
+                target = str(fd.readlink())
+            except OSError:
+                continue
+            if target.startswith("/dev/pts/") or target == "/dev/ptmx":
+                found.add(f"fd {fd.name} -> {target}")
+    return found
+
+
 @pytest.fixture(autouse=True)
 def no_leaks() -> Iterator[None]:
-    """Fail a test that leaves a thread or a child process behind (after a generous grace)."""
+    """Fail a test that leaves a thread, a child process, an open socket or a pty behind
+    (after a generous grace)."""
     before = _threads()
     me = psutil.Process()
+    io_before = _ports_and_ptys(me)
     children_before = {p.pid for p in me.children(recursive=True)}
     yield
     deadline = time.monotonic() + 5.0
@@ -34,7 +53,8 @@ def no_leaks() -> Iterator[None]:
             and p.is_running()
             and p.status() != psutil.STATUS_ZOMBIE
         ]
-        if not leaked and not kids:
+        io_leaked = sorted(_ports_and_ptys(me) - io_before)
+        if not leaked and not kids and not io_leaked:
             return
         if time.monotonic() > deadline:
             break
@@ -43,6 +63,7 @@ def no_leaks() -> Iterator[None]:
         p.kill()
     pytest.fail(
         f"test leaked threads {[t.name for t in leaked]} / child processes {[p.pid for p in kids]}"
+        f" / sockets and ptys {io_leaked}"
     )
 
 
