@@ -14,7 +14,6 @@ import selectors
 import subprocess
 import sys
 import time
-from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -113,6 +112,3 @@ def start_simulators(cfg: BenchConfig) -> SimProcess:
     """A ``SimProcess`` for ``cfg``; use as ``with start_simulators(cfg) as sim: ...``."""
     return SimProcess(cfg)
 
-
-def config_dir(cfg: BenchConfig) -> Path | None:
-    return cfg.source.parent if cfg.source else None

@@ -300,30 +300,19 @@ class SimStand:
                 f"SimStand.inject({kind}): parameter {sorted(extra)[0]!r}: "
                 f"expected one of {sorted(allowed[kind])}"
             )
-        now = time.monotonic()
+        code = params.get("code")
+        if kind == "modbus_exception" and code is not None and not 1 <= int(code) <= 255:
+            raise ConfigError(f"SimStand.inject(modbus_exception): code {code}: expected 1..255")
         dur = params.get("duration_s")
-        until = math.inf if dur is None else now + float(dur)
+        count = params.get("count")
         with self._lock:
-            if kind == "drop_connection":
-                self._comm.drop_until = until
-            elif kind == "stall":
-                self._comm.stall_until = now + float(1.0 if dur is None else dur)
-            elif kind == "modbus_exception":
-                code = int(params.get("code", 4))
-                if not 1 <= code <= 255:
-                    raise ConfigError(
-                        f"SimStand.inject(modbus_exception): code {code}: expected 1..255"
-                    )
-                self._comm.exc_code = code
-                self._comm.exc_until = None if dur is None else until
-                count = params.get("count")
-                self._comm.exc_count = None if count is None else int(count)
-            elif kind == "stand_fault":
-                self._fault(int(params.get("code", 10)))
-            else:
-                self._do_estop()
-        if kind == "drop_connection" and self._loop is not None:
-            self._loop.call_soon_threadsafe(self._close_clients)
+            self._apply(
+                kind,
+                time.monotonic(),
+                None if dur is None else float(dur),
+                None if code is None else int(code),
+                None if count is None else int(count),
+            )
 
     def clear_faults(self) -> None:
         """End injected communication faults (a latched stand fault needs a Modbus fault reset)."""
@@ -352,7 +341,7 @@ class SimStand:
         """One physics tick at time ``t`` (lock held)."""
         while self._pending_faults and t - self._start_time >= self._pending_faults[0].after_s:
             f = self._pending_faults.pop(0)
-            self._apply_scheduled(f.kind, f.duration_s, f.code, t)
+            self._apply(f.kind, t, f.duration_s, f.code)
         if self._enabled and t - self._hb_time > self.cfg.watchdog_s:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
@@ -395,9 +384,15 @@ class SimStand:
         self._estop = True
         self._fault(FAULT_ESTOP)
 
-    def _apply_scheduled(
-        self, kind: str, duration_s: float | None, code: int | None, now: float
+    def _apply(
+        self,
+        kind: str,
+        now: float,
+        duration_s: float | None = None,
+        code: int | None = None,
+        count: int | None = None,
     ) -> None:
+        """Start a fault (lock held): the one path for ``inject`` and the scheduled faults."""
         until = math.inf if duration_s is None else now + duration_s
         if kind == "drop_connection":
             self._comm.drop_until = until
@@ -408,6 +403,7 @@ class SimStand:
         elif kind == "modbus_exception":
             self._comm.exc_code = code or 4
             self._comm.exc_until = None if duration_s is None else until
+            self._comm.exc_count = count
         elif kind == "stand_fault":
             self._fault(code or 10)
         else:
