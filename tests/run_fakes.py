@@ -29,7 +29,7 @@ from benchctl.errors import ConnectionLost, DeviceTimeout
 from benchctl.harmonics import HarmonicTable
 from benchctl.run import prechecks as pc
 from benchctl.run.session import PreparedMotion
-from benchctl.run.streaming import make_plan
+from benchctl.run.plan import make_plan
 
 
 class FakeStand:
@@ -62,6 +62,8 @@ class FakeStand:
         self.closed = False
         self.heartbeats = 0
         self.sent: list[tuple[float, dict[str, float]]] = []
+        self.on_sample: Callable[[StandSample], None] | None = None
+        self.on_setpoint: Callable[[float, dict[str, float], float | None], None] | None = None
 
     # fault schedule, by motion time
     def _tick(self) -> None:
@@ -114,7 +116,7 @@ class FakeStand:
         t0 = time.monotonic()
         ang = self.true_angle()
         t1 = time.monotonic()
-        return StandSample(
+        s = StandSample(
             t_host=0.5 * (t0 + t1),
             rtt_s=t1 - t0,
             angle_deg=ang,
@@ -122,6 +124,9 @@ class FakeStand:
             setpoint_deg={a: v - self.offset_deg for a, v in ang.items()},
             status=self.read_status(),
         )
+        if self.on_sample is not None:
+            self.on_sample(s)
+        return s
 
     def enable(self) -> None:
         self.calls.append("enable")
@@ -134,7 +139,7 @@ class FakeStand:
     def heartbeat(self) -> None:
         self.heartbeats += 1
 
-    def send_setpoint(self, angle_deg: dict[str, float]) -> float:
+    def send_setpoint(self, angle_deg: dict[str, float], *, t_slot: float | None = None) -> float:
         if self.t_motion is None:
             self.t_motion = time.monotonic()
         self._tick()
@@ -143,10 +148,14 @@ class FakeStand:
             self.angle = {a: self.motion_gain * v for a, v in angle_deg.items()}
             self.setpoint = dict(angle_deg)
         self.sent.append((t, dict(angle_deg)))
+        if self.on_setpoint is not None:
+            self.on_setpoint(t, dict(angle_deg), t_slot)
         return t
 
-    def send_setpoint_and_read(self, angle_deg: dict[str, float]) -> tuple[float, StandSample]:
-        return self.send_setpoint(angle_deg), self.read_sample()
+    def send_setpoint_and_read(
+        self, angle_deg: dict[str, float], *, t_slot: float | None = None
+    ) -> tuple[float, StandSample]:
+        return self.send_setpoint(angle_deg, t_slot=t_slot), self.read_sample()
 
     def upload_table(self, tables: dict[str, HarmonicTable]) -> None:
         self.calls.append("upload_table")

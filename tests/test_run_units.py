@@ -17,14 +17,9 @@ from benchctl.errors import ConnectionLost, SafetyAbort
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import prechecks as pc
 from benchctl.run.state import RunState, StateMachine, TransitionError
-from benchctl.run.streaming import (
-    Histogram,
-    LoopLimits,
-    Recorder,
-    RunningSigma,
-    SerializedStand,
-    StandLoop,
-)
+from benchctl.run.live import Histogram, RunningSigma
+from benchctl.run.recorder import Recorder
+from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, start_instrument
 from benchctl.run.supervisor import Supervisor
 
 # ----------------------------------------------------------------------------- state machine
@@ -216,23 +211,23 @@ def _loop(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, duration: float 
     w = RecordingWriter(tmp_path / "rec", stand.axes, {})
     sup = Supervisor()
     rec = Recorder(w, sup, stand.axes)
+    rec.attach(stand)
     sm = StateMachine()
     sm.to(RunState.PRECHECKS)
     prep = sine_motion(stand.axes, duration_s=duration, fade_s=0.25)
-    lim = LoopLimits(20.0, 0.5, 1.0, 0.5, 0.1, 100.0, 0.05)
+    lim = LoopLimits(20.0, 0.5, 1.0, 0.5, 0.1, 100.0, 0.05, rate_deg_s=50.0, accel_deg_s2=1000.0)
     loop = StandLoop(SerializedStand(stand).as_stand(), rec, sup, sm, prep.plan, lim)
     return w, sup, rec, sm, loop
 
 
-def test_stream_loop_skips_after_a_stall_without_a_burst(tmp_path: Path) -> None:
-    """A 0.2 s stall at 100 Hz: ~19 slots are skipped and counted; the setpoint after the stall is
-    the current slot's, and no two setpoints go out closer than half a period apart."""
+def test_stream_loop_rejoins_after_a_stall_without_a_jump(tmp_path: Path) -> None:
+    """A 0.2 s stall at 100 Hz: ~19 slots are missed and counted (never sent late in a burst);
+    the stand held its last setpoint, so the loop rejoins the profile from there along a path
+    within the limits (an event in the recording), then sends the profile's own slots again."""
     stand = FakeStand()
     stand.stall_at, stand.stall_s = 0.3, 0.2
     sensor = FakeSensor(stand)
     w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
-    from benchctl.run.streaming import start_instrument
-
     start_instrument(sensor, rec)
     loop.start()
     loop.begin_motion()
@@ -242,17 +237,30 @@ def test_stream_loop_skips_after_a_stall_without_a_burst(tmp_path: Path) -> None
     w.close("done")
     assert not sup.faulted, sup.first
     assert 15 <= loop.missed_cycles <= 40
-    sp = load_recording(tmp_path / "rec").streams["setpoints"]
-    assert sp["t_send"].size + loop.missed_cycles == 101  # every slot sent or counted missed
+    assert loop.rejoins >= 1
+    recd = load_recording(tmp_path / "rec")
+    sp = recd.streams["setpoints"]
+    assert sp["t_send"].size + loop.missed_cycles >= 101  # every slot sent or counted missed
     slots = np.round((sp["t_slot"] - sp["t_slot"][0]) / 0.01).astype(int)
     assert np.allclose(sp["t_slot"] - sp["t_slot"][0], slots * 0.01, atol=1e-9)  # on the grid
     d = np.diff(slots)
     assert np.all(d >= 1)  # one setpoint per slot at most
     big = int(np.argmax(d))
-    assert d[big] >= 15  # the stall, skipped over in one step
-    # after the stall the setpoint is the current slot's (no catch-up burst)
-    assert 0.0 <= sp["t_send"][big + 1] - sp["t_slot"][big + 1] < 0.01
-    assert np.all(np.diff(sp["t_send"]) > 0)
+    assert d[big] >= 15  # the stall: skipped over, not caught up
+    # the commanded sequence, judged as the stand plays it (from rest after the hold)
+    x = sp["roll_deg"]
+    v = np.diff(x) / 0.01
+    v_prev = np.concatenate([[0.0], v[:-1]])
+    v_prev[big] = 0.0  # the stand held over the stall
+    assert np.max(np.abs(v)) <= 50.0 + 1e-9
+    assert np.max(np.abs((v - v_prev) / 0.01)) <= 1000.0 + 1e-6
+    assert loop.cmd.max_rate_deg_s["roll"] <= 50.0 + 1e-9
+    # the rejoin ends on the profile: the last setpoints are the profile's own slot values
+    prof = loop.plan.values["roll"]
+    k_last = slots[-1] + int(round((sp["t_slot"][0] - loop.t_motion_start) / 0.01))
+    assert x[-1] == pytest.approx(prof[min(k_last, prof.size - 1)], abs=1e-12)
+    events = [e for e in recd.events if e["kind"] == "rejoin"]
+    assert events and events[0]["points"] >= 1
     assert sm.state is RunState.FADE_OUT
 
 
@@ -261,8 +269,6 @@ def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
     loop.plan.mode = "table"
-    from benchctl.run.streaming import start_instrument
-
     assert loop.plan.tables is not None
     stand.upload_table(loop.plan.tables)
     start_instrument(sensor, rec)
@@ -287,8 +293,6 @@ def test_loop_fault_reaches_the_supervisor_at_once(tmp_path: Path) -> None:
     stand.fault_at = 0.2
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
-    from benchctl.run.streaming import start_instrument
-
     start_instrument(sensor, rec)
     loop.start()
     loop.begin_motion()

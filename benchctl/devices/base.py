@@ -39,8 +39,24 @@ class StandStatus:
     estop: bool
     limit: bool
     table_running: bool = False
+    trajectory_running: bool = False
     fault_code: int = 0
     heartbeat: int = 0
+
+
+@dataclass(frozen=True)
+class TrajectoryStatus:
+    """A buffered stand's trajectory queue, as read with every sample.
+
+    ``level`` points queued and not yet played, ``next_index`` the index the next push must
+    start with, ``played`` the index being played, ``underruns`` times the queue ran dry while
+    the stand moved (it then stopped itself within its limits).
+    """
+
+    level: int
+    next_index: int
+    played: int
+    underruns: int
 
 
 @dataclass(frozen=True)
@@ -57,6 +73,7 @@ class StandSample:
     rate_deg_s: dict[str, float]
     setpoint_deg: dict[str, float]
     status: StandStatus
+    trajectory: TrajectoryStatus | None = None  # stands with a trajectory queue
 
 
 @dataclass(frozen=True)
@@ -106,6 +123,10 @@ class Stand(Protocol):
 
     axes: tuple[str, ...]
     limits: StandLimitsView
+    # listeners the recorder sets: every feedback block decoded, every setpoint sent
+    # (t_send, angles, t_slot); a listener's failure never stops the driver
+    on_sample: Callable[[StandSample], None] | None
+    on_setpoint: Callable[[float, dict[str, float], float | None], None] | None
 
     def connect(self) -> DeviceIdentity: ...
     def close(self) -> None: ...
@@ -114,8 +135,12 @@ class Stand(Protocol):
     def enable(self) -> None: ...
     def disable(self) -> None: ...
     def heartbeat(self) -> None: ...
-    def send_setpoint(self, angle_deg: dict[str, float]) -> float: ...  # returns send time
-    def send_setpoint_and_read(self, angle_deg: dict[str, float]) -> tuple[float, StandSample]: ...
+    def send_setpoint(  # returns the send time
+        self, angle_deg: dict[str, float], *, t_slot: float | None = None
+    ) -> float: ...
+    def send_setpoint_and_read(
+        self, angle_deg: dict[str, float], *, t_slot: float | None = None
+    ) -> tuple[float, StandSample]: ...
     def upload_table(self, tables: dict[str, HarmonicTable]) -> None: ...
     def start_table(self) -> float: ...  # returns the host time the stand was told to start
     def stop_table(self) -> None: ...

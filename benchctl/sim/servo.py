@@ -97,9 +97,10 @@ def servo_step(m: ServoModel, s: AxisState, target_deg: float) -> None:
     s.angle_deg += v * m.tick_s
 
 
-def brake_step(m: ServoModel, s: AxisState) -> None:
-    """Decelerate ``s`` towards rest at the acceleration limit for one tick (in place)."""
-    dv = m.accel_limit_deg_s2 * m.tick_s
+def brake_step(m: ServoModel, s: AxisState, accel_deg_s2: float | None = None) -> None:
+    """Decelerate ``s`` towards rest at ``accel_deg_s2`` (default the servo's acceleration
+    limit) for one tick (in place)."""
+    dv = (m.accel_limit_deg_s2 if accel_deg_s2 is None else accel_deg_s2) * m.tick_s
     v = s.rate_deg_s
     v = 0.0 if abs(v) <= dv else v - math.copysign(dv, v)
     s.rate_deg_s = v

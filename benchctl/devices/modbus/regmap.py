@@ -35,6 +35,10 @@ _INT_RANGE: dict[str, tuple[int, int]] = {
 _FLOAT32_MAX = 3.4028234663852886e38
 _STATUS_BITS = ("ready", "enabled", "moving", "fault", "estop", "limit", "table_running")
 _CONTROL_BITS = ("enable", "start_table", "stop", "fault_reset", "estop")
+# bits a map only has when the stand has a trajectory queue (``trajectory:`` section)
+_STATUS_BITS_TRAJ = ("trajectory_running",)
+_CONTROL_BITS_TRAJ = ("start_trajectory",)
+_TRAJ_FIELDS = ("level", "next_index", "played", "underruns")
 _AXIS_FIELDS = ("angle", "rate", "setpoint", "fault_code", "command")
 
 
@@ -108,6 +112,35 @@ class TableLayout:
 
 
 @dataclass(frozen=True)
+class TrajectoryMap:
+    """A stand's buffered trajectory queue (PT mode): points sent ahead, played on its clock.
+
+    The host writes a *push* block at ``push_address``: ``first_index`` (uint32), ``count``
+    (uint16), then ``count`` points, each one float32 angle per map axis in the map's axis
+    order. The stand appends them if ``first_index`` is the index it expects next (else
+    exception 3), plays point k at ``start + k·period`` (``period_s`` register, written before
+    the start) interpolating linearly, and reports ``level`` (points queued and not yet
+    reached), ``next_index``, ``played`` (the index being played) and ``underruns`` in the
+    feedback block. A queue that runs dry while moving is an underrun: the stand stops within
+    its limits and counts it; a queue ending at rest is the normal end. A push starting at
+    index 0 while the stand is not playing starts a new queue.
+    """
+
+    capacity: int
+    max_points_per_push: int
+    push_address: int
+    period_s: Field
+    level: Field
+    next_index: Field
+    played: Field
+    underruns: Field
+
+    def push_size(self, n_axes: int, n_points: int) -> int:
+        """Registers of a push block carrying ``n_points`` points of ``n_axes`` axes."""
+        return 3 + 2 * n_axes * n_points
+
+
+@dataclass(frozen=True)
 class RegisterMap:
     """A validated register map. Build it with :func:`load_register_map`."""
 
@@ -128,6 +161,7 @@ class RegisterMap:
     fault_codes: dict[int, str]
     axes: dict[str, AxisMap]
     table: TableLayout
+    trajectory: TrajectoryMap | None = None
 
     # -- encoding -------------------------------------------------------------------------
     def encode(self, field: Field, value: float | int | str) -> list[int]:
@@ -193,6 +227,9 @@ class RegisterMap:
         out = [self.status_word, self.fault_code, self.heartbeat_echo]
         for ax in self.axes.values():
             out += [ax.angle, ax.rate, ax.setpoint, ax.fault_code]
+        tr = self.trajectory
+        if tr is not None:
+            out += [tr.level, tr.next_index, tr.played, tr.underruns]
         return out
 
     def feedback_span(self) -> tuple[int, int]:
@@ -293,12 +330,21 @@ class _Loader:
             raise self.fail(f"{where}.access", access, "rw (the host writes this register)")
         return Field(where, address, ftype, float(scale), float(offset), length, access == "rw")
 
-    def bits(self, data: Mapping[str, Any], key: str, names: Sequence[str]) -> dict[str, int]:
+    def bits(
+        self,
+        data: Mapping[str, Any],
+        key: str,
+        names: Sequence[str],
+        optional: Sequence[str] = (),
+    ) -> dict[str, int]:
         sec = self.section(data, key)
         out: dict[str, int] = {}
         for n in names:
             out[n] = self.integer(sec, n, key, 0, 15)
-        extra = set(sec) - set(names)
+        for n in optional:
+            if n in sec:
+                out[n] = self.integer(sec, n, key, 0, 15)
+        extra = set(sec) - set(names) - set(optional)
         if extra:
             raise self.fail(
                 f"{key}.{sorted(extra)[0]}", sec[sorted(extra)[0]], f"one of {list(names)}"
@@ -403,14 +449,56 @@ def parse_register_map(data: Mapping[str, Any], source: Path) -> RegisterMap:
         status_word=ld.field(st.get("status_word"), "status.status_word"),
         fault_code=ld.field(st.get("fault_code"), "status.fault_code"),
         heartbeat_echo=ld.field(st.get("heartbeat_echo"), "status.heartbeat_echo"),
-        control_bits=ld.bits(data, "control_bits", _CONTROL_BITS),
-        status_bits=ld.bits(data, "status_bits", _STATUS_BITS),
+        control_bits=ld.bits(data, "control_bits", _CONTROL_BITS, _CONTROL_BITS_TRAJ),
+        status_bits=ld.bits(data, "status_bits", _STATUS_BITS, _STATUS_BITS_TRAJ),
         fault_codes={int(k): str(v) for k, v in fault_codes_raw.items()},
         axes=axes,
         table=table,
+        trajectory=_trajectory(ld, data, len(axes), max_write),
     )
+    if rmap.trajectory is not None:
+        for bits, names in (
+            (rmap.control_bits, _CONTROL_BITS_TRAJ),
+            (rmap.status_bits, _STATUS_BITS_TRAJ),
+        ):
+            missing = [n for n in names if n not in bits]
+            if missing:
+                raise ld.fail(
+                    "control_bits/status_bits", missing[0], "a bit for it (the map has trajectory)"
+                )
     _check_layout(ld, rmap)
     return rmap
+
+
+def _trajectory(
+    ld: _Loader, data: Mapping[str, Any], n_axes: int, max_write: int
+) -> TrajectoryMap | None:
+    """The optional ``trajectory:`` section (a buffered trajectory queue)."""
+    if "trajectory" not in data:
+        return None
+    sec = ld.section(data, "trajectory")
+    known = {"capacity", "max_points_per_push", "push", "period_s", *_TRAJ_FIELDS}
+    for k in sec:
+        if k not in known:
+            raise ld.fail(f"trajectory.{k}", sec[k], f"one of the keys {sorted(known)}")
+    push = ld.section(sec, "push", "trajectory")
+    fits = (max_write - 3) // (2 * n_axes)
+    tr = TrajectoryMap(
+        capacity=ld.integer(sec, "capacity", "trajectory", 4, 65535),
+        max_points_per_push=ld.integer(sec, "max_points_per_push", "trajectory", 1, max(1, fits)),
+        push_address=ld.integer(push, "address", "trajectory.push", 0, 0xFFFF),
+        period_s=ld.field(sec.get("period_s"), "trajectory.period_s", writable=True),
+        **{k: ld.field(sec.get(k), f"trajectory.{k}") for k in _TRAJ_FIELDS},
+    )
+    for f in (tr.level, tr.underruns):
+        if f.type != "uint16":
+            raise ld.fail(f"{f.name}.type", f.type, "uint16")
+    for f in (tr.next_index, tr.played):
+        if f.type != "uint32":
+            raise ld.fail(f"{f.name}.type", f.type, "uint32")
+    if tr.period_s.type != "float32":
+        raise ld.fail("trajectory.period_s.type", tr.period_s.type, "float32")
+    return tr
 
 
 def _check_layout(ld: _Loader, m: RegisterMap) -> None:
@@ -427,6 +515,11 @@ def _check_layout(ld: _Loader, m: RegisterMap) -> None:
     taken: list[tuple[int, int, str]] = []
     fields: list[Field] = [*m.identity.values(), m.control_word, m.heartbeat, *m.feedback_fields()]
     fields += [ax.command for ax in m.axes.values()]
+    tr = m.trajectory
+    if tr is not None:
+        fields.append(tr.period_s)
+        n = tr.push_size(len(m.axes), tr.max_points_per_push)
+        taken.append((tr.push_address, tr.push_address + n, "trajectory.push"))
     for f in fields:
         taken.append((f.address, f.address + f.n_registers, f.name))
     for name, ax in m.axes.items():

@@ -1,0 +1,75 @@
+"""The motion on the stand loop's grid: the profile evaluated once at ``k / rate_hz``.
+
+Pure computation, no I/O: the stand loop sends (or queues) ``values[axis][k]`` at slot k.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchctl.harmonics import HarmonicTable
+from benchctl.kinematics import profile_peaks
+from benchctl.run.state import RunState
+
+
+@dataclass
+class MotionPlan:
+    """The profile on the loop's grid: ``values[axis][k]`` is the angle at ``k·period_s``."""
+
+    axes: tuple[str, ...]
+    period_s: float
+    values: dict[str, NDArray[np.float64]]
+    duration_s: float
+    fade_in_s: float
+    fade_out_s: float
+    mode: str = "stream"
+    tables: dict[str, HarmonicTable] | None = None
+    # per axis: largest |rate| and |acceleration| of the point sequence (by differences)
+    peaks: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def n_slots(self) -> int:
+        return int(next(iter(self.values.values())).size)
+
+    def at(self, t: float) -> dict[str, float]:
+        """The profile at profile time ``t`` (linear between grid points; 0 outside)."""
+        if t <= 0.0 or t >= self.duration_s or self.n_slots < 2:
+            return dict.fromkeys(self.axes, 0.0)
+        x = t / self.period_s
+        i = min(int(x), self.n_slots - 2)
+        w = x - i
+        return {a: float(v[i] + w * (v[i + 1] - v[i])) for a, v in self.values.items()}
+
+    def state_at(self, t: float) -> RunState:
+        if t < self.fade_in_s:
+            return RunState.FADE_IN
+        if t < self.duration_s - self.fade_out_s:
+            return RunState.RUNNING
+        return RunState.FADE_OUT
+
+
+def make_plan(
+    evaluate: Callable[[NDArray[np.float64]], Mapping[str, NDArray[np.float64]]],
+    axes: tuple[str, ...],
+    duration_s: float,
+    rate_hz: float,
+    fade_in_s: float,
+    fade_out_s: float,
+    mode: str = "stream",
+    tables: dict[str, HarmonicTable] | None = None,
+) -> MotionPlan:
+    """Evaluate the profile once on the loop's grid ``k / rate_hz`` for k = 0 … duration·rate."""
+    period = 1.0 / rate_hz
+    n = math.floor(duration_s * rate_hz + 1e-9) + 1
+    t = np.arange(n, dtype=np.float64) * period
+    vals = evaluate(t)
+    values = {a: np.asarray(vals[a], dtype=float) for a in axes}
+    peaks = {a: profile_peaks(v, period) for a, v in values.items()}
+    return MotionPlan(
+        axes, period, values, duration_s, fade_in_s, fade_out_s, mode, tables, peaks
+    )

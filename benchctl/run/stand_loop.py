@@ -1,0 +1,626 @@
+"""The stand loop: one thread owns the stand's cycle from connect to shutdown.
+
+- **hold** — before and after the motion: read the stand at ``sample_rate_hz``, keep the
+  heartbeat;
+- **buffered** mode — the profile's points are queued in the stand's trajectory buffer
+  ``buffer_s`` ahead (pushes and feedback reads in one Modbus transaction where the map allows
+  it); the stand plays them on its own clock, so a host stall shorter than the buffer has no
+  effect on the motion at all. The loop polls at ``sample_rate_hz``, tops the queue up, and
+  counts underruns: a queue that ran dry while moving makes the stand stop itself within its
+  limits; the loop then waits for it to rest and rejoins the profile from there (below);
+- **stream** mode — setpoints at ``setpoint_rate_hz`` on ABSOLUTE deadlines
+  ``t_start + k·period``; a setpoint goes out within ``SEND_WINDOW`` of a period after its slot,
+  or its slot is missed (counted) and never sent late in a burst. After missed slots the stand
+  has held its last setpoint, so the loop **rejoins** the profile along a path planned from that
+  state within the limits (``benchctl.kinematics.plan_rejoin``): never a jump. A rejoin is an
+  event in the recording and counted in the stats;
+- **table** mode — the harmonic table is uploaded and started; the loop polls the stand.
+
+Every stand sample reaches the recording through the driver's listener (``Recorder``). Checks on
+every sample: fault / E-stop and angle limit (at once); tracking error (measured vs the stand's
+own setpoint) and profile departure (measured vs the profile; not while rejoining), each over its
+tolerance for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds; a silent instrument. A breach
+raises inside the loop thread; the supervisor turns it into the run's fault at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+
+from benchctl.devices.base import AngleSensor, Stand, StandSample
+from benchctl.errors import LimitError, SafetyAbort, StandFault
+from benchctl.kinematics import AxisCommand, Limits, Rejoin, StaleSetpoint, plan_rejoin
+from benchctl.run.live import CommandStats, Histogram
+from benchctl.run.plan import MotionPlan
+from benchctl.run.recorder import Recorder
+from benchctl.run.state import RunState, StateMachine
+from benchctl.run.supervisor import Supervisor
+
+log = logging.getLogger(__name__)
+
+SEND_WINDOW = 0.25  # a setpoint goes out within this fraction of a period after its slot, or not
+DEBOUNCE = 3  # consecutive stand samples over a tolerance before the run aborts …
+# … held for this long: a stand that really does not follow stays over for longer
+BREACH_HOLD_S = 0.25
+SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
+REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
+UNDERRUN_STOP_S = 10.0  # after an underrun the stand must be at rest within this
+
+
+class SerializedStand:
+    """The stand with every call serialised by one lock: the loop and the main thread share it."""
+
+    def __init__(self, stand: Stand) -> None:
+        self._stand = stand
+        self._lock = threading.RLock()
+        self.axes = stand.axes
+        self.limits = stand.limits
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self._stand, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            with self._lock:
+                return attr(*args, **kwargs)
+
+        return call
+
+    def as_stand(self) -> Stand:
+        return cast(Stand, self)
+
+
+@dataclass
+class LoopLimits:
+    angle_deg: float
+    tracking_tolerance_deg: float
+    profile_tolerance_deg: float
+    silence_timeout_s: float
+    heartbeat_period_s: float
+    sample_rate_hz: float
+    zero_tolerance_deg: float
+    rate_deg_s: float = math.inf
+    accel_deg_s2: float = math.inf
+    buffer_s: float = 1.0  # buffered mode: how far ahead the queue is kept
+
+    @property
+    def kinematic(self) -> Limits:
+        return Limits(self.angle_deg, self.rate_deg_s, self.accel_deg_s2)
+
+
+class PointSource:
+    """The commanded points in order: a rejoin path first (if any), then the profile's slots,
+    then two copies of the last value (the sequence ends at rest)."""
+
+    def __init__(self, plan: MotionPlan, k0: int, rejoin: Rejoin | None = None) -> None:
+        self.plan = plan
+        self.k = k0
+        self.rejoin = rejoin
+        self.tail = 2
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self._end() and self.tail == 0
+
+    def _end(self) -> int:
+        end = self.plan.n_slots
+        if self.rejoin is not None:
+            end = max(end, self.rejoin.first_slot + self.rejoin.n)
+        return end
+
+    def value(self, k: int) -> dict[str, float]:
+        p = self.plan
+        rej = self.rejoin
+        out = {}
+        for a in p.axes:
+            if rej is not None and 0 <= k - rej.first_slot < rej.points[a].size:
+                out[a] = float(rej.points[a][k - rej.first_slot])
+            else:
+                out[a] = float(p.values[a][min(k, p.n_slots - 1)])
+        return out
+
+    def take(self, n: int) -> list[tuple[int, dict[str, float]]]:
+        out: list[tuple[int, dict[str, float]]] = []
+        while len(out) < n:
+            if self.k < self._end():
+                out.append((self.k, self.value(self.k)))
+            elif self.tail > 0:
+                out.append((self.k, self.value(self._end() - 1)))
+                self.tail -= 1
+            else:
+                break
+            self.k += 1
+        return out
+
+
+class StandLoop:
+    """The thread that owns the stand's cycle (hold → motion → settle → hold)."""
+
+    def __init__(
+        self,
+        stand: Stand,
+        recorder: Recorder,
+        supervisor: Supervisor,
+        machine: StateMachine,
+        plan: MotionPlan,
+        limits: LoopLimits,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.stand = stand
+        self.rec = recorder
+        self.sup = supervisor
+        self.machine = machine
+        self.plan = plan
+        self.lim = limits
+        self.clock = clock
+        self._stop = threading.Event()
+        self._go = threading.Event()
+        self.motion_done = threading.Event()
+        self.lateness = Histogram()
+        self.cmd = CommandStats(plan.period_s)
+        self.rejoins = 0
+        self.stale_setpoints = 0
+        self.underruns = 0
+        self.missed_cycles = 0
+        self.cycles = 0
+        self.setpoints_sent = 0
+        self.t_motion_start: float | None = None
+        self.t_motion_end: float | None = None
+        self.t_last_cycle: float | None = None
+        self._t_heartbeat = -math.inf
+        self._over: dict[str, tuple[int, float]] = {}
+        self._no_departure_until = -math.inf  # rejoining: the profile is not yet the reference
+        self._thread: threading.Thread | None = None
+
+    # control from the main thread
+    def start(self) -> None:
+        self._thread = self.sup.thread("stand loop", self._run)
+        self._thread.start()
+
+    def begin_motion(self) -> None:
+        self._go.set()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self._stop.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout_s)
+            if t.is_alive():
+                log.error("stand loop did not stop within %.1f s", timeout_s)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _stopping(self) -> bool:
+        return self._stop.is_set() or self.sup.stop_event.is_set()
+
+    def _wait_until(self, deadline: float) -> bool:
+        """Sleep until ``deadline``; False when the loop must stop."""
+        while True:
+            now = self.clock()
+            if now >= deadline:
+                return not self._stopping()
+            if self._stop.wait(min(deadline - now, 0.05)) or self.sup.stop_event.is_set():
+                return False
+
+    # the thread
+    def _run(self) -> None:
+        self._hold(until_go=True)
+        if self._stopping():
+            return
+        if self.plan.mode == "table":
+            self._table()
+        elif self.plan.mode == "buffered":
+            self._buffered()
+        else:
+            self._stream()
+        if self._stopping():
+            return
+        self.t_motion_end = self.clock()
+        self._settle()
+        if self._stopping():
+            return
+        self.motion_done.set()
+        self._hold(until_go=False)
+
+    def _heartbeat(self, now: float) -> None:
+        if now - self._t_heartbeat >= self.lim.heartbeat_period_s:
+            self.stand.heartbeat()
+            self._t_heartbeat = now
+
+    def _check_instrument(self, now: float) -> None:
+        t = self.rec.t_last_instrument
+        since = self.rec.t_last_instrument_ref if t is None else t
+        if since is not None and now - since > self.lim.silence_timeout_s:
+            raise SafetyAbort(
+                f"instrument silent: no sample for {now - since:.2f} s "
+                f"(silence_timeout_s = {self.lim.silence_timeout_s} s)"
+            )
+
+    def _sample(self, profile_t: float | None) -> StandSample:
+        s = self.stand.read_sample()  # recorded by the driver's listener, fault bits included
+        self._check_sample(s, profile_t)
+        return s
+
+    def _over_tol(self, key: str, over: bool, t: float) -> bool:
+        """True once ``over`` has held for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds."""
+        if not over:
+            self._over.pop(key, None)
+            return False
+        n, t0 = self._over.get(key, (0, t))
+        self._over[key] = (n + 1, t0)
+        return n + 1 >= DEBOUNCE and t - t0 >= BREACH_HOLD_S
+
+    def _check_sample(self, s: StandSample, profile_t: float | None) -> None:
+        st = s.status
+        if st.estop:
+            raise StandFault("stand reports E-stop", st.fault_code)
+        if st.fault:
+            raise StandFault(f"stand reports fault code {st.fault_code}", st.fault_code)
+        for a, v in s.angle_deg.items():
+            if abs(v) > self.lim.angle_deg:
+                raise SafetyAbort(f"limit breach: {a} angle {v:.3f}° beyond ±{self.lim.angle_deg}°")
+        if profile_t is None:
+            return
+        ref = self.plan.at(profile_t)
+        track = {
+            a: s.angle_deg[a] - s.setpoint_deg[a] for a in self.plan.axes if a in s.setpoint_deg
+        }
+        dep = {a: s.angle_deg[a] - ref[a] for a in self.plan.axes}
+        self.rec.live.tracking_error_deg = track
+        self.rec.live.departure_deg = dep
+        for a, e in track.items():
+            if self._over_tol("track " + a, abs(e) > self.lim.tracking_tolerance_deg, s.t_host):
+                raise SafetyAbort(
+                    f"tracking error on {a}: {e:+.3f}° (measured − stand setpoint) beyond "
+                    f"±{self.lim.tracking_tolerance_deg}° (stand.tracking_tolerance_deg)"
+                )
+        rejoining = s.t_host < self._no_departure_until
+        for a, e in dep.items():
+            over = abs(e) > self.lim.profile_tolerance_deg and not rejoining
+            if self._over_tol("depart " + a, over, s.t_host):
+                raise SafetyAbort(
+                    f"stand departs from the profile on {a}: {e:+.3f}° at t = {profile_t:.2f} s "
+                    f"beyond ±{self.lim.profile_tolerance_deg}° (run.profile_tolerance_deg)"
+                )
+
+    def _hold(self, until_go: bool) -> None:
+        period = 1.0 / self.lim.sample_rate_hz
+        t0 = self.clock()
+        k = 0
+        while not self._stopping():
+            if until_go and self._go.is_set():
+                return
+            if not self._wait_until(t0 + k * period):
+                return
+            now = self.clock()
+            k = max(k + 1, int((now - t0) / period) + 1)
+            self._heartbeat(now)
+            self._sample(None)
+            self._check_instrument(now)
+            self.t_last_cycle = now
+
+    def _advance_state(self, t_profile: float) -> None:
+        target = self.plan.state_at(t_profile)
+        if self.machine.state is not target:
+            self.machine.advance_to(target)
+            # the running σ shown live covers the steady part, like the verdict
+            self.rec.sigma.active = target is RunState.RUNNING
+
+    def _start_motion(self, t_start: float) -> None:
+        self.t_motion_start = t_start
+        self.rec.live.t_motion_start = t_start
+        self.rec.event("motion_start", t_host=t_start, mode=self.plan.mode)
+        self._advance_state(0.0)
+
+    def _stream(self) -> None:
+        plan = self.plan
+        period = plan.period_s
+        t_start = self.clock() + period  # first slot one period ahead
+        self._start_motion(t_start)
+        k = 0
+        rejoin: Rejoin | None = None
+        last: dict[str, AxisCommand] | None = None  # the last setpoint sent and its step's rate
+        held = False  # slots were missed since: the stand has held `last`
+        while True:
+            deadline = t_start + k * period
+            if not self._wait_until(deadline):
+                return
+            now = self.clock()
+            late = now - deadline
+            if late >= SEND_WINDOW * period:
+                # stalled: no burst. A slot whose moment has passed by more than the send window
+                # is missed (counted); the stand holds its last setpoint, and the loop rejoins
+                # the profile from there at the next slot, within the limits.
+                skip = int(late / period) + 1
+                self.missed_cycles += skip
+                k += skip
+                held = True
+                continue
+            src = PointSource(plan, k, rejoin)
+            if k >= src._end():
+                break
+            if held and last is not None:
+                at_rest = {a: AxisCommand(c.angle_deg, 0.0) for a, c in last.items()}
+                rejoin = self._plan_rejoin(k, at_rest, deadline)
+                src = PointSource(plan, k, rejoin)
+            self.lateness.add(late)
+            sp = src.value(k)
+            try:
+                # one transaction where the stand takes it (Modbus FC23): write, then read back
+                _t_send, s = self.stand.send_setpoint_and_read(sp, t_slot=deadline)
+            except StaleSetpoint as e:
+                # sent so late that the stand held its last setpoint: nothing was sent; rejoin
+                self.stale_setpoints += 1
+                log.info("stale setpoint at slot %d: %s", k, e)
+                held = True
+                k += 1
+                continue
+            self.cmd.add(sp, held=held)
+            prev = last
+            last = {
+                a: AxisCommand(x, 0.0 if prev is None else (x - prev[a].angle_deg) / period)
+                for a, x in sp.items()
+            }
+            held = False
+            self.setpoints_sent += 1
+            self._heartbeat(now)
+            self._check_sample(s, s.t_host - t_start)
+            self._check_instrument(now)
+            self._advance_state(min(k * period, plan.duration_s))
+            self.cycles += 1
+            self.t_last_cycle = now
+            k += 1
+
+    def _plan_rejoin(
+        self, slot: int, last: Mapping[str, AxisCommand], t_slot: float
+    ) -> Rejoin:
+        """Plan the way back onto the profile at ``slot`` from ``last`` (the stand at rest there
+        after holding, or stopped after an underrun); record it; suspend the departure check
+        while it lasts."""
+        plan = self.plan
+        try:
+            rej = plan_rejoin(
+                plan.values, slot, last, self.lim.kinematic, plan.period_s, plan.peaks
+            )
+        except LimitError as e:
+            raise SafetyAbort(f"cannot rejoin the profile within the stand limits: {e}") from None
+        self.rejoins += 1
+        dur = rej.n * plan.period_s
+        self._no_departure_until = max(self._no_departure_until, t_slot + dur + BREACH_HOLD_S)
+        k_prev = max(0, min(slot, plan.n_slots - 1) - 1)
+        dev = {a: last[a].angle_deg - float(plan.values[a][k_prev]) for a in last}
+        self.rec.event(
+            "rejoin", t_slot=t_slot, slot=slot, points=rej.n, duration_s=dur, deviation_deg=dev
+        )
+        return rej
+
+    # -- buffered trajectory -------------------------------------------------------------
+    def _traj_stand(self) -> Any:
+        return cast(Any, self.stand)
+
+    def _buffered(self) -> None:
+        plan = self.plan
+        T = plan.period_s
+        st = self._traj_stand()
+        capacity, per_push = st.trajectory_limits
+        lead = int(min(max(2 * per_push, round(self.lim.buffer_s / T)), capacity - per_push))
+        poll = 1.0 / self.lim.sample_rate_hz
+        src = PointSource(plan, 0)
+        base = 0  # the queue's point j is the profile's slot base + j
+        first = True
+        while True:
+            t0, j_next = self._traj_start(st, src, base, lead, per_push, first)
+            first = False
+            stop = self._traj_poll(st, src, base, t0, j_next, lead, per_push, poll)
+            if stop is None:
+                return
+            if stop == "done":
+                break
+            # an underrun: the stand stopped itself; rejoin the profile from where it rests
+            s = self._await_rest_after_underrun()
+            k_now = base + round((self.clock() - t0) / T)
+            held = {a: AxisCommand(s.setpoint_deg[a], 0.0) for a in plan.axes}
+            rejoin = self._plan_rejoin(k_now, held, self.clock())
+            src = PointSource(plan, rejoin.first_slot, rejoin)
+            base = rejoin.first_slot
+
+    def _traj_start(
+        self, st: Any, src: PointSource, base: int, lead: int, per_push: int, first: bool
+    ) -> tuple[float, int]:
+        """Queue ``lead`` points and start the trajectory; returns (start time, next index)."""
+        st.begin_trajectory()
+        s = self.rec.last_stand
+        if s is not None:
+            self.cmd.restart({a: s.setpoint_deg.get(a, 0.0) for a in self.plan.axes})
+        j_next = 0
+        pending: list[tuple[int, dict[str, float]]] = []
+        while j_next < lead and not src.done:
+            pts = src.take(per_push)
+            if not pts:
+                break
+            st.push_points(j_next, self._arrays(pts), read=False)
+            j_next += len(pts)
+            pending += pts
+        t0 = float(st.start_trajectory())
+        if first:
+            self._start_motion(t0)
+        self._record_points(t0, base, pending)
+        return t0, j_next
+
+    def _arrays(self, pts: list[tuple[int, dict[str, float]]]) -> dict[str, np.ndarray]:
+        for _, v in pts:
+            self.cmd.add(v)
+        return {a: np.array([v[a] for _, v in pts]) for a in self.plan.axes}
+
+    def _record_points(
+        self, t0: float, base: int, pts: list[tuple[int, dict[str, float]]]
+    ) -> None:
+        T = self.plan.period_s
+        now = self.clock()
+        self.rec.points(now, [(t0 + (k - base) * T, v) for k, v in pts])
+        self.setpoints_sent += len(pts)
+
+    def _traj_poll(
+        self,
+        st: Any,
+        src: PointSource,
+        base: int,
+        t0: float,
+        j_next: int,
+        lead: int,
+        per_push: int,
+        poll: float,
+    ) -> str | None:
+        """Poll the stand and top the queue up until the end ("done"), an underrun
+        ("underrun") or a stop (None)."""
+        plan = self.plan
+        T = plan.period_s
+        played = 0
+        underruns: int | None = None
+        i = 1
+        while True:
+            deadline = t0 + i * poll
+            if not self._wait_until(deadline):
+                return None
+            now = self.clock()
+            late = now - deadline
+            if late >= poll:
+                skip = int(late / poll)
+                self.missed_cycles += skip
+                i += skip
+                late = now - (t0 + i * poll)
+            self.lateness.add(late)
+            self._heartbeat(now)
+            if not src.done and j_next - played < lead:
+                pts = src.take(per_push)
+                s = st.push_points(j_next, self._arrays(pts), read=True)
+                j_next += len(pts)
+                self._record_points(t0, base, pts)
+            else:
+                s = st.read_sample()
+            tr = s.trajectory
+            if tr is None:
+                raise SafetyAbort("buffered mode: the stand reports no trajectory queue")
+            played = tr.played
+            slot_t = (base + (s.t_host - t0) / T) * T
+            in_profile = slot_t <= plan.duration_s and s.status.trajectory_running
+            self._check_sample(s, slot_t if in_profile else None)
+            self._check_instrument(now)
+            self._advance_state(min(max(slot_t, 0.0), plan.duration_s))
+            self.cycles += 1
+            self.t_last_cycle = now
+            i += 1
+            if underruns is None:
+                underruns = tr.underruns
+            elif tr.underruns != underruns:
+                self.underruns += (tr.underruns - underruns) & 0xFFFF
+                self.rec.event("underrun", t_host=s.t_host, played=tr.played, queued=j_next)
+                return "underrun"
+            if src.done and not s.status.trajectory_running:
+                return "done"
+
+    def _await_rest_after_underrun(self) -> StandSample:
+        period = 1.0 / self.lim.sample_rate_hz
+        t_end = self.clock() + UNDERRUN_STOP_S
+        while True:
+            now = self.clock()
+            self._heartbeat(now)
+            s = self._sample(None)
+            self.t_last_cycle = now
+            if not s.status.trajectory_running and not s.status.moving:
+                return s
+            if now > t_end:
+                raise SafetyAbort(
+                    f"stand not at rest {UNDERRUN_STOP_S:.0f} s after a trajectory underrun"
+                )
+            if not self._wait_until(now + period):
+                raise SafetyAbort("stopped while waiting for the stand after an underrun")
+
+    def _table(self) -> None:
+        plan = self.plan
+        assert plan.tables is not None
+        period = 1.0 / self.lim.sample_rate_hz
+        t_start = self.stand.start_table()
+        self._start_motion(t_start)
+        k = 1
+        while True:
+            deadline = t_start + k * period
+            if not self._wait_until(deadline):
+                return
+            now = self.clock()
+            late = now - deadline
+            if late >= period:
+                skip = int(late / period)
+                self.missed_cycles += skip
+                k += skip
+                late = now - (t_start + k * period)
+            self.lateness.add(late)
+            self._heartbeat(now)
+            s = self.stand.read_sample()
+            t_prof = s.t_host - t_start
+            self._check_sample(s, t_prof if t_prof <= plan.duration_s else None)
+            self._check_instrument(now)
+            self._advance_state(min(t_prof, plan.duration_s))
+            self.cycles += 1
+            self.t_last_cycle = now
+            if t_prof > plan.duration_s:
+                break
+            k += 1
+        self.stand.stop_table()
+
+    def _settle(self) -> None:
+        """After the profile: keep recording until the stand is at rest near zero."""
+        period = 1.0 / self.lim.sample_rate_hz
+        t0 = self.clock()
+        k = 1
+        while self.clock() - t0 < SETTLE_TIMEOUT_S:
+            if not self._wait_until(t0 + k * period):
+                return
+            now = self.clock()
+            k = max(k + 1, int((now - t0) / period) + 1)
+            self._heartbeat(now)
+            s = self._sample(None)
+            self._check_instrument(now)
+            if all(abs(v) <= self.lim.zero_tolerance_deg for v in s.angle_deg.values()) and all(
+                abs(v) <= REST_RATE_DEG_S for v in s.rate_deg_s.values()
+            ):
+                return
+        raise SafetyAbort(
+            f"stand not at rest {SETTLE_TIMEOUT_S:.0f} s after the profile ended "
+            f"(zero_tolerance_deg = {self.lim.zero_tolerance_deg}°)"
+        )
+
+    def stats(self) -> dict[str, Any]:
+        lat = self.lateness.summary()
+        return {
+            "cycles": self.cycles,
+            "setpoints_sent": self.setpoints_sent,
+            "missed_cycles": self.missed_cycles,
+            "rejoins": self.rejoins,
+            "stale_setpoints": self.stale_setpoints,
+            "underruns": self.underruns,
+            "commanded": self.cmd.summary(),
+            "cycle_lateness_s": lat,
+            "stand_rtt_s": self.rec.rtt.summary(),
+            "instrument_samples": self.rec.n_instrument,
+            "instrument_lost": self.rec.instrument_lost,
+            "motion_start": self.t_motion_start,
+            "motion_end": self.t_motion_end,
+        }
+
+
+def start_instrument(sensor: AngleSensor, recorder: Recorder) -> None:
+    """Start the instrument's reader wired straight into the recording and the supervisor."""
+    recorder.t_last_instrument_ref = time.monotonic()
+    sensor.start(recorder.on_sample, recorder.on_error)
