@@ -8,16 +8,38 @@ was expected; it is always fatal.
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
-from benchctl.errors import ConfigError
+from benchctl.errors import ConfigError, InputError
+from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
 
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
+# Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
+# that size a buffer or a wait are bounded above (README, "Bench configs").
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+MAX_WAIT_S = 3600.0  # timeouts, periods, windows
+MAX_HOST_RATE_HZ = 1000.0  # the host's setpoint / stand polling rate
+MAX_DEVICE_RATE_HZ = 100_000.0  # an instrument's (or a simulator's) own rate
+Seconds = Annotated[float, Field(gt=0, le=MAX_WAIT_S, allow_inf_nan=False)]
+HostRate = Annotated[float, Field(gt=0, le=MAX_HOST_RATE_HZ, allow_inf_nan=False)]
+DeviceRate = Annotated[float, Field(gt=0, le=MAX_DEVICE_RATE_HZ, allow_inf_nan=False)]
+Baud = Annotated[int, Field(gt=0, le=100_000_000)]
+MAX_BAND_HZ = 1e6
 
 
 class Strict(BaseModel):
@@ -37,18 +59,22 @@ class StandConfig(Strict):
     host: str = "127.0.0.1"
     port: int = Field(default=502, ge=0, le=65535)
     serial_port: str | None = None  # modbus-rtu: a device path or a pyserial URL
-    baudrate: int = 115200
+    baudrate: Baud = 115200
     parity: Literal["N", "E", "O"] = "N"  # modbus-rtu
     stopbits: Literal[1, 2] = 1  # modbus-rtu
     device_id: int = Field(default=1, ge=0, le=247)
     register_map: Path = Path("../drivers/stand_generic.yaml")
-    timeout_s: Positive = 0.5
-    retries: int = Field(default=1, ge=0)
+    timeout_s: Seconds = 0.5
+    retries: int = Field(default=1, ge=0, le=100)
     axes: tuple[Literal["roll", "pitch"], ...] = ("roll", "pitch")
-    mode: Literal["stream", "table"] = "stream"
-    setpoint_rate_hz: Positive = 100.0
-    sample_rate_hz: Positive = 100.0  # how often the encoder angle is read (stream: each cycle)
-    heartbeat_period_s: Positive = 0.1
+    # stream: setpoints from the host; buffered: points queued ahead in the stand's trajectory
+    # buffer (needs a `trajectory:` section in the register map); table: the stand plays a table
+    mode: Literal["stream", "buffered", "table"] = "stream"
+    # buffered: how far ahead the queue is kept (s of motion; capped by the stand's capacity)
+    buffer_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 1.0
+    setpoint_rate_hz: HostRate = 100.0
+    sample_rate_hz: HostRate = 100.0  # how often the encoder angle is read (stream: each cycle)
+    heartbeat_period_s: Seconds = 0.1
     limits: StandLimits
     tracking_tolerance_deg: Positive = 0.5  # |measured - commanded| beyond this aborts
     zero_tolerance_deg: Positive = 0.05  # "at rest" means |angle| below this
@@ -66,7 +92,7 @@ class InstrumentConfig(Strict):
     # CAN (canopen, j1939, nmea2000): any python-can interface name and its channel
     interface: str | None = None  # slcan, socketcand, virtual, pcan, kvaser, socketcan …
     channel: str | None = None
-    bitrate: int = 500000
+    bitrate: Baud = 500000
     node_id: int = Field(default=10, ge=1, le=127)  # CANopen node id
     source_address: int | None = Field(default=None, ge=0, le=253)  # J1939 / NMEA 2000 SA filter
     eds: Path | None = None
@@ -74,19 +100,21 @@ class InstrumentConfig(Strict):
     can_log: str | None = "can.blf"  # raw CAN frames beside the recording (.blf or .asc)
     # slcan: seconds to wait after opening the serial port (None: 0 for a pseudo-terminal, else
     # python-can's 2 s for a real adapter that resets on open)
-    sleep_after_open_s: NonNegative | None = None
+    sleep_after_open_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] | None = (
+        None
+    )
     # further keyword arguments for can.Bus (e.g. a hardware interface's own options)
-    can_options: dict[str, str | int | float | bool] = Field(default_factory=dict)
-    connect_timeout_s: Positive = 3.0  # SDO answers / the first broadcast frame within this
+    can_options: dict[str, str | int | Finite | bool] = Field(default_factory=dict)
+    connect_timeout_s: Seconds = 3.0  # SDO answers / the first broadcast frame within this
     # serial (nmea0183)
     serial_port: str | None = None
-    baudrate: int = 115200
+    baudrate: Baud = 115200
     sentence: Literal["PASHR", "PHTRO", "XDR"] | None = None
     # what the run expects of it
     axes: tuple[Literal["roll", "pitch"], ...] = ("roll", "pitch")
-    expected_rate_hz: Positive = 100.0
+    expected_rate_hz: DeviceRate = 100.0
     static_tolerance_deg: Positive = 0.5  # at rest, |instrument - stand| must be within this
-    silence_timeout_s: Positive = 1.0  # no sample for this long aborts the run
+    silence_timeout_s: Seconds = 1.0  # no sample for this long aborts the run
     wire_trace: bool = False
 
     @model_validator(mode="after")
@@ -103,13 +131,38 @@ class InstrumentConfig(Strict):
         return self
 
 
-class SimStandFault(Strict):
-    """A fault the simulated stand injects by itself, ``after_s`` seconds after it starts."""
+FaultSeconds = Annotated[float, Field(ge=0, le=MAX_FAULT_S, allow_inf_nan=False)]
 
-    kind: Literal["drop_connection", "stall", "modbus_exception", "stand_fault", "estop"]
-    after_s: NonNegative = 0.0
+
+class SimStandFault(Strict):
+    """A fault the simulated stand injects by itself, ``after_s`` seconds after it starts.
+
+    ``kind`` and the parameters it takes (``duration_s``, ``code``) are checked against the
+    table in ``benchctl.sim.faults`` (as ``SimStand.inject`` does).
+    """
+
+    kind: str  # drop_connection, stall, modbus_exception, stand_fault, estop
+    after_s: FaultSeconds = 0.0
     duration_s: Positive | None = None  # drop/stall/modbus_exception; None = until cleared
-    code: int | None = Field(default=None, ge=1, le=65535)  # modbus_exception or stand_fault code
+    code: int | None = None  # modbus_exception (1..255) or stand_fault (1..65535) code
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, kind: str) -> str:
+        try:
+            return check_kind("stand", kind)
+        except FaultSpecError as e:
+            raise ValueError(f"unknown stand fault kind; expected {e.expected}") from None
+
+    @model_validator(mode="after")
+    def _params(self) -> SimStandFault:
+        given = {k: v for k in ("duration_s", "code") if (v := getattr(self, k)) is not None}
+        try:
+            check_params("stand", self.kind, given)
+        except FaultSpecError as e:
+            raise ValueError(f"{e.field.removeprefix('params.')} = {e.value!r}: "
+                             f"expected {e.expected}") from None
+        return self
 
 
 class SimStandConfig(Strict):
@@ -121,28 +174,29 @@ class SimStandConfig(Strict):
     accel_limit_deg_s2: Positive = 300.0
     encoder_resolution_deg: NonNegative = 0.001
     soft_limit_deg: Positive = 40.0  # beyond this the simulated stand faults
-    watchdog_s: Positive = 1.0  # heartbeat silence that stops the stand
-    tick_hz: Positive = 1000.0
+    watchdog_s: Seconds = 1.0  # heartbeat silence that stops the stand
+    tick_hz: DeviceRate = 1000.0
     rtu_wire_delay: bool = True  # emulate serial byte time on the RTU pty
-    baudrate: int = Field(default=115200, gt=0)  # byte time of the emulated RTU wire
+    baudrate: Baud = 115200  # byte time of the emulated RTU wire
     faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
 
 
 class SimInstrumentConfig(Strict):
     """The simulated instrument's own model: what it measures of the true stand motion."""
 
-    gain: float = 1.0
-    lag_s: NonNegative = 0.0  # first-order time constant
+    gain: Finite = 1.0
+    lag_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0  # 1st order
     natural_freq_hz: Positive | None = None  # second-order response, if set
     damping: Positive = 0.7
-    latency_s: NonNegative = 0.0
-    bias_deg: float = 0.0
+    latency_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0
+    bias_deg: Finite = 0.0
     noise_deg: NonNegative = 0.0  # white noise σ
-    drift_deg_s: float = 0.0  # slow linear drift
+    drift_deg_s: Finite = 0.0  # slow linear drift
     quantisation_deg: NonNegative = 0.0
-    rate_hz: Positive = 100.0
-    seed: int = 1
-    substep_hz: Positive = 4000.0  # exact first-order-hold integration rate of lag / 2nd order
+    rate_hz: DeviceRate = 100.0
+    seed: int = Field(default=1, ge=0, lt=2**63)
+    # exact first-order-hold integration rate of lag / 2nd order
+    substep_hz: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] = 4000.0
 
 
 class SimFault(Strict):
@@ -150,13 +204,34 @@ class SimFault(Strict):
 
     ``target`` stand: kinds of ``SimStand.inject`` (drop_connection, stall, modbus_exception,
     stand_fault, estop); instrument: kinds of ``SimInstrument.inject`` (garbled, silent, stuck,
-    drop). ``params`` are that method's keyword arguments.
+    drop). ``params`` are that method's keyword arguments. Kinds and parameters (names, types,
+    ranges) are checked against ``benchctl.sim.faults`` here; a garbled fault's ``how`` against
+    the instrument's driver by ``parse_config``.
     """
 
     target: Literal["stand", "instrument"]
     kind: str
-    after_motion_s: NonNegative = 0.0
-    params: dict[str, str | int | float] = Field(default_factory=dict)
+    after_motion_s: FaultSeconds = 0.0
+    params: dict[str, bool | str | int | Finite] = Field(default_factory=dict)
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, kind: str, info: ValidationInfo) -> str:
+        target = info.data.get("target")
+        if target is None:
+            return kind  # the target's own error is reported
+        try:
+            return check_kind(target, kind)
+        except FaultSpecError as e:
+            raise ValueError(f"unknown {target} fault kind; expected {e.expected}") from None
+
+    @model_validator(mode="after")
+    def _params(self) -> SimFault:
+        try:
+            check_params(self.target, self.kind, self.params)
+        except FaultSpecError as e:
+            raise ValueError(str(e)) from None
+        return self
 
 
 class SimConfig(Strict):
@@ -169,18 +244,28 @@ class SimConfig(Strict):
 
 
 class AnalysisConfig(Strict):
-    max_lag_s: Positive | None = None  # default: the documented rule in benchctl.analysis
+    # default: the documented rule in benchctl.analysis
+    max_lag_s: Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)] | None = None
     band_hz: tuple[NonNegative, Positive] | None = None  # σ restricted to this band
-    compensate_delay: Literal["none", "auto"] | float = "none"
+    compensate_delay: (
+        Literal["none", "auto"] | Annotated[float, Field(ge=-3600, le=3600, allow_inf_nan=False)]
+    ) = "none"
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band(cls, band: tuple[float, float] | None) -> tuple[float, float] | None:
+        if band is not None and not (band[0] < band[1] <= MAX_BAND_HZ):
+            raise ValueError(f"expected [lo, hi] in Hz with lo < hi ≤ {MAX_BAND_HZ:g}")
+        return band
 
 
 class RunConfig(Strict):
     limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
     output_dir: Path = Path("runs")
     min_free_disk_mb: Positive = 200.0
-    precheck_window_s: Positive = 1.0  # instrument rate and static agreement measured over this
+    precheck_window_s: Seconds = 1.0  # instrument rate and static agreement measured over this
     # ± fraction of instrument.expected_rate_hz
-    instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.2
+    instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.2
     # stand motion departing from the profile beyond this aborts the run
     profile_tolerance_deg: Positive = 1.0
     analysis: AnalysisConfig = AnalysisConfig()
@@ -204,14 +289,44 @@ _PATH_FIELDS = {
 }
 
 
+def shown_value(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (one line: repr escapes newlines)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def field_path(loc: tuple[int | str, ...]) -> str:
+    """A pydantic error location as a field path: ``sim.faults[0].kind``."""
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
 def _format_error(path: Path, err: ValidationError) -> str:
-    lines = [f"{path}: invalid bench config"]
+    parts = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        loc = field_path(e["loc"]) or "(top level)"
         value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {value!r}"
-        lines.append(f"  field {loc}{shown}: {e['msg']}")
-    return "\n".join(lines)
+        shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
+        parts.append(f"field {loc}{shown}: {e['msg']}")
+    return f"{path}: invalid bench config: " + "; ".join(parts)
+
+
+def _check_fault_transports(cfg: BenchConfig, source: Path) -> None:
+    """A scheduled ``garbled`` fault's ``how`` must suit the instrument's driver."""
+    if cfg.sim is None:
+        return
+    for i, fault in enumerate(cfg.sim.faults):
+        if fault.target != "instrument":
+            continue
+        try:
+            check_params("instrument", fault.kind, fault.params, driver=cfg.instrument.driver)
+        except FaultSpecError as e:
+            raise ConfigError(
+                f"{source}: invalid bench config: field sim.faults[{i}].{e.field} = "
+                f"{shown_value(e.value)}: expected {e.expected} (instrument.driver)"
+            ) from None
 
 
 def parse_config(data: Any, source: Path) -> BenchConfig:
@@ -224,31 +339,259 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
         cfg = BenchConfig.model_validate({**data, "source": source})
     except ValidationError as err:
         raise ConfigError(_format_error(source, err)) from None
+    _check_fault_transports(cfg, source)
     base = source.parent
     updates: dict[str, Any] = {}
-    for section, name in _PATH_FIELDS:
+    for section, name in sorted(_PATH_FIELDS):
         sub = getattr(cfg, section)
         value = getattr(sub, name)
         if isinstance(value, Path) and not value.is_absolute():
-            updates.setdefault(section, {})[name] = (base / value).resolve()
+            try:
+                updates.setdefault(section, {})[name] = (base / value).resolve()
+            except (OSError, ValueError) as e:
+                raise ConfigError(
+                    f"{source}: invalid bench config: field {section}.{name} = "
+                    f"{shown_value(str(value))}: not a usable path ({e})"
+                ) from None
     for section, fields in updates.items():
         cfg = cfg.model_copy(update={section: getattr(cfg, section).model_copy(update=fields)})
     return cfg
 
 
+# --- YAML --------------------------------------------------------------------------------
+#
+# Every YAML file benchctl reads (bench configs, profiles, register maps) goes through
+# ``read_yaml`` and so through ``BenchYamlLoader``: PyYAML's safe loader plus these rules
+# (README, "Bench configs"):
+#
+# - the file is UTF-8 (else an error naming the byte offset and line);
+# - a key given twice in one mapping is an error (PyYAML silently keeps the last);
+# - nesting deeper than ``MAX_YAML_DEPTH`` is an error (PyYAML recurses: RecursionError);
+# - a document whose aliases expand to more than ``MAX_YAML_NODES`` nodes is an error (an
+#   "alias bomb" costs exponential time and memory downstream), so is a recursive alias;
+# - YAML 1.1 sexagesimal numbers (``30:00`` → 1800) and leading-zero octals (``010`` → 8) are
+#   not numbers: they stay strings, and a numeric field refuses them (or, for ``010``, reads
+#   the decimal 10);
+# - any other failure of PyYAML's constructors (a bad date, ``0x_``) is a ``ConfigError``.
+
+MAX_YAML_DEPTH = 100
+MAX_YAML_NODES = 100_000
+
+_INT_TAG = "tag:yaml.org,2002:int"
+_FLOAT_TAG = "tag:yaml.org,2002:float"
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+# PyYAML's YAML 1.1 patterns without the sexagesimal and the leading-zero octal forms
+_INT_RE = re.compile(
+    r"""^(?:[-+]?0b[0-1_]+
+    |[-+]?(?:0|[1-9][0-9_]*)
+    |[-+]?0o[0-7_]+
+    |[-+]?0x[0-9a-fA-F_]+)$""",
+    re.X,
+)
+_FLOAT_RE = re.compile(
+    r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+][0-9]+)?
+    |\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""",
+    re.X,
+)
+
+
+class BenchYamlLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` with benchctl's rules (see the notes above ``MAX_YAML_DEPTH``).
+
+    Errors are ``ConfigError`` naming the file, line and column.
+    """
+
+    yaml_implicit_resolvers = {  # noqa: RUF012 (PyYAML's own class attribute)
+        first: [
+            (tag, _INT_RE if tag == _INT_TAG else _FLOAT_RE if tag == _FLOAT_TAG else rx)
+            for tag, rx in resolvers
+        ]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+
+    def __init__(self, text: str, path: Path) -> None:
+        super().__init__(text)
+        self.name = str(path)  # marks (and so messages) name the file
+        self.path = path
+        self._depth = 0
+        self._sizes: dict[int, int] = {}  # id(node) → nodes it expands to, aliases followed
+
+    def fail(self, mark: yaml.Mark | None, message: str) -> ConfigError:
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        return ConfigError(f"{self.path}: not valid YAML: {where}{message}")
+
+    # -- composer: depth and alias expansion ------------------------------------------------
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            node = super().compose_node(parent, index)
+            if id(node) not in self._sizes:
+                raise self.fail(
+                    event.start_mark, f"alias *{event.anchor} is inside its own anchor (recursive)"
+                )
+            return node
+        self._depth += 1
+        if self._depth > MAX_YAML_DEPTH:
+            raise self.fail(
+                self.peek_event().start_mark,
+                f"nested more than {MAX_YAML_DEPTH} levels deep; expected at most {MAX_YAML_DEPTH}",
+            )
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        size = 1
+        if isinstance(node, yaml.SequenceNode):
+            size += sum(self._sizes[id(child)] for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            size += sum(self._sizes[id(k)] + self._sizes[id(v)] for k, v in node.value)
+        if size > MAX_YAML_NODES:
+            raise self.fail(
+                node.start_mark if node is not None else None,
+                f"this node expands to {size} nodes through aliases; expected at most "
+                f"{MAX_YAML_NODES} in a document",
+            )
+        self._sizes[id(node)] = size
+        return node
+
+    # -- constructor: duplicate keys, sexagesimal, any failure named --------------------------
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, yaml.Mark] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == _MERGE_TAG:
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.get(key)
+                except TypeError:
+                    continue  # unhashable: PyYAML's own error below
+                if first is not None:
+                    raise self.fail(
+                        key_node.start_mark,
+                        f"duplicate key {shown_value(key)} (first at line {first.line + 1}); "
+                        "expected each key once in a mapping",
+                    )
+                seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+    def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+        try:
+            return super().construct_object(node, deep=deep)
+        except (ConfigError, yaml.YAMLError):
+            raise
+        except Exception as e:  # PyYAML's constructors raise ValueError, TypeError, ...
+            raise self.fail(
+                node.start_mark, f"cannot read {shown_value(node.value)} as {node.tag}: {e}"
+            ) from None
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        if ":" in str(node.value):
+            raise self.fail(node.start_mark, f"sexagesimal number {node.value!r} not supported")
+        return int(super().construct_yaml_int(node))
+
+    def construct_yaml_float(self, node: yaml.ScalarNode) -> float:
+        if ":" in str(node.value):
+            raise self.fail(node.start_mark, f"sexagesimal number {node.value!r} not supported")
+        return float(super().construct_yaml_float(node))
+
+
+BenchYamlLoader.add_constructor(_INT_TAG, BenchYamlLoader.construct_yaml_int)
+BenchYamlLoader.add_constructor(_FLOAT_TAG, BenchYamlLoader.construct_yaml_float)
+
+
+def _yaml_message(e: yaml.YAMLError, text: str) -> str:
+    """One line from a PyYAML error: where, and what."""
+    if isinstance(e, yaml.MarkedYAMLError):
+        mark = e.problem_mark or e.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        what = e.problem or e.context or "syntax error"
+        if e.problem and e.context:
+            cm = e.context_mark
+            at = f" at line {cm.line + 1}" if cm is not None and cm is not mark else ""
+            what = f"{e.problem} ({e.context}{at})"
+        msg = where + what
+    elif isinstance(e, yaml.reader.ReaderError):
+        line = text.count("\n", 0, max(0, e.position)) + 1
+        char = e.character if isinstance(e.character, str) else chr(e.character)
+        msg = (
+            f"line {line}: character U+{ord(char):04X} at character offset {e.position}: "
+            f"{e.reason}"
+        )
+    else:
+        msg = str(e)
+    return " ".join(msg.split())
+
+
 def read_yaml(path: Path, what: str) -> Any:
-    """Parse a YAML file; ``ConfigError`` naming the file (and ``what`` it is) on any problem."""
+    """Parse a YAML file by ``BenchYamlLoader``'s rules; ``ConfigError`` naming the file (and
+    ``what`` it is), the line and the problem on any failure."""
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read {what}: {e.strerror}") from None
+        raise ConfigError(f"{path}: cannot read {what}: {e.strerror or e}") from None
     try:
-        return yaml.safe_load(text)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        raise ConfigError(
+            f"{path}: byte 0x{raw[e.start]:02x} at offset {e.start} (line {line}) is not UTF-8; "
+            f"expected a UTF-8 text {what}"
+        ) from None
+    loader: BenchYamlLoader | None = None
+    try:
+        loader = BenchYamlLoader(text, path)  # the reader checks every character here
+        return loader.get_single_data()
+    except ConfigError:
+        raise
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {e}") from None
+        raise ConfigError(f"{path}: not valid YAML: {_yaml_message(e, text)}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
 
 
 def load_config(path: str | Path) -> BenchConfig:
     """Read and validate a bench config YAML file."""
     p = Path(path)
     return parse_config(read_yaml(p, "bench config"), p)
+
+
+# --- command-line options ------------------------------------------------------------------
+#
+# Every numeric option of the CLI is checked against a stated range before anything opens
+# (README, the option tables). The figures live here, beside the config's own bounds.
+
+MAX_RUN_DURATION_S = 86400.0  # run/profile --duration: a day of profile
+MAX_PROFILE_SAMPLES = 20_000_000  # --duration × rate, per axis (a day at 231 Hz)
+MAX_PROFILE_RATE_HZ = 100_000.0  # profile --rate
+MAX_LAG_S = 86400.0  # analyze --max-lag
+MAX_DELAY_S = 3600.0  # analyze --compensate-delay, either sign
+MAX_SEED = 2**63 - 1  # --seed: 0 … 2⁶³−1
+
+
+def check_option(
+    option: str,
+    value: float | None,
+    lo: float,
+    hi: float,
+    *,
+    lo_open: bool = False,
+    unit: str = "",
+    what: str = "",
+) -> None:
+    """``InputError`` unless ``value`` (None: not given) is finite and within ``lo``…``hi``;
+    the message names the option, the value and the range (after ``what`` it expects)."""
+    if value is None:
+        return
+    v = float(value)
+    inside = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
+    if not inside:
+        u = f" {unit}" if unit else ""
+        rel = "<" if lo_open else "≤"
+        lead = f"{what}, " if what else ""
+        raise InputError(f"{option} {value!r}: expected {lead}{lo:g} {rel} value ≤ {hi:g}{u}")

@@ -20,8 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
-
+from benchctl.config import read_yaml
 from benchctl.errors import ConfigError, LimitError
 
 FieldType = Literal["uint16", "int16", "uint32", "int32", "float32", "string"]
@@ -363,12 +362,7 @@ def load_register_map(path: str | Path) -> RegisterMap:
         Naming the file, the field, the value and what was expected.
     """
     source = Path(path)
-    try:
-        data = yaml.safe_load(source.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise ConfigError(f"{source}: cannot read register map: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{source}: register map is not valid YAML: {e}") from None
+    data = read_yaml(source, "register map")  # the one YAML reader and its rules
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: expected a YAML mapping at the top level")
     return parse_register_map(data, source)
