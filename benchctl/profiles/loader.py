@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
-from benchctl.config import read_yaml
+from benchctl.config import field_path, read_yaml, shown_value
 from benchctl.errors import ConfigError, DataError
 from benchctl.profiles.records import RecordedSpectrum, estimate_psd
 from benchctl.profiles.schema import (
@@ -93,20 +93,21 @@ def sine_steps_duration(spec: SineStepsProfile) -> float:
 
 
 def _format_error(source: Path | str, err: ValidationError, kind: object) -> str:
-    lines = [f"{source}: invalid profile"]
+    """One line: the file, then each failing field with its value and what was expected."""
+    parts = []
     for e in err.errors():
         loc = list(e["loc"])
         if loc and isinstance(kind, str) and loc[0] == kind:
             loc = loc[1:]  # the discriminator's tag, not a field
-        where = ".".join(str(p) for p in loc) or "(top level)"
+        where = field_path(tuple(loc)) or "(top level)"
         value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {value!r}"
+        shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
         msg = e["msg"]
         if e["type"] == "union_tag_invalid":
-            where, shown = "kind", f" = {kind!r}"
+            where, shown = "kind", f" = {shown_value(kind)}"
             msg = f"unknown kind; expected one of {', '.join(_kinds())}"
-        lines.append(f"  field {where}{shown}: {msg}")
-    return "\n".join(lines)
+        parts.append(f"field {where}{shown}: {msg}")
+    return f"{source}: invalid profile: " + "; ".join(parts)
 
 
 def _kinds() -> tuple[str, ...]:
@@ -154,43 +155,65 @@ def read_angle_csv(
     """Two numeric columns of a CSV (header row; ``#`` lines skipped). ``DataError`` names the
     file, column and row of any missing column, non-number, NaN or non-increasing time."""
     try:
-        fh = path.open(newline="", encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as e:
-        raise DataError(f"{path}: cannot read: {e.strerror}") from None
-    with fh:
-        rows = csv.reader(line for line in fh if not line.lstrip().startswith("#"))
-        header = next(rows, None)
+        raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        lineno = raw.count(b"\n", 0, e.start) + 1
+        raise DataError(
+            f"{path}: line {lineno}: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8; "
+            "expected a UTF-8 text CSV"
+        ) from None
+    numbered = (
+        (n, line.removesuffix("\r"))
+        for n, line in enumerate(text.split("\n"), start=1)
+        if not line.lstrip().startswith("#")
+    )
+    header: list[str] | None = None
+    t_list: list[float] = []
+    x_list: list[float] = []
+    rows_at: list[int] = []  # the file line of each sample
+    it = ia = 0
+    for n, line in numbered:
+        if "\0" in line:
+            raise DataError(f"{path}: line {n}: a NUL character; expected a text CSV")
+        try:
+            row = next(csv.reader([line]), [])
+        except csv.Error as e:
+            raise DataError(f"{path}: line {n}: not CSV ({e})") from None
         if header is None:
-            raise DataError(
-                f"{path}: empty file, expected a header with {time_column},{angle_column}"
-            )
-        header = [h.strip() for h in header]
-        for col in (time_column, angle_column):
-            if col not in header:
-                raise DataError(f"{path}: no column {col!r}; columns are {header}")
-        it, ia = header.index(time_column), header.index(angle_column)
-        t_list: list[float] = []
-        x_list: list[float] = []
-        for n, row in enumerate(rows, start=2):
-            if not row:
-                continue
-            for col, i, out in ((time_column, it, t_list), (angle_column, ia, x_list)):
-                try:
-                    v = float(row[i])
-                except (IndexError, ValueError):
-                    cell = row[i] if i < len(row) else ""
-                    msg = f"{path}: row {n} column {col}: {cell!r} is not a number"
-                    raise DataError(msg) from None
-                if not math.isfinite(v):
-                    raise DataError(f"{path}: row {n} column {col}: {v!r} is not finite")
-                out.append(v)
+            header = [h.strip() for h in row]
+            for col in (time_column, angle_column):
+                if col not in header:
+                    raise DataError(f"{path}: no column {col!r}; columns are {header}")
+            it, ia = header.index(time_column), header.index(angle_column)
+            continue
+        if not row:
+            continue
+        for col, i, out in ((time_column, it, t_list), (angle_column, ia, x_list)):
+            try:
+                v = float(row[i])
+            except (IndexError, ValueError):
+                cell = row[i] if i < len(row) else ""
+                msg = f"{path}: row {n} column {col}: {cell!r} is not a number"
+                raise DataError(msg) from None
+            if not math.isfinite(v):
+                raise DataError(f"{path}: row {n} column {col}: {v!r} is not finite")
+            out.append(v)
+        rows_at.append(n)
+    if header is None:
+        raise DataError(
+            f"{path}: empty file, expected a header with {time_column},{angle_column}"
+        )
     t = np.asarray(t_list)
     x = np.asarray(x_list)
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
         raise DataError(
-            f"{path}: column {time_column} must increase; row {bad[0] + 3} has {t[bad[0] + 1]!r} "
-            f"after {t[bad[0]]!r}"
+            f"{path}: column {time_column} must increase; row {rows_at[bad[0] + 1]} has "
+            f"{t[bad[0] + 1]!r} after {t[bad[0]]!r}"
         )
     return t, x
 

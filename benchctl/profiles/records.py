@@ -14,6 +14,9 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 
 _JITTER_TOLERANCE = 1e-3  # relative spread of the sample interval tolerated as "uniform"
+MIN_INTERVAL_S = 1e-6  # median sample interval: at most 1 MHz
+MAX_GRID_FACTOR = 100  # the resampling grid: at most this many times the samples …
+MAX_GRID_SAMPLES = 20_000_000  # … and at most this many
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,20 @@ def estimate_psd(
         raise ValueError(f"record has {t.size} samples, need at least 32")
     dts = np.diff(t)
     dt = float(np.median(dts))
+    if not dt >= MIN_INTERVAL_S:
+        raise ValueError(
+            f"median sample interval {dt:g} s; expected at least {MIN_INTERVAL_S:g} s"
+        )
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = (t[-1] - t[0]) / dt
+    limit = min(MAX_GRID_FACTOR * t.size, MAX_GRID_SAMPLES)
+    if not steps <= limit:
+        i = int(np.argmax(dts)) + 1
+        raise ValueError(
+            f"the record spans {steps:.3g} median intervals ({dt:g} s) for {t.size} samples: "
+            f"sample {i + 1} at {t[i]!r} s follows {t[i - 1]!r} s; expected a span of at most "
+            f"{MAX_GRID_FACTOR}× the samples and {MAX_GRID_SAMPLES} intervals"
+        )
     resampled = bool(np.max(np.abs(dts - dt)) > _JITTER_TOLERANCE * dt)
     if resampled:
         grid = t[0] + dt * np.arange(math.floor((t[-1] - t[0]) / dt) + 1)
@@ -90,6 +107,10 @@ def estimate_psd(
         raise ValueError(
             f"record of {duration:g} s is shorter than two segments of segment_s = {segment_s:g} s"
         )
+    with np.errstate(over="ignore", invalid="ignore"):
+        var_ok = bool(np.isfinite(np.var(x)))
+    if not var_ok:
+        raise ValueError("the angles are too large for a spectrum (their variance overflows)")
     f, g = signal.welch(
         x,
         fs=fs,

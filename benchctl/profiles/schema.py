@@ -11,9 +11,16 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
+from benchctl.config import MAX_RUN_DURATION_S
+
 Axis = Literal["roll", "pitch"]
+# every number finite (.inf, .nan refused); durations and periods at most a day
+Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+MAX_DURATION_S = MAX_RUN_DURATION_S  # a profile's duration, fades, periods: at most a day
+Duration = Annotated[float, Field(gt=0, le=MAX_DURATION_S, allow_inf_nan=False)]
+Fade = Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)]
 
 
 def _check_band(band: tuple[float, float]) -> tuple[float, float]:
@@ -47,19 +54,19 @@ class ProfileBase(Strict):
 
 
 class TimedBase(ProfileBase):
-    duration_s: Positive
-    fade_in_s: NonNegative = 5.0
-    fade_out_s: NonNegative = 5.0
+    duration_s: Duration
+    fade_in_s: Fade = 5.0
+    fade_out_s: Fade = 5.0
 
 
 class SpectralBase(TimedBase):
     """Kinds synthesised from a target spectrum: lines on k/T_p in a band."""
 
     band_hz: Band | None = None  # default band for every axis
-    repeat_period_s: Positive | None = None  # T_p wanted; the rule in design.choose_period
+    repeat_period_s: Duration | None = None  # T_p wanted; the rule in design.choose_period
     amplitudes: Literal["cell", "point"] = "cell"
     crest: CrestSpec = CrestSpec()
-    min_lines: int = Field(default=3, ge=1)
+    min_lines: int = Field(default=3, ge=1, le=100_000)
 
 
 class AxisBand(Strict):
@@ -74,7 +81,7 @@ class SeaSpec(Strict):
     hs_m: Positive | None = None
     wmo_code: int | None = Field(default=None, ge=1, le=9)
     tp_s: Positive
-    gamma: Annotated[float, Field(ge=1, le=20)] | None = None  # JONSWAP only; default 3.3
+    gamma: Annotated[float, Field(ge=1, le=20, allow_inf_nan=False)] | None = None  # default 3.3
     sigma_a: Positive | None = None  # JONSWAP only; default 0.07
     sigma_b: Positive | None = None  # JONSWAP only; default 0.09
 
@@ -91,7 +98,7 @@ class SeaSpec(Strict):
 
 class ShipAxisSpec(AxisBand):
     natural_period_s: Positive
-    damping_ratio: Annotated[float, Field(gt=0, lt=1)]
+    damping_ratio: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)]
     slope_coefficient: Positive = 1.0
 
 
@@ -144,7 +151,7 @@ class RecordedAxisSpec(AxisBand):
     time_column: str = "time"
     angle_column: str
     angle_unit: Literal["deg", "rad"] = "deg"
-    segment_s: Positive = 100.0  # Welch segment length: resolution 1/segment_s Hz
+    segment_s: Duration = 100.0  # Welch segment length: resolution 1/segment_s Hz
 
 
 class RecordedProfile(SpectralBase):
@@ -159,7 +166,7 @@ class LineSpec(Strict):
     amplitude_deg: Positive
     period_s: Positive | None = None
     freq_hz: Positive | None = None
-    phase_deg: float | None = None  # omitted: drawn from the seed
+    phase_deg: Finite | None = None  # omitted: drawn from the seed
 
     @model_validator(mode="after")
     def _one_freq(self) -> LineSpec:
@@ -178,14 +185,14 @@ class HarmonicsAxisSpec(Strict):
 
 class HarmonicsProfile(TimedBase):
     kind: Literal["harmonics"]
-    repeat_period_s: Positive | None = None  # if every line is on k/T_p: whole-period records
+    repeat_period_s: Duration | None = None  # if every line is on k/T_p: whole-period records
     axes: dict[Axis, HarmonicsAxisSpec] = Field(min_length=1)
 
 
 class SineSpec(Strict):
     amplitude_deg: Positive
-    period_s: Positive
-    phase_deg: float = 0.0
+    period_s: Duration
+    phase_deg: Finite = 0.0
 
 
 class SineProfile(TimedBase):
@@ -198,16 +205,26 @@ class SineStepsProfile(ProfileBase):
 
     kind: Literal["sine_steps"]
     axes: list[Axis] = Field(min_length=1)
-    periods_s: list[Positive] = Field(min_length=1)
+    periods_s: list[Duration] = Field(min_length=1)
     amplitudes_deg: list[Positive] = Field(min_length=1)
-    cycles: int = Field(default=5, ge=1)  # full-amplitude cycles per step
-    fade_cycles: NonNegative = 1.0  # fade in and out of each step, in periods of that step
-    rest_s: NonNegative = 2.0  # at rest between steps (and before the first)
+    cycles: int = Field(default=5, ge=1, le=100_000)  # full-amplitude cycles per step
+    # fade in and out of each step, in periods of that step
+    fade_cycles: Annotated[float, Field(ge=0, le=100_000, allow_inf_nan=False)] = 1.0
+    rest_s: Fade = 2.0  # at rest between steps (and before the first)
 
     @model_validator(mode="after")
     def _unique_axes(self) -> SineStepsProfile:
         if len(set(self.axes)) != len(self.axes):
             raise ValueError(f"axes must not repeat, got {self.axes}")
+        one_axis = sum(
+            len(self.amplitudes_deg) * (self.rest_s + (self.cycles + 2 * self.fade_cycles) * p)
+            for p in self.periods_s
+        )
+        total = len(self.axes) * one_axis + self.rest_s
+        if total > MAX_DURATION_S:
+            raise ValueError(
+                f"the steps last {total:.6g} s in all; expected at most {MAX_DURATION_S:g} s"
+            )
         return self
 
 
