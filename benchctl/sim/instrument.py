@@ -49,6 +49,7 @@ from benchctl.config import InstrumentConfig, SimInstrumentConfig
 from benchctl.devices.base import AXES
 from benchctl.errors import ConfigError
 from benchctl.sim import nmea_talker
+from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.motion import MotionSource
 from benchctl.sim.pty_port import PtyPort
@@ -200,24 +201,14 @@ class SimInstrument:
     # ------------------------------------------------------------------ faults
     def inject(self, kind: str, **params: Any) -> None:
         """Start a fault (see the module docstring); a bad kind or parameter is ``ConfigError``."""
-        if kind not in FAULTS:
-            raise ConfigError(f"SimInstrument.inject: fault {kind!r}, expected one of {FAULTS}")
-        allowed = {"garbled": {"fraction", "how"}}.get(kind, set())
-        extra = set(params) - allowed
-        if extra:
-            raise ConfigError(
-                f"SimInstrument.inject({kind!r}): unknown parameter(s) {sorted(extra)}"
-            )
+        try:  # the one table of kinds and parameters, shared with the config validator
+            params = check_params("instrument", kind, params, driver=self.driver)
+        except FaultSpecError as e:
+            raise ConfigError(f"SimInstrument.inject: fault {kind!r}: {e}") from None
         if kind == "garbled":
             fraction = float(params.get("fraction", 0.1))
-            if not 0.0 < fraction <= 1.0:
-                raise ConfigError(f"SimInstrument.inject('garbled'): fraction = {fraction}, "
-                                  "expected 0 < fraction ≤ 1")
             ways = CAN_GARBLING if self.is_can else NMEA_GARBLING
             how = params.get("how", ways[0])
-            if how not in ways:
-                raise ConfigError(f"SimInstrument.inject('garbled'): how = {how!r} for "
-                                  f"{self.driver}, expected one of {ways}")
             params = {"fraction": fraction, "how": how}
         with self._lock:
             if kind == "stuck":

@@ -53,6 +53,7 @@ from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map
 from benchctl.errors import ConfigError, DeviceError
 from benchctl.harmonics import HarmonicTable
+from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise, servo_step
 
 FAULT_SOFT_LIMIT = 1
@@ -285,24 +286,11 @@ class SimStand:
     # -- fault injection ----------------------------------------------------------------
     def inject(self, kind: str, **params: Any) -> None:
         """Inject a fault now (kinds and parameters in the module docstring)."""
-        allowed = {
-            "drop_connection": {"duration_s"},
-            "stall": {"duration_s"},
-            "modbus_exception": {"code", "duration_s", "count"},
-            "stand_fault": {"code"},
-            "estop": set(),
-        }
-        if kind not in allowed:
-            raise ConfigError(f"SimStand.inject: kind {kind!r}: expected one of {list(allowed)}")
-        extra = set(params) - allowed[kind]
-        if extra:
-            raise ConfigError(
-                f"SimStand.inject({kind}): parameter {sorted(extra)[0]!r}: "
-                f"expected one of {sorted(allowed[kind])}"
-            )
+        try:  # the one table of kinds and parameters, shared with the config validator
+            params = check_params("stand", kind, params)
+        except FaultSpecError as e:
+            raise ConfigError(f"SimStand.inject({kind}): {e}") from None
         code = params.get("code")
-        if kind == "modbus_exception" and code is not None and not 1 <= int(code) <= 255:
-            raise ConfigError(f"SimStand.inject(modbus_exception): code {code}: expected 1..255")
         dur = params.get("duration_s")
         count = params.get("count")
         with self._lock:
