@@ -30,15 +30,17 @@ from benchctl.errors import DeviceTimeout, LimitError, ModbusException, Protocol
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 H = bytes.fromhex
 
-# Feedback block 200..218 (19 registers): status ready|enabled, fault 0, heartbeat echo 7, pad,
+# Feedback block 200..225 (26 registers): status ready|enabled, fault 0, heartbeat echo 7, pad,
 # roll angle 1.5, rate -0.5, setpoint 1.5, fault 0, pad, pitch angle -2.0, rate 0.0, setpoint -2.0,
-# fault 0 — float32 big-endian, high word first.
+# fault 0 — float32 big-endian, high word first — pad, then the trajectory queue (220..225):
+# level 0, next index 0 (uint32), played 0 (uint32), underruns 0.
 FEEDBACK = H(
     "0003 0000 0007 0000 3FC00000 BF000000 3FC00000 0000 0000 C0000000 00000000 C0000000 0000"
+    " 0000 0000 00000000 00000000 0000"
 )
 FAULTED = H("0009 000A 0007 0000") + FEEDBACK[8:]  # ready off, fault bit, fault code 10
-READ_PDU = H("03 00C8 0013")  # FC3, address 200, 19 registers
-READ_REPLY_PDU = H("03 26") + FEEDBACK  # 38 data bytes
+READ_PDU = H("03 00C8 001A")  # FC3, address 200, 26 registers
+READ_REPLY_PDU = H("03 34") + FEEDBACK  # 52 data bytes
 SETPOINT_PDU = H("10 012C 0004 08 3FC00000 C0000000")  # FC16 at 300: roll 1.5, pitch -2.0
 SETPOINT_REPLY_PDU = H("10 012C 0004")
 HEARTBEAT_PDU = H("06 0065 0001")  # FC6 at 101, value 1
@@ -273,7 +275,7 @@ def test_exception_reply_raises_modbus_exception(transport: str) -> None:
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_device_fault_raises_stand_fault_with_code(transport: str) -> None:
-    pairs = [(frame(transport, 1, READ_PDU), frame(transport, 1, H("03 26") + FAULTED))]
+    pairs = [(frame(transport, 1, READ_PDU), frame(transport, 1, H("03 34") + FAULTED))]
     with expected_protocol(transport, pairs) as stand, pytest.raises(StandFault) as err:
         stand.read_sample()
     assert err.value.code == 10
@@ -311,11 +313,11 @@ def test_silence_is_a_device_timeout(transport: str) -> None:
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_setpoint_and_read_is_one_fc23_transaction(transport: str) -> None:
-    # FC23: read 19 at 200, write 4 at 300 (8 bytes): roll 1.5, pitch -2.0; reply: 38 bytes read
-    fc23 = H("17 00C8 0013 012C 0004 08 3FC00000 C0000000")
+    # FC23: read 26 at 200, write 4 at 300 (8 bytes): roll 1.5, pitch -2.0; reply: 52 bytes read
+    fc23 = H("17 00C8 001A 012C 0004 08 3FC00000 C0000000")
     pairs = [
         (frame(transport, 1, READ_PDU), frame(transport, 1, READ_REPLY_PDU)),
-        (frame(transport, 2, fc23), frame(transport, 2, H("17 26") + FEEDBACK)),
+        (frame(transport, 2, fc23), frame(transport, 2, H("17 34") + FEEDBACK)),
     ]
     with expected_protocol(transport, pairs) as stand:
         t_send, s = stand.send_setpoint_and_read({"roll": 1.5, "pitch": -2.0})

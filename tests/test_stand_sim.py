@@ -72,33 +72,56 @@ def rig(request: pytest.FixtureRequest) -> Iterator[tuple[SimStand, ModbusStand]
 
 
 def stream(
-    stand: ModbusStand, motion: Callable[[float], float], duration_s: float, rate_hz: float = 50.0
+    stand: ModbusStand,
+    motion: Callable[[float], float],
+    duration_s: float,
+    rate_hz: float = 50.0,
+    *,
+    return_after_s: float | None = None,
 ) -> tuple[float, list[StandSample]]:
-    """Stream ``motion(t)`` to roll on absolute times (late cycles skip, never burst).
+    """Play ``motion(k/rate_hz)`` on roll through the stand's trajectory queue (sent ahead, so
+    a loaded host does not change the motion) and poll the stand until it has played it.
 
-    Returns the start time t0 (``motion`` is evaluated at host time t0 + t) and the samples.
+    Returns the start time t0 (point k is played at host time t0 + k/rate_hz) and the samples.
+    ``return_after_s``: return that long after the start, while the stand still plays.
     """
     period = 1.0 / rate_hz
-    t0 = time.monotonic()
-    k = 0
-    t = 0.0
+    n = round(duration_s * rate_hz) + 1
+    pts = np.array([motion(k * period) for k in range(n)])
+    stand.begin_trajectory()
+    _, per_push = stand.trajectory_limits
+    j = 0
+
+    def push(read: bool) -> StandSample | None:
+        nonlocal j
+        m = min(per_push, n - j)
+        s = stand.push_points(j, {"roll": pts[j : j + m]}, read=read)
+        j += m
+        return s
+
+    while j < n and j < 4 * per_push:
+        push(read=False)
+    t0 = stand.start_trajectory()
     samples: list[StandSample] = []
+    k = 0
     while True:
         k += 1
         due = t0 + k * period
         now = time.monotonic()
         if due > now:
             time.sleep(due - now)
-        elif now - due > period:
-            k = int((now - t0) / period)  # slipped: next due time from now on
-        # the profile at the time it is sent, advancing at least one period per setpoint
-        t = max(time.monotonic() - t0, t + period)
-        if t > duration_s:
-            return t0, samples
-        stand.send_setpoint({"roll": motion(t)})
-        samples.append(stand.read_sample())
+        last = samples[-1].trajectory if samples else None
+        s = None
+        if j < n and last is not None and last.level < 2 * per_push:
+            s = push(read=True)
+        s = s or stand.read_sample()
+        samples.append(s)
         if k % 5 == 0:
             stand.heartbeat()
+        if return_after_s is not None and time.monotonic() - t0 >= return_after_s:
+            return t0, samples
+        if j >= n and not s.status.trajectory_running:
+            return t0, samples
 
 
 def fit_phasor(t: np.ndarray, x: np.ndarray, f_hz: float) -> complex:
@@ -225,7 +248,9 @@ def test_table_beyond_limits_is_rejected_before_upload(rig: tuple[SimStand, Modb
 def test_ramp_to_zero_from_motion_respects_limits(rig: tuple[SimStand, ModbusStand]) -> None:
     _, stand = rig
     stand.enable()
-    stream(stand, lambda t: 8.0 * t * t, 0.5)  # accelerating away: 8 °/s at the end, 2° out
+    # accelerating away (8 °/s after 0.5 s, 2° out), the ramp called while it still plays
+    stream(stand, lambda t: 8.0 * t * t, 1.0, return_after_s=0.5)
+    assert stand.read_sample().status.trajectory_running
     stand.ramp_to_zero(timeout_s=10)
     s = stand.read_sample()
     assert abs(s.angle_deg["roll"]) <= stand.zero_tolerance_deg and not s.status.moving
@@ -235,10 +260,10 @@ def test_setpoint_and_read_in_one_transaction(rig: tuple[SimStand, ModbusStand])
     _, stand = rig
     stand.enable()
     t0 = time.monotonic()
-    t = 0.0
-    while t < 0.6:
-        t = max(time.monotonic() - t0, t + 0.02)
-        x = 2.0 * (1 - math.cos(2 * math.pi * t)) / 2
+    k = 0
+    while time.monotonic() - t0 < 0.6:
+        k += 1
+        x = 0.01 * k  # 0.5 °/s at 50 Hz: within the limits even from rest after a host stall
         t_send, s = stand.send_setpoint_and_read({"roll": x})
         # the write precedes the read in the same request: the stand already holds it
         assert s.setpoint_deg["roll"] == pytest.approx(x, rel=1e-6, abs=1e-6)

@@ -5,7 +5,8 @@ driver cannot tell this stand from hardware. Three kinds of threads:
 
 - ``sim-stand-modbus``: an asyncio loop running the pymodbus server. Reads of the feedback block
   are filled from the latest physics state; writes of the control word, heartbeat, setpoints
-  and table area act on the physics state at once.
+  and table area act on the physics state at once. Requests outside the map are refused as the
+  Modbus specification says (``_MapDecoder``); other unit ids: TCP exception 0x0B, RTU silence.
 - ``sim-stand-physics``: ticks the servo at ``tick_hz`` on absolute times (host monotonic
   clock), integrating missed ticks when the thread was late, and checks the watchdog, soft
   limits, table playback and scheduled faults.
@@ -46,6 +47,8 @@ from typing import Any, Literal
 import numpy as np
 from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
+from pymodbus.framer import FramerRTU
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -157,7 +160,7 @@ class SimStand:
         self._state = {a: AxisState() for a in self.axes}
         self._target = dict.fromkeys(self.axes, 0.0)  # the servo's active position setpoint
         self._stream_target = dict.fromkeys(self.axes, 0.0)
-        self._mode: Literal["stream", "table", "stopping"] = "stream"
+        self._mode: Literal["stream", "table", "stopping", "trajectory", "traj_stop"] = "stream"
         self._enabled = False
         self._fault_code = 0
         self._axis_fault = dict.fromkeys(self.axes, 0)
@@ -169,6 +172,9 @@ class SimStand:
         self._hb_value = 0
         self._hb_time = 0.0
         self._comm = _CommFaults()
+        self._traj = _TrajectoryQueue(len(self.axes))
+        self._traj_period = 0.0  # the period register as last written
+        self._traj_stop: dict[str, tuple[float, float]] = {}  # axis -> (angle, rate) of a stop
         self._pending_faults = sorted(sim_cfg.faults, key=lambda f: f.after_s)
 
         n_hist = int(_HISTORY_S * sim_cfg.tick_hz) + 2
@@ -335,15 +341,24 @@ class SimStand:
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
             self._stream_target = {a: self._table_value(a, self._table_end) for a in self.axes}
+        traj_target = self._trajectory_tick(t) if self._mode == "trajectory" else None
+        if self._mode == "traj_stop":
+            traj_target = self._traj_stop_tick()
         at_rest = True
-        for a in self.axes:
+        for i, a in enumerate(self.axes):
             s = self._state[a]
-            if not self._enabled or self._mode == "stopping":
-                brake_step(self.model, s)
+            if not self._enabled:
+                brake_step(self.model, s)  # servo off, fault or E-stop: the brakes' own limit
+                self._target[a] = s.angle_deg
+            elif self._mode == "stopping":
+                # a commanded stop: decelerate within the stand's acceleration limit
+                brake_step(self.model, s, min(self.model.accel_limit_deg_s2, self._stop_accel))
                 self._target[a] = s.angle_deg
             else:
                 if self._mode == "table":
                     self._target[a] = self._table_value(a, t - self._table_start)
+                elif traj_target is not None:
+                    self._target[a] = float(traj_target[i])
                 else:
                     self._target[a] = self._stream_target[a]
                 servo_step(self.model, s, self._target[a])
@@ -357,6 +372,48 @@ class SimStand:
             self._mode = "stream"
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
 
+    @property
+    def _stop_accel(self) -> float:
+        return float(self.limits.accel_deg_s2)
+
+    def _trajectory_tick(self, t: float) -> np.ndarray | None:
+        """The queue's target at ``t`` (lock held); running dry: the normal end or an underrun."""
+        q = self._traj
+        u = q.base + (t - q.t_start) / q.period_s
+        target = q.at(u)
+        if target is not None:
+            return target
+        last, before = q.last_two()
+        self._mode = "stream"
+        self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
+        if np.any(last != before):  # ran dry while moving: an underrun, a controlled stop
+            q.underruns += 1
+            rate = (last - before) / q.period_s
+            self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
+            self._mode = "traj_stop"
+            q.clear()
+            return self._traj_stop_tick()
+        q.clear()
+        return last
+
+    def _traj_stop_tick(self) -> np.ndarray:
+        """After an underrun: go on from the last point at its rate, decelerating within the
+        stand's acceleration limit, then hold (lock held)."""
+        dv = self._stop_accel * self._tick_s
+        out = []
+        moving = False
+        for a in self.axes:
+            x, v = self._traj_stop[a]
+            v = 0.0 if abs(v) <= dv else v - math.copysign(dv, v)
+            x += v * self._tick_s
+            self._traj_stop[a] = (x, v)
+            moving = moving or v != 0.0
+            out.append(x)
+        if not moving:
+            self._mode = "stream"
+            self._stream_target = {a: self._traj_stop[a][0] for a in self.axes}
+        return np.asarray(out)
+
     def _table_value(self, axis: str, t_rel: float) -> float:
         table = self._tables.get(axis)
         return 0.0 if table is None else table.at(t_rel)
@@ -365,8 +422,9 @@ class SimStand:
         if self._fault_code == 0:
             self._fault_code = code
         self._enabled = False
-        if self._mode == "table":
+        if self._mode in ("table", "trajectory", "traj_stop"):
             self._mode = "stream"
+            self._traj.clear()
 
     def _do_estop(self) -> None:
         self._estop = True
@@ -412,10 +470,16 @@ class SimStand:
             loop.close()
 
     async def _start_server(self) -> None:
-        device = SimDevice(self.device_id, simdata=self._simdata(), action=self._action)
+        simdata = self._simdata()
+        device = SimDevice(self.device_id, simdata=simdata, action=self._action)
+        # trace_pdu may return None: pymodbus then drops the request unanswered (RTU silence)
+        trace_pdu: Any = self._trace_pdu
         if self.transport == "tcp":
             self._server = ModbusTcpServer(
-                device, address=(self.host, self.port), trace_packet=self._trace
+                device,
+                address=(self.host, self.port),
+                trace_packet=self._trace,
+                trace_pdu=trace_pdu,
             )
         else:
             assert self._relay is not None
@@ -424,8 +488,13 @@ class SimStand:
                 framer=FramerType.RTU,
                 port=self._relay.server_path,
                 baudrate=self.cfg.baudrate,
+                broadcast_enable=True,  # unit id 0: acted on by every device, never answered
                 trace_packet=self._trace,
+                trace_pdu=trace_pdu,
             )
+        # Spec-conformant refusals (see _MapDecoder): each connection's framer, made when the
+        # server listens, decodes with the server's decoder.
+        self._server.decoder = _MapDecoder(self.map, _register_addresses(simdata))
         await self._server.serve_forever(background=True)
         if self.transport == "tcp":
             self.port = int(self._server.transport.sockets[0].getsockname()[1])
@@ -446,6 +515,12 @@ class SimStand:
         for ax in m.axes.values():
             for i in range(m.table.size(ax.table_max_lines)):
                 rw_words[ax.table_address + i] = 0
+        tr = m.trajectory
+        if tr is not None:
+            for i in range(tr.period_s.n_registers):
+                rw_words[tr.period_s.address + i] = 0
+            for i in range(tr.push_size(len(m.axes), tr.max_points_per_push)):
+                rw_words[tr.push_address + i] = 0
         blocks += _blocks(rw_words, readonly=False)
         fb_addr, fb_count = m.feedback_span()
         blocks += _blocks({fb_addr + i: 0 for i in range(fb_count)}, readonly=True)
@@ -459,6 +534,24 @@ class SimStand:
         if not sending and dropped and self.transport == "tcp" and self._loop is not None:
             self._loop.call_soon(self._close_clients)
         return b"" if sending and silent else data
+
+    def _trace_pdu(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU | None:
+        """A request for another unit id: TCP exception 0x0B, RTU silence (broadcasts acted on).
+
+        On TCP the stand stands where a gateway would: no device answers that unit id, so it
+        answers 0x0B GATEWAY TARGET DEVICE FAILED TO RESPOND. On RS-485 a slave ignores frames
+        for other addresses; unit id 0 is broadcast, a write (FC6/FC16) every slave acts on and
+        none answers (pymodbus's ``broadcast_enable``), any other broadcast request is ignored.
+        """
+        if sending or pdu.dev_id == self.device_id:
+            return pdu
+        if self.transport == "tcp":
+            refused = _Refused(pdu.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
+            refused.dev_id, refused.transaction_id = pdu.dev_id, pdu.transaction_id
+            return refused
+        if pdu.dev_id == 0 and pdu.function_code in (6, 16):
+            return pdu
+        return None
 
     def _close_clients(self) -> None:
         """TCP: close every client connection (on RTU the relay cuts the line instead)."""
@@ -503,6 +596,7 @@ class SimStand:
             "estop": self._estop,
             "limit": self._limit,
             "table_running": self._mode == "table",
+            "trajectory_running": self._mode in ("trajectory", "traj_stop"),
         }
         word = m.word_from_bits(m.status_bits, [k for k, v in bits.items() if v])
         put: list[tuple[Field, float | int]] = [
@@ -517,6 +611,15 @@ class SimStand:
                 (ax.rate, s.rate_deg_s),
                 (ax.setpoint, self._target[a]),
                 (ax.fault_code, self._axis_fault[a]),
+            ]
+        tr = m.trajectory
+        if tr is not None:
+            q = self._traj
+            put += [
+                (tr.level, q.level(self._traj_u(time.monotonic()))),
+                (tr.next_index, q.next_index),
+                (tr.played, q.played(self._traj_u(time.monotonic()))),
+                (tr.underruns, q.underruns & 0xFFFF),
             ]
         for f, v in put:
             i = f.address - start
@@ -539,6 +642,13 @@ class SimStand:
             return m.decode(f, words)
 
         table_running = self._mode == "table"
+        tr = m.trajectory
+        if tr is not None and touches(tr.period_s):
+            self._traj_period = float(value(tr.period_s))
+        if tr is not None and tr.push_address in written:
+            result = self._push(tr, written, now)
+            if result is not None:
+                return result
         for ax in m.axes.values():
             t0, t1 = ax.table_address, ax.table_address + m.table.size(ax.table_max_lines)
             if table_running and any(t0 <= a < t1 for a in written):
@@ -550,7 +660,7 @@ class SimStand:
             for v in commands.values():
                 if not math.isfinite(v) or abs(v) > self.cfg.soft_limit_deg:
                     return ExcCodes.ILLEGAL_VALUE
-            if self._enabled and self._mode == "stream":
+            if self._enabled and self._mode == "stream" and not self._traj.queued:
                 self._stream_target.update(commands)
                 self._target.update(commands)  # in effect from now on
         if touches(m.heartbeat):
@@ -590,6 +700,12 @@ class SimStand:
             self._enabled = False
         if has("stop") and self._enabled:
             self._mode = "stopping"
+            self._traj.clear()
+        if "start_trajectory" in bits and has("start_trajectory"):
+            if not self._enabled or self._mode != "stream" or not self._traj.queued:
+                return ExcCodes.ILLEGAL_VALUE
+            self._traj.start(now)
+            self._mode = "trajectory"
         if has("start_table"):
             if not self._enabled:
                 return ExcCodes.ILLEGAL_VALUE
@@ -601,6 +717,48 @@ class SimStand:
             self._table_start = now
             self._table_end = max(t.duration_s for t in tables.values() if t is not None)
             self._mode = "table"
+        return None
+
+    def _traj_u(self, now: float) -> float | None:
+        """The queue position being played (point index, fractional) or None when idle."""
+        if self._mode != "trajectory":
+            return None
+        q = self._traj
+        return q.base + (now - q.t_start) / q.period_s
+
+    def _push(self, tr: Any, written: dict[int, int], now: float) -> ExcCodes | None:
+        """A push block written (lock held): append its points to the queue, or refuse it."""
+        m = self.map
+        base = tr.push_address
+        n_axes = len(self.axes)
+        try:
+            head = [written[base], written[base + 1]]
+            first = int(m.decode(Field("first", base, "uint32"), head))
+            count = written[base + 2]
+            words = [written[base + 3 + i] for i in range(2 * n_axes * count)]
+        except KeyError:
+            return ExcCodes.ILLEGAL_VALUE  # a push block cut short
+        if not 1 <= count <= tr.max_points_per_push:
+            return ExcCodes.ILLEGAL_VALUE
+        period = self._traj_period
+        pts = np.array(
+            [
+                m.decode(Field("p", 0, "float32"), words[2 * j : 2 * j + 2])
+                for j in range(n_axes * count)
+            ]
+        ).reshape(count, n_axes)
+        if not np.all(np.isfinite(pts)) or np.any(np.abs(pts) > self.cfg.soft_limit_deg):
+            return ExcCodes.ILLEGAL_VALUE
+        idle = self._mode not in ("trajectory", "traj_stop")
+        if idle and first == 0:  # a new trajectory
+            if not (math.isfinite(period) and 1e-4 <= period <= 1.0):
+                return ExcCodes.ILLEGAL_VALUE
+            self._traj.reset(period)
+        if first != self._traj.next_index:
+            return ExcCodes.ILLEGAL_VALUE
+        if self._traj.level(self._traj_u(now)) + count > tr.capacity:
+            return ExcCodes.DEVICE_BUSY
+        self._traj.append(pts)
         return None
 
     def _read_tables(self, regs: list[int], start: int) -> dict[str, HarmonicTable | None] | None:
@@ -643,6 +801,75 @@ class SimStand:
         return out
 
 
+class _TrajectoryQueue:
+    """The stand's trajectory queue: points k = first … next_index−1, one per period."""
+
+    def __init__(self, n_axes: int) -> None:
+        self.n_axes = n_axes
+        self.period_s = 0.01
+        self.points = np.zeros((0, n_axes))
+        self.first = 0  # index of points[0]
+        self.base = 0  # index played at t_start
+        self.t_start = 0.0
+        self.running = False
+        self.underruns = 0
+
+    @property
+    def next_index(self) -> int:
+        return self.first + len(self.points)
+
+    @property
+    def queued(self) -> bool:
+        return len(self.points) > 0
+
+    def reset(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.points = np.zeros((0, self.n_axes))
+        self.first = 0
+        self.running = False
+
+    def clear(self) -> None:
+        self.first = self.next_index
+        self.points = np.zeros((0, self.n_axes))
+        self.running = False
+
+    def append(self, pts: np.ndarray) -> None:
+        self.points = np.vstack([self.points, pts])
+
+    def start(self, now: float) -> None:
+        self.base = self.first
+        self.t_start = now
+        self.running = True
+
+    def at(self, u: float) -> np.ndarray | None:
+        """Linear interpolation at queue position ``u``; None when u is past the last point.
+        Points before the one being played are dropped."""
+        i = math.floor(u) - self.first
+        if i < 0:
+            return self.points[0] if len(self.points) else None
+        if i + 1 >= len(self.points):
+            return None
+        if i > 0:
+            self.points = self.points[i:]
+            self.first += i
+            i = 0
+        w = u - self.first
+        return np.asarray((1.0 - w) * self.points[0] + w * self.points[1])
+
+    def last_two(self) -> tuple[np.ndarray, np.ndarray]:
+        last = self.points[-1]
+        before = self.points[-2] if len(self.points) > 1 else last
+        return last, before
+
+    def level(self, u: float | None) -> int:
+        if u is None:
+            return len(self.points)
+        return max(0, self.next_index - 1 - math.floor(u))
+
+    def played(self, u: float | None) -> int:
+        return self.first if u is None else max(self.first, math.floor(u))
+
+
 def _blocks(words: dict[int, int], *, readonly: bool) -> list[SimData]:
     """Contiguous SimData register blocks holding ``words`` (address → value)."""
     out: list[SimData] = []
@@ -656,6 +883,109 @@ def _blocks(words: dict[int, int], *, readonly: bool) -> list[SimData]:
         out.append(SimData(addrs[i], values=vals, datatype=DataType.REGISTERS, readonly=readonly))
         i = j + 1
     return out
+
+
+def _register_addresses(simdata: list[SimData]) -> frozenset[int]:
+    """Every register address the SimData blocks give the stand (blocks marked invalid aside)."""
+    return frozenset(
+        d.address + i
+        for d in simdata
+        if d.datatype != DataType.INVALID
+        for i in range(len(d.build_registers(False)) * d.count)
+    )
+
+
+class _Refused(ModbusPDU):
+    """A request the stand refuses: handling it yields the exception response (FC | 0x80, code)."""
+
+    def __init__(self, function_code: int, code: ExcCodes) -> None:
+        super().__init__()
+        self.function_code = function_code
+        self.code = code
+
+    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
+        return ExceptionResponse(self.function_code, self.code)
+
+
+class _WholeFrame(ModbusPDU):
+    """RTU framing of a function code pymodbus has no layout for: the CRC-checked bytes so far."""
+
+    @classmethod
+    def calculateRtuFrameSize(cls, data: bytes) -> int:
+        return len(data)
+
+
+class _MapDecoder(DecodePDU):
+    """The simulated stand's request decoder: it refuses requests the way the specification says.
+
+    pymodbus alone decodes every function code it knows (coils, input registers, diagnostics…)
+    and answers a request it cannot decode with function byte 0x80 whatever the request's. This
+    decoder replaces the server's (each connection's framer decodes with ``server.decoder``) and
+    checks a request in the order of the specification's state diagrams (Modbus Application
+    Protocol V1.1b3, 6.x); a refused request becomes a :class:`_Refused`, answered ``FC | 0x80``:
+
+    1. a function code outside the register map — holding registers: 3, 6, 16, and 23 when the
+       map says ``read_write_multiple`` — → 01 ILLEGAL FUNCTION (serial-only 7, 8, 11, 12, 17 too);
+    2. a quantity or byte count out of range — FC3 1..``max_read_registers``, FC16
+       1..``max_write_registers`` with byte count 2·N, FC23 both (write ≤ 121) — or a PDU of
+       the wrong length → 03 ILLEGAL DATA VALUE;
+    3. addresses outside the map are the SimDevice model's → 02 ILLEGAL DATA ADDRESS — but
+       for FC23 the read span is checked here: pymodbus would write first and then refuse the
+       read, where the specification checks both spans before anything is written.
+    """
+
+    def __init__(self, m: RegisterMap, addresses: frozenset[int]) -> None:
+        super().__init__(True)
+        self.addresses = addresses  # every register the stand has
+        self.function_codes = {3, 6, 16} | ({23} if m.read_write_multiple else set())
+        self.max_read = m.max_read
+        self.max_write = m.max_write
+
+    def lookupPduClass(self, data: bytes) -> type[ModbusPDU] | None:
+        # RTU: pymodbus finds where a frame ends from its function code's layout (a real slave
+        # from the 3.5-character silence, which a pty does not carry). For a function code it
+        # has no layout for, the bytes received so far are the frame if they end in a valid CRC
+        # — so such a request is answered too; otherwise pymodbus hunts on, as it always did.
+        cls = super().lookupPduClass(data)
+        if (
+            cls is None
+            and len(data) >= 4
+            and FramerRTU.check_CRC(data[:-2], int.from_bytes(data[-2:], "big"))
+        ):
+            return _WholeFrame
+        return cls
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        fc = frame[0]
+        if fc not in self.function_codes:
+            return _Refused(fc, ExcCodes.ILLEGAL_FUNCTION)
+        if not self._quantity_ok(fc, frame):
+            return _Refused(fc, ExcCodes.ILLEGAL_VALUE)
+        if fc == 23:
+            start, count = int.from_bytes(frame[1:3], "big"), int.from_bytes(frame[3:5], "big")
+            if not all(a in self.addresses for a in range(start, start + count)):
+                return _Refused(fc, ExcCodes.ILLEGAL_ADDRESS)
+        pdu = super().decode(frame)
+        return pdu if pdu is not None else _Refused(fc, ExcCodes.ILLEGAL_VALUE)
+
+    def _quantity_ok(self, fc: int, pdu: bytes) -> bool:
+        n = len(pdu)
+
+        def u16(i: int) -> int:
+            return int.from_bytes(pdu[i : i + 2], "big")
+
+        if fc == 3:
+            return n == 5 and 1 <= u16(3) <= self.max_read
+        if fc == 6:
+            return n == 5
+        if fc == 16:
+            return n >= 6 and 1 <= u16(3) <= self.max_write and pdu[5] == 2 * u16(3) == n - 6
+        return (  # 23: read address, read count, write address, write count, byte count, values
+            n >= 10
+            and 1 <= u16(3) <= self.max_read
+            and 1 <= u16(7) <= min(self.max_write, 121)
+            and pdu[9] == 2 * u16(7) == n - 10
+        )
 
 
 class _PtyRelay:

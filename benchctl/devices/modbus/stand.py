@@ -12,16 +12,25 @@ each request holds the link's lock, the setpoint history holds the driver's lock
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize_scalar
 
 from benchctl.config import StandConfig
-from benchctl.devices.base import DeviceIdentity, StandLimitsView, StandSample, StandStatus
+from benchctl.devices.base import (
+    DeviceIdentity,
+    StandLimitsView,
+    StandSample,
+    StandStatus,
+    TrajectoryStatus,
+)
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
 from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map, pdu_address, span
 from benchctl.errors import (
@@ -33,20 +42,21 @@ from benchctl.errors import (
     StandFault,
 )
 from benchctl.harmonics import HarmonicTable
+from benchctl.kinematics import (
+    HELD_AFTER_PERIODS,
+    AxisCommand,
+    Limits,
+    StaleSetpoint,
+    check_step,
+    plan_ramp_to_zero,
+)
+
+log = logging.getLogger(__name__)
 
 RAMP_MARGIN = 0.8  # ramps use this fraction of the rate and acceleration limits
 REST_HOLD_S = 0.1  # "at rest" must hold this long
-_REL_TOL = 1e-9
-
-
-@dataclass
-class _Last:
-    """The last setpoint sent on one axis: angle, implied rate, time, and the step used."""
-
-    angle_deg: float
-    rate_deg_s: float
-    t: float
-    dt: float
+SetpointListener = Callable[[float, dict[str, float], float | None], None]
+SampleListener = Callable[[StandSample], None]
 
 
 class ModbusStand:
@@ -63,15 +73,14 @@ class ModbusStand:
     axes
         The axes driven (a subset of the map's axes).
     setpoint_period_s
-        Nominal streaming period T. The rate implied by a setpoint is its step over dt = the
-        time since the previous setpoint in whole periods, T·max(1, round(Δt/T)) (the stand
-        plays setpoints on its own period, so host jitter below T/2 does not change dt); the
-        acceleration is the change of that rate over the longer of the two steps' dt, so a
-        host stall between two setpoints never shows up as a false acceleration.
+        The period T at which the stand plays setpoints (and trajectory points). Setpoints are
+        judged as the sequence the stand plays (``benchctl.kinematics``): rate = step / T,
+        acceleration = change of rate / T, whatever the host's send intervals; after more than
+        1.5·T without a setpoint the stand has held, and the next step is judged from rest.
     zero_tolerance_deg
         "At zero" means every axis within this of 0 and at rest.
     clock
-        Host monotonic clock (seconds); injectable for tests.
+        Host monotonic clock (seconds) and ``sleep``: injectable for tests.
     """
 
     def __init__(
@@ -85,6 +94,7 @@ class ModbusStand:
         zero_tolerance_deg: float = 0.05,
         heartbeat_period_s: float = 0.1,
         clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         for a in axes:
             if a not in regmap.axes:
@@ -102,8 +112,14 @@ class ModbusStand:
         self.identity: DeviceIdentity | None = None
         self.last_sample: StandSample | None = None
         self._clock = clock
+        self._sleep = sleep
         self._lock = threading.RLock()
-        self._last: dict[str, _Last] | None = None
+        self._last: dict[str, AxisCommand] | None = None  # the last commanded point per axis
+        self._t_last = -math.inf  # when it was sent
+        self.on_setpoint: SetpointListener | None = None  # every setpoint sent (ramps included)
+        self.on_sample: SampleListener | None = None  # every feedback block decoded
+        self._traj_last: dict[str, AxisCommand] | None = None  # the last point queued
+        self._traj_next = 0  # the index the stand's queue expects next
         self._hb = 0
         self._table_axes: tuple[str, ...] = ()
         self._closed = False
@@ -170,6 +186,15 @@ class ModbusStand:
         status = StandStatus(
             **bits, fault_code=int(get(m.fault_code)), heartbeat=int(get(m.heartbeat_echo))
         )
+        tr = m.trajectory
+        traj = None
+        if tr is not None:
+            traj = TrajectoryStatus(
+                level=int(get(tr.level)),
+                next_index=int(get(tr.next_index)),
+                played=int(get(tr.played)),
+                underruns=int(get(tr.underruns)),
+            )
         sample = StandSample(
             t_host=0.5 * (t0 + t1),
             rtt_s=t1 - t0,
@@ -177,9 +202,30 @@ class ModbusStand:
             rate_deg_s={a: get(m.axes[a].rate) for a in self.axes},
             setpoint_deg={a: get(m.axes[a].setpoint) for a in self.axes},
             status=status,
+            trajectory=traj,
         )
         self.last_sample = sample
+        self._notify_sample(sample)
         return sample
+
+    def _notify_sample(self, sample: StandSample) -> None:
+        """Pass a sample to the listener; a listener's failure never stops the driver."""
+        cb = self.on_sample
+        if cb is not None:
+            try:
+                cb(sample)
+            except Exception:
+                log.exception("stand sample listener failed")
+
+    def _notify_setpoint(
+        self, t: float, angle_deg: Mapping[str, float], t_slot: float | None
+    ) -> None:
+        cb = self.on_setpoint
+        if cb is not None:
+            try:
+                cb(t, dict(angle_deg), t_slot)
+            except Exception:
+                log.exception("stand setpoint listener failed")
 
     def _raise_fault(self, st: StandStatus) -> None:
         if st.estop:
@@ -205,7 +251,7 @@ class ModbusStand:
                 break
             if self._clock() > deadline:
                 raise DeviceTimeout(f"{self.link.endpoint}: not enabled within {timeout_s} s")
-            time.sleep(0.01)
+            self._sleep(0.01)
         self._reset_history(sample)
 
     def disable(self) -> None:
@@ -213,6 +259,7 @@ class ModbusStand:
         self._control()
         with self._lock:
             self._last = None
+            self._t_last = -math.inf
 
     def heartbeat(self) -> None:
         """Write the next heartbeat counter value; the stand's watchdog stops it if this stops."""
@@ -221,22 +268,45 @@ class ModbusStand:
             hb = self._hb
         self._write_field(self.map.heartbeat, hb)
 
-    def send_setpoint(self, angle_deg: Mapping[str, float]) -> float:
+    def send_setpoint(
+        self, angle_deg: Mapping[str, float], *, t_slot: float | None = None
+    ) -> float:
         """Check one position setpoint against the limits, then write it; returns the send time.
 
-        The angle, the rate implied by the step from the previous setpoint and the acceleration
-        implied by the change of that rate are all checked first; any breach raises
-        ``LimitError`` (needed vs allowed) and nothing is written. Axes left out hold.
+        The angle, the rate of the step from the previous setpoint (one period T earlier as the
+        stand plays it) and the change of that rate are all checked first; any breach raises
+        ``LimitError`` (needed vs allowed) and nothing is written — ``StaleSetpoint`` when the
+        breach is only because the stand has held (no setpoint for more than 1.5·T). Axes left
+        out hold. ``t_slot`` (the slot the setpoint belongs to) goes to the listener.
         """
         with self._lock:
-            words, new = self._prepare_setpoint(angle_deg)
+            words, new, now = self._prepare_setpoint(angle_deg)
             t_send = self._clock()
             self._write_words(words)
-            assert self._last is not None
-            self._last.update(new)
-            return t_send
+            self._commit(new, now)
+        self._notify_setpoint(t_send, angle_deg, t_slot)
+        return t_send
 
-    def send_setpoint_and_read(self, angle_deg: Mapping[str, float]) -> tuple[float, StandSample]:
+    def _commit(self, new: Mapping[str, AxisCommand], now: float) -> None:
+        """Take ``new`` as the last commanded points, sent at ``now`` (lock held)."""
+        assert self._last is not None
+        held = now - self._t_last > HELD_AFTER_PERIODS * self.setpoint_period_s
+        for a in self.axes:
+            if a in new:
+                self._last[a] = new[a]
+            elif held:  # an axis left out holds: its rate is 0
+                self._last[a] = AxisCommand(self._last[a].angle_deg, 0.0)
+        self._t_last = now
+
+    @property
+    def commanded(self) -> dict[str, AxisCommand] | None:
+        """The last commanded point per axis (angle, rate of its step), or None."""
+        with self._lock:
+            return None if self._last is None else dict(self._last)
+
+    def send_setpoint_and_read(
+        self, angle_deg: Mapping[str, float], *, t_slot: float | None = None
+    ) -> tuple[float, StandSample]:
         """:meth:`send_setpoint` then :meth:`read_sample`, in ONE transaction where the stand can.
 
         With ``read_write_multiple: true`` in the register map the setpoint write and the
@@ -245,13 +315,13 @@ class ModbusStand:
         errors as the two methods; returns (send time, sample).
         """
         with self._lock:
-            words, new = self._prepare_setpoint(angle_deg)
+            words, new, now = self._prepare_setpoint(angle_deg)
             runs = _chunks(words, self.map.max_write)
             if not (self.map.read_write_multiple and len(runs) == 1):
                 t_send = self._clock()
                 self._write_words(words)
-                assert self._last is not None
-                self._last.update(new)
+                self._commit(new, now)
+                self._notify_setpoint(t_send, angle_deg, t_slot)
                 return t_send, self.read_sample()
             addr, count = runs[0]
             t0 = self._clock()
@@ -262,75 +332,63 @@ class ModbusStand:
                 [words[addr + i] for i in range(count)],
             )
             t1 = self._clock()
-            assert self._last is not None
-            self._last.update(new)
+            self._commit(new, now)
+        self._notify_setpoint(t0, angle_deg, t_slot)
         sample = self._decode_feedback(regs, t0, t1)
         self._raise_fault(sample.status)
         return t0, sample
 
     def _prepare_setpoint(
         self, angle_deg: Mapping[str, float]
-    ) -> tuple[dict[int, int], dict[str, _Last]]:
-        """Check the setpoint (lock held) and encode it: (address → word, new history)."""
-        now = self._clock()
+    ) -> tuple[dict[int, int], dict[str, AxisCommand], float]:
+        """Check the setpoint (lock held) and encode it: (address → word, new points, now)."""
         if self._last is None:
             self._reset_history(self._read_feedback()[1])
-            now = self._clock()
+        now = self._clock()
         new = self._check_setpoint(angle_deg, now)
         words: dict[int, int] = {}
         for a in angle_deg:
             f = self.map.axes[a].command
             for i, w in enumerate(self.map.encode(f, float(angle_deg[a]))):
                 words[f.address + i] = w
-        return words, new
+        return words, new, now
 
-    def _check_setpoint(self, angle_deg: Mapping[str, float], now: float) -> dict[str, _Last]:
-        assert self._last is not None
+    @property
+    def _kin_limits(self) -> Limits:
         lim = self.limits
-        new: dict[str, _Last] = {}
+        return Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2)
+
+    def _check_setpoint(
+        self, angle_deg: Mapping[str, float], now: float
+    ) -> dict[str, AxisCommand]:
+        """Judge the setpoint as the stand plays it (one period after the last; from rest when
+        the stand has held): ``benchctl.kinematics.check_step`` per axis."""
+        assert self._last is not None
+        held = now - self._t_last > HELD_AFTER_PERIODS * self.setpoint_period_s
+        new: dict[str, AxisCommand] = {}
         for a, x in angle_deg.items():
             if a not in self.axes:
                 raise LimitError(f"setpoint for axis {a!r}: this stand drives {list(self.axes)}")
-            x = float(x)
-            if not math.isfinite(x):
-                raise LimitError(f"setpoint {a} = {x}: not a finite angle")
-            if abs(x) > lim.angle_deg * (1 + _REL_TOL):
-                raise LimitError(
-                    f"setpoint {a} = {x:.4f}°: needs |angle| {abs(x):.4f}°, allowed "
-                    f"{lim.angle_deg}°"
-                )
-            prev = self._last[a]
-            # whole setpoint periods: the stand plays setpoints on its own period, so host
-            # jitter below half a period does not change the step's duration (run layer issue #5)
-            T = self.setpoint_period_s
-            dt = T * max(1, round((now - prev.t) / T))
-            v = (x - prev.angle_deg) / dt
-            if abs(v) > lim.rate_deg_s * (1 + _REL_TOL):
-                raise LimitError(
-                    f"setpoint {a} = {x:.4f}° after {prev.angle_deg:.4f}° {dt * 1e3:.1f} ms "
-                    f"earlier: needs rate {abs(v):.3f}°/s, allowed {lim.rate_deg_s}°/s"
-                )
-            acc = (v - prev.rate_deg_s) / max(dt, prev.dt)
-            if abs(acc) > lim.accel_deg_s2 * (1 + _REL_TOL):
-                raise LimitError(
-                    f"setpoint {a} = {x:.4f}°: rate changes {prev.rate_deg_s:.3f} → {v:.3f}°/s "
-                    f"in {dt * 1e3:.1f} ms: needs acceleration {abs(acc):.2f}°/s², "
-                    f"allowed {lim.accel_deg_s2}°/s²"
-                )
-            new[a] = _Last(x, v, now, dt)
+            new[a] = check_step(
+                a, self._last[a], x, self._kin_limits, self.setpoint_period_s, held=held
+            )
         return new
 
-    def _reset_history(self, sample: StandSample) -> None:
+    def _reset_history(self, sample: StandSample, *, measured: bool = False) -> None:
+        """Start the commanded sequence afresh: from the stand's active setpoint at rest, or
+        (``measured``) from its measured angle and rate — the state a stop is planned from."""
         with self._lock:
             self._last = {
-                a: _Last(
-                    sample.setpoint_deg[a] if sample.status.enabled else sample.angle_deg[a],
-                    sample.rate_deg_s[a],
-                    sample.t_host,
-                    self.setpoint_period_s,
+                a: AxisCommand(
+                    sample.angle_deg[a]
+                    if measured or not sample.status.enabled
+                    else sample.setpoint_deg[a],
+                    sample.rate_deg_s[a] if measured else 0.0,
                 )
                 for a in self.axes
             }
+            # measured: the sequence continues from this moment; else it starts from rest
+            self._t_last = self._clock() if measured else -math.inf
 
     def upload_table(self, tables: Mapping[str, HarmonicTable]) -> None:
         """Check the tables against the limits over their whole duration, write and verify them.
@@ -399,6 +457,7 @@ class ModbusStand:
         t1 = self._clock()
         with self._lock:
             self._last = None
+            self._t_last = -math.inf
         self._raise_fault(self.read_status())
         return 0.5 * (t0 + t1)
 
@@ -411,17 +470,31 @@ class ModbusStand:
         self._control("enable", "stop")
         with self._lock:
             self._last = None
+            self._t_last = -math.inf
 
     def estop(self) -> None:
         """Emergency stop (latched in the stand until ``reset_fault``)."""
         self._control("estop")
         with self._lock:
             self._last = None
+            self._t_last = -math.inf
 
-    def reset_fault(self) -> None:
-        """Clear a latched fault or E-stop; raises StandFault if the stand still reports one."""
+    def reset_fault(self, timeout_s: float = 1.0) -> None:
+        """Clear a latched fault or E-stop, waiting until the stand reports it cleared.
+
+        A stand acts on the reset at its next scan (a few ms after the write), so the status is
+        polled every 10 ms; ``StandFault`` (with the code) only if a fault or E-stop is still
+        reported ``timeout_s`` after the reset was written.
+        """
         self._control("fault_reset")
-        self._raise_fault(self.read_status())
+        deadline = self._clock() + timeout_s
+        while True:
+            st = self.read_status()
+            if not (st.fault or st.estop):
+                return
+            if self._clock() >= deadline:
+                self._raise_fault(st)
+            self._sleep(0.01)
 
     def go_to_zero(self, timeout_s: float = 30.0) -> None:
         """Bring the stand to rest at zero within the limits (same path as :meth:`ramp_to_zero`)."""
@@ -430,9 +503,14 @@ class ModbusStand:
     def ramp_to_zero(self, timeout_s: float = 30.0) -> None:
         """From wherever the stand is, moving or not, ramp to zero within the limits; wait at rest.
 
-        A running table is stopped first. The ramp uses ``RAMP_MARGIN`` of the rate and
-        acceleration limits, is streamed at the setpoint period, keeps the heartbeat, and ends
-        when every axis has been within ``zero_tolerance_deg`` of zero and at rest for
+        A running table or trajectory is stopped first (the stand decelerates within its own
+        limits). The ramp is planned from the stand's **measured** angle and rate at that
+        moment (not from what was commanded before), with ``RAMP_MARGIN`` of the rate and
+        acceleration limits, and streamed at the setpoint period while keeping the heartbeat.
+        If a send comes so late that the stand has held its last setpoint, the rest of the
+        ramp is planned afresh from the measured state: the driver's own checks therefore
+        accept every step whatever happened before (``benchctl.kinematics``). It ends when
+        every axis has been within ``zero_tolerance_deg`` of zero and at rest for
         ``REST_HOLD_S``.
 
         Raises
@@ -444,59 +522,214 @@ class ModbusStand:
         """
         deadline = self._clock() + timeout_s
         s = self.read_sample()
-        if s.status.table_running:
+        if s.status.table_running or s.status.trajectory_running:
             self.stop()
             while True:
                 s = self.read_sample()
-                if not s.status.table_running and not s.status.moving:
+                running = s.status.table_running or s.status.trajectory_running
+                if not running and not s.status.moving:
                     break
-                self._check_deadline(deadline, "stopping the table")
-                time.sleep(0.01)
+                self._check_deadline(deadline, "stopping the table or trajectory")
+                self._sleep(0.01)
         if not s.status.enabled:
             self.enable()
-        with self._lock:
-            if self._last is None or self._clock() - max(v.t for v in self._last.values()) > 0.5:
-                self._reset_history(self.read_sample())
-            assert self._last is not None
-            start = {a: (self._last[a].angle_deg, self._last[a].rate_deg_s) for a in self.axes}
+        while True:
+            self._stream_ramp(deadline)
+            if self._wait_at_zero(deadline):
+                return
+            # not at rest at zero after the ramp (e.g. an overshoot): plan again from here
+
+    def _stream_ramp(self, deadline: float) -> None:
+        """Stream one ramp planned from the measured state; re-plan after a held setpoint."""
         lim = self.limits
         T = self.setpoint_period_s
-        plans = {
-            a: plan_ramp_to_zero(
-                x0, v0, lim.rate_deg_s * RAMP_MARGIN, lim.accel_deg_s2 * RAMP_MARGIN, T
-            )
-            for a, (x0, v0) in start.items()
-        }
-        n = max(len(p) for p in plans.values())
-        t_next = self._clock()
-        t_hb = t_next
-        for k in range(n):
-            t_next += T
-            pause = t_next - self._clock()
-            if pause > 0:
-                time.sleep(pause)
-            else:
-                t_next = self._clock()  # late: carry on from now, never catch up in a burst
-            self.send_setpoint({a: float(p[min(k, len(p) - 1)]) for a, p in plans.items()})
-            if self._clock() - t_hb >= self.heartbeat_period_s:
-                self.heartbeat()
-                t_hb = self._clock()
-            self._check_deadline(deadline, "ramping to zero")
-        tol = self.zero_tolerance_deg
-        rest_since: float | None = None
+        t_hb = -math.inf
         while True:
             s = self.read_sample()
-            if all(abs(s.angle_deg[a]) <= tol for a in self.axes) and not s.status.moving:
+            self._reset_history(s, measured=True)
+            plans = {}
+            for a in self.axes:
+                # RAMP_MARGIN of the limits; the full limits where the margin would carry the
+                # stand past its angle limit before it stops
+                for margin in (RAMP_MARGIN, 1.0):
+                    p = plan_ramp_to_zero(
+                        s.angle_deg[a],
+                        s.rate_deg_s[a],
+                        lim.rate_deg_s * margin,
+                        lim.accel_deg_s2 * margin,
+                        T,
+                    )
+                    if np.max(np.abs(p)) <= max(lim.angle_deg, abs(s.angle_deg[a])):
+                        break
+                plans[a] = p
+            n = max(len(p) for p in plans.values())
+            t_next = self._clock()
+            try:
+                for k in range(n):
+                    t_next += T
+                    pause = t_next - self._clock()
+                    if pause > 0:
+                        self._sleep(pause)
+                    else:
+                        t_next = self._clock()  # late: carry on from now, never catch up
+                    self.send_setpoint({a: float(p[min(k, len(p) - 1)]) for a, p in plans.items()})
+                    if self._clock() - t_hb >= self.heartbeat_period_s:
+                        self.heartbeat()
+                        t_hb = self._clock()
+                    self._check_deadline(deadline, "ramping to zero")
+                return
+            except StaleSetpoint as e:  # the host stalled: the stand held; plan from where it is
+                log.info("ramp to zero: re-planned from the measured state (%s)", e)
+                self._check_deadline(deadline, "ramping to zero")
+
+    def _wait_at_zero(self, deadline: float) -> bool:
+        """Keep the heartbeat until every axis rests at zero for REST_HOLD_S (True), or until
+        an axis is off zero and no longer moving (False: ramp again)."""
+        tol = self.zero_tolerance_deg
+        rest_since: float | None = None
+        t_hb = -math.inf
+        while True:
+            s = self.read_sample()
+            at_zero = all(abs(s.angle_deg[a]) <= tol for a in self.axes)
+            if at_zero and not s.status.moving:
                 rest_since = s.t_host if rest_since is None else rest_since
                 if s.t_host - rest_since >= REST_HOLD_S:  # an overshoot's turning point is no rest
-                    return
+                    return True
             else:
                 rest_since = None
+                if not at_zero and all(abs(v) < 1e-3 for v in s.rate_deg_s.values()):
+                    target_off = any(abs(s.setpoint_deg[a]) > tol for a in self.axes)
+                    if target_off:
+                        return False
             if self._clock() - t_hb >= self.heartbeat_period_s:
                 self.heartbeat()
                 t_hb = self._clock()
             self._check_deadline(deadline, f"waiting at rest at zero (angles {s.angle_deg})")
-            time.sleep(0.01)
+            self._sleep(0.01)
+
+    # -- buffered trajectory (PT mode) ----------------------------------------------------
+    @property
+    def has_trajectory(self) -> bool:
+        """True when the register map describes a trajectory queue."""
+        return self.map.trajectory is not None
+
+    def _traj(self) -> Any:
+        tr = self.map.trajectory
+        if tr is None:
+            raise DeviceError(
+                f"{self.map.source}: this stand's register map has no trajectory queue "
+                "(stand.mode buffered needs a `trajectory:` section)"
+            )
+        return tr
+
+    def begin_trajectory(self) -> None:
+        """Prepare a new trajectory: the stand must be enabled and holding; the commanded
+        sequence starts from its measured state at rest, and the point period is written."""
+        tr = self._traj()
+        s = self.read_sample()
+        if not s.status.enabled or s.status.table_running or s.status.trajectory_running:
+            raise DeviceError(
+                f"{self.link.endpoint}: begin_trajectory needs the stand enabled and holding "
+                f"(enabled={s.status.enabled}, table={s.status.table_running}, "
+                f"trajectory={s.status.trajectory_running})"
+            )
+        self._write_field(tr.period_s, self.setpoint_period_s)
+        with self._lock:
+            self._last = {a: AxisCommand(s.setpoint_deg[a], 0.0) for a in self.axes}
+            self._traj_last = dict(self._last)
+            self._traj_next = 0  # a push from index 0 while idle starts a new queue
+
+    @property
+    def trajectory_limits(self) -> tuple[int, int]:
+        """(capacity, max points per push) of the stand's trajectory queue."""
+        tr = self._traj()
+        return int(tr.capacity), int(tr.max_points_per_push)
+
+    def push_points(
+        self, first_index: int, points: Mapping[str, NDArray[np.float64]], *, read: bool = True
+    ) -> StandSample | None:
+        """Queue points ``first_index …`` (one period apart) in the stand; with ``read`` the
+        feedback block comes back in the same transaction (FC23 where the map allows it).
+
+        Every point is judged against the limits as the stand plays it — consecutive points one
+        period apart, continuing from the last point queued — before anything is written
+        (``LimitError``, nothing sent). Axes of the stand not in ``points`` hold their last
+        point. At most ``max_points_per_push`` points.
+        """
+        tr = self._traj()
+        n = max((len(p) for p in points.values()), default=0)
+        if not 1 <= n <= tr.max_points_per_push:
+            raise LimitError(
+                f"push_points: {n} points, expected 1..{tr.max_points_per_push} per push"
+            )
+        for a in points:
+            if a not in self.axes:
+                raise LimitError(f"push_points: axis {a!r}: this stand drives {list(self.axes)}")
+        with self._lock:
+            if self._traj_last is None:
+                raise DeviceError("push_points before begin_trajectory")
+            if first_index != self._traj_next:
+                raise DeviceError(
+                    f"push_points: first_index {first_index}, the queue expects {self._traj_next}"
+                )
+            prev = dict(self._traj_last)
+            rows: list[list[float]] = []
+            for i in range(n):
+                row = []
+                for a in self.map.axes:
+                    if a in points:
+                        x = float(points[a][i])
+                        prev[a] = check_step(
+                            a, prev[a], x, self._kin_limits, self.setpoint_period_s
+                        )
+                    else:
+                        x = prev[a].angle_deg if a in prev else 0.0
+                        if a in prev:
+                            prev[a] = AxisCommand(x, 0.0)
+                    row.append(x)
+                rows.append(row)
+            m = self.map
+            base = tr.push_address
+            words = {base + i: w for i, w in enumerate(m.encode(_U32(base), first_index))}
+            words[base + 2] = n
+            addr = base + 3
+            for row in rows:
+                for x in row:
+                    w0, w1 = m.encode(_F32(addr), x)
+                    words[addr], words[addr + 1] = w0, w1
+                    addr += 2
+            runs = _chunks(words, self.map.max_write)
+            if read and self.map.read_write_multiple and len(runs) == 1:
+                t0 = self._clock()
+                regs = self.link.read_write_registers(
+                    pdu_address(self._fb_addr),
+                    self._fb_count,
+                    pdu_address(base),
+                    [words[base + i] for i in range(len(words))],
+                )
+                t1 = self._clock()
+                sample: StandSample | None = None
+                self._traj_last, self._traj_next = prev, first_index + n
+                self._last = dict(prev)
+            else:
+                self._write_words(words)
+                self._traj_last, self._traj_next = prev, first_index + n
+                self._last = dict(prev)
+                regs = []
+        if regs:
+            sample = self._decode_feedback(regs, t0, t1)
+            self._raise_fault(sample.status)
+            return sample
+        return self.read_sample() if read else None
+
+    def start_trajectory(self) -> float:
+        """Start playing the queue (point 0 now); returns the host time of the start command."""
+        self._traj()
+        t0 = self._clock()
+        self._control("enable", "start_trajectory")
+        t1 = self._clock()
+        self._raise_fault(self.read_status())
+        return 0.5 * (t0 + t1)
 
     def _check_deadline(self, deadline: float, what: str) -> None:
         if self._clock() > deadline:
@@ -526,6 +759,14 @@ class ModbusStand:
         return out
 
 
+def _U32(address: int) -> Field:
+    return Field("trajectory.push.first_index", address, "uint32")
+
+
+def _F32(address: int) -> Field:
+    return Field("trajectory.push.point", address, "float32")
+
+
 def _chunks(words: Mapping[int, int], max_count: int) -> list[tuple[int, int]]:
     """(address, count) runs of consecutive addresses, each at most ``max_count`` long."""
     out: list[tuple[int, int]] = []
@@ -540,8 +781,11 @@ def _chunks(words: Mapping[int, int], max_count: int) -> list[tuple[int, int]]:
 def check_table(tab: HarmonicTable, limits: StandLimitsView, *, axis: str, max_lines: int) -> None:
     """Raise ``LimitError`` if a table exceeds the limits anywhere in its duration.
 
-    Angle, rate and acceleration are evaluated on a grid of at least 40 points per period of the
-    highest line (and 20 per fade), including the fades; the message gives needed vs allowed.
+    The stand plays a table in continuous time, so the peaks of angle, rate and acceleration
+    (fades included) are found in continuous time: a grid of at least 40 points per period of
+    the highest line (and 20 per fade) locates them, and each candidate (every local maximum
+    of the grid within 1 % of the grid's peak, and the 16 largest) is refined by a bounded
+    scalar search on the table itself (:func:`table_peak`). The message gives needed vs allowed.
     """
     if tab.n_lines > max_lines:
         raise LimitError(f"table {axis}: {tab.n_lines} lines, the stand takes at most {max_lines}")
@@ -556,6 +800,20 @@ def check_table(tab: HarmonicTable, limits: StandLimitsView, *, axis: str, max_l
         raise LimitError(
             f"table {axis}: duration_s {tab.duration_s} s: expected 0 < duration < 1e6 s"
         )
+    for deriv, allowed, unit, what in (
+        (0, limits.angle_deg, "°", "angle"),
+        (1, limits.rate_deg_s, "°/s", "rate"),
+        (2, limits.accel_deg_s2, "°/s²", "acceleration"),
+    ):
+        peak = table_peak(tab, deriv)
+        if peak > allowed:
+            raise LimitError(
+                f"table {axis}: needs {what} {peak:.4f}{unit}, allowed {allowed}{unit}"
+            )
+
+
+def table_peak(tab: HarmonicTable, derivative: int) -> float:
+    """The largest |x^(derivative)(t)| of a table over [0, duration] in continuous time."""
     fmax = float(tab.freq_hz.max())
     step = 1.0 / (40.0 * fmax) if fmax > 0 else tab.duration_s
     fades = [f for f in (tab.fade_in_s, tab.fade_out_s) if f > 0]
@@ -563,48 +821,25 @@ def check_table(tab: HarmonicTable, limits: StandLimitsView, *, axis: str, max_l
         step = min(step, min(fades) / 20.0)
     n = min(math.ceil(tab.duration_s / step) + 1, 5_000_000)
     t = np.linspace(0.0, tab.duration_s, n)
-    for deriv, allowed, unit, what in (
-        (0, limits.angle_deg, "°", "angle"),
-        (1, limits.rate_deg_s, "°/s", "rate"),
-        (2, limits.accel_deg_s2, "°/s²", "acceleration"),
-    ):
-        peak = float(np.max(np.abs(tab.evaluate(t, deriv))))
-        if peak > allowed:
-            raise LimitError(
-                f"table {axis}: needs {what} {peak:.3f}{unit}, allowed {allowed}{unit}"
-            )
+    h = t[1] - t[0] if n > 1 else tab.duration_s
+    y = np.abs(tab.evaluate(t, derivative))
+    peak = float(y.max())
+    if n < 3:
+        return peak
+    inner = (y[1:-1] >= y[:-2]) & (y[1:-1] >= y[2:])
+    cand = np.flatnonzero(inner) + 1
+    cand = np.concatenate([cand, [0, n - 1]])
+    top = cand[np.argsort(y[cand])[::-1][:16]]
+    near = cand[y[cand] >= 0.99 * peak][:200]
+    for i in np.unique(np.concatenate([top, near])):
+        lo, hi = max(0.0, t[i] - h), min(tab.duration_s, t[i] + h)
 
+        def neg(x: float) -> float:
+            return -float(np.abs(tab.evaluate(np.array([x]), derivative))[0])
 
-def plan_ramp_to_zero(
-    x0_deg: float, v0_deg_s: float, rate_deg_s: float, accel_deg_s2: float, dt_s: float
-) -> np.ndarray:
-    """Setpoints every ``dt_s`` that bring an axis from angle x0, rate v0 to rest at 0.
-
-    Each step changes the rate by at most ``accel_deg_s2``·dt and keeps it within
-    ``rate_deg_s`` (a current rate above that is first brought down at the acceleration limit);
-    the target rate is the largest that can still stop at zero, sign(−x)·min(rate, √(2a|x|)).
-    The last setpoint is exactly 0.
-
-    Returns
-    -------
-    ndarray
-        Angles in degrees, one per period after the start (the start itself excluded).
-    """
-    if rate_deg_s <= 0 or accel_deg_s2 <= 0 or dt_s <= 0:
-        raise ValueError("rate_deg_s, accel_deg_s2 and dt_s must be > 0")
-    x, v = float(x0_deg), float(v0_deg_s)
-    dv = accel_deg_s2 * dt_s
-    out: list[float] = []
-    for _ in range(10_000_000):
-        # finish when one step lands on 0 and the next holds there, both within the limits
-        if abs(x) <= dv * dt_s and abs(x / dt_s + v) <= dv:
-            out.append(0.0)
-            return np.asarray(out)
-        v_des = -math.copysign(min(rate_deg_s, math.sqrt(2.0 * accel_deg_s2 * abs(x))), x)
-        v += min(max(v_des - v, -dv), dv)
-        x += v * dt_s
-        out.append(x)
-    raise DeviceError("plan_ramp_to_zero did not converge")  # pragma: no cover
+        r = minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-10})
+        peak = max(peak, -float(r.fun))
+    return peak
 
 
 def open_stand(cfg: StandConfig) -> ModbusStand:
@@ -644,4 +879,11 @@ def open_stand(cfg: StandConfig) -> ModbusStand:
     )
 
 
-__all__ = ["ModbusStand", "check_table", "open_stand", "plan_ramp_to_zero", "span"]
+__all__ = [
+    "ModbusStand",
+    "check_table",
+    "open_stand",
+    "plan_ramp_to_zero",
+    "span",
+    "table_peak",
+]
