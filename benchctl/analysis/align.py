@@ -36,6 +36,7 @@ jittery receipt times); the default ``"given"`` takes the given times as the sam
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -50,6 +51,13 @@ FloatArray = NDArray[np.float64]
 BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
 HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeking a drop
 MIN_SAMPLES = 64
+# Input ranges (README, "Inputs and alignment"): beyond them a stream is refused, not analysed
+MAX_GRID_FACTOR = 100  # a stream's grid (span / median step): at most 100× its samples …
+MAX_GRID_SLOTS = 10_000_000  # … and at most 10 million slots
+MIN_STEP_S = 1e-6  # median step at least 1 µs …
+MAX_STEP_S = 1e6  # … and at most 10⁶ s
+MAX_ABS_TIME_S = 1e12  # |time| at most 10¹² s
+MAX_ABS_ANGLE_DEG = 1e6  # |angle| at most 10⁶ deg
 
 
 @dataclass(frozen=True)
@@ -106,12 +114,47 @@ def check_times(t: FloatArray, name: str) -> None:
         )
 
 
+def check_grid(t: FloatArray, name: str, where: Callable[[int], str] | None = None) -> None:
+    """Raise ``DataError`` unless the instants ``t`` (finite, increasing) are within the input
+    ranges: ``|t| ≤ MAX_ABS_TIME_S``, a median step within ``MIN_STEP_S … MAX_STEP_S``, and a
+    grid (span / median step) of at most ``MAX_GRID_FACTOR`` × the samples and
+    ``MAX_GRID_SLOTS`` slots (a wild time or a huge gap would make an astronomically long
+    grid). ``where(i)`` names sample ``i`` in messages (default ``sample i``)."""
+    at = where or (lambda i: f"sample {i}")
+    big = np.abs(t) > MAX_ABS_TIME_S
+    if big.any():
+        i = int(np.argmax(big))
+        raise DataError(
+            f"{name}: {at(i)}: time {float(t[i])!r}; expected |time| ≤ {MAX_ABS_TIME_S:g} s"
+        )
+    d = np.diff(t)
+    step = float(np.median(d))
+    if not MIN_STEP_S <= step <= MAX_STEP_S:
+        raise DataError(
+            f"{name}: median time step {step!r} s; expected {MIN_STEP_S:g} … {MAX_STEP_S:g} s"
+        )
+    slots = float(t[-1] - t[0]) / step + 1.0
+    limit = min(MAX_GRID_FACTOR * len(t), MAX_GRID_SLOTS)
+    if slots > limit:
+        i = int(np.argmax(d)) + 1
+        raise DataError(
+            f"{name}: {at(i)}: time {float(t[i])!r} after {float(t[i - 1])!r}, a gap of "
+            f"{d[i - 1] / step:.4g} "
+            f"median steps ({step:.6g} s): the record would span {slots:.4g} steps for "
+            f"{len(t)} samples; expected at most {limit} ({MAX_GRID_FACTOR}× the samples, "
+            f"never more than {MAX_GRID_SLOTS})"
+        )
+
+
 def check_values(v: FloatArray, name: str) -> None:
-    """Raise ``DataError`` on NaN/inf or a constant signal."""
-    bad = ~np.isfinite(v)
+    """Raise ``DataError`` on NaN/inf, ``|angle| > MAX_ABS_ANGLE_DEG`` or a constant signal."""
+    bad = ~np.isfinite(v) | (np.abs(v) > MAX_ABS_ANGLE_DEG)
     if bad.any():
         i = int(np.argmax(bad))
-        raise DataError(f"{name}: value at sample {i} is {v[i]}, expected a finite angle")
+        raise DataError(
+            f"{name}: value at sample {i} is {v[i]}, expected a finite angle, "
+            f"|angle| ≤ {MAX_ABS_ANGLE_DEG:g} deg"
+        )
     if float(np.ptp(v)) == 0.0:
         raise DataError(f"{name}: the signal is constant ({v[0]!r} deg); nothing to analyse")
 
@@ -168,8 +211,9 @@ def _first_steps(t: FloatArray, dt0: float) -> NDArray[np.int64]:
             total = (med[min(e + c, n - 1)] - med[max(a - c, 0)]) / dt0
             m = max(1, round(total))
             order = a + np.argsort(d[a:e])[::-1]
-            for i in range(m):
-                steps[order[i % len(order)]] += 1
+            q, r = divmod(m, len(order))  # m drops over the run's largest steps, in turn
+            steps[order] += q
+            steps[order[:r]] += 1
     return steps
 
 
@@ -236,6 +280,7 @@ def align(
         if len(t) != len(v):
             raise DataError(f"{name}: {len(t)} times but {len(v)} angles")
         check_times(t, f"{name} time")
+        check_grid(t, f"{name} time")
         check_values(v, f"{name} angle")
     k, dt, t0 = slot_indices(t_dev)
     dev_timing = _timing(t_dev, k, dt, t0)

@@ -8,9 +8,10 @@ or radians (converted to degrees).
 from __future__ import annotations
 
 import csv
+import io
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -18,6 +19,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.align import MAX_ABS_ANGLE_DEG, check_grid
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
@@ -37,15 +39,26 @@ class Streams:
 
 def _header(path: Path) -> list[str]:
     try:
-        with path.open(encoding="utf-8-sig", newline="") as f:
-            first = f.readline()
+        with path.open("rb") as f:
+            raw = f.readline()
     except OSError as e:
-        raise DataError(f"{path}: cannot read: {e.strerror}") from None
-    except UnicodeDecodeError:
-        raise DataError(f"{path}: not a UTF-8 text CSV file") from None
+        raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
+    try:
+        first = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise DataError(
+            f"{path}: line 1: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8; "
+            "expected a UTF-8 text CSV file"
+        ) from None
     if not first.strip():
         raise DataError(f"{path}: empty file; expected a header line with column names")
-    return [c.strip().strip('"') for c in next(csv.reader([first]))]
+    if "\0" in first:
+        raise DataError(f"{path}: line 1: a NUL character; expected a text CSV file")
+    try:
+        cells = next(csv.reader([first.rstrip("\r\n")]), [])
+    except csv.Error as e:
+        raise DataError(f"{path}: line 1: not a CSV header ({e})") from None
+    return [c.strip().strip('"') for c in cells]
 
 
 def _find(path: Path, header: list[str], name: str, option: str) -> int:
@@ -57,43 +70,100 @@ def _find(path: Path, header: list[str], name: str, option: str) -> int:
     return header.index(name)
 
 
+def _text_lines(path: Path) -> list[str]:
+    """The file's lines (universal newlines); ``DataError`` naming the line and byte offset
+    of the first byte that is not UTF-8."""
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        raise DataError(
+            f"{path}: line {line}: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8; "
+            "expected a UTF-8 text CSV file"
+        ) from None
+    return io.StringIO(text, newline=None).read().split("\n")
+
+
+def _data_lines(lines: list[str]) -> list[int]:
+    """File line numbers (1-based) of the data rows: after the header, not blank, not
+    ``#`` comments (as ``numpy.loadtxt`` reads them)."""
+    return [
+        n
+        for n, line in enumerate(lines[1:], start=2)
+        if line.split("#", 1)[0].strip()
+    ]
+
+
 def _locate_bad(path: Path, header: list[str], cols: Sequence[int]) -> DataError:
     """Scan the file for the first unparsable or non-finite cell (slow path, errors only)."""
-    with path.open(encoding="utf-8-sig", newline="") as f:
-        lines = iter(f)
-        next(lines)
-        for lineno, line in enumerate(lines, start=2):
-            if not line.strip() or line.lstrip().startswith("#"):
-                continue
-            fields = line.rstrip("\r\n").split(",")
-            if len(fields) != len(header):
+    try:
+        lines = _text_lines(path)
+    except OSError as e:
+        return DataError(f"{path}: cannot read: {e.strerror or e}")
+    except DataError as e:
+        return e
+    for lineno in _data_lines(lines):
+        line = lines[lineno - 1]
+        if "\0" in line:
+            return DataError(f"{path}: line {lineno}: a NUL character; expected a text CSV file")
+        fields = line.split("#", 1)[0].split(",")
+        if len(fields) != len(header):
+            return DataError(
+                f"{path}: line {lineno} has {len(fields)} fields, expected {len(header)} "
+                f"like the header {header}"
+            )
+        for c in cols:
+            cell = fields[c].strip()
+            try:
+                v = float(cell)
+            except ValueError:
                 return DataError(
-                    f"{path}: line {lineno} has {len(fields)} fields, expected {len(header)} "
-                    f"like the header {header}"
+                    f"{path}: line {lineno}, column {header[c]!r}: {cell!r} is not a number"
                 )
-            for c in cols:
-                cell = fields[c].strip()
-                try:
-                    v = float(cell)
-                except ValueError:
-                    return DataError(
-                        f"{path}: line {lineno}, column {header[c]!r}: {cell!r} is not a number"
-                    )
-                if not math.isfinite(v):
-                    return DataError(
-                        f"{path}: line {lineno}, column {header[c]!r}: {cell!r}; "
-                        "expected a finite number"
-                    )
+            if not math.isfinite(v):
+                return DataError(
+                    f"{path}: line {lineno}, column {header[c]!r}: {cell!r}; "
+                    "expected a finite number"
+                )
     return DataError(f"{path}: cannot parse as a comma-separated numeric table")
+
+
+def _row_label(path: Path) -> Callable[[int], str]:
+    """``where(i)`` for ``check_grid``: data row i+1 and its line in the file."""
+
+    def where(i: int) -> str:
+        try:
+            line = _data_lines(_text_lines(path))[i]
+        except (OSError, DataError, IndexError):
+            return f"data row {i + 1}"
+        return f"data row {i + 1} (line {line})"
+
+    return where
+
+
+def _check_angles(p: Path, header: list[str], col: int, v: FloatArray) -> None:
+    bad = np.abs(v) > MAX_ABS_ANGLE_DEG
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(
+            f"{p}: column {header[col]!r}, {_row_label(p)(i)}: {float(v[i])!r}; expected an angle, "
+            f"|value| ≤ {MAX_ABS_ANGLE_DEG:g}"
+        )
 
 
 def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[FloatArray]:
     """Read the named columns of a CSV file with a header line, as float arrays.
 
+    The first column named is the time: it must be strictly increasing and within the input
+    ranges of ``benchctl.analysis.align.check_grid``; the others are angles,
+    ``|value| ≤ MAX_ABS_ANGLE_DEG``. Any bytes at all give either the arrays or a
+    ``DataError`` naming the file and the line.
+
     Parameters
     ----------
     path : str or Path
-        The file: comma-separated, first line the column names, ``#`` lines ignored.
+        The file: comma-separated, UTF-8, first line the column names, ``#`` lines ignored.
     names : sequence of (column name, option that sets it)
         The option is quoted in the error message when the column is missing.
     """
@@ -107,7 +177,9 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
                 p, delimiter=",", skiprows=1, usecols=cols, ndmin=2, dtype=float,
                 comments="#", encoding="utf-8-sig",
             )
-    except ValueError:
+    except OSError as e:
+        raise DataError(f"{p}: cannot read: {e.strerror or e}") from None
+    except (ValueError, TypeError, IndexError, OverflowError, csv.Error):
         raise _locate_bad(p, header, cols) from None
     if data.shape[0] == 0:
         raise DataError(f"{p}: no data rows after the header")
@@ -120,9 +192,13 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
         i = int(np.argmax(d <= 0)) + 1
         what = "duplicate" if d[i - 1] == 0 else "decreasing"
         raise DataError(
-            f"{p}: column {header[cols[0]]!r}, data row {i + 1}: {what} time {t[i]!r} after "
-            f"{t[i - 1]!r}; expected strictly increasing times"
+            f"{p}: column {header[cols[0]]!r}, data row {i + 1}: {what} time {float(t[i])!r} "
+            f"after {float(t[i - 1])!r}; expected strictly increasing times"
         )
+    if len(t) >= 2:
+        check_grid(t, f"{p}: column {header[cols[0]]!r}", _row_label(p))
+    for c, v in zip(cols[1:], out[1:], strict=True):
+        _check_angles(p, header, c, v)
     return out
 
 
