@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -49,14 +50,32 @@ def register(subparsers: Any) -> None:
 
 
 def _delay_option(text: str) -> str | float:
+    from benchctl.config import MAX_DELAY_S
+
     if text in ("none", "auto"):
         return text
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and abs(value) <= MAX_DELAY_S):
         raise DataError(
-            f"--compensate-delay: expected seconds or 'auto', got {text!r}"
-        ) from None
+            f"--compensate-delay {text!r}: expected seconds or 'auto' (or 'none'), "
+            f"-{MAX_DELAY_S:g} ≤ seconds ≤ {MAX_DELAY_S:g}"
+        )
+    return value
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """The numeric options' ranges (README, the option table), before any file is read."""
+    from benchctl.config import MAX_BAND_HZ, MAX_LAG_S, check_option
+
+    check_option("--max-lag", args.max_lag, 0, MAX_LAG_S, lo_open=True, unit="s",
+                 what="a positive number of seconds")
+    if args.band is not None:
+        lo, hi = args.band
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi <= MAX_BAND_HZ):
+            raise DataError(f"--band {lo!r} {hi!r}: expected 0 ≤ lo < hi ≤ {MAX_BAND_HZ:g} Hz")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
     from benchctl.recording import is_recording, load_recording
 
+    _check_options(args)
     opts: dict[str, Any] = {
         "max_lag_s": args.max_lag,
         "band_hz": tuple(args.band) if args.band else None,

@@ -56,17 +56,32 @@ def register(sub: Any) -> None:
 
 def _prepare(args: argparse.Namespace) -> tuple[Any, Any, Any, float]:
     """(profile, motion, check or None, rate_hz) after loading, synthesis and the limit check."""
+    from benchctl.config import (
+        MAX_PROFILE_RATE_HZ,
+        MAX_PROFILE_SAMPLES,
+        MAX_RUN_DURATION_S,
+        MAX_SEED,
+        check_option,
+        load_config,
+    )
     from benchctl.profiles import check_motion, load_profile, measure_peaks, synthesize
 
+    check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s")
+    check_option("--seed", args.seed, 0, MAX_SEED)
+    check_option("--rate", args.rate, 0, MAX_PROFILE_RATE_HZ, lo_open=True, unit="Hz")
+    check_option("--window", getattr(args, "window", None), 0, MAX_RUN_DURATION_S,
+                 lo_open=True, unit="s")
     profile = load_profile(args.profile)
-    cfg = None
-    if args.config is not None:
-        from benchctl.config import load_config
-
-        cfg = load_config(args.config)
+    cfg = load_config(args.config) if args.config is not None else None
     rate = args.rate or (cfg.stand.setpoint_rate_hz if cfg else 100.0)
     if not (math.isfinite(rate) and rate > 0):
         raise InputError(f"--rate {rate}: expected a rate in Hz > 0")
+    duration = args.duration if args.duration is not None else profile.duration_s
+    if duration * rate > MAX_PROFILE_SAMPLES:
+        raise InputError(
+            f"{duration:g} s at {rate:g} Hz is {duration * rate:.4g} samples per axis; expected "
+            f"at most {MAX_PROFILE_SAMPLES} (lower --rate or --duration)"
+        )
     motion = synthesize(profile, duration_s=args.duration, seed=args.seed, setpoint_rate_hz=rate)
     if cfg is not None:
         check = check_motion(motion, cfg.stand.limits, scale_to_fit=args.scale_to_fit, rate_hz=rate)

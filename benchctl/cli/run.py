@@ -55,7 +55,13 @@ def _ask(value: str | None, what: str, option: str) -> str:
 
 
 def handle(args: argparse.Namespace) -> int:
-    from benchctl.config import load_config
+    from benchctl.config import (
+        MAX_PROFILE_SAMPLES,
+        MAX_RUN_DURATION_S,
+        MAX_SEED,
+        check_option,
+        load_config,
+    )
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
     from benchctl.run.report import format_report, json_default
@@ -63,11 +69,20 @@ def handle(args: argparse.Namespace) -> int:
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
     sys.setswitchinterval(0.001)
+    # option ranges (README, the option table), before anything is read or opened
+    check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s")
+    check_option("--seed", args.seed, 0, MAX_SEED)
     cfg = load_config(args.config)
+    if args.duration is not None:
+        st = cfg.stand
+        rate = st.setpoint_rate_hz if st.mode == "stream" else st.sample_rate_hz
+        if args.duration * rate > MAX_PROFILE_SAMPLES:
+            raise ConfigError(
+                f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
+                f"{rate:g} Hz (stand rate); expected at most {MAX_PROFILE_SAMPLES}"
+            )
     serial = _ask(args.serial, "Serial number of the instrument", "--serial")
     operator = _ask(args.operator, "Operator", "--operator")
-    if args.duration is not None and args.duration <= 0:
-        raise ConfigError(f"--duration = {args.duration}: expected a positive number of seconds")
     opts = RunOptions(
         serial=serial,
         operator=operator,
