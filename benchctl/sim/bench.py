@@ -16,6 +16,8 @@ Two ways to place them:
 
 from __future__ import annotations
 
+import errno
+import socket
 import threading
 import time
 from pathlib import Path
@@ -23,7 +25,7 @@ from types import TracebackType
 from typing import Any
 
 from benchctl.config import BenchConfig, SimConfig
-from benchctl.errors import ConfigError
+from benchctl.errors import ConfigError, DeviceError
 from benchctl.sim.instrument import SimInstrument
 from benchctl.sim.stand import SimStand
 
@@ -68,7 +70,14 @@ class SimBench:
 
     # -- life cycle -------------------------------------------------------------------------
     def start(self) -> SimBench:
-        self.stand.start()
+        """Start both simulators and the fault schedule. ``ConfigError`` naming ``stand.port``
+        (or ``stand.host``) when the stand cannot listen where the config says."""
+        self._check_listen()
+        try:
+            self.stand.start()
+        except (OSError, RuntimeError) as e:  # pymodbus: "Could not start listen" (a race)
+            self._check_listen()
+            raise DeviceError(f"the simulated stand did not start: {e}") from None
         try:
             self.instrument.start()
         except BaseException:
@@ -80,6 +89,36 @@ class SimBench:
             )
             self._scheduler.start()
         return self
+
+    def _check_listen(self) -> None:
+        """Can the stand's TCP server bind ``stand.host:stand.port``? (``ConfigError`` if not.)"""
+        if self.stand.transport != "tcp" or self.private or self.cfg.stand.port == 0:
+            return
+        host, port, src = self.cfg.stand.host, self.cfg.stand.port, self.cfg.source
+        try:
+            family, kind, proto, _, addr = socket.getaddrinfo(
+                host, port, type=socket.SOCK_STREAM
+            )[0]
+        except (OSError, UnicodeError) as e:
+            raise ConfigError(
+                f"{src}: field stand.host = {host!r}: cannot listen there ({e}); expected a "
+                "local address such as 127.0.0.1"
+            ) from None
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does
+            try:
+                s.bind(addr)
+            except OSError as e:
+                if e.errno == errno.EADDRINUSE:
+                    raise ConfigError(
+                        f"{src}: field stand.port = {port}: TCP port {port} on {host} is already "
+                        "in use (another benchctl sim, or another program); stop it or choose "
+                        "a free port in stand.port"
+                    ) from None
+                raise ConfigError(
+                    f"{src}: field stand.port = {port} (stand.host {host!r}): cannot listen "
+                    f"there: {e.strerror or e}"
+                ) from None
 
     def stop(self) -> None:
         """Stop both simulators and the fault schedule; idempotent."""
