@@ -4,22 +4,26 @@ Sign convention of the samples (and of the simulator): roll positive starboard d
 pitch positive bow up, degrees.
 
 - ``$PASHR,hhmmss.sss,heading,T,roll,pitch,heave,roll_acc,pitch_acc,heading_acc,gnss_q,imu``
-  parsed by pynmea2 (``ASHRATT``); its UTC time of day becomes ``device_time_s`` (s since
-  midnight).
+  split by pynmea2; its UTC time of day (``hhmmss`` with any decimals, empty: none; a leap
+  second ``235960.000`` is 86400 s) becomes ``device_time_s`` (s since midnight). Another
+  Ashtech sentence (``$PASHR,POS,…``, ``HPR``, ``VEL``…) is ``id``.
 - ``$PHTRO,pitch,M|P,roll,B|T`` parsed here (pynmea2 has no class for it): M bow up → +pitch,
   P bow down → −pitch; T port up → +roll, B port down → −roll.
 - ``$--XDR,A,value,D,PTCH,A,value,D,ROLL`` (any talker, any order of quadruplets) parsed by
   pynmea2; transducers of type A in degrees named PTCH/PITCH and ROLL.
 
-A line is counted bad and skipped when its checksum is missing or wrong (``checksum``), it is
-longer than 82 characters or has too few fields (``length``), it is another sentence than the
-config asks for (``id``), a needed field is empty or beyond ±180° roll / ±90° pitch (``range``)
-or it cannot be parsed (``decode``).
+Every line becomes a sample or a counted bad frame, whatever its bytes. A line is counted bad
+and skipped when its checksum is missing or wrong (``checksum``), it is longer than 82
+characters or has too few fields (``length``), it is another sentence than the config asks for
+(``id``), a needed field is empty, beyond ±180° roll / ±90° pitch or a time of day beyond
+23:59:60 (``range``), or it cannot be parsed (``decode``: not printable ASCII, not starting
+with ``$``, a number or time that is not one, anything pynmea2 raises on it).
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +39,7 @@ from benchctl.devices.reader import (
     BAD_ID,
     BAD_LENGTH,
     BAD_RANGE,
+    DECODE_ERRORS,
     BadFrame,
     LinkLost,
     SensorReader,
@@ -47,6 +52,11 @@ log = logging.getLogger(__name__)
 MAX_SENTENCE_CHARS = 82
 LIMIT_DEG = {"roll": 180.0, "pitch": 90.0}
 SENTENCES = ("PASHR", "PHTRO", "XDR")
+#: fields a sentence needs (its name included): PASHR up to pitch, PHTRO all, XDR one quadruplet
+MIN_FIELDS = {"PASHR": 6, "PHTRO": 5, "XDR": 5}
+#: a decimal number as NMEA 0183 writes it (no exponent, no inf/nan, no spaces or underscores)
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)", re.ASCII)
+_TIME = re.compile(r"(\d\d)(\d\d)(\d\d(?:\.\d*)?)", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -83,25 +93,39 @@ def _sentence_id(body: str) -> tuple[str, str]:
 def _angle(text: str, axis: str) -> float:
     if not text:
         raise BadFrame(BAD_RANGE)  # field empty: not available
-    try:
-        v = float(text)
-    except ValueError:
-        raise BadFrame(BAD_DECODE) from None
+    if _NUMBER.fullmatch(text) is None:
+        raise BadFrame(BAD_DECODE)
+    v = float(text)
     if not abs(v) <= LIMIT_DEG[axis]:
         raise BadFrame(BAD_RANGE)
     return v
+
+
+def time_of_day(text: str) -> float:
+    """``hhmmss[.sss]`` UTC as seconds since midnight (23:59:60.x, a leap second, ≥ 86400).
+
+    ``BadFrame``: ``decode`` if it is not of that form, ``range`` if a part is out of range.
+    """
+    m = _TIME.fullmatch(text)
+    if m is None:
+        raise BadFrame(BAD_DECODE)
+    h, mi, sec = int(m[1]), int(m[2]), float(m[3])
+    if h > 23 or mi > 59 or sec >= 61.0:
+        raise BadFrame(BAD_RANGE)
+    return h * 3600 + mi * 60 + sec
 
 
 def parse_line(line: str, *, sentence: str | None = None) -> Attitude:
     """Decode one NMEA 0183 line (without CR LF) into an ``Attitude``.
 
     ``sentence`` restricts to one of ``PASHR``, ``PHTRO``, ``XDR`` (None: any of them). Raises
-    ``BadFrame(reason)`` for a line to count and skip (reasons in the module docstring).
+    ``BadFrame(reason)`` for a line to count and skip (reasons in the module docstring), and
+    nothing else, whatever the line.
     """
     if len(line) + 2 > MAX_SENTENCE_CHARS:
         raise BadFrame(BAD_LENGTH)
-    if not line.startswith("$"):
-        raise BadFrame(BAD_DECODE)
+    if not line.startswith("$") or not (line.isascii() and line.isprintable()):
+        raise BadFrame(BAD_DECODE)  # IEC 61162-1: printable ASCII only
     star = line.rfind("*")
     if star < 0 or len(line) != star + 3:
         raise BadFrame(BAD_CHECKSUM)
@@ -115,19 +139,20 @@ def parse_line(line: str, *, sentence: str | None = None) -> Attitude:
     talker, kind = _sentence_id(body)
     if kind not in SENTENCES or (sentence is not None and kind != sentence):
         raise BadFrame(BAD_ID)
+    if len(body.split(",")) < MIN_FIELDS[kind]:
+        raise BadFrame(BAD_LENGTH)
     if kind == "PHTRO":
         return _parse_phtro(body)
     try:
         msg: Any = pynmea2.parse(line)
-    except pynmea2.ParseError:
+        data = [str(x) for x in msg.data]
+    except (pynmea2.ParseError, *DECODE_ERRORS):  # pynmea2 raises many things on odd lines
         raise BadFrame(BAD_DECODE) from None
-    return _parse_pashr(msg) if kind == "PASHR" else _parse_xdr(msg, talker)
+    return _parse_pashr(data) if kind == "PASHR" else _parse_xdr(data, talker)
 
 
 def _parse_phtro(body: str) -> Attitude:
     f = body.split(",")
-    if len(f) < 5:
-        raise BadFrame(BAD_LENGTH)
     pitch = _angle(f[1], "pitch")
     roll = _angle(f[3], "roll")
     if f[2] not in ("M", "P") or f[4] not in ("B", "T"):
@@ -138,35 +163,32 @@ def _parse_phtro(body: str) -> Attitude:
     })
 
 
-def _parse_pashr(msg: Any) -> Attitude:
-    if len(msg.data) < 6:
+def _parse_pashr(data: list[str]) -> Attitude:
+    # pynmea2's Ashtech data: ["R", time, heading, "T", roll, pitch, …]; its own time parsing
+    # (ASHRATT.timestamp) returns the text for a time it cannot read and rejects a leap second
+    if len(data) < 6:
         raise BadFrame(BAD_LENGTH)
-    # pynmea2's ASHRATT data: ["R", time, heading, "T", roll, pitch, …]
-    roll = _angle(msg.data[4], "roll")
-    pitch = _angle(msg.data[5], "pitch")
-    t = None
-    try:
-        ts = msg.timestamp if msg.data[1] else None
-    except (ValueError, TypeError, AttributeError):  # pynmea2: AttributeError on a bad time
-        raise BadFrame(BAD_DECODE) from None
-    if ts is not None:
-        t = ts.hour * 3600 + ts.minute * 60 + ts.second + ts.microsecond / 1e6
+    if data[1][:1].isalpha():  # $PASHR,POS / HPR / VEL …: another Ashtech sentence
+        raise BadFrame(BAD_ID)
+    roll = _angle(data[4], "roll")
+    pitch = _angle(data[5], "pitch")
+    t = time_of_day(data[1]) if data[1] else None
     return Attitude("PASHR", "P", {"roll": roll, "pitch": pitch}, t)
 
 
-def _parse_xdr(msg: Any, talker: str) -> Attitude:
-    if len(msg.data) % 4 != 0 or not msg.data:
+def _parse_xdr(data: list[str], talker: str) -> Attitude:
+    # quadruplets (type, value, units, name), as pynmea2's XDR.get_transducer reads them
+    if len(data) % 4 != 0 or not data:
         raise BadFrame(BAD_LENGTH)
     angles: dict[str, float] = {}
-    for i in range(msg.num_transducers):
-        tr = msg.get_transducer(i)
-        name = tr.id.upper()
-        axis = {"PTCH": "pitch", "PITCH": "pitch", "ROLL": "roll"}.get(name)
-        if axis is None or tr.type != "A":
+    for i in range(0, len(data), 4):
+        kind, value, units, name = data[i:i + 4]
+        axis = {"PTCH": "pitch", "PITCH": "pitch", "ROLL": "roll"}.get(name.upper())
+        if axis is None or kind != "A":
             continue
-        if tr.units != "D":
+        if units != "D":
             raise BadFrame(BAD_DECODE)
-        angles[axis] = _angle(tr.value, axis)
+        angles[axis] = _angle(value, axis)
     return Attitude("XDR", talker, angles)
 
 

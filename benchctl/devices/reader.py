@@ -6,18 +6,27 @@ its host receipt time on the monotonic clock) and
 ``_handle(item, t_host)``, which decodes one frame and either calls ``_emit`` with a sample or
 raises ``BadFrame(reason)``; the reader counts the reason in ``stats`` and goes on.
 
+A bad frame is a counted bad frame, always: every input a driver reads, whatever its bytes,
+ends as exactly one of a sample (``stats.good``), a counted bad frame (``stats.bad[reason]``,
+reasons ``BAD_REASONS``) or, for CANopen, a well-formed service frame (SDO answer, EMCY,
+heartbeat: ``service_frames``). A driver turns what its parsing libraries raise on malformed
+input (``DECODE_ERRORS``) into ``BadFrame(BAD_DECODE)``; line noise on a transport (a byte that
+is not ASCII, a line the adapter never sends) is ``decode`` too, never a lost link.
+
 Faults go to ``on_error`` at once:
 
 - the link fails (serial port gone, CAN interface down) → ``ConnectionLost``; the reader ends;
 - no valid sample for ``silence_timeout_s`` after ``start`` → ``DeviceTimeout`` (once per silence;
   samples that come back are delivered again);
-- an unexpected exception while decoding (a bug) → passed on as it is; the reader goes on;
+- an unexpected exception while decoding (a bug: no input may cause one) → counted as
+  ``decode`` and passed on as it is; the reader goes on;
 - an exception raised by ``on_sample`` → passed to ``on_error``; the reader goes on.
 """
 
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
 from typing import Any
@@ -41,6 +50,13 @@ BAD_RANGE = "range"  # a value outside its valid range, or a "not available"/"er
 BAD_ID = "id"  # an identifier, source address or sentence the driver does not expect
 BAD_DECODE = "decode"  # an adapter line or payload that cannot be parsed
 BAD_STATUS = "status"  # the device flags the value as erroneous (e.g. J1939 figure of merit)
+BAD_REASONS = (BAD_CHECKSUM, BAD_LENGTH, BAD_RANGE, BAD_ID, BAD_DECODE, BAD_STATUS)
+
+#: what the parsing libraries (pynmea2, cantools, canopen, struct, int/float) raise on malformed
+#: input; a driver catches exactly these around a library call and counts the frame as ``decode``
+DECODE_ERRORS: tuple[type[Exception], ...] = (
+    ValueError, LookupError, TypeError, AttributeError, ArithmeticError, struct.error,
+)
 
 
 class BadFrame(Exception):
@@ -77,6 +93,8 @@ class SensorReader:
         self._silence_reported = False
         self._closed = False
         self.identity: DeviceIdentity | None = None
+        #: well-formed frames of the protocol that carry no sample (CANopen SDO, EMCY, heartbeat)
+        self.service_frames = 0
 
     # ------------------------------------------------------------------ AngleSensor
     def connect(self) -> DeviceIdentity:
