@@ -1,4 +1,9 @@
-"""Open a python-can bus from an instrument config: the one place that knows interface quirks."""
+"""Open a python-can bus from an instrument config: the one place that knows interface quirks.
+
+``slcan`` opens ``benchctl.devices.can.slcan.SlcanBus`` (python-can's slcan bus with a receive
+side that turns every adapter line into a frame, an answer or a ``decode`` bad frame, never a
+lost link); every other interface is python-can's own ``can.Bus``.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +14,7 @@ from typing import Any
 import can
 
 from benchctl.config import InstrumentConfig
+from benchctl.devices.can.slcan import SlcanBus
 from benchctl.errors import DeviceError
 
 #: python-can waits this long after opening a real slcan adapter (many reset on open).
@@ -45,6 +51,8 @@ def open_can_bus(cfg: InstrumentConfig) -> can.BusABC:
     """Open the CAN bus ``cfg`` names; a failure raises ``DeviceError`` naming the channel."""
     kwargs = can_bus_kwargs(cfg)
     try:
+        if kwargs["interface"] == "slcan":
+            return SlcanBus(**{k: v for k, v in kwargs.items() if k != "interface"})
         return can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as e:
         raise DeviceError(

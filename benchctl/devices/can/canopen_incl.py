@@ -5,9 +5,15 @@
 0.001°), reads TPDO1's mapping from the EDS, and switches the node to OPERATIONAL (NMT start).
 Samples come from TPDO1 (COB-ID 0x180 + node id): 6010h slope long16 is pitch, 6020h slope
 lateral16 is roll (INTEGER16; 6110h/6120h INTEGER32 if an EDS maps those), in degrees
-``raw · resolution / 1000``. A TPDO of the wrong length is ``length``; a slope at the integer's
-extreme (overflow marker) or beyond ±180° is ``range``. Frames on other ids than the node's
-TPDO1, SDO response, EMCY and NMT error control are ``id``. CiA 410 carries no counter or time.
+``raw · resolution / 1000``. CiA 410 carries no counter or time.
+
+Every frame is a sample, a counted bad frame or one of the node's service frames (counted in
+``service_frames`` and handed to ``canopen``): an SDO answer (0x580 + id) or EMCY (0x80 + id) of
+exactly 8 bytes, a heartbeat / node-guarding answer (0x700 + id) of 1 byte with an NMT state
+(0 boot-up, 4 stopped, 5 operational, 127 pre-operational; bit 7 the toggle). Bad: a TPDO, SDO
+answer, EMCY or heartbeat of another length is ``length``; a slope at the integer's extreme
+(overflow marker) or beyond ±180°, or a heartbeat with no NMT state, is ``range``; a 29-bit
+frame or any other id is ``id``; anything ``canopen`` raises on a frame is ``decode``.
 
 The reader thread feeds ``canopen.Network.notify`` (the library's hook for a custom receive
 loop), so the SDO client and the PDO decoding are the library's own.
@@ -23,13 +29,25 @@ import canopen
 
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import DeviceIdentity, InstrumentSample
-from benchctl.devices.can.reader import BAD_ID, BAD_LENGTH, BAD_RANGE, BadFrame, CanInstrument
+from benchctl.devices.can.reader import (
+    BAD_DECODE,
+    BAD_ID,
+    BAD_LENGTH,
+    BAD_RANGE,
+    DECODE_ERRORS,
+    BadFrame,
+    CanInstrument,
+)
 from benchctl.errors import ConfigError, DeviceTimeout, ProtocolError
 
 #: CiA 410 slope objects by axis: (16-bit, 32-bit)
 SLOPE_OBJECTS = {"pitch": (0x6010, 0x6110), "roll": (0x6020, 0x6120)}
 RESOLUTION_INDEX = 0x6000
 MAX_ABS_DEG = 180.0
+#: NMT states a heartbeat or node-guarding answer reports (its bit 7 is the guarding toggle)
+NMT_STATES = frozenset({0x00, 0x04, 0x05, 0x7F})
+#: CiA 301: SDO and EMCY frames always carry 8 bytes
+SERVICE_DLC = 8
 
 
 class CanopenInclinometer(CanInstrument):
@@ -135,16 +153,40 @@ class CanopenInclinometer(CanInstrument):
         )
 
     # ------------------------------------------------------------------ decoding
+    def _notify(self, cid: int, data: bytes, timestamp: float) -> None:
+        """Hand a frame to ``canopen``; what it raises on a malformed one is ``decode``."""
+        try:
+            self._net.notify(cid, bytearray(data), timestamp)
+        except BadFrame:  # from our own TPDO callback
+            raise
+        except DECODE_ERRORS:
+            raise BadFrame(BAD_DECODE) from None
+
     def decode_tpdo(self, data: bytes, t_host: float) -> InstrumentSample:
         """Decode a TPDO1 payload; ``BadFrame`` for a wrong length or an out-of-range slope."""
         if len(data) != self._tpdo_len:
             raise BadFrame(BAD_LENGTH)
         self._rx_t = t_host
         self._last = None
-        self._net.notify(self._tpdo_id, bytearray(data), t_host)
+        self._notify(self._tpdo_id, data, t_host)
         if self._last is None:  # the library did not call back: not our TPDO's map
             raise BadFrame(BAD_ID)
         return self._last
+
+    def decode_service(self, cid: int, data: bytes, timestamp: float) -> None:
+        """Check a service frame of the node (SDO answer, EMCY, heartbeat) and hand it to
+        ``canopen``; ``BadFrame`` for another id or a malformed frame."""
+        if cid not in self._known_ids:
+            raise BadFrame(BAD_ID)
+        if cid == 0x700 + self.cfg.node_id:
+            if len(data) != 1:
+                raise BadFrame(BAD_LENGTH)
+            if data[0] & 0x7F not in NMT_STATES:
+                raise BadFrame(BAD_RANGE)
+        elif len(data) != SERVICE_DLC:
+            raise BadFrame(BAD_LENGTH)
+        self._notify(cid, data, timestamp)
+        self.service_frames += 1
 
     def _on_tpdo(self, pdo_map: Any) -> None:
         angles: dict[str, float] = {}
@@ -165,10 +207,8 @@ class CanopenInclinometer(CanInstrument):
             raise BadFrame(BAD_ID)
         if cid == self._tpdo_id:
             self._emit(self.decode_tpdo(bytes(msg.data), t_host))
-        elif cid in self._known_ids:
-            self._net.notify(cid, bytearray(msg.data), msg.timestamp)
         else:
-            raise BadFrame(BAD_ID)
+            self.decode_service(cid, bytes(msg.data), msg.timestamp)
 
     def _close_protocol(self) -> None:
         self._tpdo.callbacks.clear()

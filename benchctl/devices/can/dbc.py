@@ -4,6 +4,11 @@ The DBC is loaded with ``frame_id_mask=0x03FFFF00`` so a message matches at any 
 from any source address (a 29-bit J1939/NMEA 2000 id is priority(3) | PGN(18) | source(8)). A
 protocol module supplies a ``DbcAngleSpec``: which message, which signals are which axis, how
 to tell an unavailable value, and where a counter or a latency lives.
+
+Every frame is a sample or a counted bad frame: an 11-bit frame, a 29-bit id beyond 1FFFFFFF,
+another PGN or source address is ``id``; another length than the message's is ``length``; a
+status signal saying error / not available is ``status``; an angle at a "not available" /
+"error" code or beyond its valid range is ``range``; anything cantools raises is ``decode``.
 """
 
 from __future__ import annotations
@@ -19,10 +24,12 @@ import cantools
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import DeviceIdentity, InstrumentSample
 from benchctl.devices.can.reader import (
+    BAD_DECODE,
     BAD_ID,
     BAD_LENGTH,
     BAD_RANGE,
     BAD_STATUS,
+    DECODE_ERRORS,
     BadFrame,
     CanInstrument,
 )
@@ -30,6 +37,7 @@ from benchctl.errors import ConfigError
 
 #: priority and source address are masked off when matching a frame to a DBC message
 FRAME_ID_MASK = 0x03FFFF00
+MAX_EXTENDED_ID = 0x1FFFFFFF
 
 
 @dataclass(frozen=True)
@@ -89,13 +97,19 @@ class DbcAngleInstrument(CanInstrument):
 
     def decode(self, frame_id: int, data: bytes, t_host: float) -> InstrumentSample:
         """Decode one frame to a sample; ``BadFrame(reason)`` if it must be counted and skipped."""
-        if frame_id & FRAME_ID_MASK != self._pgn_id:
+        if not 0 <= frame_id <= MAX_EXTENDED_ID or frame_id & FRAME_ID_MASK != self._pgn_id:
             raise BadFrame(BAD_ID)
         sa = frame_id & 0xFF
         if self.cfg.source_address is not None and sa != self.cfg.source_address:
             raise BadFrame(BAD_ID)
         if len(data) != self._msg.length:
             raise BadFrame(BAD_LENGTH)
+        try:
+            return self._decode(sa, data, t_host)
+        except DECODE_ERRORS:
+            raise BadFrame(BAD_DECODE) from None
+
+    def _decode(self, sa: int, data: bytes, t_host: float) -> InstrumentSample:
         raw = self._msg.decode(data, decode_choices=False, scaling=False)
         spec = self.spec
         angles: dict[str, float] = {}

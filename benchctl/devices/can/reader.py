@@ -1,10 +1,19 @@
 """The CAN half of the instrument drivers: a ``SensorReader`` over a handed-in ``can.Bus``.
 
 A protocol fills in ``_identify()`` and ``_handle(msg, t_host)`` (see ``benchctl.devices.reader``).
-A garbled adapter line (python-can's slcan parser raising ``ValueError``) counts as ``decode``;
-any other exception from ``bus.recv`` means the link is gone (``ConnectionLost``). Every received
-frame, good or bad, goes to the raw log (``can.Logger``: ``.blf``, ``.asc`` …) when a path is
-given; ``can.LogReader`` reads it back.
+
+What ``bus.recv`` gives or raises:
+
+- a data frame → ``_handle`` (a sample or a counted bad frame);
+- a remote frame → ``id``, an error frame → ``decode`` (counted, never data);
+- a garbled adapter line → ``decode``, and reading goes on: ``SlcanLineError`` from our
+  ``SlcanBus``, ``ValueError``/``IndexError`` from python-can's slcan parser, or python-can's
+  ``CanOperationError`` caused by a ``UnicodeDecodeError`` (a byte that is not UTF-8: python-can
+  keeps that line in its buffer, so it is dropped here, else every later line would fail too);
+- any other exception (serial port gone, interface down) → the link is lost (``ConnectionLost``).
+
+Every received frame, good or bad, goes to the raw log (``can.Logger``: ``.blf``, ``.asc`` …)
+when a path is given; ``can.LogReader`` reads it back.
 """
 
 from __future__ import annotations
@@ -24,18 +33,45 @@ from benchctl.devices.reader import (
     BAD_LENGTH,
     BAD_RANGE,
     BAD_STATUS,
+    DECODE_ERRORS,
     BadFrame,
     LinkLost,
     SensorReader,
 )
 from benchctl.errors import DeviceError
 
-__all__ = ["BAD_DECODE", "BAD_ID", "BAD_LENGTH", "BAD_RANGE", "BAD_STATUS", "BadFrame",
-           "CanInstrument"]
+__all__ = ["BAD_DECODE", "BAD_ID", "BAD_LENGTH", "BAD_RANGE", "BAD_STATUS", "DECODE_ERRORS",
+           "BadFrame", "CanInstrument", "is_line_noise"]
 
 log = logging.getLogger(__name__)
 
 _RECV_TIMEOUT_S = 0.05
+
+
+def is_line_noise(exc: BaseException) -> bool:
+    """True if ``exc`` from ``bus.recv`` is a garbled line, not a failing link.
+
+    python-can's slcan wraps a line it cannot decode as UTF-8 in ``CanOperationError`` (its
+    ``__cause__``), the same type it raises for a port that is gone.
+    """
+    if isinstance(exc, (ValueError, IndexError)):  # SlcanLineError, python-can's hex parsing
+        return True
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, UnicodeError):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def _drop_stale_line(bus: can.BusABC) -> None:
+    """python-can's slcan leaves an undecodable line in its buffer: drop it (else every later
+    line fails to decode with it)."""
+    buf = getattr(bus, "_buffer", None)
+    if isinstance(buf, bytearray):
+        buf.clear()
 
 
 class CanInstrument(SensorReader):
@@ -76,16 +112,23 @@ class CanInstrument(SensorReader):
     def _poll(self) -> list[tuple[Any, float]]:
         try:
             msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
-        except (ValueError, IndexError):  # a garbled adapter line
+        except Exception as e:
+            if not is_line_noise(e):  # serial port gone, interface down
+                raise LinkLost(str(e)) from e
+            _drop_stale_line(self._bus)
             self.stats.count_bad(BAD_DECODE)
+            if self.cfg.wire_trace:
+                log.debug("rx garbled line: %s", e)
             return []
-        except Exception as e:  # serial port gone, interface down
-            raise LinkLost(str(e)) from e
         if msg is None:
             return []
         t_host = time.monotonic()
         self._log_frame(msg)
-        if msg.is_error_frame or msg.is_remote_frame:
+        if msg.is_error_frame:
+            self.stats.count_bad(BAD_DECODE)
+            return []
+        if msg.is_remote_frame:
+            self.stats.count_bad(BAD_ID)
             return []
         return [(msg, t_host)]
 

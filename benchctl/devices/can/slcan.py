@@ -1,0 +1,145 @@
+"""The host side of a slcan (LAWICEL) adapter: every line it sends is a frame, an answer or bad.
+
+python-can's ``slcanBus`` reads the serial line byte by byte, decodes each line as UTF-8 and
+parses it leniently: a byte that is not UTF-8 raises ``CanOperationError`` (the same error as a
+port that is gone) and leaves the line in its buffer, so every later line fails too; a line
+with an unknown first character is dropped without a word; a frame line with hex digits missing
+or left over is passed on. ``SlcanBus`` is that bus with its receive side replaced:
+
+- the line is split at CR (OK) or BEL (error), as python-can does, from reads of whatever is
+  waiting (not one byte per read);
+- ``parse_line`` accepts ``tIIIL…``/``TIIIIIIIIL…`` data frames and ``r``/``R`` remote frames
+  (classic CAN: DLC 0–8, 11-bit id ≤ 7FF, 29-bit id ≤ 1FFFFFFF, exactly ``2·DLC`` hex digits,
+  optionally the 4 hex digits of a ``Z1`` timestamp), skips the adapter's answers (an empty
+  line, BEL, ``z``/``Z`` transmit acknowledgements) and raises ``SlcanLineError`` for anything
+  else: a byte that is not printable ASCII, an unknown command letter, a malformed frame;
+- more than ``MAX_LINE`` bytes without CR or BEL is garbage: dropped, ``SlcanLineError``.
+
+``SlcanLineError`` is a ``ValueError``, as python-can's own parser raises for bad hex, so the CAN
+reader counts it as a ``decode`` bad frame and reads on. A failing port (``SerialException``,
+``OSError``) is still python-can's ``CanOperationError``: the link is lost.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections import deque
+from typing import Any
+
+import can
+import serial
+from can.exceptions import error_check
+from can.interfaces.slcan import slcanBus
+
+OK = b"\r"
+BEL = b"\a"
+#: longest line an adapter sends: T + 8 id + DLC + 16 data + 4 timestamp + CR is 31 bytes
+MAX_LINE = 64
+#: answers of the adapter that are neither frames nor errors (transmit acks, OK)
+ANSWERS = frozenset({b"", b"z", b"Z"})
+_HEX = frozenset(b"0123456789ABCDEFabcdef")
+_LINE_END = re.compile(rb"[\r\a]")
+
+
+class SlcanLineError(ValueError):
+    """A line from the adapter that is not a frame nor one of its answers (counted ``decode``)."""
+
+    def __init__(self, why: str, line: bytes) -> None:
+        self.line = line
+        super().__init__(f"slcan: {why}: {line[:MAX_LINE]!r}")
+
+
+def _hex(field: bytes, line: bytes) -> int:
+    if not field or not all(b in _HEX for b in field):
+        raise SlcanLineError("not hex", line)
+    return int(field, 16)
+
+
+def parse_line(line: bytes) -> can.Message | None:
+    """One adapter line (its CR or BEL stripped) as a frame; None for an adapter answer.
+
+    Raises ``SlcanLineError`` for any other line (see the module docstring).
+    """
+    if line in ANSWERS:
+        return None
+    if not all(0x20 < b < 0x7F for b in line):
+        raise SlcanLineError("a byte that is not printable ASCII", line)
+    kind = line[:1]
+    if kind not in (b"t", b"T", b"r", b"R"):
+        raise SlcanLineError("not a frame", line)
+    ext = kind in (b"T", b"R")
+    remote = kind in (b"r", b"R")
+    n_id = 8 if ext else 3
+    if len(line) < 2 + n_id:
+        raise SlcanLineError("too short", line)
+    cid = _hex(line[1:1 + n_id], line)
+    if cid > (0x1FFFFFFF if ext else 0x7FF):
+        raise SlcanLineError("id out of range", line)
+    dlc_char = line[1 + n_id]
+    if not 0x30 <= dlc_char <= 0x38:  # "0" … "8": classic CAN
+        raise SlcanLineError("DLC not 0-8", line)
+    dlc = dlc_char - 0x30
+    rest = line[2 + n_id:]
+    n_data = 0 if remote else 2 * dlc
+    if len(rest) not in (n_data, n_data + 4):  # + a Z1 timestamp
+        raise SlcanLineError("length does not match the DLC", line)
+    if rest:
+        _hex(rest, line)
+    data = b"" if remote else bytes.fromhex(rest[:n_data].decode("ascii"))
+    return can.Message(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote, dlc=dlc,
+                       data=data, timestamp=time.time())
+
+
+class SlcanBus(slcanBus):
+    """python-can's slcan bus whose every received line is a frame, an answer or an error.
+
+    Same parameters as ``can.interfaces.slcan.slcanBus``.
+    """
+
+    def __init__(self, channel: Any, **kwargs: Any) -> None:
+        self._rx = bytearray()
+        self._lines: deque[tuple[bytes, bytes]] = deque()  # (line, its CR or BEL)
+        super().__init__(channel, **kwargs)
+
+    def _next_line(self) -> tuple[bytes, bytes] | None:
+        if not self._lines:
+            start = 0
+            for m in _LINE_END.finditer(self._rx):
+                self._lines.append((bytes(self._rx[start:m.start()]), m.group()))
+                start = m.end()
+            del self._rx[:start]
+        if self._lines:
+            return self._lines.popleft()
+        if len(self._rx) > MAX_LINE:
+            garbage = bytes(self._rx)
+            self._rx.clear()
+            raise SlcanLineError(f"no CR in {len(garbage)} bytes", garbage)
+        return None
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = serial.Timeout(timeout)
+        port = self.serialPortOrig
+        while True:
+            got = self._next_line()
+            if got is not None:
+                line, end = got
+                if end == BEL:
+                    if line:
+                        raise SlcanLineError("ends in BEL", line + end)
+                    continue  # the adapter refused a command of ours: not a frame
+                msg = parse_line(line)
+                if msg is not None:
+                    return msg, False
+                continue
+            with error_check("Could not read from serial device"):
+                chunk = port.read(max(1, port.in_waiting))
+            if chunk:
+                self._rx += chunk
+            elif deadline.expired():
+                return None, False
+
+    def flush(self) -> None:
+        self._rx.clear()
+        self._lines.clear()
+        super().flush()
