@@ -156,6 +156,7 @@ def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
         ("canopen", "length", "length"),
         ("canopen", "range", "range"),
         ("canopen", "id", "id"),
+        ("canopen", "bytes", "decode"),  # arbitrary bytes on the slcan line
         ("j1939", "line", "decode"),
         ("j1939", "range", "range"),
         ("nmea2000", "length", "length"),
@@ -163,6 +164,7 @@ def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
         ("nmea0183", "checksum", "checksum"),
         ("nmea0183", "truncated", "checksum"),
         ("nmea0183", "range", "range"),
+        ("nmea0183", "bytes", "decode"),
     ],
 )
 def test_garbled_frames_counted_and_skipped(driver: str, how: str, reason: str) -> None:

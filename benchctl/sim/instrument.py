@@ -20,13 +20,21 @@ Faults, by ``inject(kind, **params)`` and undone by ``clear_faults()`` (except `
     each output frame is damaged with probability ``fraction``. CAN ``how``: ``length`` (last
     byte cut, the default), ``range`` (every angle "not available"/overflow), ``id`` (sent on an
     id the driver does not expect), ``line`` (the slcan text corrupted). NMEA 0183: ``checksum``
-    (default), ``truncated``, ``range`` (roll 999.99°).
+    (default), ``truncated``, ``range`` (roll 999.99°). Both: ``bytes``, arbitrary damage on
+    the wire (``damage_bytes``): 1–3 bytes of the slcan line or sentence replaced or inserted,
+    any byte value (control characters, bytes beyond ASCII) except a line end (CR, LF, BEL),
+    and always at least one byte beyond ASCII, so the damage stays one line and is always
+    detectable: the driver counts it ``decode``.
 ``silent``
     the instrument sends nothing (and a CANopen node answers no SDO); the model keeps running.
 ``stuck``
     the output freezes at its last value; frames keep coming.
 ``drop``
     the pty is hung up (the driver's reads fail) and the symlink removed; irreversible.
+
+``send_raw(data)`` writes exact bytes on the wire between two output frames (the instrument's
+own frames go on unchanged): a test's way to put one chosen bad frame, sentence or line noise
+in front of the driver. ``counts["raw"]`` counts the writes done.
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ import select
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -56,8 +65,10 @@ from benchctl.sim.pty_port import PtyPort
 from benchctl.sim.slcan import SlcanAdapter
 
 FAULTS = ("garbled", "silent", "stuck", "drop")
-CAN_GARBLING = ("length", "range", "id", "line")
-NMEA_GARBLING = ("checksum", "truncated", "range")
+CAN_GARBLING = ("length", "range", "id", "line", "bytes")
+NMEA_GARBLING = ("checksum", "truncated", "range", "bytes")
+#: what the ``bytes`` garbling may write: anything but a line end (slcan CR, BEL; NMEA CR LF)
+_NOISE = bytes(b for b in range(256) if b not in b"\r\n\a")
 DEFAULT_SOURCE_ADDRESS = 0x80
 J1939_PRIORITY = 3
 N2K_PRIORITY = 2
@@ -68,6 +79,25 @@ _MAX_CATCH_UP_S = 0.5  # further behind than this, the simulator skips instants 
 
 def _clamp(v: int, lo: int, hi: int) -> int:
     return lo if v < lo else hi if v > hi else v
+
+
+def damage_bytes(line: bytes, rng: random.Random) -> bytes:
+    """``line`` (a slcan line or a sentence with its line end) damaged on the wire.
+
+    1–3 times a random byte replaces one of the line or is inserted into it: any value but a
+    line end, the last one always beyond ASCII (0x80–0xFF). The line end is kept, so the result
+    is one line, and never a valid one.
+    """
+    n = len(line.rstrip(b"\r\n\a"))
+    body, end = bytearray(line[:n]), line[n:]
+    ops = rng.randint(1, 3)
+    for i in range(ops):
+        b = rng.randrange(0x80, 0x100) if i == ops - 1 else rng.choice(_NOISE)
+        if body and rng.random() < 0.5:
+            body[rng.randrange(len(body))] = b
+        else:
+            body.insert(rng.randrange(len(body) + 1), b)
+    return bytes(body) + end
 
 
 class _SimNetwork(canopen.Network):
@@ -103,7 +133,8 @@ class SimInstrument:
     counts : dict
         ``samples`` produced, ``sent`` data frames (TPDO / broadcast / sentence, garbled ones
         included; not SDO answers), ``garbled``, ``overflow`` (host not reading: frame lost),
-        ``skipped`` instants (simulator stalled), ``sdo`` requests received.
+        ``skipped`` instants (simulator stalled), ``sdo`` requests received, ``raw`` writes of
+        ``send_raw`` done.
     """
 
     def __init__(
@@ -128,7 +159,8 @@ class SimInstrument:
         self.serial_port: str | None = None
         self.channel: str | None = None
         self.counts = {"samples": 0, "sent": 0, "garbled": 0, "overflow": 0, "skipped": 0,
-                       "sdo": 0}
+                       "sdo": 0, "raw": 0}
+        self._raw: deque[bytes] = deque()
         self._lock = threading.Lock()
         self._faults: dict[str, dict[str, Any]] = {}
         self._rng = random.Random(model_cfg.seed + 7919)
@@ -215,6 +247,11 @@ class SimInstrument:
                 params = {"value": dict(self._last_y) if self._last_y else None}
             self._faults[kind] = params
 
+    def send_raw(self, data: bytes) -> None:
+        """Write ``data`` as it is on the wire, between two output frames (``counts["raw"]``
+        counts it when done; lost, and counted ``overflow``, if the host is not reading)."""
+        self._raw.append(bytes(data))
+
     def clear_faults(self) -> None:
         """End garbled, silent and stuck (a dropped link stays dropped)."""
         with self._lock:
@@ -300,6 +337,9 @@ class SimInstrument:
             if line:
                 line[1:2] = b"G"  # not a hex digit
             return bytes(line)
+        if how == "bytes":
+            assert self._adapter is not None
+            return damage_bytes(self._adapter.line_for(out, 0.0) or b"", self._rng)
         return out
 
     def _tick(self, k: int, t: float) -> None:
@@ -335,7 +375,9 @@ class SimInstrument:
             line = nmea_talker.sentence(self.sentence, t + self._utc_offset, y["roll"], y["pitch"])
             bad = garbled is not None and self._rng.random() < garbled["fraction"]
             if bad:
-                line = nmea_talker.garble(line, garbled["how"], self._rng)  # type: ignore[index]
+                how = garbled["how"]  # type: ignore[index]
+                line = (damage_bytes(line, self._rng) if how == "bytes"
+                        else nmea_talker.garble(line, how, self._rng))
             self._write(port, line, bad)
 
     def _write(self, port: PtyPort, line: bytes | None, garbled: bool) -> None:
@@ -385,6 +427,11 @@ class SimInstrument:
                     self._serve_host(port)
                 if wlist:
                     port.flush()
+                while self._raw:
+                    if port.write(self._raw.popleft()):
+                        self.counts["raw"] += 1
+                    else:
+                        self.counts["overflow"] += 1
                 now = time.monotonic()
                 if now - next_t > _MAX_CATCH_UP_S:  # stalled: do not burst, skip (counted)
                     k_now = int((now - t0) / period)
