@@ -170,9 +170,9 @@ def _parse_pashr(data: list[str]) -> Attitude:
         raise BadFrame(BAD_LENGTH)
     if data[1][:1].isalpha():  # $PASHR,POS / HPR / VEL …: another Ashtech sentence
         raise BadFrame(BAD_ID)
+    t = time_of_day(data[1]) if data[1] else None
     roll = _angle(data[4], "roll")
     pitch = _angle(data[5], "pitch")
-    t = time_of_day(data[1]) if data[1] else None
     return Attitude("PASHR", "P", {"roll": roll, "pitch": pitch}, t)
 
 
