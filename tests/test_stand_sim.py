@@ -86,8 +86,10 @@ def stream(
     ``return_after_s``: return that long after the start, while the stand still plays.
     """
     period = 1.0 / rate_hz
-    n = round(duration_s * rate_hz) + 1
-    pts = np.array([motion(k * period) for k in range(n)])
+    pts = np.array([motion(k * period) for k in range(round(duration_s * rate_hz) + 1)])
+    if abs(pts[-1] - pts[-2]) < 1e-6:  # a motion ending at rest: so does the queue (normal end)
+        pts = np.concatenate([pts, pts[-1:], pts[-1:]])
+    n = pts.size
     stand.begin_trajectory()
     _, per_push = stand.trajectory_limits
     j = 0
@@ -446,3 +448,42 @@ def test_stop_is_idempotent_and_leaves_nothing_behind(tmp_path: Path) -> None:
     sim.stop()
     assert not link.exists()
     assert psutil.Process().num_fds() == fds_before  # ptys, sockets, event loop: all closed
+
+
+def test_trajectory_queue_plays_ahead_and_an_underrun_stops_within_limits(
+    rig: tuple[SimStand, ModbusStand],
+) -> None:
+    """Points queued ahead are played on the stand's clock; when the host stops feeding the
+    queue while the stand moves, the stand counts an underrun and stops itself at its
+    acceleration limit (never a jump), then holds."""
+    sim, stand = rig
+    stand.enable()
+    t0, samples = stream(stand, lambda t: 2.0 * math.sin(math.pi * t) ** 2, 1.0)
+    assert samples[-1].trajectory is not None and samples[-1].trajectory.underruns == 0
+    # now a motion that ends while moving at 10 °/s: the queue runs dry mid-motion
+    stand.begin_trajectory()
+    pts = 0.1 * np.arange(1, 61) ** 2 / 60  # accelerating to 10°/s over 60 points at 50 Hz
+    stand.push_points(0, {"roll": pts[:24]}, read=False)
+    stand.push_points(24, {"roll": pts[24:48]}, read=False)
+    stand.push_points(48, {"roll": pts[48:]}, read=False)
+    stand.start_trajectory()
+    rates: list[tuple[float, float]] = []
+
+    def stopped() -> bool:
+        s = stand.read_sample()
+        stand.heartbeat()
+        rates.append((s.t_host, s.rate_deg_s["roll"]))
+        tr = s.trajectory
+        return tr is not None and tr.underruns == 1 and not s.status.trajectory_running and (
+            not s.status.moving
+        )
+
+    wait_for(stopped, 5.0, "the stand to stop after the underrun")
+    t = np.array([r[0] for r in rates])
+    v = np.array([r[1] for r in rates])
+    assert np.max(np.abs(v)) < 12.0
+    # deceleration after the queue ran dry: at the stand's limit (200°/s²), not a jump
+    dv = np.abs(np.diff(v)) / np.maximum(np.diff(t), 1e-3)
+    assert np.max(dv) < 200.0 * 3  # sampled rates; a jump to rest would be ~10/0.001
+    s = stand.read_sample()
+    assert s.status.enabled and not s.status.fault

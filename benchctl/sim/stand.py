@@ -386,9 +386,11 @@ class SimStand:
         last, before = q.last_two()
         self._mode = "stream"
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
-        if np.any(last != before):  # ran dry while moving: an underrun, a controlled stop
+        rate = (last - before) / q.period_s
+        # ran dry while moving faster than one period's deceleration at the stand's limit
+        # can stop: an underrun, a controlled stop; slower, it is the queue's normal end
+        if np.any(np.abs(rate) > self._stop_accel * q.period_s):
             q.underruns += 1
-            rate = (last - before) / q.period_s
             self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
             self._mode = "traj_stop"
             q.clear()
