@@ -6,6 +6,8 @@
     ├── InputError                  bad user input: a file, a column, a value
     │   ├── ConfigError             bench config or profile YAML fails validation
     │   ├── DataError               a recording/CSV is unusable (NaN, non-monotonic time, gaps…)
+    │   │   └── RecordingError      a recording cannot be written (disk full, I/O error): names
+    │   │                           the file and the errno
     │   └── LimitError              a motion exceeds the stand limits (needed vs allowed)
     ├── AnalysisError               an internal cross-check failed (Parseval): a bug, never silent
     ├── DeviceError                 a device answered with an error or could not be used
@@ -13,16 +15,28 @@
     │   ├── ConnectionLost          a link dropped mid-run
     │   ├── ProtocolError           a malformed frame, bad CRC/checksum, Modbus exception
     │   │   └── ModbusException     the device returned a Modbus exception code
-    │   └── StandFault              the stand reports a fault or an E-stop
+    │   ├── StandFault              the stand reports a fault or an E-stop
+    │   └── StandInUse              another benchctl process holds the stand (its lock); names it
     └── SafetyAbort                 the run was stopped for safety (signal, tracking error, silent
                                     instrument…); carries the reason
 
 Example scenarios: a profile asking 30°/s from a stand allowing 20°/s raises ``LimitError``
 before anything moves; a stand that stops answering raises ``DeviceTimeout``; Ctrl-C during a
-run becomes ``SafetyAbort("interrupted by SIGINT")`` and goes through the one cleanup path.
+run becomes ``SafetyAbort("interrupted by SIGINT")`` and goes through the one cleanup path; a
+full disk mid-run raises ``RecordingError`` once (later rows are dropped and counted) and aborts
+the run the same way.
+
+Outside the tree: ``Interrupted`` (a ``KeyboardInterrupt``) is what SIGINT, SIGTERM, SIGHUP or
+SIGQUIT raise when no run is there to take them (``benchctl.exits``); the CLI turns it into a
+one-line message and exit code 2.
 """
 
 from __future__ import annotations
+
+import errno as _errno
+import os
+import signal
+from pathlib import Path
 
 
 class BenchError(Exception):
@@ -39,6 +53,28 @@ class ConfigError(InputError):
 
 class DataError(InputError):
     """A recording or CSV cannot be analysed as it is."""
+
+
+class RecordingError(DataError):
+    """A recording could not be written (disk full, I/O error). Names the file and the errno."""
+
+    def __init__(self, message: str, path: Path | None = None, errno: int | None = None) -> None:
+        self.path = path
+        self.errno = errno
+        super().__init__(message)
+
+    @classmethod
+    def from_oserror(cls, path: Path, e: OSError, what: str = "write") -> RecordingError:
+        code = e.errno
+        name = _errno.errorcode.get(code, str(code)) if code is not None else "?"
+        text = (e.strerror or os.strerror(code)) if code is not None else str(e)
+        if code == _errno.ENOSPC:
+            head = "disk full"
+        elif code == getattr(_errno, "EDQUOT", None):
+            head = "disk quota exceeded"
+        else:
+            head = "write error"
+        return cls(f"{head}: cannot {what} {path} ({name}, errno {code}: {text})", path, code)
 
 
 class LimitError(InputError):
@@ -85,9 +121,29 @@ class StandFault(DeviceError):
         super().__init__(message)
 
 
+class StandInUse(DeviceError):
+    """Another benchctl process holds the stand's lock; the message names the holder."""
+
+    def __init__(self, message: str, holder: dict[str, object] | None = None) -> None:
+        self.holder = holder or {}
+        super().__init__(message)
+
+
 class SafetyAbort(BenchError):
     """The run was stopped for safety; ``reason`` says why."""
 
     def __init__(self, reason: str) -> None:
         self.reason = reason
         super().__init__(reason)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT) with no run there to take it over."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        try:
+            self.signame = signal.Signals(signum).name
+        except ValueError:
+            self.signame = f"signal {signum}"
+        super().__init__(f"interrupted by {self.signame}")

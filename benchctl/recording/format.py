@@ -15,6 +15,8 @@
       events.jsonl      one JSON object a line: state changes, faults, notes
       end.json          written at close: state (done|aborted), reason, end time, counters
       can.blf|can.asc   raw CAN frames (python-can logger), when the instrument is on CAN
+      benchctl.log      the run's log (INFO and up; the traceback of an unexpected exception)
+      sim.log           the simulators' output, when the run started them (config with sim:)
 
 ``meta.json`` may be rewritten (atomically) while the run goes, as facts become known (device
 identities after connect); ``events.jsonl`` carries every state change of the run
@@ -24,7 +26,9 @@ excluded) that the verdict was computed on, and the run's timing statistics.
 
 Every data line is written straight through to the OS (line-buffered), so ``kill -9`` at any
 moment loses nothing already written; a torn last line is dropped by the reader. A recording
-with no ``end.json`` was not closed (the process died) and reads as state ``incomplete``.
+with no ``end.json`` was not closed (the process died) and reads as state ``incomplete``. A write
+that fails (disk full) aborts the run; later rows are dropped, and ``end.json`` (when it can still
+be written) gives ``recording_error``, ``dropped_rows`` and ``dropped_events``.
 Floats are written with ``repr`` (shortest exact round trip).
 """
 

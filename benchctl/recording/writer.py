@@ -1,20 +1,28 @@
-"""Write a recording as the run goes (thread-safe, line-buffered, crash-safe)."""
+"""Write a recording as the run goes (thread-safe, line-buffered, crash-safe).
+
+A write that fails (disk full, I/O error) raises ``RecordingError`` once, naming the file and the
+errno, and reports it to ``on_error``; from then on rows and events are dropped and counted
+(``dropped_rows``, ``dropped_events``) instead of raising again, so the run's cleanup goes on.
+``close`` still writes ``end.json`` (with the error and the counts) and raises
+``RecordingError`` only when it cannot.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
 from benchctl import __version__
 from benchctl.devices.base import InstrumentSample, StandSample
-from benchctl.errors import InputError
+from benchctl.errors import InputError, RecordingError
 from benchctl.recording.format import (
     END_FILE,
     EVENTS_FILE,
@@ -36,12 +44,16 @@ def _num(x: float | int | None) -> str:
 
 def _atomic_json(path: Path, obj: Mapping[str, Any]) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
-    with tmp.open("w", encoding="utf-8") as f:
-        json.dump(obj, f, indent=2, default=str)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with tmp.open("w", encoding="utf-8") as f:
+            json.dump(obj, f, indent=2, default=str)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a full disk leaves no half-written .tmp behind
+        raise
 
 
 def utc_now() -> str:
@@ -52,10 +64,18 @@ class RecordingWriter:
     """Opens a new recording folder and appends to its streams.
 
     Every ``write_*`` call goes straight to the OS: a killed process loses nothing written.
-    ``close(state, reason)`` writes ``end.json``; it is idempotent.
+    ``close(state, reason)`` writes ``end.json``; it is idempotent. The first failed write raises
+    ``RecordingError`` (and calls ``on_error`` with it, from the writing thread); later writes are
+    dropped and counted.
     """
 
-    def __init__(self, path: str | Path, axes: Sequence[str], meta: Mapping[str, Any]) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        axes: Sequence[str],
+        meta: Mapping[str, Any],
+        on_error: Callable[[RecordingError], None] | None = None,
+    ) -> None:
         self.path = Path(path)
         if self.path.exists() and any(self.path.iterdir()):
             raise InputError(f"{self.path}: recording folder exists and is not empty")
@@ -64,6 +84,10 @@ class RecordingWriter:
         self._lock = threading.Lock()
         self._closed = False
         self.counts = {name: 0 for name in STREAM_FILES}
+        self.dropped_rows = 0  # stream rows not written after a write failure
+        self.dropped_events = 0
+        self.error: RecordingError | None = None  # the first write failure
+        self._on_error = on_error
         self.t0_monotonic = time.monotonic()
         full_meta = {
             "format": FORMAT_NAME,
@@ -83,13 +107,36 @@ class RecordingWriter:
             self._files[name] = f
         self._events = (self.path / EVENTS_FILE).open("w", encoding="utf-8", buffering=1)
 
+    def _failed(self, path: Path, e: OSError, what: str = "write") -> RecordingError:
+        """Record the first failure (call with the lock held)."""
+        err = RecordingError.from_oserror(path, e, what)
+        if self.error is None:
+            self.error = err
+        return err
+
+    def _report(self, err: RecordingError) -> RecordingError:
+        if self._on_error is not None:
+            with contextlib.suppress(Exception):  # a broken listener must not hide the error
+                self._on_error(err)
+        return err
+
     def _write(self, name: str, fields: list[str]) -> None:
         line = ",".join(fields) + "\n"
         with self._lock:
             if self._closed:
                 return
-            self._files[name].write(line)
-            self.counts[name] += 1
+            if self.error is not None:
+                self.dropped_rows += 1
+                return
+            try:
+                self._files[name].write(line)
+            except OSError as e:
+                self.dropped_rows += 1
+                err = self._failed(self.path / STREAM_FILES[name], e)
+            else:
+                self.counts[name] += 1
+                return
+        raise self._report(err)
 
     def write_stand(self, s: StandSample) -> None:
         a = self.axes
@@ -123,38 +170,69 @@ class RecordingWriter:
         self._write("setpoints", fields)
 
     def update_meta(self, **fields: Any) -> None:
-        """Add or replace metadata fields (meta.json is rewritten atomically)."""
+        """Add or replace metadata fields (meta.json is rewritten atomically; on a write failure
+        the old file stays and ``RecordingError`` is raised, as for any first failure)."""
         with self._lock:
             self._meta = {**self._meta, **fields}
-            _atomic_json(self.path / META_FILE, self._meta)
+            try:
+                _atomic_json(self.path / META_FILE, self._meta)
+            except OSError as e:
+                err = self._failed(self.path / META_FILE, e)
+            else:
+                return
+        raise self._report(err)
 
     def event(self, kind: str, **fields: Any) -> None:
         rec = {"t_host": time.monotonic(), "utc": utc_now(), "kind": kind, **fields}
         line = json.dumps(rec, default=str) + "\n"
         with self._lock:
-            if not self._closed:
+            if self._closed:
+                return
+            if self.error is not None:
+                self.dropped_events += 1
+                return
+            try:
                 self._events.write(line)
+            except OSError as e:
+                self.dropped_events += 1
+                err = self._failed(self.path / EVENTS_FILE, e)
+            else:
+                return
+        raise self._report(err)
 
     def close(self, state: str, reason: str = "", **extra: Any) -> None:
+        """Flush and close the streams, write ``end.json``; idempotent. Raises
+        ``RecordingError`` when ``end.json`` cannot be written (the streams are closed anyway)."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
-            for f in (*self._files.values(), self._events):
-                f.flush()
-                os.fsync(f.fileno())
-                f.close()
-        _atomic_json(
-            self.path / END_FILE,
-            {
-                "state": state,
-                "reason": reason,
-                "end_utc": utc_now(),
-                "end_monotonic": time.monotonic(),
-                "counts": dict(self.counts),
-                **extra,
-            },
-        )
+            named = [(self.path / STREAM_FILES[n], f) for n, f in self._files.items()]
+            for path, f in (*named, (self.path / EVENTS_FILE, self._events)):
+                try:
+                    f.flush()
+                    os.fsync(f.fileno())
+                except OSError as e:
+                    self._failed(path, e)
+                finally:
+                    with contextlib.suppress(OSError):
+                        f.close()  # closes the descriptor even when its last flush fails
+        end: dict[str, Any] = {
+            "state": state,
+            "reason": reason,
+            "end_utc": utc_now(),
+            "end_monotonic": time.monotonic(),
+            "counts": dict(self.counts),
+            **extra,
+        }
+        if self.error is not None:
+            end["recording_error"] = str(self.error)
+            end["dropped_rows"] = self.dropped_rows
+            end["dropped_events"] = self.dropped_events
+        try:
+            _atomic_json(self.path / END_FILE, end)
+        except OSError as e:
+            raise RecordingError.from_oserror(self.path / END_FILE, e) from None
 
     @property
     def meta(self) -> dict[str, Any]:
