@@ -4,19 +4,24 @@ Each subcommand lives in its own module here with a ``register(subparsers)`` fun
 adds its parser and sets ``handler`` (a function taking the parsed args and returning the exit
 code). Heavy imports happen inside handlers so ``benchctl --help`` stays fast.
 
-Exit codes: 0 pass/success, 1 a measured FAIL, 2 an error (bad input, device fault, abort).
+Exit codes: 0 pass/success, 1 a measured FAIL (only that), 2 everything else: bad input, a
+device fault, an abort, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), an unexpected exception.
+No traceback reaches the console: ``main`` prints one line, ``benchctl <cmd>: error: …``, and an
+unexpected exception's traceback goes to a log file named on that line (``benchctl.exits``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
-from benchctl import __version__
-from benchctl.errors import BenchError
+from benchctl import __version__, exits
+from benchctl.errors import BenchError, Interrupted
 
 # subcommand modules, in the order --help lists them
 SUBCOMMANDS = ("run", "analyze", "profile", "sim", "recording")
@@ -51,19 +56,85 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    """Run one command; returns its exit code. Never raises (but argparse's own exits for
+    ``--help`` and usage errors) and never prints a traceback."""
+    exits.reset()
+    # first thing: a signal from now on is a clean exit 2 with one line (the run takes them over)
+    with exits.exit_signals():
+        name = _command_name(argv)
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as e:  # a signal while reporting something else
+            _say(f"{_prefix(name)}: {_interrupted(e)}")
+            return EXIT_ERROR
+        finally:
+            _flush_std()
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    name = _command_name(argv)
+    root = logging.getLogger()
+    old_level = root.level
+    console: logging.Handler | None = None
     try:
-        code = int(args.handler(args))
+        with exits.quiet_tracebacks():
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            name = args.command
+            level = logging.WARNING - 10 * min(args.verbose, 2)
+            if not root.handlers:  # as logging.basicConfig: not when the host already logs
+                console = exits.console_handler(level)
+                root.addHandler(console)
+            root.setLevel(min(level, logging.INFO))  # INFO also feeds a run's log file
+            return int(args.handler(args))
     except BenchError as e:
-        print(f"benchctl {args.command}: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print(f"benchctl {args.command}: interrupted", file=sys.stderr)
-        return EXIT_ERROR
-    return code
+        _say(f"{_prefix(name)}: error: {e}")
+    except KeyboardInterrupt as e:
+        _say(f"{_prefix(name)}: {_interrupted(e)}")
+    except SystemExit:
+        raise  # argparse: --help, --version, a usage error (exit 2)
+    except BaseException as e:  # a bug: one line here, the traceback in a log file
+        _say(f"{_prefix(name)}: error: {exits.unexpected(e, name)}")
+    finally:
+        if console is not None:
+            root.removeHandler(console)
+        root.setLevel(old_level)
+    return EXIT_ERROR
+
+
+def _command_name(argv: Sequence[str] | None) -> str:
+    words = list(sys.argv[1:] if argv is None else argv)
+    return next((w for w in words if w in SUBCOMMANDS), "")
+
+
+def _prefix(name: str) -> str:
+    return f"benchctl {name}" if name else "benchctl"
+
+
+def _interrupted(e: KeyboardInterrupt) -> str:
+    return str(e) if isinstance(e, Interrupted) else "interrupted by SIGINT"
+
+
+def _say(text: str) -> None:
+    """One line on stderr; a console gone away (SIGHUP, a closed pipe) is not an error."""
+    with contextlib.suppress(OSError, ValueError):
+        print(text, file=sys.stderr, flush=True)
+
+
+def _flush_std() -> None:
+    """Flush stdout/stderr now; one that cannot be written any more (the terminal closed) is
+    pointed at /dev/null so the interpreter's own flush at exit cannot fail either."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            try:
+                fd = stream.fileno()
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, fd)
+                os.close(null)
+            except (OSError, ValueError, AttributeError):
+                pass
 
 
 if __name__ == "__main__":  # pragma: no cover

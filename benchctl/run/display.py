@@ -8,6 +8,7 @@ plain log lines, one every ``period_s`` and one at each state change. ``NullDisp
 
 from __future__ import annotations
 
+import logging
 import math
 import sys
 import time
@@ -158,3 +159,38 @@ def make_display(stream: TextIO | None = None, quiet: bool = False) -> Display:
     if s.isatty():
         return TtyDisplay(s)
     return LogDisplay(s)
+
+
+class SafeDisplay:
+    """A display whose failures never reach the run: a console gone away (the terminal closed,
+    SIGHUP; a closed pipe) or a bug in drawing is logged once, and the display goes quiet."""
+
+    def __init__(self, inner: Display) -> None:
+        self.inner = inner
+        self.failed = False
+
+    def _call(self, name: str, *args: object) -> None:
+        if self.failed:
+            return
+        try:
+            getattr(self.inner, name)(*args)
+        except Exception as e:
+            self.failed = True
+            logging.getLogger(__name__).warning(
+                "live display stopped: %s: %s",
+                type(e).__name__,
+                e,
+                exc_info=None if isinstance(e, OSError) else e,
+            )
+
+    def state(self, state: str, reason: str = "") -> None:
+        self._call("state", state, reason)
+
+    def update(self, snap: Snapshot) -> None:
+        self._call("update", snap)
+
+    def message(self, text: str) -> None:
+        self._call("message", text)
+
+    def close(self) -> None:
+        self._call("close")

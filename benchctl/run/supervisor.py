@@ -1,11 +1,13 @@
 """Safety supervision: the first fault wins, and ONE cleanup path serves every way out.
 
-Ways out: Ctrl-C (SIGINT), SIGTERM, a lost link, a stand fault or E-stop, a silent instrument,
-a limit or tracking-error breach, an exception in any thread. Each calls
+Ways out: Ctrl-C (SIGINT), SIGTERM, SIGHUP (the terminal closed), SIGQUIT, a lost link, a stand
+fault or E-stop, a silent instrument, a limit or tracking-error breach, a recording that cannot
+be written (disk full), an exception in any thread. Each calls
 ``Supervisor.fault(error, source)``; the first one is kept, later ones are logged as
 secondary. The run's threads watch ``Supervisor.stop_event`` and leave; the main thread then
 calls ``shutdown`` (stop loops → stop table → ramp to zero within limits if the stand answers →
-disable → stop heartbeat → stop instrument → close the recording ``aborted`` with the reason).
+disable → stop heartbeat → stop instrument → close the recording ``aborted`` with the reason),
+each step guarded on its own: one that fails is noted and the next one still runs.
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ import logging
 import signal
 import threading
 import time
-import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -22,7 +23,8 @@ from types import FrameType
 from typing import Any
 
 from benchctl.devices.base import AngleSensor, Stand
-from benchctl.errors import BenchError, SafetyAbort
+from benchctl.errors import BenchError, RecordingError, SafetyAbort
+from benchctl.exits import EXIT_SIGNALS, ignored
 from benchctl.recording import RecordingWriter
 
 log = logging.getLogger(__name__)
@@ -32,6 +34,8 @@ def describe(exc: BaseException) -> str:
     """A one-line reason for an exception: the message, with the type when it is not ours."""
     if isinstance(exc, SafetyAbort):
         return exc.reason
+    if isinstance(exc, RecordingError):  # "disk full: cannot write …/stand.csv (ENOSPC, …)"
+        return str(exc)
     if isinstance(exc, BenchError):
         return f"{type(exc).__name__}: {exc}"
     return f"unexpected {type(exc).__name__}: {exc}"
@@ -73,9 +77,9 @@ class Supervisor:
                 self.later.append(f)
                 first = False
         if first:
-            log.error("run fault from %s: %s", source, describe(error))
-            if not isinstance(error, BenchError):
-                log.error("".join(traceback.format_exception(error)))
+            # an unexpected exception's traceback goes to the log file, never to the console
+            tb = error if not isinstance(error, BenchError | KeyboardInterrupt) else None
+            log.error("run fault from %s: %s", source, describe(error), exc_info=tb)
         else:
             log.warning("further fault from %s (after the first): %s", source, describe(error))
         self.stop_event.set()
@@ -107,7 +111,9 @@ class Supervisor:
 
     @contextmanager
     def signals(self) -> Iterator[None]:
-        """Turn SIGINT and SIGTERM into faults while the run lasts (main thread only)."""
+        """Turn SIGINT, SIGTERM, SIGHUP and SIGQUIT into faults while the run lasts (main thread
+        only); the handlers there before (``benchctl.exits``: a clean exit 2) come back after. A
+        signal the process was started with ignored stays ignored (SIGHUP under ``nohup``)."""
         if threading.current_thread() is not threading.main_thread():
             yield
             return
@@ -116,7 +122,7 @@ class Supervisor:
             name = signal.Signals(signum).name
             self.fault(SafetyAbort(f"interrupted by {name}"), "signal")
 
-        old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        old = {s: signal.signal(s, handler) for s in EXIT_SIGNALS if not ignored(s)}
         try:
             yield
         finally:
@@ -161,7 +167,8 @@ def shutdown(
 ) -> ShutdownReport:
     """The one cleanup path, for a normal end and for every abort alike.
 
-    Each step is attempted whatever the previous one did; nothing here raises. ``moved`` says
+    Each step is attempted whatever the previous one did (a full disk, a dead link, a bug in one
+    step never skips the next); nothing here raises. ``moved`` says
     whether the stand may be away from rest (False before the motion began: no ramp needed).
     """
     rep = ShutdownReport()
@@ -184,7 +191,11 @@ def shutdown(
     if sensor is not None:
         _try(rep, "stop instrument", sensor.stop)
     if writer is not None:
-        writer.event("shutdown", state=state, reason=reason, steps=rep.steps)
+        _try(
+            rep,
+            "record shutdown",
+            lambda: writer.event("shutdown", state=state, reason=reason, steps=list(rep.steps)),
+        )
         _try(
             rep,
             "close recording",
