@@ -269,6 +269,7 @@ class RunConfig(Strict):
     # stand motion departing from the profile beyond this aborts the run
     profile_tolerance_deg: Positive = 1.0
     analysis: AnalysisConfig = AnalysisConfig()
+    lock_dir: Path | None = None  # one run per stand: its lock files (None: <tmp>/benchctl-locks)
 
 
 class BenchConfig(Strict):
@@ -286,6 +287,7 @@ _PATH_FIELDS = {
     ("instrument", "eds"),
     ("instrument", "dbc"),
     ("run", "output_dir"),
+    ("run", "lock_dir"),
 }
 
 

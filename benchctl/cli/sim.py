@@ -48,6 +48,10 @@ def handle(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    if not args.private:  # refuse to serve a stand endpoint a run holds (benchctl.run.lock)
+        from benchctl.run.lock import check_free
+
+        check_free(cfg, {"command": "benchctl sim", "config": str(cfg.source)})
     bench = SimBench(cfg, private=args.private)
     try:
         bench.start()
@@ -58,6 +62,8 @@ def handle(args: argparse.Namespace) -> int:
     try:
         if args.ready_json:
             print(json.dumps({"ready": True, **bench.endpoints()}), flush=True)
+            # the parent reads nothing more there: later output joins stderr (its log file)
+            os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
             watcher = threading.Thread(target=_wait_eof, args=(done,), daemon=True)
             watcher.start()
         else:
