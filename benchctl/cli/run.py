@@ -74,8 +74,7 @@ def handle(args: argparse.Namespace) -> int:
     check_option("--seed", args.seed, 0, MAX_SEED)
     cfg = load_config(args.config)
     if args.duration is not None:
-        st = cfg.stand
-        rate = st.setpoint_rate_hz if st.mode == "stream" else st.sample_rate_hz
+        rate = max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz)  # any mode
         if args.duration * rate > MAX_PROFILE_SAMPLES:
             raise ConfigError(
                 f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
