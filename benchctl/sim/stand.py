@@ -173,6 +173,7 @@ class SimStand:
         self._hb_time = 0.0
         self._comm = _CommFaults()
         self._traj = _TrajectoryQueue(len(self.axes))
+        self._peaks = {a: [0.0, 0.0] for a in self.axes}  # |rate|, |accel| while following
         self._traj_period = 0.0  # the period register as last written
         self._traj_stop: dict[str, tuple[float, float]] = {}  # axis -> (angle, rate) of a stop
         self._pending_faults = sorted(sim_cfg.faults, key=lambda f: f.after_s)
@@ -361,7 +362,9 @@ class SimStand:
                     self._target[a] = float(traj_target[i])
                 else:
                     self._target[a] = self._stream_target[a]
+                v_before = s.rate_deg_s
                 servo_step(self.model, s, self._target[a])
+                self._track_peaks(a, s.rate_deg_s, (s.rate_deg_s - v_before) / self._tick_s)
             if abs(s.rate_deg_s) > _MOVING_DEG_S:
                 at_rest = False
             if abs(s.angle_deg) > self.cfg.soft_limit_deg and s.angle_deg * s.rate_deg_s > 0:
@@ -371,6 +374,21 @@ class SimStand:
         if self._mode == "stopping" and at_rest:
             self._mode = "stream"
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
+
+    def _track_peaks(self, axis: str, rate: float, accel: float) -> None:
+        """Largest |rate| and |acceleration| of the servo while it follows a target (lock held)."""
+        p = self._peaks[axis]
+        p[0] = max(p[0], abs(rate))
+        p[1] = max(p[1], abs(accel))
+
+    def peaks(self, reset: bool = False) -> dict[str, dict[str, float]]:
+        """The largest |rate| (deg/s) and |acceleration| (deg/s²) each axis made while the servo
+        followed its target (servo on, not braking), since the start or the last reset."""
+        with self._lock:
+            out = {a: {"rate_deg_s": p[0], "accel_deg_s2": p[1]} for a, p in self._peaks.items()}
+            if reset:
+                self._peaks = {a: [0.0, 0.0] for a in self.axes}
+        return out
 
     @property
     def _stop_accel(self) -> float:

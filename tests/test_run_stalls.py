@@ -1,0 +1,119 @@
+"""Host stalls never move the stand beyond its limits and never abort a run for nothing.
+
+A REAL child ``benchctl run`` drives the simulated stand (in this process, so its true motion is
+measured here) while this test stops the child with SIGSTOP for 0.1–0.3 s at a time, as a busy
+machine or a swapping host would:
+
+- buffered mode (the default config's): the stand plays the points queued ahead; the stalls are
+  shorter than the queue, so nothing happens to the motion at all — no underrun, no rejoin, the
+  measured rate and acceleration within the limits, and the run PASSes;
+- stream mode (a stand without a queue): every stall misses slots; the stand holds its last
+  setpoint, and the loop rejoins the profile along a path within the limits (recorded and
+  counted) — the commanded sequence never exceeds a limit, and the run PASSes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from run_sim import LIMITS, live_bench
+
+from benchctl.recording import load_recording
+
+pytestmark = pytest.mark.slow
+
+PROFILE = """
+name: stall_roll
+description: short roll profile for the stall tests
+reference: exp-cos roll model (as ci_short), shortened
+kind: roll_spectrum
+duration_s: 20
+fade_in_s: 2
+fade_out_s: 2
+seed: 5
+band_hz: [0.1, 0.5]
+axes:
+  roll: {model: exp_cos, sigma_deg: 2.0, period_s: 6.0, damping: 0.2}
+"""
+
+
+def _run_with_stalls(tmp_path: Path, mode: str) -> tuple[int, dict, object, dict]:  # type: ignore[type-arg]
+    profile = tmp_path / "p.yaml"
+    profile.write_text(PROFILE)
+    with live_bench(tmp_path, stand={"mode": mode}) as b:
+        runs = tmp_path / "runs"
+        cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(b.config_path)]
+        cmd += ["--profile", str(profile), "--serial", "STALL", "--operator", "ci", "--json"]
+        cmd += ["--quiet"]
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        try:
+            # wait for the motion (the child's own event), then stall it five times
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                recs = list(runs.glob("*/events.jsonl"))
+                if recs and '"motion_start"' in recs[0].read_text():
+                    break
+                time.sleep(0.05)
+            b.stand.peaks(reset=True)
+            rng = np.random.default_rng(3)
+            for _ in range(5):
+                time.sleep(float(rng.uniform(1.0, 2.0)))
+                proc.send_signal(signal.SIGSTOP)
+                time.sleep(float(rng.uniform(0.1, 0.3)))
+                proc.send_signal(signal.SIGCONT)
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGCONT)
+                proc.kill()
+                proc.communicate()
+        peaks = b.stand.peaks()
+    assert out.strip(), err[-3000:]
+    result = json.loads(out)
+    rec = load_recording(Path(result["recording"]))
+    return proc.returncode, result, rec, peaks
+
+
+def test_buffered_stand_rides_through_host_stalls(tmp_path: Path) -> None:
+    code, res, _rec, peaks = _run_with_stalls(tmp_path, "buffered")
+    assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+    st = res["stats"]
+    assert st["underruns"] == 0 and st["rejoins"] == 0
+    assert st["commanded"]["max_rate_deg_s"]["roll"] <= LIMITS["rate_deg_s"]
+    assert st["commanded"]["max_accel_deg_s2"]["roll"] <= LIMITS["accel_deg_s2"]
+    # the stand's true motion, measured in the simulator: within the limits
+    assert peaks["roll"]["rate_deg_s"] <= LIMITS["rate_deg_s"]
+    assert peaks["roll"]["accel_deg_s2"] <= LIMITS["accel_deg_s2"]
+
+
+def test_streaming_stand_rejoins_within_limits_after_host_stalls(tmp_path: Path) -> None:
+    code, res, rec, _peaks = _run_with_stalls(tmp_path, "stream")
+    assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+    st = res["stats"]
+    assert st["missed_cycles"] >= 5 and st["rejoins"] >= 1
+    events = [e for e in rec.events if e["kind"] == "rejoin"]  # type: ignore[attr-defined]
+    assert len(events) == st["rejoins"]
+    # the commanded sequence as the stand played it: one period apart, from rest after a hold
+    sp = rec.streams["setpoints"]  # type: ignore[attr-defined]
+    T = 0.01
+    slots = np.round((sp["t_slot"] - sp["t_slot"][0]) / T).astype(int)
+    x = sp["roll_deg"]
+    v = np.diff(x) / T
+    held = np.diff(slots) > 1
+    v_prev = np.concatenate([[0.0], v[:-1]])
+    v_prev[held] = 0.0
+    acc = (v - v_prev) / T
+    assert np.max(np.abs(v)) <= LIMITS["rate_deg_s"] * (1 + 1e-9)
+    assert np.max(np.abs(acc)) <= LIMITS["accel_deg_s2"] * (1 + 1e-6)
+    assert st["commanded"]["max_accel_deg_s2"]["roll"] <= LIMITS["accel_deg_s2"] * (1 + 1e-9)
