@@ -10,9 +10,10 @@ as one JSON object (``pid``, ``command``, ``serial``, ``operator``, ``start_utc`
 
 A second ``benchctl run`` on a stand in use is refused with ``StandInUse`` naming the holder,
 before it connects to anything. The kernel releases the lock when the holder's process ends,
-however it ends (``kill -9`` included); the file itself stays (with the details of its last
-holder, which the next holder overwrites) and is never deleted: deleting a lock file races with
-its next holder.
+however it ends (``kill -9`` included). A holder that ends normally removes its file (while it
+still holds the lock; a taker checks that the file it locked is still the one at the path, so
+removing cannot let two runs in); after a ``kill -9`` the file stays, with the dead holder's
+details, until the next run takes it over.
 """
 
 from __future__ import annotations
@@ -122,18 +123,26 @@ class StandLock:
         naming the current holder when another process has it."""
         if self._fd is not None:
             return
-        fd = self._open()
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            other = _read_holder(fd, wait_s=HOLDER_WAIT_S)
-            os.close(fd)
-            who = describe_holder(other) if other else "another process (no details in the file)"
-            raise StandInUse(
-                f"stand {self.key} is in use by {who}; lock file {self.path}. Refused before "
-                "connecting: wait for that run to end, or stop it",
-                other,
-            ) from None
+        for _ in range(100):
+            fd = self._open()
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                other = _read_holder(fd, wait_s=HOLDER_WAIT_S)
+                os.close(fd)
+                who = describe_holder(other) if other else "another process (no details)"
+                raise StandInUse(
+                    f"stand {self.key} is in use by {who}; lock file {self.path}. Refused before "
+                    "connecting: wait for that run to end, or stop it",
+                    other,
+                ) from None
+            if _same_file(fd, self.path):
+                break
+            os.close(fd)  # its last holder removed it between our open and our lock: again
+        else:  # pragma: no cover - a path replaced 100 times in a row
+            raise ConfigError(
+                f"{self.path}: cannot take the stand's lock (the file keeps changing)"
+            )
         info = {
             **holder,
             "pid": os.getpid(),
@@ -151,18 +160,19 @@ class StandLock:
         self._fd = fd
 
     def release(self) -> None:
-        """Clear the holder's details and let go; idempotent."""
+        """Remove the file (still holding the lock) and let go; idempotent."""
         fd, self._fd = self._fd, None
         if fd is None:
             return
         with contextlib.suppress(OSError):
-            os.ftruncate(fd, 0)
+            if _same_file(fd, self.path):
+                os.unlink(self.path)
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
 
     def holder(self) -> dict[str, Any] | None:
-        """The details in the lock file (whoever holds it, or held it last)."""
+        """The details in the lock file: its holder's (or a killed holder's), None when free."""
         try:
             fd = os.open(self.path, os.O_RDONLY | os.O_CLOEXEC)
         except OSError:
@@ -177,6 +187,14 @@ class StandLock:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
 def _user() -> str:
