@@ -83,6 +83,8 @@ class RecordingWriter:
         self.axes = tuple(axes)
         self._lock = threading.Lock()
         self._closed = False
+        self._end_written = False
+        self._close_lock = threading.Lock()
         self.counts = {name: 0 for name in STREAM_FILES}
         self.dropped_rows = 0  # stream rows not written after a write failure
         self.dropped_events = 0
@@ -201,19 +203,27 @@ class RecordingWriter:
         raise self._report(err)
 
     def close(self, state: str, reason: str = "", **extra: Any) -> None:
-        """Flush and close the streams, write ``end.json``; idempotent. Raises
-        ``RecordingError`` when ``end.json`` cannot be written (the streams are closed anyway)."""
+        """Flush and close the streams, write ``end.json``; idempotent once ``end.json`` is
+        written. Raises ``RecordingError`` when ``end.json`` cannot be written (the streams are
+        closed anyway; a later call tries ``end.json`` again, with its own state and reason)."""
+        with self._close_lock:
+            self._close(state, reason, extra)
+
+    def _close(self, state: str, reason: str, extra: dict[str, Any]) -> None:
         with self._lock:
-            if self._closed:
+            if self._end_written:
                 return
+            again = self._closed
             self._closed = True
+        if not again:
             named = [(self.path / STREAM_FILES[n], f) for n, f in self._files.items()]
             for path, f in (*named, (self.path / EVENTS_FILE, self._events)):
                 try:
                     f.flush()
                     os.fsync(f.fileno())
                 except OSError as e:
-                    self._failed(path, e)
+                    with self._lock:
+                        self._failed(path, e)
                 finally:
                     with contextlib.suppress(OSError):
                         f.close()  # closes the descriptor even when its last flush fails
@@ -233,6 +243,7 @@ class RecordingWriter:
             _atomic_json(self.path / END_FILE, end)
         except OSError as e:
             raise RecordingError.from_oserror(self.path / END_FILE, e) from None
+        self._end_written = True
 
     @property
     def meta(self) -> dict[str, Any]:
