@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from run_sim import ROOT, LiveBench, expected_sigma, live_bench
 
@@ -223,6 +224,16 @@ def test_every_way_out_of_a_real_child_run(
         assert steps["ramp to zero"] and steps["disable"]
     states = [e["to"] for e in r.events if e["kind"] == "state"]
     assert states[-1] == "aborted"
+    status = r.streams["stand"]["status"].astype(int)
+    if way == "stand-fault":  # the sample that carried the fault is in the recording
+        assert np.any(status & (1 << 3)) and np.any(r.streams["stand"]["fault_code"] == 12)
+    if way == "estop":
+        assert np.any(status & (1 << 4))
+    if answers:
+        # the cleanup ramp's setpoints (no slot: not the profile's) and the final state at zero
+        sp = r.streams["setpoints"]
+        assert np.sum(np.isnan(sp["t_slot"])) >= 2
+        assert abs(r.streams["stand"]["roll_deg"][-1]) <= 0.05
     res = _analyze_reads(rec, capsys)
     assert math.isfinite(res["sigma"])
 
