@@ -297,11 +297,20 @@ def shown_value(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*\Z")
+
+
 def field_path(loc: tuple[int | str, ...]) -> str:
-    """A pydantic error location as a field path: ``sim.faults[0].kind``."""
+    """A pydantic error location as a field path: ``sim.faults[0].kind`` (a key that is not
+    a plain name quoted: ``can_options['a b']``)."""
     out = ""
     for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif not _NAME.match(part):
+            out += f"[{shown_value(part)}]"
+        else:
+            out += f".{part}" if out else part
     return out
 
 

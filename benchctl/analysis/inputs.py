@@ -129,6 +129,24 @@ def _locate_bad(path: Path, header: list[str], cols: Sequence[int]) -> DataError
     return DataError(f"{path}: cannot parse as a comma-separated numeric table")
 
 
+def _check_first_row(path: Path, header: list[str]) -> None:
+    """The first data row has as many fields as the header (``numpy.loadtxt`` with
+    ``usecols`` ignores extra ones, and refuses only rows unlike the first)."""
+    with path.open("rb") as f:
+        f.readline()
+        for lineno, raw in enumerate(f, start=2):
+            line = raw.decode("utf-8", errors="replace").split("#", 1)[0]
+            if not line.strip():
+                continue
+            n = len(line.split(","))
+            if n != len(header):
+                raise DataError(
+                    f"{path}: line {lineno} has {n} fields, expected {len(header)} like the "
+                    f"header {header}"
+                )
+            return
+
+
 def _row_label(path: Path) -> Callable[[int], str]:
     """``where(i)`` for ``check_grid``: data row i+1 and its line in the file."""
 
@@ -183,6 +201,7 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
         raise _locate_bad(p, header, cols) from None
     if data.shape[0] == 0:
         raise DataError(f"{p}: no data rows after the header")
+    _check_first_row(p, header)
     if not np.isfinite(data).all():
         raise _locate_bad(p, header, cols)
     out = [np.ascontiguousarray(data[:, i]) for i in range(len(cols))]

@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -78,6 +79,15 @@ def _check_options(args: argparse.Namespace) -> None:
             raise DataError(f"--band {lo!r} {hi!r}: expected 0 ≤ lo < hi ≤ {MAX_BAND_HZ:g} Hz")
 
 
+def _named(label: str, fn: Callable[..., AnalysisResult], *a: Any, **kw: Any) -> AnalysisResult:
+    """``fn(*a, **kw)``; a ``DataError`` (the analysis names streams, not files) gets the
+    source's name in front."""
+    try:
+        return fn(*a, **kw)
+    except DataError as e:
+        raise DataError(f"{label}: {e}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis import analyze
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
@@ -102,14 +112,16 @@ def run(args: argparse.Namespace) -> int:
         s = load_csv_pair(args.reference, args.device, time_col=args.time_col,
                           reference_col=args.reference_col, device_col=args.device_col,
                           units=args.units)
-        results[""] = analyze(s.t_ref, s.x_ref, s.t_dev, s.y_dev, source=s.source, **opts)
+        results[""] = _named(s.source, analyze, s.t_ref, s.x_ref, s.t_dev, s.y_dev,
+                             source=s.source, **opts)
     elif is_recording(args.source):
         rec = load_recording(args.source)
         axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
         for ax in axes:
             tr, xr, td, yd = rec.pair(ax)
-            results[ax] = analyze(tr, xr, td, yd, source=str(args.source), axis=ax, **opts)
+            results[ax] = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
+                                 source=str(args.source), axis=ax, **opts)
     else:
         src = Path(args.source)
         if src.is_dir():
@@ -119,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
         s = load_single_csv(src, time_col=args.time_col,
                             reference_col=args.reference_col or "reference",
                             device_col=args.device_col or "device", units=args.units)
-        results[""] = analyze(s.t_ref, s.x_ref, s.t_dev, s.y_dev, source=s.source, **opts)
+        results[""] = _named(s.source, analyze, s.t_ref, s.x_ref, s.t_dev, s.y_dev,
+                             source=s.source, **opts)
     if args.plot:
         from benchctl.analysis.plot import plot_result
 

@@ -88,8 +88,8 @@ def estimate_psd(
         i = int(np.argmax(dts)) + 1
         raise ValueError(
             f"the record spans {steps:.3g} median intervals ({dt:g} s) for {t.size} samples: "
-            f"sample {i + 1} at {t[i]!r} s follows {t[i - 1]!r} s; expected a span of at most "
-            f"{MAX_GRID_FACTOR}× the samples and {MAX_GRID_SAMPLES} intervals"
+            f"sample {i + 1} at {float(t[i])!r} s follows {float(t[i - 1])!r} s; expected a span "
+            f"of at most {MAX_GRID_FACTOR}× the samples and {MAX_GRID_SAMPLES} intervals"
         )
     resampled = bool(np.max(np.abs(dts - dt)) > _JITTER_TOLERANCE * dt)
     if resampled:
