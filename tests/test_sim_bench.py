@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -104,7 +105,14 @@ def test_fault_schedule_counts_from_first_motion(tmp_path: Path) -> None:
             stand.enable()
             time.sleep(0.5)  # nothing moves yet: no fault may come from the schedule
             assert bench.motion_started_at is None and bench.injected == []
-            stand.send_setpoint({"roll": 0.5, "pitch": 0.0})
+            # move: 0.5° over 0.5 s through the stand's queue (within the limits from rest)
+            stand.begin_trajectory()
+            k = np.arange(52)
+            pts = 0.25 * (1 - np.cos(np.pi * np.minimum(k, 50) / 50))
+            stand.push_points(0, {"roll": pts[:24]}, read=False)
+            stand.push_points(24, {"roll": pts[24:48]}, read=False)
+            stand.push_points(48, {"roll": pts[48:]}, read=False)
+            stand.start_trajectory()
             deadline = time.monotonic() + 5.0
             with pytest.raises(StandFault) as info:
                 while time.monotonic() < deadline:

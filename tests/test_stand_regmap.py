@@ -28,7 +28,7 @@ def raw() -> dict[str, Any]:
 def test_generic_map_loads_with_contiguous_feedback() -> None:
     m = load_register_map(MAP)
     assert set(m.axes) == {"roll", "pitch"}
-    assert m.feedback_span() == (200, 19)  # 200..218: one FC3 read per cycle
+    assert m.feedback_span() == (200, 26)  # 200..225: one FC3 read per cycle
     assert m.command_span(["roll", "pitch"]) == (300, 4)  # one FC16 write per setpoint
     assert m.control_bits == {
         "enable": 0,
@@ -36,8 +36,30 @@ def test_generic_map_loads_with_contiguous_feedback() -> None:
         "stop": 2,
         "fault_reset": 3,
         "estop": 4,
+        "start_trajectory": 5,
     }
     assert m.table_field("pitch", "freq_hz", 2).address == 2000 + 10 + 2 * 6
+    tr = m.trajectory
+    assert tr is not None and tr.capacity == 512 and tr.max_points_per_push == 24
+    # a push of the most points fits one FC16 / FC23 write
+    assert tr.push_size(len(m.axes), tr.max_points_per_push) == 99 <= m.max_write
+
+
+def test_map_without_trajectory_section_and_a_bad_one(raw: dict[str, Any], tmp_path: Path) -> None:
+    from benchctl.devices.modbus.regmap import parse_register_map
+
+    plain = {k: v for k, v in raw.items() if k != "trajectory"}
+    cb, sb = raw["control_bits"], raw["status_bits"]
+    plain["control_bits"] = {k: v for k, v in cb.items() if k != "start_trajectory"}
+    plain["status_bits"] = {k: v for k, v in sb.items() if k != "trajectory_running"}
+    m = parse_register_map(plain, tmp_path / "plain.yaml")
+    assert m.trajectory is None and m.feedback_span() == (200, 19)
+    bad = dict(raw, trajectory={**raw["trajectory"], "max_points_per_push": 40})
+    with pytest.raises(ConfigError, match=r"trajectory\.max_points_per_push"):
+        parse_register_map(bad, tmp_path / "bad.yaml")
+    nobit = dict(raw, control_bits=plain["control_bits"])
+    with pytest.raises(ConfigError, match="start_trajectory"):
+        parse_register_map(nobit, tmp_path / "nobit.yaml")
 
 
 @pytest.mark.parametrize(
