@@ -28,8 +28,8 @@ from benchctl.devices.base import (
 from benchctl.errors import ConnectionLost, DeviceTimeout
 from benchctl.harmonics import HarmonicTable
 from benchctl.run import prechecks as pc
-from benchctl.run.session import PreparedMotion
 from benchctl.run.plan import make_plan
+from benchctl.run.session import PreparedMotion
 
 
 class FakeStand:

@@ -30,6 +30,23 @@ from benchctl.sim.stand import SimStand
 ROOT = Path(__file__).resolve().parent.parent
 LIMITS = {"angle_deg": 25.0, "rate_deg_s": 40.0, "accel_deg_s2": 200.0}
 
+# short profiles for the run layer's end-to-end tests
+TWO_AXIS = """
+name: e2e_two_axis
+description: short two-axis roll and pitch for the run layer's end-to-end tests
+reference: exp-cos roll model (as ci_short), two axes, shortened
+kind: roll_spectrum
+duration_s: 20
+fade_in_s: 2
+fade_out_s: 2
+seed: 5
+band_hz: [0.1, 0.5]
+axes:
+  roll: {model: exp_cos, sigma_deg: 2.0, period_s: 6.0, damping: 0.2}
+  pitch: {model: exp_cos, sigma_deg: 1.0, period_s: 4.0, damping: 0.3}
+"""
+ROLL = TWO_AXIS.replace("e2e_two_axis", "e2e_roll").split("  pitch:")[0]
+
 
 @dataclass
 class LiveBench:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROOT, LiveBench, expected_sigma, live_bench
+from run_sim import ROLL, ROOT, TWO_AXIS, LiveBench, expected_sigma, live_bench
 
 from benchctl.cli import main
 from benchctl.recording import load_recording
@@ -34,21 +34,6 @@ from benchctl.run.session import prepare_motion
 
 pytestmark = pytest.mark.slow
 
-TWO_AXIS = """
-name: e2e_two_axis
-description: short two-axis roll and pitch for the run layer's end-to-end tests
-reference: exp-cos roll model (as ci_short), two axes, shortened
-kind: roll_spectrum
-duration_s: 20
-fade_in_s: 2
-fade_out_s: 2
-seed: 5
-band_hz: [0.1, 0.5]
-axes:
-  roll: {model: exp_cos, sigma_deg: 2.0, period_s: 6.0, damping: 0.2}
-  pitch: {model: exp_cos, sigma_deg: 1.0, period_s: 4.0, damping: 0.3}
-"""
-ROLL = TWO_AXIS.replace("e2e_two_axis", "e2e_roll").split("  pitch:")[0]
 
 
 def _profile(tmp_path: Path, text: str, name: str) -> Path:

@@ -24,30 +24,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from run_sim import LIMITS, live_bench
+from run_sim import LIMITS, ROLL, live_bench
 
 from benchctl.recording import load_recording
 
 pytestmark = pytest.mark.slow
 
-PROFILE = """
-name: stall_roll
-description: short roll profile for the stall tests
-reference: exp-cos roll model (as ci_short), shortened
-kind: roll_spectrum
-duration_s: 20
-fade_in_s: 2
-fade_out_s: 2
-seed: 5
-band_hz: [0.1, 0.5]
-axes:
-  roll: {model: exp_cos, sigma_deg: 2.0, period_s: 6.0, damping: 0.2}
-"""
 
 
 def _run_with_stalls(tmp_path: Path, mode: str) -> tuple[int, dict, object, dict]:  # type: ignore[type-arg]
     profile = tmp_path / "p.yaml"
-    profile.write_text(PROFILE)
+    profile.write_text(ROLL)
     with live_bench(tmp_path, stand={"mode": mode}) as b:
         runs = tmp_path / "runs"
         cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(b.config_path)]

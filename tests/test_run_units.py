@@ -16,10 +16,10 @@ from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import ConnectionLost, SafetyAbort
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import prechecks as pc
-from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.run.live import Histogram, RunningSigma
 from benchctl.run.recorder import Recorder
 from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, start_instrument
+from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.run.supervisor import Supervisor
 
 # ----------------------------------------------------------------------------- state machine
@@ -257,7 +257,7 @@ def test_stream_loop_rejoins_after_a_stall_without_a_jump(tmp_path: Path) -> Non
     assert loop.cmd.max_rate_deg_s["roll"] <= 50.0 + 1e-9
     # the rejoin ends on the profile: the last setpoints are the profile's own slot values
     prof = loop.plan.values["roll"]
-    k_last = slots[-1] + int(round((sp["t_slot"][0] - loop.t_motion_start) / 0.01))
+    k_last = slots[-1] + round((sp["t_slot"][0] - loop.t_motion_start) / 0.01)
     assert x[-1] == pytest.approx(prof[min(k_last, prof.size - 1)], abs=1e-12)
     events = [e for e in recd.events if e["kind"] == "rejoin"]
     assert events and events[0]["points"] >= 1

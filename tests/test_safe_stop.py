@@ -73,7 +73,7 @@ class MemoryStand:
         self.enabled = True
         self.t_last = clock()
         self.sent: list[tuple[float, float, float]] = []
-        for name, f in regmap.identity.items():
+        for _name, f in regmap.identity.items():
             self._put(f, "x" if f.type == "string" else 1)
 
     def _put(self, f, value) -> None:  # type: ignore[no-untyped-def]
@@ -273,7 +273,9 @@ def test_a_step_after_the_stand_held_is_stale_not_a_limit() -> None:
     held=st.booleans(),
     step=st.floats(-2.0, 2.0),
 )
-def test_check_step_refuses_exactly_the_breaches(x: float, v: float, held: bool, step: float) -> None:
+def test_check_step_refuses_exactly_the_breaches(
+    x: float, v: float, held: bool, step: float
+) -> None:
     """A step is accepted iff it keeps angle, rate and acceleration within the limits (or moves
     back towards them from a start already beyond)."""
     prev = AxisCommand(x, v)

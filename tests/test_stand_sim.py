@@ -456,9 +456,9 @@ def test_trajectory_queue_plays_ahead_and_an_underrun_stops_within_limits(
     """Points queued ahead are played on the stand's clock; when the host stops feeding the
     queue while the stand moves, the stand counts an underrun and stops itself at its
     acceleration limit (never a jump), then holds."""
-    sim, stand = rig
+    _sim, stand = rig
     stand.enable()
-    t0, samples = stream(stand, lambda t: 2.0 * math.sin(math.pi * t) ** 2, 1.0)
+    _t0, samples = stream(stand, lambda t: 2.0 * math.sin(math.pi * t) ** 2, 1.0)
     assert samples[-1].trajectory is not None and samples[-1].trajectory.underruns == 0
     # now a motion that ends while moving at 10 °/s: the queue runs dry mid-motion
     stand.begin_trajectory()

@@ -378,8 +378,7 @@ class StandLoop:
             self._check_sample(s, s.t_host - t_start)
             self._check_instrument(now)
             self._advance_state(min(k * period, plan.duration_s))
-            self.cycles += 1
-            self.t_last_cycle = now
+            self._cycle_done(now)
             k += 1
 
     def _plan_rejoin(
@@ -490,18 +489,10 @@ class StandLoop:
         underruns: int | None = None
         i = 1
         while True:
-            deadline = t0 + i * poll
-            if not self._wait_until(deadline):
+            nxt = self._next_poll(t0, i, poll)
+            if nxt is None:
                 return None
-            now = self.clock()
-            late = now - deadline
-            if late >= poll:
-                skip = int(late / poll)
-                self.missed_cycles += skip
-                i += skip
-                late = now - (t0 + i * poll)
-            self.lateness.add(late)
-            self._heartbeat(now)
+            i, now = nxt
             if not src.done and j_next - played < lead:
                 pts = src.take(per_push)
                 s = st.push_points(j_next, self._arrays(pts), read=True)
@@ -518,8 +509,7 @@ class StandLoop:
             self._check_sample(s, slot_t if in_profile else None)
             self._check_instrument(now)
             self._advance_state(min(max(slot_t, 0.0), plan.duration_s))
-            self.cycles += 1
-            self.t_last_cycle = now
+            self._cycle_done(now)
             i += 1
             if underruns is None:
                 underruns = tr.underruns
@@ -529,6 +519,28 @@ class StandLoop:
                 return "underrun"
             if src.done and not s.status.trajectory_running:
                 return "done"
+
+    def _next_poll(self, t0: float, i: int, period: float) -> tuple[int, float] | None:
+        """Wait for poll ``i`` of a fixed-rate poll from ``t0`` and keep the heartbeat; after a
+        stall the missed polls are skipped (counted), never made up in a burst. Returns
+        (i, now), or None when the loop must stop."""
+        deadline = t0 + i * period
+        if not self._wait_until(deadline):
+            return None
+        now = self.clock()
+        late = now - deadline
+        if late >= period:
+            skip = int(late / period)
+            self.missed_cycles += skip
+            i += skip
+            late = now - (t0 + i * period)
+        self.lateness.add(late)
+        self._heartbeat(now)
+        return i, now
+
+    def _cycle_done(self, now: float) -> None:
+        self.cycles += 1
+        self.t_last_cycle = now
 
     def _await_rest_after_underrun(self) -> StandSample:
         period = 1.0 / self.lim.sample_rate_hz
@@ -555,25 +567,16 @@ class StandLoop:
         self._start_motion(t_start)
         k = 1
         while True:
-            deadline = t_start + k * period
-            if not self._wait_until(deadline):
+            nxt = self._next_poll(t_start, k, period)
+            if nxt is None:
                 return
-            now = self.clock()
-            late = now - deadline
-            if late >= period:
-                skip = int(late / period)
-                self.missed_cycles += skip
-                k += skip
-                late = now - (t_start + k * period)
-            self.lateness.add(late)
-            self._heartbeat(now)
+            k, now = nxt
             s = self.stand.read_sample()
             t_prof = s.t_host - t_start
             self._check_sample(s, t_prof if t_prof <= plan.duration_s else None)
             self._check_instrument(now)
             self._advance_state(min(t_prof, plan.duration_s))
-            self.cycles += 1
-            self.t_last_cycle = now
+            self._cycle_done(now)
             if t_prof > plan.duration_s:
                 break
             k += 1
