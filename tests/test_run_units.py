@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from run_fakes import FakeSensor, FakeStand, sine_motion, wait_for
+from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion, wait_for
 
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import ConnectionLost, SafetyAbort
@@ -396,3 +396,26 @@ def test_pair_of_a_finished_recording_is_its_analysis_window(tmp_path: Path) -> 
     assert td.min() >= 13.0 and td.max() <= 17.0 and td.size == 400
     assert tr.min() == pytest.approx(12.0) and tr.max() == pytest.approx(18.0)
     assert rec.pair("roll", window=False)[2].size == 1000
+
+
+def test_buffered_mode_needs_a_stand_with_a_queue(tmp_path: Path) -> None:
+    """stand.mode buffered on a register map without a trajectory queue is refused before
+    anything opens, naming the field and the map."""
+    import yaml
+
+    from benchctl.errors import ConfigError
+    from benchctl.run import RunOptions
+    from benchctl.run.session import prepare_motion
+
+    root = Path(__file__).resolve().parent.parent
+    raw = yaml.safe_load((root / "drivers/stand_generic.yaml").read_text())
+    raw.pop("trajectory")
+    raw["control_bits"].pop("start_trajectory")
+    raw["status_bits"].pop("trajectory_running")
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(yaml.safe_dump(raw))
+    cfg = bench_config(tmp_path)
+    stand = cfg.stand.model_copy(update={"mode": "buffered", "register_map": plain})
+    cfg = cfg.model_copy(update={"stand": stand})
+    with pytest.raises(ConfigError, match=r"stand\.mode = 'buffered'.*no trajectory queue"):
+        prepare_motion(cfg, root / "profiles/ci_short.yaml", RunOptions("S", "O"))

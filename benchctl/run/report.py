@@ -130,6 +130,15 @@ def format_report(rep: Report) -> str:
         f"stand round trip p50 {1e3 * rtt.get('p50', math.nan):.2f} ms p99 "
         f"{1e3 * rtt.get('p99', math.nan):.2f} ms"
     )
+    cmd = st.get("commanded", {})
+    peaks = ", ".join(
+        f"{a} {v:.2f}°/s {cmd.get('max_accel_deg_s2', {}).get(a, math.nan):.2f}°/s²"
+        for a, v in cmd.get("max_rate_deg_s", {}).items()
+    )
+    lines.append(
+        f"  rejoins {st.get('rejoins', 0)}, underruns {st.get('underruns', 0)}; "
+        f"commanded peaks {peaks or 'none'}"
+    )
     lines.append(
         f"  instrument samples {st.get('instrument_samples', 0)}, "
         f"lost {st.get('instrument_lost', 0)}, "
