@@ -101,7 +101,7 @@ def test_slcan_frame_lines_and_bitrate() -> None:
 
 
 def test_python_can_open_and_close_bytes(pty: PtyPort) -> None:
-    """The exact bytes python-can's slcan sends on open and on shutdown (PROTOCOLS.md)."""
+    """The exact bytes python-can's slcan sends on open and on shutdown."""
     cfg = InstrumentConfig(driver="nmea2000", interface="slcan", channel=pty.path,
                            dbc=DRIVERS / "nmea2000_attitude.dbc")
     dev = open_instrument(cfg)

@@ -1,7 +1,7 @@
 """The analysis: from two angle streams to σ, its interval, the error PSD and H(f).
 
 Pure computation on arrays (no I/O). The steps follow Gryazin & Belova (2023), see
-``shared/METHOD.md``: align (``align``), correlations R_x, R_y, R_xy, R_yx and eq. 2
+``docs/method.md``: align (``align``), correlations R_x, R_y, R_xy, R_yx and eq. 2
 (``correlation``), the error density by eq. 1 (``psd``), σ = √(area); then the cross-checks,
 the frequency response, the decomposition and the interval.
 

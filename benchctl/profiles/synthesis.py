@@ -7,7 +7,7 @@ one-sided in deg²/Hz. A synthesised axis is a :class:`benchctl.harmonics.Harmon
 
 Amplitudes (``method``):
 
-- ``"point"``: ``A_k = √(2 G(f_k) Δf)``, the textbook rule (METHOD.md);
+- ``"point"``: ``A_k = √(2 G(f_k) Δf)``, the textbook rule (Gryazin & Belova 2023);
 - ``"cell"`` (default): ``A_k = √(2 ∫_cell G df)`` over the line's cell ``[f_k − Δf/2, f_k + Δf/2]``
   clipped to the band, the first and last cells stretched to the band edges. It is the same
   rule with G averaged over the cell, and makes ``Σ A_k²/2 = ∫_band G df`` hold exactly even
