@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -17,9 +18,10 @@ def register(sub: Any) -> None:
         help="run a dynamic-error test: prechecks, profile, analysis, verdict",
         description=(
             "Run a test: prechecks, fade-in, the profile, fade-out, analysis and a PASS/FAIL "
-            "verdict against run.limit_sigma_deg. Every way out (Ctrl-C, SIGTERM, a device "
-            "fault, a silent instrument, a breach) brings the stand to rest, closes the recording "
-            "marked aborted and exits 2."
+            "verdict against run.limit_sigma_deg. Every way out (Ctrl-C, SIGTERM, SIGHUP, "
+            "SIGQUIT, a device fault, a silent instrument, a breach, a full disk) brings the "
+            "stand to rest, closes the recording marked aborted and exits 2. One run per stand: "
+            "a stand in use by another run is refused before connecting (run.lock_dir)."
         ),
     )
     p.add_argument("--config", required=True, type=Path, help="bench config YAML")
@@ -92,13 +94,19 @@ def handle(args: argparse.Namespace) -> int:
     )
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)
-    if args.json:
-        print(json.dumps(result.to_dict(), default=json_default))
-    elif result.report is not None:
-        print(format_report(result.report))
-    else:
-        print(f"ABORTED: {result.reason}")
-        if result.recording is not None:
-            print(f"  recording {result.recording} (closed, marked aborted)")
+    # the console may be gone (SIGHUP, a closed pipe): the exit code still tells
+    with contextlib.suppress(OSError):
+        if args.json:
+            print(json.dumps(result.to_dict(), default=json_default))
+        elif result.report is not None:
+            print(format_report(result.report))
+        else:
+            print(f"ABORTED: {result.reason}")
+            if result.recording is not None:
+                closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
+                how = "closed, marked aborted" if closed else "NOT closed: no end.json"
+                print(f"  recording {result.recording} ({how})")
+            if result.log is not None:
+                print(f"  log {result.log}")
     return result.exit_code
 

@@ -5,8 +5,11 @@ Order of things (each state change is an event in the recording):
 1. before anything opens: the profile is loaded, synthesised and checked against the stand
    limits; its axes must be the stand's and the instrument's (bad input → ``BenchError``, exit 2,
    nothing moves, no recording);
-2. the recording is created (metadata: config, profile with seed, serial, operator, station,
-   software version, start time); with a ``sim:`` section the simulators are started;
+2. on a real stand, its lock is taken (one run per stand: ``benchctl.run.lock``; a stand in use
+   is refused with ``StandInUse`` naming the holder, nothing opened); the recording is created
+   (metadata: config, profile with seed, serial, operator, station, software version, start
+   time), with the run's log ``benchctl.log``; with a ``sim:`` section the simulators are started
+   (their output in the recording's ``sim.log``);
 3. **prechecks**: disk space, each device answers and identifies itself (identities into the
    metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
    stand at rest, then the stand is enabled and brought to zero (table mode: the table uploaded);
@@ -16,8 +19,9 @@ Order of things (each state change is an event in the recording):
 6. **analysing**: per axis, on the steady part of the profile (fades excluded), verdict, report,
    archive; → **done**, the recording closed ``done``.
 
-Any fault on the way — from any thread, a signal, or an exception here — goes to the
-supervisor, and the one cleanup path ends the run ``aborted`` with the first fault's reason.
+Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
+that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
+ends the run ``aborted`` with the first fault's reason.
 """
 
 from __future__ import annotations
@@ -43,28 +47,26 @@ from benchctl.errors import (
     ConfigError,
     DataError,
     LimitError,
+    RecordingError,
     SafetyAbort,
 )
+from benchctl.exits import run_log, set_log_dir
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.run import prechecks as pc
-from benchctl.run.display import Display, NullDisplay, Snapshot
+from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
+from benchctl.run.lock import stand_lock
+from benchctl.run.plan import MotionPlan, make_plan
+from benchctl.run.recorder import Recorder
 from benchctl.run.report import Report, archive, archive_abort, axis_verdict, write_report
+from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
-from benchctl.run.streaming import (
-    LoopLimits,
-    MotionPlan,
-    Recorder,
-    SerializedStand,
-    StandLoop,
-    make_plan,
-    start_instrument,
-)
 from benchctl.run.supervisor import Supervisor, describe, shutdown
 
 log = logging.getLogger(__name__)
 
 EXIT_PASS, EXIT_FAIL, EXIT_ABORT = 0, 1, 2
+SIM_LOG = "sim.log"  # the simulators' output, in the recording
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
 
 
@@ -87,6 +89,7 @@ class RunResult:
     report: Report | None = None
     stats: dict[str, Any] = field(default_factory=dict)
     shutdown: list[dict[str, Any]] = field(default_factory=list)
+    log: Path | None = None  # the run's log file (<recording>/benchctl.log)
 
     def to_dict(self) -> dict[str, Any]:
         if self.report is not None:
@@ -97,6 +100,7 @@ class RunResult:
             "reason": self.reason,
             "exit_code": self.exit_code,
             "recording": None if self.recording is None else str(self.recording),
+            "log": None if self.log is None else str(self.log),
             "stats": self.stats,
             "shutdown": self.shutdown,
         }
@@ -125,7 +129,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
     from benchctl.profiles import check_motion, load_profile, synthesize
 
     profile = load_profile(profile_path)
-    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode == "stream" else cfg.stand.sample_rate_hz
+    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
     motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
     axes = tuple(motion.axes)
     src = cfg.source or Path("<config>")
@@ -135,6 +139,15 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             raise ConfigError(
                 f"{src}: field {section}.axes = {list(have)}: the profile {profile_path} moves "
                 f"{list(axes)}, expected {section}.axes to include {missing}"
+            )
+    if cfg.stand.mode == "buffered":
+        from benchctl.devices.modbus.regmap import load_register_map
+
+        if load_register_map(cfg.stand.register_map).trajectory is None:
+            raise ConfigError(
+                f"{src}: field stand.mode = 'buffered', but the register map "
+                f"{cfg.stand.register_map} has no trajectory queue (no `trajectory:` section); "
+                "expected mode 'stream' or 'table' for this stand"
             )
     if cfg.stand.mode == "table" and not getattr(motion, "tables", None):
         raise ConfigError(
@@ -205,14 +218,15 @@ def open_devices(cfg: BenchConfig, recording: Path) -> tuple[Stand, AngleSensor]
 
 
 @contextlib.contextmanager
-def simulators(cfg: BenchConfig) -> Iterator[BenchConfig]:
-    """With a ``sim:`` section, run the simulators (a child process) for the length of the run."""
+def simulators(cfg: BenchConfig, log_path: Path | None = None) -> Iterator[BenchConfig]:
+    """With a ``sim:`` section, run the simulators (a child process) for the length of the run;
+    its output goes to ``log_path`` (the recording's ``sim.log``)."""
     if cfg.sim is None:
         yield cfg
         return
     from benchctl.sim.launch import start_simulators
 
-    with start_simulators(cfg) as sim:
+    with start_simulators(cfg, log_path=log_path) as sim:
         yield sim.config
 
 
@@ -252,7 +266,10 @@ class Session:
         opts: RunOptions,
         display: Display | None = None,
         device_factory: DeviceFactory = open_devices,
+        start_simulators: bool = False,  # cfg has a sim: section: run them (after the recording)
     ) -> None:
+        self.start_simulators = start_simulators
+        self.log_path: Path | None = None
         self.cfg = cfg
         self.prep = prepared
         self.opts = opts
@@ -275,9 +292,12 @@ class Session:
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
         if self.writer is not None:
-            self.writer.event(
-                "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
-            )
+            # a write failure is already a fault of the run (the writer's on_error): the state
+            # still moves
+            with contextlib.suppress(RecordingError):
+                self.writer.event(
+                    "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
+                )
         self.display.state(str(new), reason)
 
     def _precheck(self, result: pc.CheckResult) -> None:
@@ -337,6 +357,9 @@ class Session:
         self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb))
         self._precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
+        # from here on every stand sample and setpoint goes into the recording, cleanup included
+        self.recorder = rec = Recorder(w, self.supervisor, self.axes)
+        rec.attach(stand_raw)
         stand = SerializedStand(stand_raw).as_stand()
         self.stand = stand
         ids = {"stand": _identity(stand.connect())}
@@ -350,7 +373,6 @@ class Session:
         w.update_meta(devices=ids)
         self._precheck(pc.check_stand_ready(stand.read_status(), stand.read_sample(), self.axes))
 
-        self.recorder = rec = Recorder(w, self.supervisor, self.axes)
         self.loop = StandLoop(
             stand,
             rec,
@@ -365,6 +387,9 @@ class Session:
                 heartbeat_period_s=cfg.stand.heartbeat_period_s,
                 sample_rate_hz=cfg.stand.sample_rate_hz,
                 zero_tolerance_deg=cfg.stand.zero_tolerance_deg,
+                rate_deg_s=cfg.stand.limits.rate_deg_s,
+                accel_deg_s2=cfg.stand.limits.accel_deg_s2,
+                buffer_s=cfg.stand.buffer_s,
             ),
         )
         start_instrument(self.sensor, rec)
@@ -489,19 +514,35 @@ class Session:
         return Report(verdicts, self.path, meta, self._stats(), window), results
 
     # ---- the run
+    def _recording_failed(self, e: RecordingError) -> None:
+        """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
+        self.supervisor.fault(e, "recording")
+
     def run(self) -> RunResult:
+        """The whole run. Raises (``BenchError``) only when the recording cannot be created;
+        after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
+        here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
         self.meta = self._base_meta()
         self.machine.subscribe(self._on_state)
-        try:
-            self.writer = RecordingWriter(self.path, self.axes, self.meta)
-        except OSError as e:
-            raise ConfigError(
-                f"{self.path}: cannot create the recording folder: {e.strerror}"
-            ) from None
-        self.meta = self.writer.meta
-        self.display.message(f"recording to {self.path}")
-        with self.supervisor.signals():
+        self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
+        with self.supervisor.signals(), contextlib.ExitStack() as stack:
             try:
+                self.writer = RecordingWriter(
+                    self.path, self.axes, self.meta, on_error=self._recording_failed
+                )
+            except OSError as e:
+                raise ConfigError(
+                    f"{self.path}: cannot create the recording folder: {e.strerror}"
+                ) from None
+            self.meta = self.writer.meta
+            # unwound after the cleanup: the simulators stop after the stand is at rest
+            self.log_path = stack.enter_context(run_log(self.path))
+            self.display.message(f"recording to {self.path}")
+            try:
+                if self.start_simulators:
+                    self.cfg = stack.enter_context(simulators(self.cfg, self.path / SIM_LOG))
+                    self.writer.update_meta(config=self.cfg.model_dump(mode="json"))
+                self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
                 self._motion()
                 # normal end: the stand is at rest; the same cleanup path, nothing to ramp
@@ -538,7 +579,13 @@ class Session:
                 )
                 self.display.message(f"{report.verdict}: recording closed")
                 return RunResult(
-                    "done", report.verdict, report.exit_code, self.path, report, report.stats
+                    "done",
+                    report.verdict,
+                    report.exit_code,
+                    self.path,
+                    report,
+                    report.stats,
+                    log=self.log_path,
                 )
             except BaseException as e:  # every way out, the same path
                 if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
@@ -548,12 +595,20 @@ class Session:
                 self.display.close()
 
     def _abort(self) -> RunResult:
+        """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
         reason = f.reason if f else "aborted"
-        self.machine.abort(reason)
+        try:
+            self.machine.abort(reason)
+        except Exception as e:  # a listener's failure must not skip the cleanup
+            log.warning("abort state not recorded: %s", describe(e))
         self.display.message(f"ABORTED: {reason}")
         self.display.message("bringing the stand to rest and closing the recording")
-        stats = self._stats()
+        try:
+            stats = self._stats()
+        except Exception as e:
+            log.warning("run statistics not available: %s", describe(e), exc_info=e)
+            stats = {}
         extra: dict[str, Any] = {"stats": stats}
         if self.supervisor.later:
             extra["later_faults"] = [g.reason for g in self.supervisor.later]
@@ -574,9 +629,11 @@ class Session:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
-        except OSError as e:
-            log.warning("archive not updated: %s", e)
-        return RunResult("aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps)
+        except Exception as e:  # a full disk: the recording's end.json still says it all
+            log.warning("archive not updated: %s", describe(e))
+        return RunResult(
+            "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path
+        )
 
 
 _REPORT_META = (
@@ -618,13 +675,30 @@ def run_test(
     display: Display | None = None,
     device_factory: DeviceFactory | None = None,
 ) -> RunResult:
-    """Run one test. Bad input raises ``BenchError`` before anything opens; after that, every
-    outcome is a ``RunResult`` (done → exit 0/1 by verdict, aborted → exit 2)."""
+    """Run one test. Bad input raises ``BenchError`` before anything opens, and so does a stand
+    in use by another run (``StandInUse``, naming it: ``benchctl.run.lock``); after that, every
+    outcome is a ``RunResult`` (done → exit 0/1 by verdict, aborted → exit 2).
+
+    With a ``sim:`` section the simulators run on a free port of the run's own (nothing to lock);
+    they start once the recording exists (their output in its ``sim.log``)."""
+    out_dir = opts.out_dir or cfg.run.output_dir
+    set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
     if device_factory is not None:
         return Session(cfg, prepared, opts, display, device_factory).run()
-    with simulators(cfg) as live_cfg:
-        return Session(live_cfg, prepared, opts, display).run()
+    if cfg.sim is not None:
+        return Session(cfg, prepared, opts, display, start_simulators=True).run()
+    session = Session(cfg, prepared, opts, display)
+    holder = {
+        "command": "benchctl run",
+        "serial": opts.serial,
+        "operator": opts.operator,
+        "start_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "config": str(cfg.source) if cfg.source else None,
+        "recording": str(session.path),
+    }
+    with stand_lock(cfg, holder):  # refused here, before anything connects, if in use
+        return session.run()
 
 
 __all__ = [
