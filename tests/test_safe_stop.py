@@ -202,8 +202,11 @@ def test_ramp_to_zero_is_never_refused_and_stays_in_limits(
     stand.ramp_to_zero(timeout_s=60.0)  # raises on any refusal
     assert abs(peer.angle["roll"]) <= 0.05
     worst_v, worst_a = _judge(peer.sent, x0, v0)
-    assert worst_v <= LIM.rate_deg_s * (1 + 1e-9)
-    assert worst_a <= LIM.accel_deg_s2 * (1 + 1e-9)
+    # the stand plays the setpoints as float32 on the wire (the driver judges them before the
+    # encoding): a rounding of at most one float32 ulp at 30° (1.9e-6°) per point is allowed
+    ulp = float(np.spacing(np.float32(LIM.angle_deg)))
+    assert worst_v <= LIM.rate_deg_s * (1 + 1e-9) + 2 * ulp / T
+    assert worst_a <= LIM.accel_deg_s2 * (1 + 1e-9) + 4 * ulp / T**2
     assert max(abs(x) for _t, x, _p, _h in peer.sent) <= LIM.angle_deg
 
 
