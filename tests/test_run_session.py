@@ -150,10 +150,14 @@ def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, m
         stand.on_motion_time = off
     elif inject == "departure":  # follows its own setpoint, but its motion is 1.3× the profile
         stand.motion_gain = 1.3
+    elif inject == "limit":  # the stand itself goes beyond its angle limit (20°) while moving
+
+        def beyond(tm: float) -> None:
+            if tm >= at:
+                stand.offset_deg = 21.0
+
+        stand.on_motion_time = beyond
     cfg = bench_config(tmp_path)
-    if inject == "limit":  # the stand goes beyond the limit (a profile checked would not)
-        lim = cfg.stand.limits.model_copy(update={"angle_deg": 4.0})
-        cfg = cfg.model_copy(update={"stand": cfg.stand.model_copy(update={"limits": lim})})
     res = _run(tmp_path, stand, sensor, mode="stream", cfg=cfg)
     end = _assert_aborted(res, stand, sensor, match)
     steps = {s["step"]: s["ok"] for s in end["shutdown"]}

@@ -205,7 +205,13 @@ def test_harmonic_table_runs_in_the_stand(rig: tuple[SimStand, ModbusStand]) -> 
         stand.heartbeat()
         time.sleep(0.02)
     assert any(s.status.table_running for s in samples)
-    wait_for(lambda: not stand.read_status().table_running, 2.0, "the table to end")
+
+    def ended() -> bool:
+        stand.heartbeat()  # the watchdog (0.5 s) must not fire while we wait on a busy machine
+        return not stand.read_status().table_running
+
+    wait_for(ended, 2.0, "the table to end")
+    stand.heartbeat()
     h = sim.servo_response(f)
     checked = 0
     for s in samples:
