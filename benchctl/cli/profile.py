@@ -125,6 +125,12 @@ def _print_report(r: dict[str, Any]) -> None:
                     f"{100 * pa['variance_error']:+.3f} %)"
                 )
             print(sig)
+            if pa.get("band_share") is not None:
+                print(
+                    f"  model sigma {pa['model_sigma_deg']:.4f} deg; the band keeps "
+                    f"{100 * pa['band_share']:.1f} % of its variance, so the motion's sigma is "
+                    f"{pa['sigma_deg']:.4f} deg"
+                )
             crest = pa.get("crest")
             if crest and crest["method"] != "none":
                 print(

@@ -12,6 +12,7 @@ or longer run still holds whole periods.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -58,6 +59,32 @@ def choose_period(steady_s: float, repeat_period_s: float | None) -> tuple[float
         return steady_s, 1
     n = max(1, round(steady_s / repeat_period_s))
     return steady_s / n, n
+
+
+def total_variance(density: Density, kinks: FloatArray | None = None) -> float:
+    """``∫_0^∞ G(f) df`` (deg²): the whole variance of a target model, whatever band is kept.
+
+    Adaptive quadrature (scipy ``quad``) split at the density's peak (found on a log grid), its
+    kinks (tables, records) and a high split frequency, with the tail integrated to infinity.
+    """
+    from scipy.integrate import quad
+
+    def g(f: float) -> float:
+        return float(np.asarray(density(np.array([f], dtype=float)))[0])
+
+    grid = np.geomspace(1e-4, 50.0, 4000)
+    vals = np.asarray(density(grid), dtype=float)
+    pts = {float(grid[int(np.argmax(vals))])} if np.any(vals > 0) else set()
+    if kinks is not None:
+        pts |= {float(k) for k in np.asarray(kinks, dtype=float) if k > 0}
+    top = max(50.0, 2.0 * max(pts, default=0.0))
+    edges = [0.0, *sorted(p for p in pts if p < top), top]
+    total = 0.0
+    for a, b in itertools.pairwise(edges):
+        if b > a:
+            total += quad(g, a, b, limit=400)[0]
+    total += quad(g, top, np.inf, limit=400)[0]
+    return float(total)
 
 
 def axis_density(profile: Profile, axis: str) -> tuple[Density, FloatArray | None]:
@@ -169,7 +196,12 @@ def _spectral(
             tp,
             {"band_hz": (lo, hi), "n_periods": n_periods, "amplitudes": spec.amplitudes},
         )
-        targets[axis] = AxisTarget(density, (lo, hi), design.target_variance_deg2)
+        targets[axis] = AxisTarget(
+            density,
+            (lo, hi),
+            design.target_variance_deg2,
+            model_variance_deg2=total_variance(density, kinks),
+        )
     note = (
         f"T_p = {tp:g} s: the steady part ({steady:g} s = duration {duration:g} s - fades) holds "
         f"{n_periods} whole period(s)"

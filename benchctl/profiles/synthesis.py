@@ -325,6 +325,7 @@ class AxisTarget:
     band_hz: tuple[float, float]
     variance_deg2: float  # ∫_band G df (already scaled)
     scale: float = 1.0  # amplitude scale applied since design: G is multiplied by scale²
+    model_variance_deg2: float | None = None  # ∫_0^∞ G df (already scaled): the whole model
 
     def psd(self, f_hz: ArrayLike) -> FloatArray:
         return np.asarray(self.scale**2 * np.asarray(self.density(np.asarray(f_hz, dtype=float))))
@@ -415,7 +416,13 @@ class TableMotion(Motion):
         targets = {
             a: None
             if t is None
-            else AxisTarget(t.density, t.band_hz, t.variance_deg2 * factor**2, t.scale * factor)
+            else AxisTarget(
+                t.density,
+                t.band_hz,
+                t.variance_deg2 * factor**2,
+                t.scale * factor,
+                None if t.model_variance_deg2 is None else t.model_variance_deg2 * factor**2,
+            )
             for a, t in self.targets.items()
         }
         return TableMotion(
@@ -452,6 +459,13 @@ class TableMotion(Motion):
                 entry["variance_error"] = (
                     var / target.variance_deg2 - 1.0 if target.variance_deg2 > 0 else None
                 )
+                mv = target.model_variance_deg2
+                if mv is not None and mv > 0:
+                    # what the band keeps of the model: the motion's σ is the band's, not the
+                    # model's (a band cutting the tails lowers it)
+                    entry["model_variance_deg2"] = mv
+                    entry["model_sigma_deg"] = math.sqrt(mv)
+                    entry["band_share"] = target.variance_deg2 / mv
             crest = self.crest.get(a)
             if crest is not None:
                 entry["crest"] = crest.to_dict()
