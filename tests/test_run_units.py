@@ -419,3 +419,17 @@ def test_buffered_mode_needs_a_stand_with_a_queue(tmp_path: Path) -> None:
     cfg = cfg.model_copy(update={"stand": stand})
     with pytest.raises(ConfigError, match=r"stand\.mode = 'buffered'.*no trajectory queue"):
         prepare_motion(cfg, root / "profiles/ci_short.yaml", RunOptions("S", "O"))
+
+
+def test_stand_samples_with_an_uncertain_stamp_are_left_out(tmp_path: Path) -> None:
+    """A stand sample is stamped at its request/reply midpoint: one whose round trip took far
+    longer than usual (held up mid-request) has a stamp uncertain by ±rtt/2 and is left out."""
+    w = RecordingWriter(tmp_path / "r", ("roll",), {})
+    st = StandStatus(True, True, False, False, False, False)
+    for k in range(500):
+        t = 10.0 + 0.01 * k
+        rtt = 0.2 if k in (100, 300) else 0.0005 + 0.0001 * (k % 3)
+        w.write_stand(StandSample(t, rtt, {"roll": float(k)}, {"roll": 0.0}, {"roll": 0.0}, st))
+    w.close("done")
+    tr, xr, _, _ = load_recording(tmp_path / "r").pair("roll", window=False)
+    assert tr.size == 498 and 100.0 not in xr and 300.0 not in xr

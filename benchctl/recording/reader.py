@@ -92,6 +92,8 @@ def resolve_batches(
 
 
 WINDOW_MARGIN_S = 1.0  # reference kept beyond the analysis window, to evaluate it at the ends
+RTT_OUTLIER_MIN_S = 0.005  # stand samples with a longer round trip than this …
+RTT_OUTLIER_FACTOR = 5.0  # … and than this × the median are left out (their stamp is uncertain)
 
 
 @dataclass
@@ -133,7 +135,7 @@ class Recording:
             raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")
         tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
         td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
-        okr = np.isfinite(tr) & np.isfinite(xr)
+        okr = np.isfinite(tr) & np.isfinite(xr) & self._stamp_certain()
         okd = np.isfinite(td) & np.isfinite(yd)
         dev_t = self.streams["instrument"].get("device_time_s")
         td_ok = resolve_batches(td[okd], None if dev_t is None else dev_t[okd])
@@ -145,6 +147,19 @@ class Recording:
             kd = (td_ok >= lo) & (td_ok <= hi)
             return tr[kr], xr[kr], td_ok[kd], yd[kd]
         return tr, xr, td_ok, yd
+
+    def _stamp_certain(self) -> NDArray[np.bool_]:
+        """Stand samples whose stamp is certain: a sample is stamped at the midpoint of its
+        request and reply, so its time is uncertain by ±round trip/2; one whose round trip took
+        longer than ``max(RTT_OUTLIER_MIN_S, RTT_OUTLIER_FACTOR × median)`` (the host or the
+        stand was held up mid-request) is left out — a gap the reference spline bridges or the
+        analysis masks, never a sample at the wrong time."""
+        rtt = self.column("stand", "rtt_s")
+        ok = np.isfinite(rtt)
+        if not np.any(ok):
+            return np.ones(rtt.shape, dtype=bool)
+        bound = max(RTT_OUTLIER_MIN_S, RTT_OUTLIER_FACTOR * float(np.median(rtt[ok])))
+        return ~ok | (rtt <= bound)
 
     @property
     def analysis_window(self) -> tuple[float, float] | None:
