@@ -1,0 +1,852 @@
+"""Line-wise estimation: the spectra of reference and instrument at the excited lines of a
+periodic multisine, H(f_k) with intervals, and the unbiased linear/incoherent split.
+
+The stand plays lines ``f_k = k/T_p`` over whole periods, the best excitation there is for
+frequency-domain measurement (Pintelon & Schoukens, *System Identification*, ch. 2–3). When the
+record holds ``n`` whole periods of a known line set (from a benchctl recording's profile,
+from ``period_s``, or detected in the reference, see :func:`detect_period`):
+
+1. **Fit.** The excited lines (and a mean) are fitted by least squares to the samples actually
+   present on the analysis grid (slot instants ``s·Δt``; gaps are masked slots):
+   ``v_s ≈ c₀ + Re Σ_k c_k e^{j2π f_k s Δt}``, separately for the reference x and the
+   instrument y. Over whole periods of a gap-free uniform grid this is the DFT over the record
+   (``c_k = 2 X_k / N``) and is computed so; otherwise by conjugate gradients on the normal
+   equations, the sums ``Σ v_s e^{−j2π f_k s Δt}`` by chirp-z transforms (exact, O(N log N)).
+2. **Noise at each line** (the power ``s_k = E|N_k|²/2`` a line's coefficient picks up from
+   the incoherent error): from the record's unexcited DFT bins nearby (the residual's
+   periodogram, at least ``NOISE_BINS`` of them within ``±NOISE_REACH`` bins), else — every bin
+   excited, as with one period per record — from the local polynomial method: the deviation of
+   ``E_j = c^y_j − c^x_j`` from ``P(f_j)·c^x_j`` (P of degree 2) over the ``LPM_LINES`` nearest
+   other lines (the line itself left out, so that its noise estimate is independent of its
+   own noise).
+3. **H and its interval.** ``H_k = c^y_k / c^x_k``; gain and phase each with the standard
+   deviation ``√s_k/|c^x_k|`` (gain) and ``√s_k/|c^y_k|`` (phase, rad) and a Student-t quantile
+   for the noise estimate's degrees of freedom. The reference is taken as noise-free.
+4. **Split.** Linear part ``Σ_k (|E_k|²/2 − s_k)`` (= Σ |1 − H_k|²·A_k²/2 with the noise's
+   own contribution removed, so a noise-free record has no incoherent part and a noisy one is
+   not biased); incoherent part the rest: the residual's variance, the noise at the lines
+   ``Σ s_k`` and the variance the mean removal took out (``≈ G_ε(0)/(2T)``, half the noise
+   level at the lowest bin). Their sum is σ̂² plus the mean removal's loss over whole periods
+   without gaps (with gaps the lines' variance is taken over whole periods, not over the
+   samples present).
+5. **Interval of σ** (:func:`benchctl.analysis.uncertainty.mls_interval`): the linear part
+   varies only through its cross term with the noise, ``Σ 2 P_k s_k`` (Gaussian); the noise
+   in two parts, the lowest ``LOW_BINS`` DFT bins (with the mean-removal term: a slow drift
+   lives there, with few degrees of freedom) and the rest, each a scaled χ² with
+   Satterthwaite's ν from its own bins (``var ≈ level²``), corrected for ν's bias
+   (:func:`unbiased_dof`); combined by the modified large-sample method so that each keeps
+   its own skew.
+
+Pure computation on arrays; see :func:`analyze_lines`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.fft import fft, ifft, irfft, next_fast_len, rfft
+from scipy.special import stdtrit
+
+from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+IntArray = NDArray[np.int64]
+
+NOISE_BINS = 8  # unexcited DFT bins behind one line's noise estimate …
+NOISE_REACH = 16  # … found within ± this many bins of the line
+LPM_LINES = 15  # neighbours of a line in its local-polynomial window (degree LPM_DEGREE)
+LPM_DEGREE = 2
+LOW_BINS = 5  # the lowest DFT bins: their own term of the σ interval (drift) …
+GROUP_RATIO = 3  # … then groups of bins each this many times longer
+WHOLE_PERIODS_TOL = 0.05  # cycles a line (and the period) may miss being whole over the record
+REFERENCE_FIT_MIN = 0.99  # the fitted lines must hold this share of the reference's variance
+DETECT_OFF_GRID = 0.01  # detection: at most this share of the reference's power off the grid …
+DETECT_MIN_LINE = 1e-6  # … and a line holds at least this share of the strongest one …
+DETECT_FLOOR = 100.0  # … and this many times the median power of the off-grid bins
+PERIOD_ON_LINE = 1e-6  # a traditional period "on" a line: relative distance in frequency
+PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
+PERIOD_PHASE_TOL = 1e-6  # period refinement: stop when the highest line turns less (rad)
+REFINE_MAX_ITER = 6
+CG_TOL = 1e-13
+CG_MAX_ITER = 200
+TAYLOR_TOL = 1e-10  # the instants' offsets from the grid: expansion remainder |ωδ|^(P+1)/(P+1)!
+TAYLOR_MAX_ORDER = 12
+
+
+class LinesError(ValueError):
+    """The line-wise estimate cannot be made (the reason is the message)."""
+
+
+@dataclass(frozen=True)
+class LineSet:
+    """Excited lines ``f_k = harmonics_k / period_s`` and where they come from.
+
+    ``source``: ``"profile"`` (re-synthesised from a recording's profile), ``"period"`` (given
+    period, lines found in the reference) or ``"detected"`` (period and lines found in the
+    reference).
+    """
+
+    period_s: float
+    harmonics: IntArray
+    source: str
+
+    @property
+    def freq(self) -> FloatArray:
+        return np.asarray(self.harmonics / self.period_s, dtype=float)
+
+
+# ----------------------------------------------------------------------------------- sums
+def chirp_sum(x: NDArray[Any], alpha: float, n_out: int, sign: int) -> ComplexArray:
+    """``Y_k = Σ_n x_n exp(sign·j2π·α·n·k)`` for k = 0 … n_out − 1, along the last axis.
+
+    Bluestein's chirp-z algorithm (``nk = (n² + k² − (k − n)²)/2``): three FFTs of length
+    ``next_fast_len(N + n_out − 1)``; exact to rounding for any α (the chirp's phase, in
+    cycles, is reduced modulo 1 before it is scaled by 2π: for a million samples and
+    α = 10⁻⁵ its error is a few nanoradians).
+    """
+    x = np.asarray(x, dtype=complex)
+    n_in = x.shape[-1]
+    length = next_fast_len(n_in + n_out - 1)
+    big = max(n_in, n_out)
+    k = np.arange(big, dtype=np.int64)
+    half = 0.5 * alpha * (k * k).astype(float)  # α·k²/2 cycles (k² exact in int64)
+    chirp = np.exp(sign * 2j * np.pi * np.mod(half, 1.0))
+    a = x * chirp[:n_in]
+    b = np.zeros(length, dtype=complex)
+    b[:n_out] = np.conj(chirp[:n_out])
+    b[length - n_in + 1 :] = np.conj(chirp[1:n_in][::-1])
+    conv = ifft(fft(a, length, axis=-1) * fft(b), axis=-1)[..., :n_out]
+    return np.asarray(conv * chirp[:n_out], dtype=complex)
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """Least-squares line coefficients of C channels on one grid.
+
+    ``coef[c, k]``: complex amplitude of line k (the component is ``Re(coef·e^{j2πf t})``);
+    ``mean[c]``: the fitted constant; ``residual[c]``: data minus fit, zero in the gaps;
+    ``spectrum[c]``: rfft of the zero-filled residual; ``exact``: the DFT path (whole periods,
+    no gaps); ``iterations``: conjugate-gradient iterations (0 on the DFT path).
+    """
+
+    coef: ComplexArray
+    mean: FloatArray
+    residual: FloatArray
+    spectrum: ComplexArray
+    exact: bool
+    iterations: int
+
+
+class _Operator:
+    """The design matrix A of ``c₀ + Re Σ c_k e^{j2π f_k t_s}`` on the masked grid, with
+    parameters packed as ``(c₀, Re c, −Im c)`` (so ``c = a − jb``: ``a cos + b sin``).
+
+    The instants are ``t_s = s·Δt + δ_s``: with offsets δ (jittered or wandering stamps) the
+    exponential is expanded about the slot, ``e^{jωt} = e^{jωsΔt} Σ_p (jωδ)^p/p!``, to the
+    order that makes the remainder below ``TAYLOR_TOL`` for the largest ``|ωδ|``; each term
+    is one more chirp-z synthesis and analysis.
+    """
+
+    def __init__(self, n: int, mask: NDArray[np.bool_], dt: float, period: float,
+                 harmonics: IntArray, offsets: FloatArray | None = None) -> None:
+        self.n = n
+        self.mask = mask
+        self.k = harmonics
+        self.m_lo = int(harmonics.min())
+        self.m_count = int(harmonics.max()) - self.m_lo + 1
+        self.alpha = dt / period
+        cycles = self.alpha * self.m_lo * np.arange(n, dtype=float)  # f_lo·s·Δt
+        self.shift = np.exp(-2j * np.pi * np.mod(cycles, 1.0))  # e^{−j2π f_lo s Δt}
+        self.omega = 2.0 * np.pi * harmonics / period
+        self.powers: list[FloatArray] = []  # δ^p/p!, p = 1 … P
+        if offsets is not None:
+            x = float(np.max(np.abs(offsets))) * float(self.omega.max())
+            order, term = 0, 1.0
+            while term > TAYLOR_TOL and order < TAYLOR_MAX_ORDER:
+                order += 1
+                term = x ** (order + 1) / math.factorial(order + 1)
+            if term > TAYLOR_TOL:
+                raise LinesError(
+                    f"the sample instants stray up to {float(np.max(np.abs(offsets))):.3g} s "
+                    "from the grid; too far to fit the lines on it"
+                )
+            self.powers = [offsets**p / math.factorial(p) for p in range(1, order + 1)]
+
+    def analysis(self, v: FloatArray) -> ComplexArray:
+        """``Σ_s v_s e^{−j2π f_k s Δt}`` for every line (v zero in the gaps)."""
+        g = chirp_sum(v * self.shift, self.alpha, self.m_count, -1)
+        return g[..., self.k - self.m_lo]
+
+    def synthesis(self, coef: ComplexArray) -> FloatArray:
+        """``Re Σ_k coef_k e^{j2π f_k s Δt}`` on every slot."""
+        c = np.zeros((*coef.shape[:-1], self.m_count), dtype=complex)
+        c[..., self.k - self.m_lo] = coef
+        out = chirp_sum(c, self.alpha, self.n, +1) * np.conj(self.shift)
+        return np.asarray(out.real, dtype=float)
+
+    def forward(self, p: FloatArray) -> FloatArray:
+        kk = len(self.k)
+        coef = p[..., 1 : 1 + kk] - 1j * p[..., 1 + kk :]
+        v = p[..., :1] + self.synthesis(coef)
+        for order, w in enumerate(self.powers, start=1):
+            v = v + w * self.synthesis(coef * (1j * self.omega) ** order)
+        return np.where(self.mask, v, 0.0)
+
+    def adjoint(self, v: FloatArray) -> FloatArray:
+        g = self.analysis(v)
+        for order, w in enumerate(self.powers, start=1):
+            g = g + (-1j * self.omega) ** order * self.analysis(v * w)
+        return np.concatenate((v.sum(axis=-1, keepdims=True), g.real, -g.imag), axis=-1)
+
+
+def _aligned_bins(n: int, dt: float, period: float, harmonics: IntArray) -> IntArray | None:
+    """The rfft bins of the lines when every line makes whole cycles over the N slots."""
+    b = harmonics * (n * dt / period)
+    bi = np.rint(b).astype(np.int64)
+    if np.all(np.abs(b - bi) <= 1e-9 * np.maximum(1.0, b)) and bi.min() >= 1 and 2 * bi.max() < n:
+        return bi
+    return None
+
+
+def fit_lines(
+    values: FloatArray,
+    mask: NDArray[np.bool_],
+    dt: float,
+    period_s: float,
+    harmonics: IntArray,
+    offsets: FloatArray | None = None,
+) -> LineFit:
+    """Least-squares fit of a mean and the lines ``harmonics/period_s`` to each row of
+    ``values`` (C × N at the instants ``s·dt + offsets_s``; only slots where ``mask`` count).
+
+    Raises ``LinesError`` when the normal equations do not converge (gaps leave the lines
+    indistinguishable).
+    """
+    v = np.where(mask, np.atleast_2d(np.asarray(values, dtype=float)), 0.0)
+    n = v.shape[-1]
+    n_valid = int(mask.sum())
+    uniform = offsets is None or not np.any(offsets[mask])
+    bins = _aligned_bins(n, dt, period_s, harmonics) if uniform and bool(mask.all()) else None
+    if bins is not None:
+        spec = rfft(v, axis=-1)
+        mean = spec[..., 0].real / n
+        coef = 2.0 * spec[..., bins] / n
+        resid_spec = spec.copy()
+        resid_spec[..., 0] = 0.0
+        resid_spec[..., bins] = 0.0
+        residual = irfft(resid_spec, n, axis=-1)
+        return LineFit(coef, mean, residual, resid_spec, True, 0)
+    op = _Operator(n, mask, dt, period_s, harmonics, None if uniform else offsets)
+    rhs = op.adjoint(v)
+    kk = len(harmonics)
+    diag = np.full(1 + 2 * kk, n_valid / 2.0)
+    diag[0] = n_valid
+    p = rhs / diag
+    r = rhs - op.adjoint(op.forward(p))
+    z = r / diag
+    d = z.copy()
+    rz = np.sum(r * z, axis=-1, keepdims=True)
+    scale = np.sqrt(np.sum(rhs * rhs / diag, axis=-1)) + 1e-300
+    it = 0
+    for it in range(1, CG_MAX_ITER + 1):  # noqa: B007 - the count is reported
+        if np.all(np.sqrt(np.abs(rz[..., 0])) <= CG_TOL * scale):
+            break
+        q = op.adjoint(op.forward(d))
+        dq = np.sum(d * q, axis=-1, keepdims=True)
+        step = np.divide(rz, dq, out=np.zeros_like(rz), where=dq != 0)
+        p = p + step * d
+        r = r - step * q
+        z = r / diag
+        rz_new = np.sum(r * z, axis=-1, keepdims=True)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz != 0)
+        d = z + beta * d
+        rz = rz_new
+    else:
+        raise LinesError(
+            f"the least-squares fit of {kk} line(s) did not converge in {CG_MAX_ITER} "
+            "iterations (the gaps leave lines indistinguishable)"
+        )
+    coef = p[..., 1 : 1 + kk] - 1j * p[..., 1 + kk :]
+    residual = np.where(mask, v - op.forward(p), 0.0)
+    return LineFit(coef, p[..., 0], residual, rfft(residual, axis=-1), False, it)
+
+
+# ------------------------------------------------------------------------ finding the lines
+def _periodogram(values: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
+    """``|X_j|²`` of the zero-filled, demeaned series, j = 0 … N/2 (DC set to 0)."""
+    v = np.where(mask, values, 0.0)
+    v = np.where(mask, v - v.sum() / max(1, int(mask.sum())), 0.0)
+    spec = rfft(v)
+    p = spec.real**2 + spec.imag**2
+    p[0] = 0.0
+    return np.asarray(p, dtype=float)
+
+
+def detect_period(x: FloatArray, mask: NDArray[np.bool_]) -> int | None:
+    """The number n ≥ 2 of whole periods of the reference in the record, or None.
+
+    A reference periodic in ``T = N·Δt/n`` has its spectrum over the record (DFT bins
+    ``j/(NΔt)``) on the bins ``j ≡ 0 (mod n)`` only. The candidates are the divisors of the
+    strongest bin; the largest n whose off-grid bins hold at most ``DETECT_OFF_GRID`` of the
+    power (plus twice the share the gaps' own spectrum puts off the grid) is the period.
+    One period per record (n = 1) cannot be told from a non-periodic reference: state it
+    with ``period_s``.
+    """
+    p = _periodogram(x, mask)
+    total = float(p[1:].sum())
+    if not total > 0.0:
+        return None
+    j_max = int(np.argmax(p))
+    mp = None
+    if not bool(mask.all()):
+        ms = rfft(mask.astype(float))
+        mp = ms.real**2 + ms.imag**2
+    j = np.arange(len(p))
+    best = None
+    for cand in range(2, j_max + 1):
+        if j_max % cand:
+            continue
+        off = float(p[j % cand != 0].sum()) / total
+        allowed = DETECT_OFF_GRID
+        if mp is not None:
+            allowed += 2.0 * float(mp[j % cand != 0].sum()) / float(mp.sum())
+        if off <= allowed:
+            best = cand
+    return best
+
+
+def reference_lines(x: FloatArray, mask: NDArray[np.bool_], n_periods: int) -> IntArray:
+    """Harmonics k of ``T_p = N·Δt/n`` where the reference is excited: bin ``n·k`` holds at
+    least ``DETECT_MIN_LINE`` of the strongest bin's power and ``DETECT_FLOOR`` times the
+    median power of the off-grid bins (of the upper half of the spectrum when n = 1)."""
+    p = _periodogram(x, mask)
+    j = np.arange(len(p))
+    on = (j % n_periods == 0) & (j > 0) & (2 * j < 2 * (len(p) - 1))
+    floor_bins = p[(j % n_periods != 0)] if n_periods > 1 else p[len(p) // 2 :]
+    floor = float(np.median(floor_bins)) if floor_bins.size else 0.0
+    strongest = float(p[on].max()) if on.any() else 0.0
+    keep = on & (p >= DETECT_MIN_LINE * strongest) & (p > DETECT_FLOOR * floor) & (p > 0)
+    return np.asarray(j[keep] // n_periods, dtype=np.int64)
+
+
+def line_set_from_tables(
+    table: Any, window_s: float | None
+) -> tuple[LineSet | None, str | None]:
+    """The line set of one axis's ``HarmonicTable`` (freq_hz, amp_deg, period_s), or
+    ``(None, reason)``. Without a period, the analysis window is the period (its lines must
+    make whole cycles in it)."""
+    freq = np.asarray(table.freq_hz, dtype=float)
+    amp = np.asarray(table.amp_deg, dtype=float)
+    freq = freq[amp > 0]
+    if freq.size == 0:
+        return None, "the profile's table has no line"
+    period = table.period_s if table.period_s else window_s
+    if not period:
+        return None, "the profile's lines have no repetition period"
+    k = freq * period
+    ki = np.rint(k).astype(np.int64)
+    if np.any(np.abs(k - ki) > WHOLE_PERIODS_TOL) or ki.min() < 1:
+        return None, f"the profile's lines are not whole harmonics of {period:g} s"
+    return LineSet(float(period), np.unique(ki), "profile"), None
+
+
+def line_set_from_recording(
+    meta: dict[str, Any], axis: str, window: tuple[float, float] | None
+) -> tuple[LineSet | None, str | None]:
+    """Re-synthesise the lines of ``axis`` from a recording's metadata (``profile``, ``seed``,
+    ``duration_s``): ``(LineSet, None)``, or ``(None, reason)`` when it cannot be done."""
+    prof = meta.get("profile")
+    if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
+        return None, "the recording holds no profile"
+    from benchctl.errors import BenchError
+    from benchctl.profiles import parse_profile, synthesize
+
+    try:
+        profile = parse_profile(prof["spec"], prof.get("source"))
+        seed = meta.get("seed")
+        duration = meta.get("duration_s")
+        motion = synthesize(
+            profile,
+            duration_s=float(duration) if isinstance(duration, int | float) else None,
+            seed=int(seed) if isinstance(seed, int) else None,
+        )
+    except (BenchError, OSError, ValueError, TypeError) as e:
+        return None, f"its profile could not be re-synthesised ({e})"
+    tables = motion.tables
+    if not tables or axis not in tables:
+        return None, f"the profile gives no harmonic table for {axis}"
+    span = None if window is None else window[1] - window[0]
+    return line_set_from_tables(tables[axis], span)
+
+
+# ------------------------------------------------------------------------ noise at the lines
+@dataclass(frozen=True)
+class _Noise:
+    power: FloatArray  # s_k: variance a line picks up from the noise, deg²
+    dof: FloatArray  # real degrees of freedom of each estimate
+    lpm: NDArray[np.bool_]  # True where from the local polynomial method
+    var_sum: float  # variance of Σ_k s_k (estimation error)
+
+
+def _nearest_offsets(reach: int) -> IntArray:
+    o = np.arange(-reach, reach + 1)
+    return np.asarray(o[np.lexsort((o, np.abs(o)))], dtype=np.int64)  # 0, −1, 1, −2, 2 …
+
+
+def _line_noise(
+    e: ComplexArray, cx: ComplexArray, freq: FloatArray, bins: IntArray, u: FloatArray,
+    probe: NDArray[np.bool_],
+) -> _Noise:
+    """Noise power at each line (see module notes, step 2). ``u``: the residual's periodogram
+    in line units (``2|R_j|²/N_v²``); ``probe``: the bins that are neither DC, Nyquist nor a
+    line."""
+    kk = len(e)
+    nb = len(u)
+    off = _nearest_offsets(NOISE_REACH)
+    idx = bins[:, None] + off[None, :]
+    inside = (idx >= 0) & (idx < nb)
+    ok = inside & probe[np.clip(idx, 0, nb - 1)]
+    rank = np.cumsum(ok, axis=1)
+    take = ok & (rank <= NOISE_BINS)
+    enough = rank[:, -1] >= NOISE_BINS
+    power = np.zeros(kk)
+    dof = np.zeros(kk)
+    weight = np.zeros(nb)
+    if enough.any():
+        vals = np.where(take, u[np.clip(idx, 0, nb - 1)], 0.0)
+        power[enough] = vals[enough].sum(axis=1) / NOISE_BINS
+        dof[enough] = 2.0 * NOISE_BINS
+        np.add.at(weight, np.clip(idx, 0, nb - 1)[enough][take[enough]], 1.0 / NOISE_BINS)
+    var_sum = float(np.sum(weight**2 * u**2 / 2.0))
+    lpm = ~enough
+    if lpm.any():
+        size = LPM_LINES + 1  # the line itself and LPM_LINES neighbours
+        if kk < size:
+            raise LinesError(
+                f"too few lines ({kk}) and unexcited bins to estimate the noise at the lines"
+            )
+        pos = np.flatnonzero(lpm)
+        start = np.clip(pos - size // 2, 0, kk - size)
+        win = start[:, None] + np.arange(size)[None, :]
+        use = (win != pos[:, None]).astype(float)  # leave the line out: its noise estimate is
+        d = freq[win] - freq[pos][:, None]  # then independent of its own noise (Student t)
+        d = d / np.maximum(np.abs(d).max(axis=1, keepdims=True), 1e-300)
+        phi = cx[win][:, :, None] * d[:, :, None] ** np.arange(LPM_DEGREE + 1)[None, None, :]
+        phi = phi * use[:, :, None]
+        rhs = e[win] * use
+        gram = np.einsum("kjp,kjq->kpq", phi.conj(), phi)
+        proj = np.einsum("kjp,kj->kp", phi.conj(), rhs)
+        theta = np.linalg.solve(gram, proj[:, :, None])[:, :, 0]
+        res = rhs - np.einsum("kjp,kp->kj", phi, theta)
+        free = LPM_LINES - (LPM_DEGREE + 1)
+        power[pos] = np.sum(np.abs(res) ** 2, axis=1) / (2.0 * free)
+        dof[pos] = 2.0 * free
+        w = np.zeros(kk)
+        np.add.at(w, win.ravel(), use.ravel() / free)
+        var_sum += float(np.sum(w**2 * power**2))
+    return _Noise(power, dof, lpm, var_sum)
+
+
+# ------------------------------------------------------------------------ the estimate
+@dataclass
+class LineAnalysis:
+    """Everything the line-wise estimate says (deg, deg², Hz; intervals 95 %)."""
+
+    lines: LineSet  # the period refined to the reference (see refine_period)
+    period_nominal: float
+    n_periods: int
+    freq: FloatArray
+    ref_amplitude: FloatArray
+    h: ComplexArray
+    gain_ci95: FloatArray  # (K, 2)
+    phase_ci95_deg: FloatArray  # (K, 2)
+    coherence: FloatArray
+    noise: FloatArray  # s_k
+    noise_dof: FloatArray
+    noise_lpm: NDArray[np.bool_]
+    linear: float
+    linear_ci95: tuple[float, float]
+    incoherent: float
+    incoherent_ci95: tuple[float, float]
+    mean_removal: float
+    variance: float  # linear + incoherent: the error's variance, mean removal corrected
+    variance_ci95: tuple[float, float]
+    dof: float  # equivalent ν of ``variance`` (2θ²/var)
+    dof_parts: dict[str, float]
+    reference_fit: float  # share of the reference's variance the lines hold
+    exact: bool
+    iterations: int
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def gain(self) -> FloatArray:
+        return np.asarray(np.abs(self.h), dtype=float)
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        return np.asarray(np.degrees(np.unwrap(np.angle(self.h))), dtype=float)
+
+    @property
+    def sigma(self) -> float:
+        return math.sqrt(max(self.variance, 0.0))
+
+    @property
+    def sigma_ci95(self) -> tuple[float, float]:
+        lo, hi = self.variance_ci95
+        return math.sqrt(max(lo, 0.0)), math.sqrt(max(hi, 0.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "source": self.lines.source,
+            "period_s": self.lines.period_s,
+            "period_nominal_s": self.period_nominal,
+            "n_periods": self.n_periods,
+            "n_lines": len(self.freq),
+            "freq": self.freq.tolist(),
+            "reference_amplitude": self.ref_amplitude.tolist(),
+            "gain": self.gain.tolist(),
+            "gain_ci95": self.gain_ci95.tolist(),
+            "phase_deg": self.phase_deg.tolist(),
+            "phase_ci95_deg": self.phase_ci95_deg.tolist(),
+            "coherence": self.coherence.tolist(),
+            "noise": self.noise.tolist(),
+            "noise_dof": self.noise_dof.tolist(),
+            "noise_method": "lpm" if self.noise_lpm.all() else (
+                "unexcited" if not self.noise_lpm.any() else "mixed"),
+            "linear": self.linear,
+            "linear_ci95": list(self.linear_ci95),
+            "incoherent": self.incoherent,
+            "incoherent_ci95": list(self.incoherent_ci95),
+            "mean_removal": self.mean_removal,
+            "variance": self.variance,
+            "variance_ci95": list(self.variance_ci95),
+            "sigma": self.sigma,
+            "sigma_ci95": list(self.sigma_ci95),
+            "dof": self.dof,
+            "dof_parts": dict(self.dof_parts),
+            "reference_fit": self.reference_fit,
+        }
+
+
+def _t975(dof: FloatArray) -> FloatArray:
+    return np.asarray(stdtrit(np.asarray(dof, dtype=float), 0.975), dtype=float)
+
+
+def whole_periods(n_slots: int, dt: float, lines: LineSet) -> int:
+    """The number of whole periods ``T_p`` the record of ``n_slots·dt`` holds, or raise
+    ``LinesError`` when it does not hold whole periods (within ``WHOLE_PERIODS_TOL`` of a
+    cycle of the period and of every line)."""
+    span = n_slots * dt
+    nf = span / lines.period_s
+    n = round(nf)
+    cyc = lines.freq * span
+    if n < 1 or abs(nf - n) > WHOLE_PERIODS_TOL or np.any(
+        np.abs(cyc - np.rint(cyc)) > WHOLE_PERIODS_TOL
+    ):
+        raise LinesError(
+            f"the record ({span:.6g} s) does not hold whole periods of {lines.period_s:.6g} s "
+            f"({nf:.4g} periods)"
+        )
+    if 2 * int(np.rint(lines.freq.max() * span)) >= n_slots:
+        raise LinesError("a line lies at or above the Nyquist frequency of the record")
+    return n
+
+
+def grid_offsets(t: FloatArray, mask: NDArray[np.bool_], dt: float) -> FloatArray | None:
+    """The instants' offsets from the uniform grid ``t₀ + s·dt`` (t₀ fitted so they average
+    0), zero in the gaps; None when they are all zero."""
+    s = np.flatnonzero(mask)
+    if s.size == 0:
+        return None
+    d = t[s] - s * dt
+    d = d - d.mean()
+    if not np.any(np.abs(d) > 1e-12 * max(1.0, float(np.abs(t[s]).max()))):
+        return None
+    out = np.zeros(len(mask))
+    out[s] = d
+    return out
+
+
+def _bin_groups(nb: int) -> list[tuple[int, int]]:
+    """The DFT bins 1 … nb−1 in groups [a, b): the lowest ``LOW_BINS``, then groups
+    ``GROUP_RATIO`` times longer each."""
+    edges = [1, LOW_BINS + 1]
+    while edges[-1] < nb:
+        edges.append(min(nb, edges[-1] + GROUP_RATIO * (edges[-1] - edges[-2])))
+    return list(itertools.pairwise(edges))
+
+
+def _parts(
+    level: FloatArray, var: FloatArray, groups: list[tuple[int, int]], coef: FloatArray
+) -> list[tuple[float, float]]:
+    """(value, ν) of each group of bins: Σ level, and Satterthwaite's ν from Σ var, at most
+    the ν of the group's bins all at one level, ``2(Σc)²/Σc²`` (each bin holds 2 degrees of
+    freedom; c its weight in the estimate)."""
+    out = []
+    for a, b in groups:
+        val = float(level[a:b].sum())
+        c = coef[a:b]
+        bound = 2.0 * float(c.sum()) ** 2 / float(np.sum(c * c))
+        out.append((val, min(unbiased_dof(val, float(var[a:b].sum())), bound)))
+    return out
+
+
+def _derivative(fit: LineFit, n: int, dt: float, lines: LineSet, mask: NDArray[np.bool_],
+                offsets: FloatArray | None) -> FloatArray:
+    """``ẋ(t) = Re Σ jω_k c_k e^{jω_k t}`` of the fitted lines (first row) at the instants."""
+    omega = 2.0 * np.pi * lines.freq
+    c = 1j * omega * fit.coef[0]
+    bins = _aligned_bins(n, dt, lines.period_s, lines.harmonics) if fit.exact else None
+    if bins is not None:
+        spec = np.zeros(n // 2 + 1, dtype=complex)
+        spec[bins] = c * (n / 2.0)
+        return np.asarray(irfft(spec, n), dtype=float)
+    op = _Operator(n, mask, dt, lines.period_s, lines.harmonics, offsets)
+    p = np.concatenate(([0.0], c.real, -c.imag))
+    return op.forward(p)
+
+
+def refine_period(
+    x: FloatArray,
+    mask: NDArray[np.bool_],
+    dt: float,
+    lines: LineSet,
+    offsets: FloatArray | None = None,
+) -> LineSet:
+    """The line set with its period fitted to the reference (Gauss–Newton on T_p, the lines
+    refitted at each step): a stand playing on its own clock, or a period detected from a
+    grid step fitted to jittered stamps, is some ppm off the nominal period, and over a long
+    record that would leave part of every line in the residual. Stops (keeping the period)
+    once the step would turn the highest line by less than ``PERIOD_PHASE_TOL`` over the
+    record."""
+    n = len(mask)
+    span = n * dt
+    t = np.arange(n) * dt + (0.0 if offsets is None else offsets)
+    t = t - float(t[mask].mean())  # centred: the derivative then lies outside the lines' span
+    for _ in range(REFINE_MAX_ITER):
+        fit = fit_lines(x[None, :], mask, dt, lines.period_s, lines.harmonics, offsets)
+        g = np.where(mask, -(t / lines.period_s) * _derivative(fit, n, dt, lines, mask, offsets),
+                     0.0)
+        gg = float(np.dot(g, g))
+        if not gg > 0.0:
+            break
+        step = float(np.dot(fit.residual[0], g)) / gg
+        turn = 2.0 * np.pi * float(lines.freq.max()) * span * abs(step) / lines.period_s
+        if turn < PERIOD_PHASE_TOL:
+            break
+        lines = LineSet(lines.period_s + step, lines.harmonics, lines.source)
+    return lines
+
+
+def analyze_lines(
+    x: FloatArray,
+    y: FloatArray,
+    mask: NDArray[np.bool_],
+    dt: float,
+    lines: LineSet,
+    t: FloatArray | None = None,
+) -> LineAnalysis:
+    """The line-wise estimate on the analysis grid (see module notes).
+
+    Parameters
+    ----------
+    x, y : ndarray
+        Reference and instrument on the grid (deg), meaningful where ``mask``.
+    mask : ndarray of bool
+        Slots that hold a sample.
+    dt : float
+        Grid step, s.
+    lines : LineSet
+        The excited lines.
+    t : ndarray, optional
+        The samples' instants (s, per slot; NaN in gaps). When they stray from the uniform
+        grid the lines are fitted at the instants themselves; default: the grid.
+
+    Raises
+    ------
+    LinesError
+        Not whole periods, the reference not periodic in the lines, or the fit impossible.
+    """
+    n = len(mask)
+    n_valid = int(mask.sum())
+    whole_periods(n, dt, lines)
+    offsets = None if t is None else grid_offsets(t, mask, dt)
+    nominal = lines.period_s
+    lines = refine_period(x, mask, dt, lines, offsets)
+    n_periods = whole_periods(n, dt, lines)
+    fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
+    cx, cy = fit.coef[0], fit.coef[1]
+    xd = np.where(mask, x - x[mask].mean(), 0.0)
+    ref_var = float(np.dot(xd, xd))
+    ref_fit = 1.0 - float(np.dot(fit.residual[0], fit.residual[0])) / ref_var
+    if ref_fit < REFERENCE_FIT_MIN or np.any(cx == 0):
+        raise LinesError(
+            f"the reference is not periodic in {lines.period_s:.6g} s: its {len(cx)} line(s) "
+            f"hold {100 * ref_fit:.3g} % of its variance (at least "
+            f"{100 * REFERENCE_FIT_MIN:g} % expected)"
+        )
+    e = cy - cx
+    spec = fit.spectrum[1] - fit.spectrum[0]  # the residual of ε = y − x
+    u = 2.0 * (spec.real**2 + spec.imag**2) / float(n_valid) ** 2  # line units
+    nb = len(u)
+    bins = np.rint(lines.freq * n * dt).astype(np.int64)
+    probe = np.ones(nb, dtype=bool)
+    probe[0] = False
+    if n % 2 == 0:
+        probe[-1] = False
+    probe[bins] = False
+    noise = _line_noise(e, cx, lines.freq, bins, u, probe)
+    s = noise.power
+    h = cy / cx
+    t = _t975(noise.dof)
+    sd_gain = np.sqrt(s) / np.abs(cx)
+    sd_phase = np.sqrt(s) / np.maximum(np.abs(cy), 1e-300)
+    gain = np.abs(h)
+    phase = np.degrees(np.unwrap(np.angle(h)))
+    gain_ci = np.column_stack((gain - t * sd_gain, gain + t * sd_gain))
+    half = np.degrees(np.minimum(t * sd_phase, np.pi))
+    phase_ci = np.column_stack((phase - half, phase + half))
+    coherence = np.clip(1.0 - s / np.maximum(np.abs(cy) ** 2 / 2.0, 1e-300), 0.0, 1.0)
+    p_line = np.abs(e) ** 2 / 2.0
+    lin_k = p_line - s
+    linear = float(lin_k.sum())
+    # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2
+    level1 = float(s[bins == 1][0]) if np.any(bins == 1) else float(u[1])
+    mean_removal = 0.5 * level1
+    resid = fit.residual[1] - fit.residual[0]
+    incoherent = float(np.dot(resid, resid)) / n_valid + float(s.sum()) + mean_removal
+    theta = linear + incoherent  # = σ̂² + mean_removal over whole periods without gaps
+    # --- intervals: noise per bin (variance units) and its variance
+    q = u * (n_valid / n)  # the residual's periodogram in variance units
+    q[0] = 0.0
+    level = np.where(probe, q, 0.0)
+    var_bin = level**2 / 2.0
+    level[bins] += s
+    var_bin[bins] += s**2 / (1.0 + 2.0 / noise.dof)
+    coef = np.ones(nb)
+    coef[1] += mean_removal / max(level[1], 1e-300) if level[1] > 0 else 0.0
+    groups = _bin_groups(nb)
+    parts = _parts(coef * level, coef**2 * var_bin, groups, coef)
+    cross = max(0.0, float(np.sum(2.0 * lin_k * s)))  # unbiased: P̂_k not clipped
+    var_ci = mls_interval(theta, parts, cross)
+    total_var = float(np.sum(coef**2 * var_bin)) + cross
+    dof = 2.0 * theta**2 / total_var if total_var > 0 else float("inf")
+    # linear part: Gaussian; incoherent part: the noise components with the estimation
+    # error of the noise at the lines in place of its realisation
+    lin_var = cross + float(np.sum(s**2)) + noise.var_sum
+    z = 1.959963984540054
+    lin_half = z * math.sqrt(max(lin_var, 0.0))
+    lin_ci = (max(linear - lin_half, 0.0), max(linear + lin_half, 0.0))
+    var_inc = coef**2 * var_bin
+    var_inc[bins] += noise.var_sum * s**2 / max(float(np.sum(s**2)), 1e-300) - (
+        s**2 / (1.0 + 2.0 / noise.dof))
+    inc_ci = mls_interval(incoherent, _parts(coef * level, var_inc, groups, coef))
+    inc_ci = (max(inc_ci[0], 0.0), max(inc_ci[1], 0.0))
+    dof_parts = {f"{a}-{b - 1}": nu for (a, b), (_, nu) in zip(groups, parts, strict=True)}
+    return LineAnalysis(
+        lines=lines,
+        period_nominal=nominal,
+        n_periods=n_periods,
+        freq=lines.freq,
+        ref_amplitude=np.abs(cx),
+        h=h,
+        gain_ci95=gain_ci,
+        phase_ci95_deg=phase_ci,
+        coherence=coherence,
+        noise=s,
+        noise_dof=noise.dof,
+        noise_lpm=noise.lpm,
+        linear=linear,
+        linear_ci95=lin_ci,
+        incoherent=incoherent,
+        incoherent_ci95=inc_ci,
+        mean_removal=mean_removal,
+        variance=theta,
+        variance_ci95=(max(var_ci[0], 0.0), var_ci[1]),
+        dof=dof,
+        dof_parts=dof_parts,
+        reference_fit=ref_fit,
+        exact=fit.exact,
+        iterations=fit.iterations,
+    )
+
+
+def periods_from_lines(
+    la: LineAnalysis, periods_s: tuple[float, ...]
+) -> list[dict[str, Any]]:
+    """Gain, phase and coherence with 95 % intervals at the given periods, from the lines.
+
+    A period is *excited* when its frequency f is an excited line (within ``PERIOD_ON_LINE``
+    relative), or lies between two excited lines that are consecutive harmonics k, k+1 of
+    ``T_p`` and each within ``PERIOD_NEAR`` (20 %) of f. Between two lines H is interpolated
+    linearly (complex, weight a of the upper line); its noise adds as
+    ``(1−a)² var H_k + a² var H_{k+1}``, and the interpolation error, bounded by
+    ``a(1−a)/2 · |Δ²H|`` (the largest second difference of H over the neighbouring lines; the
+    first difference when there are only the two), is added to the half-widths. Otherwise
+    ``excited`` is false and gain, phase, coherence and intervals are None.
+    """
+    from benchctl.analysis.frf import not_excited
+
+    k = la.lines.harmonics
+    tp = la.lines.period_s
+    index = {int(v): i for i, v in enumerate(k)}
+    cvar = 2.0 * la.noise / la.ref_amplitude**2  # complex variance of each H_k
+    out: list[dict[str, Any]] = []
+    for period in periods_s:
+        f = 1.0 / period
+        kf = f * tp
+        kr = round(kf)
+        if abs(kf - kr) <= PERIOD_ON_LINE * kf and kr in index:
+            i = index[kr]
+            out.append(_period_entry(period, "line", la.h[i], cvar[i], la.noise_dof[i],
+                                     la.coherence[i], 0.0))
+            continue
+        ka = math.floor(kf)
+        if ka in index and ka + 1 in index:
+            fa, fb = ka / tp, (ka + 1) / tp
+            if (f - fa) <= PERIOD_NEAR * f and (fb - f) <= PERIOD_NEAR * f:
+                i, j = index[ka], index[ka + 1]
+                a = kf - ka
+                h = (1 - a) * la.h[i] + a * la.h[j]
+                var = (1 - a) ** 2 * cvar[i] + a**2 * cvar[j]
+                d2 = [
+                    abs(la.h[m + 1] - 2 * la.h[m] + la.h[m - 1])
+                    for m in (i, j)
+                    if 0 < m < len(k) - 1 and k[m + 1] - k[m - 1] == 2
+                ]
+                curv = max(d2) if d2 else abs(la.h[j] - la.h[i])
+                coh = (1 - a) * la.coherence[i] + a * la.coherence[j]
+                out.append(_period_entry(period, "interpolated", h, var,
+                                         min(la.noise_dof[i], la.noise_dof[j]), coh,
+                                         a * (1 - a) / 2 * curv))
+                continue
+        out.append(not_excited(period))
+    return out
+
+
+def _period_entry(
+    period: float, source: str, h: complex, cvar: float, dof: float, coh: float, bound: float
+) -> dict[str, Any]:
+    t = float(_t975(np.array([dof]))[0])
+    g = abs(h)
+    ph = math.degrees(math.atan2(h.imag, h.real))
+    sd = math.sqrt(cvar / 2.0)
+    hg = t * sd + bound
+    hp = math.degrees(min((t * sd + bound) / max(g, 1e-300), math.pi))
+    return {
+        "period_s": period,
+        "freq": 1.0 / period,
+        "excited": True,
+        "gain": g,
+        "gain_ci95": [g - hg, g + hg],
+        "phase_deg": ph,
+        "phase_ci95_deg": [ph - hp, ph + hp],
+        "coherence": float(coh),
+        "source": source,
+    }
