@@ -156,11 +156,20 @@ def test_to_dict_has_the_documented_keys() -> None:
     for key in ("sigma", "variance", "mean_error", "rms_error", "sigma_ci95", "dof", "delay",
                 "delay_compensated", "n_samples", "duration", "sample_rate", "max_lag",
                 "max_lag_samples", "resolution_hz", "components", "band", "periods", "frf",
-                "psd", "gaps", "timing", "cross_checks", "uncertainty", "warnings"):
+                "psd", "gaps", "timing", "cross_checks", "uncertainty", "warnings", "lines"):
         assert key in d, key
-    assert set(d["frf"]) == {"freq", "gain", "phase_deg", "coherence"}
+    assert set(d["frf"]) == {"freq", "gain", "phase_deg", "coherence", "gain_ci95",
+                             "phase_ci95_deg", "source"}
     assert {"freq", "error", "dof"} <= set(d["psd"])
-    assert {"linear", "incoherent", "static"} == set(d["components"])
+    assert {"linear", "incoherent", "static", "source"} == set(d["components"])
+    assert {"source", "period_s", "period_nominal_s", "n_periods", "n_lines", "freq",
+            "reference_amplitude", "gain", "gain_ci95", "phase_deg", "phase_ci95_deg",
+            "coherence", "noise", "noise_dof", "noise_method", "linear", "linear_ci95",
+            "incoherent", "incoherent_ci95", "mean_removal", "variance", "variance_ci95",
+            "sigma", "sigma_ci95", "dof", "dof_parts", "reference_fit"} == set(d["lines"])
+    assert {"period_s", "freq", "excited", "gain", "gain_ci95", "phase_deg", "phase_ci95_deg",
+            "coherence", "source"} == set(d["periods"][0])
+    assert {"method", "mean_removal", "sigma_corrected", "dof_parts"} <= set(d["uncertainty"])
     assert len(d["psd"]["freq"]) == len(d["psd"]["error"])
     assert len(d["sigma_ci95"]) == 2
 

@@ -3,7 +3,8 @@
 Public API::
 
     analyze(t_ref, x_ref_deg, t_dev, y_dev_deg, *, max_lag_s=None, band_hz=None,
-            compensate_delay="none", timebase="given") -> AnalysisResult
+            compensate_delay="none", timebase="given", lines="auto", period_s=None)
+        -> AnalysisResult
     analyze_recording(path, axis, **same options) -> AnalysisResult
     load_csv_pair(...) / load_single_csv(...)  (see ``inputs``)
 """
@@ -14,16 +15,41 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.analysis.core import analyze, default_max_lag
+from benchctl.analysis.lines import LineSet, line_set_from_recording
 from benchctl.analysis.result import AnalysisResult
 
 
 def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisResult:
-    """Analyse one axis of a benchctl recording folder (options as :func:`analyze`)."""
+    """Analyse one axis of a benchctl recording folder (options as :func:`analyze`).
+
+    The line-wise estimate uses the lines of the recording's profile (re-synthesised from
+    its metadata: profile, seed, duration) unless ``lines`` or ``period_s`` is given; when
+    they cannot be re-synthesised, a warning says why and the lines are detected as for any
+    record.
+    """
     from benchctl.recording import load_recording
 
-    t_ref, x_ref, t_dev, y_dev = load_recording(path).pair(axis)
+    rec = load_recording(path)
+    t_ref, x_ref, t_dev, y_dev = rec.pair(axis)
     options.setdefault("source", str(path))
-    return analyze(t_ref, x_ref, t_dev, y_dev, axis=axis, **options)
+    note = ""
+    if "lines" not in options and options.get("period_s") is None:
+        ls, why = line_set_from_recording(rec.meta, axis, rec.analysis_window)
+        if ls is not None:
+            options["lines"] = ls
+        else:
+            note = f"lines not taken from the profile: {why}"
+    result = analyze(t_ref, x_ref, t_dev, y_dev, axis=axis, **options)
+    if note:
+        result.warnings.append(note)
+    return result
 
 
-__all__ = ["AnalysisResult", "analyze", "analyze_recording", "default_max_lag"]
+__all__ = [
+    "AnalysisResult",
+    "LineSet",
+    "analyze",
+    "analyze_recording",
+    "default_max_lag",
+    "line_set_from_recording",
+]

@@ -7,6 +7,11 @@ the frequency response, the decomposition and the interval.
 
 Max-lag rule: ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length, gaps included),
 at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
+
+When the record holds whole periods of a known line set (given, from ``period_s``, or
+detected in the reference) the line-wise estimate (``lines``) gives H at the lines with
+intervals, the unbiased linear/incoherent split and the interval of σ; the published σ
+(eqs. 1–2) stays the headline.
 """
 
 from __future__ import annotations
@@ -20,6 +25,16 @@ from numpy.typing import ArrayLike, NDArray
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
 from benchctl.analysis.correlation import Correlations, correlations, demean
+from benchctl.analysis.lines import (
+    LineAnalysis,
+    LinesError,
+    LineSet,
+    analyze_lines,
+    detect_period,
+    periods_from_lines,
+    reference_lines,
+    whole_periods,
+)
 from benchctl.analysis.psd import (
     SpectralGrid,
     WelchEstimate,
@@ -41,6 +56,7 @@ from benchctl.errors import AnalysisError, DataError
 
 FloatArray = NDArray[np.float64]
 DelayMode = Literal["none", "auto"] | float
+LinesMode = LineSet | Literal["auto", "off"]
 
 MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
@@ -154,6 +170,8 @@ def analyze(
     band_hz: tuple[float, float] | None = None,
     compensate_delay: DelayMode = "none",
     timebase: Literal["given", "fitted"] = "given",
+    lines: LinesMode = "auto",
+    period_s: float | None = None,
     source: str = "",
     axis: str | None = None,
 ) -> AnalysisResult:
@@ -176,6 +194,13 @@ def analyze(
         the cross-correlation peak. The delay found before compensation is always reported.
     timebase : {"given", "fitted"}
         Device instants as given, or fitted to a uniform clock (jittery receipt times).
+    lines : LineSet | "auto" | "off"
+        The excited lines of a periodic multisine (e.g. from a recording's profile, see
+        ``benchctl.analysis.lines.line_set_from_recording``); "auto" (default): detected in
+        the reference when the record holds two or more whole periods; "off": none.
+    period_s : float, optional
+        The motion's repetition period, s (the record must hold whole periods of it); the
+        lines are those of its harmonics the reference is excited at. Overrides "auto".
     source, axis : str
         Labels carried into the result.
 
@@ -183,7 +208,8 @@ def analyze(
     -------
     AnalysisResult
         σ (deg, about the mean), its 95 % interval, the error PSD (one-sided, deg²/Hz),
-        H1, coherence, decomposition, gaps and cross-checks.
+        H1, coherence, decomposition, gaps and cross-checks; with lines, the line-wise
+        estimate (``lines``) and H, periods and the interval of σ from it.
 
     Raises
     ------
@@ -206,6 +232,10 @@ def analyze(
     tr, xr = np.asarray(t_ref, dtype=float), np.asarray(x_ref_deg, dtype=float)
     td, yd = np.asarray(t_dev, dtype=float), np.asarray(y_dev_deg, dtype=float)
     mode = _delay_mode(compensate_delay)
+    if period_s is not None and not (np.isfinite(period_s) and period_s > 0):
+        raise DataError(f"period: expected a positive number of seconds, got {period_s!r}")
+    if not isinstance(lines, LineSet) and lines not in ("auto", "off"):
+        raise DataError(f"lines: expected a LineSet, 'auto' or 'off', got {lines!r}")
     al = align(tr, xr, td, yd, timebase=timebase)
     lag = _max_lag(al, max_lag_s)
     sp = _spectra(al, lag)
@@ -220,7 +250,48 @@ def analyze(
             al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase)
             lag = _max_lag(al, max_lag_s)
             sp = _spectra(al, lag)
-    return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis)
+    return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s)
+
+
+def _line_analysis(
+    al: Aligned, lines: LinesMode, period_s: float | None, warnings: list[str]
+) -> LineAnalysis | None:
+    """The line-wise estimate, or None (with a warning when lines were given but cannot be
+    used, or were detected and fail)."""
+    n = len(al.mask)
+    try:
+        if isinstance(lines, LineSet):
+            ls = lines
+        elif period_s is not None:
+            count = whole_periods(n, al.dt, LineSet(float(period_s), np.array([1]), "period"))
+            harm = reference_lines(al.x, al.mask, count)
+            if harm.size == 0:
+                raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
+            ls = LineSet(float(period_s), harm, "period")
+        elif lines == "auto":
+            count_or_none = detect_period(al.x, al.mask)
+            if count_or_none is None:
+                return None
+            harm = reference_lines(al.x, al.mask, count_or_none)
+            if harm.size == 0:
+                return None
+            ls = LineSet(n * al.dt / count_or_none, harm, "detected")
+        else:
+            return None
+        return analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t)
+    except LinesError as e:
+        warnings.append(f"no line-wise estimate: {e}")
+        return None
+
+
+def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
+    """The variance the mean removal takes out, var(ε̄) ≈ G(0)/(2T): half the error's
+    periodogram at the lowest bin 1/T (the density taken flat between 0 and 1/T), deg²."""
+    n, n_valid = len(eps), int(mask.sum())
+    if n < 4:
+        return 0.0
+    e1 = np.sum(eps * np.exp(-2j * np.pi * np.arange(n) / n))
+    return float(abs(e1) ** 2 / n_valid**2)
 
 
 def _result(
@@ -233,6 +304,8 @@ def _result(
     mode: float | None,
     source: str,
     axis: str | None,
+    lines: LinesMode = "off",
+    period_s: float | None = None,
 ) -> AnalysisResult:
     grid = sp.grid
     warnings: list[str] = []
@@ -258,7 +331,20 @@ def _result(
     dof_rand = dof_of_variance(
         grid.freq, dec.linear, dec.incoherent, duration_eff, dof_f, motion_random=True
     )
-    ci = sigma_interval(sigma, dof)
+    la = _line_analysis(al, lines, period_s, warnings)
+    if la is not None:
+        mean_removal = la.mean_removal
+        ci = la.sigma_ci95
+        dof = la.dof
+        if not ci[0] <= sigma <= ci[1]:
+            warnings.append(
+                f"σ over the samples present ({sigma:.5g}°) lies outside the line-wise "
+                f"interval {ci[0]:.5g} … {ci[1]:.5g}° (line-wise σ {la.sigma:.5g}°): the gaps "
+                "sample the motion unevenly, or the record is not stationary"
+            )
+    else:
+        mean_removal = _mean_removal(eps, al.mask)
+        ci = sigma_interval(float(np.sqrt(variance + mean_removal)), dof)
     ci_rand = sigma_interval(sigma, dof_rand)
     welch = welch_by_runs(eps, al.mask, al.dt, 2 * lag)
     cross = _welch_check(welch, variance, dof_rand * (welch.n_used / n if welch else 1.0), warnings)
@@ -287,7 +373,22 @@ def _result(
         warnings.append(
             f"{al.excluded} device sample(s) excluded: outside the reference's span or in its gaps"
         )
-    if len(resp.freq) == 0:
+    if la is not None:
+        keep = np.ones(len(la.freq), dtype=bool)
+        if band_hz is not None:
+            keep = (la.freq >= band_hz[0]) & (la.freq <= band_hz[1])
+        frf_arrays = (la.freq[keep], la.gain[keep], la.phase_deg[keep], la.coherence[keep],
+                      la.gain_ci95[keep], la.phase_ci95_deg[keep])
+        periods = periods_from_lines(la, frf_mod.TRADITIONAL_PERIODS_S)
+        frf_source = "lines"
+        split = (la.linear, la.incoherent, "lines")
+    else:
+        gci, pci = frf_mod.h1_intervals(resp, dof_f)
+        frf_arrays = (resp.freq, resp.gain, resp.phase_deg, resp.coherence, gci, pci)
+        periods = frf_mod.at_periods(resp, dof_f, grid.freq, sp.gxx, grid.resolution_hz)
+        frf_source = "h1"
+        split = (linear, variance - linear, "lag_window")
+    if len(frf_arrays[0]) == 0:
         warnings.append("no excited frequency in the band: no frequency response")
     return AnalysisResult(
         sigma=sigma,
@@ -310,13 +411,18 @@ def _result(
         psd_ci95=density_interval(sp.gee, dof_f),
         welch_freq=None if welch is None else welch.freq,
         welch_error=None if welch is None else welch.density,
-        frf_freq=resp.freq,
-        frf_gain=resp.gain,
-        frf_phase_deg=resp.phase_deg,
-        frf_coherence=resp.coherence,
-        periods=frf_mod.at_periods(resp),
-        linear=linear,
-        incoherent=variance - linear,
+        frf_freq=frf_arrays[0],
+        frf_gain=frf_arrays[1],
+        frf_phase_deg=frf_arrays[2],
+        frf_coherence=frf_arrays[3],
+        frf_gain_ci95=frf_arrays[4],
+        frf_phase_ci95_deg=frf_arrays[5],
+        frf_source=frf_source,
+        periods=periods,
+        linear=split[0],
+        incoherent=split[1],
+        components_source=split[2],
+        lines=la,
         band=band,
         gaps=_gaps(al),
         timing={
@@ -327,6 +433,10 @@ def _result(
         },
         cross_checks=cross,
         uncertainty={
+            "method": "lines" if la is not None else "lag_window",
+            "mean_removal": mean_removal,
+            "sigma_corrected": float(np.sqrt(variance + mean_removal)),
+            "dof_parts": None if la is None else dict(la.dof_parts),
             "dof_motion_random": dof_rand if np.isfinite(dof_rand) else None,
             "sigma_ci95_motion_random": [ci_rand[0], ci_rand[1]],
             "duration_for_5pct": duration_for_precision(duration_eff, dof),

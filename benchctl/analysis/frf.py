@@ -10,6 +10,7 @@ correlations as the error density, so the identity
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,7 +20,9 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 TRADITIONAL_PERIODS_S = (3.0, 5.0, 7.0, 10.0)
-EXCITED_FRACTION = 1e-3  # a frequency is excited where G_xx ≥ this × max G_xx
+EXCITED_FRACTION = 1e-3  # a frequency is excited where G_xx ≥ this × max G_xx …
+SKIRT_FRACTION = 0.05  # … and ≥ this × max G_xx within ± one resolution (not a line's skirt)
+Z95 = 1.959963984540054
 
 
 @dataclass(frozen=True)
@@ -79,36 +82,108 @@ def frequency_response(
     )
 
 
-def at_periods(
-    frf: FrequencyResponse, periods_s: tuple[float, ...] = TRADITIONAL_PERIODS_S
-) -> list[dict[str, float]]:
-    """Gain, phase (deg) and coherence at the given periods that lie inside the FRF grid.
+def h1_intervals(
+    frf: FrequencyResponse, dof_per_freq: float
+) -> tuple[FloatArray, FloatArray]:
+    """95 % intervals of H1's gain and phase (deg) from the coherence, (n, 2) each.
 
-    ``H`` is interpolated linearly (complex) between the two neighbouring grid frequencies,
-    which must be adjacent grid points (no gap of the excited set between them).
+    Bendat & Piersol (*Random Data*, 4th ed., §9.2.4): the normalised random error of
+    ``|Ĥ|`` and the standard deviation of the phase (rad) are both
+    ``√(1 − γ²) / (|γ| √ν_f)`` with ``ν_f = 2 n_d`` the degrees of freedom of one spectral
+    value (here the lag window's); the interval is ± 1.96 of them. Bias (the lag window's
+    smoothing of H) is not included.
     """
-    out: list[dict[str, float]] = []
-    if len(frf.freq) < 2:
-        return out
-    step = float(np.min(np.diff(frf.freq)))
+    coh = np.clip(frf.coherence, 1e-12, 1.0)
+    err = np.sqrt((1.0 - coh) / coh / max(dof_per_freq, 1e-12))
+    gain, phase = frf.gain, frf.phase_deg
+    half_g = Z95 * err * gain
+    half_p = np.degrees(np.minimum(Z95 * err, np.pi))
+    return (
+        np.column_stack((gain - half_g, gain + half_g)),
+        np.column_stack((phase - half_p, phase + half_p)),
+    )
+
+
+def excited_at(
+    f: float, freq: FloatArray, gxx: FloatArray, resolution_hz: float,
+    fraction: float = EXCITED_FRACTION,
+) -> bool:
+    """Whether the reference is excited at ``f`` on the lag-window grid: its density there is
+    at least ``fraction`` of its peak, and at least ``SKIRT_FRACTION`` of its largest value
+    within ± one resolution bandwidth (so the spectral window's skirt of a neighbouring line
+    does not count as excitation)."""
+    pos = freq > 0
+    if not pos.any():
+        return False
+    g = float(np.interp(f, freq, gxx))
+    near = pos & (np.abs(freq - f) <= resolution_hz)
+    local = float(np.max(gxx[near])) if near.any() else g
+    return g >= fraction * float(np.max(gxx[pos])) and g >= SKIRT_FRACTION * local
+
+
+def not_excited(period: float) -> dict[str, Any]:
+    """A traditional period with no excitation near it: no gain, no phase."""
+    return {
+        "period_s": period,
+        "freq": 1.0 / period,
+        "excited": False,
+        "gain": None,
+        "gain_ci95": None,
+        "phase_deg": None,
+        "phase_ci95_deg": None,
+        "coherence": None,
+        "source": None,
+    }
+
+
+def at_periods(
+    frf: FrequencyResponse,
+    dof_per_freq: float,
+    freq_all: FloatArray,
+    gxx_all: FloatArray,
+    resolution_hz: float,
+    periods_s: tuple[float, ...] = TRADITIONAL_PERIODS_S,
+) -> list[dict[str, Any]]:
+    """Gain, phase (deg), coherence and their 95 % intervals from H1 at the given periods.
+
+    Every period is listed. It is excited when it lies between two adjacent grid
+    frequencies of the excited set and :func:`excited_at` holds there; ``H`` (complex), the
+    coherence and the intervals' half-widths are interpolated linearly between the two.
+    Otherwise ``excited`` is false and gain/phase are None.
+    """
+    out: list[dict[str, Any]] = []
+    step = float(np.min(np.diff(frf.freq))) if len(frf.freq) >= 2 else 0.0
+    gain_ci, phase_ci = h1_intervals(frf, dof_per_freq)
     for period in periods_s:
         f = 1.0 / period
         j = int(np.searchsorted(frf.freq, f))
-        if j == 0 or j >= len(frf.freq):
+        if (
+            len(frf.freq) < 2
+            or j == 0
+            or j >= len(frf.freq)
+            or frf.freq[j] - frf.freq[j - 1] > 1.5 * step
+            or not excited_at(f, freq_all, gxx_all, resolution_hz)
+        ):
+            out.append(not_excited(period))
             continue
         f0, f1 = frf.freq[j - 1], frf.freq[j]
-        if f1 - f0 > 1.5 * step:
-            continue
         a = (f - f0) / (f1 - f0)
         h = (1 - a) * frf.h[j - 1] + a * frf.h[j]
         coh = (1 - a) * frf.coherence[j - 1] + a * frf.coherence[j]
+        hg = (1 - a) * np.diff(gain_ci[j - 1]) / 2 + a * np.diff(gain_ci[j]) / 2
+        hp = (1 - a) * np.diff(phase_ci[j - 1]) / 2 + a * np.diff(phase_ci[j]) / 2
+        g, ph = float(abs(h)), float(np.degrees(np.angle(h)))
         out.append(
             {
                 "period_s": period,
                 "freq": f,
-                "gain": float(abs(h)),
-                "phase_deg": float(np.degrees(np.angle(h))),
+                "excited": True,
+                "gain": g,
+                "gain_ci95": [g - float(hg[0]), g + float(hg[0])],
+                "phase_deg": ph,
+                "phase_ci95_deg": [ph - float(hp[0]), ph + float(hp[0])],
                 "coherence": float(coh),
+                "source": "h1",
             }
         )
     return out

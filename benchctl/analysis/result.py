@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from benchctl.analysis.lines import LineAnalysis
 
 FloatArray = NDArray[np.float64]
 
@@ -33,20 +36,24 @@ def _clean(v: Any) -> Any:
     return v
 
 
-def _list(a: NDArray[Any]) -> list[float | None]:
+def _list(a: NDArray[Any]) -> list[Any]:
+    """A JSON-safe list (nested for 2-D arrays) of an array's floats, NaN/inf as None."""
     arr = np.asarray(a, dtype=float)
     if np.isfinite(arr).all():
-        return [float(v) for v in arr.tolist()]
-    return [_num(v) for v in arr.tolist()]
+        return list(arr.tolist())
+    return list(_clean(arr.tolist()))
 
 
 @dataclass
 class AnalysisResult:
     """Everything one analysis says about one axis. Angles in deg, times in s, PSD deg²/Hz.
 
-    ``sigma`` is the dynamic error (about the mean), ``sigma_ci95`` its 95 % interval from
-    ``dof`` degrees of freedom; ``delay`` the device's equivalent delay behind the reference;
-    ``delay_compensated`` what was removed before the analysis (0 if nothing).
+    ``sigma`` is the dynamic error (about the mean), ``sigma_ci95`` the 95 % interval of the
+    error's σ (the mean removal's loss included, see ``uncertainty``), ``dof`` its equivalent
+    degrees of freedom; ``delay`` the device's equivalent delay behind the reference;
+    ``delay_compensated`` what was removed before the analysis (0 if nothing). ``lines``: the
+    line-wise estimate when the record holds whole periods of known lines (then ``frf_*``,
+    ``periods``, ``linear``/``incoherent`` and ``sigma_ci95`` come from it), else None.
     """
 
     sigma: float
@@ -73,9 +80,14 @@ class AnalysisResult:
     frf_gain: FloatArray
     frf_phase_deg: FloatArray
     frf_coherence: FloatArray
-    periods: list[dict[str, float]]
+    frf_gain_ci95: FloatArray
+    frf_phase_ci95_deg: FloatArray
+    frf_source: str
+    periods: list[dict[str, Any]]
     linear: float
     incoherent: float
+    components_source: str
+    lines: LineAnalysis | None
     band: dict[str, float] | None
     gaps: dict[str, Any]
     timing: dict[str, float]
@@ -108,6 +120,7 @@ class AnalysisResult:
                 "linear": _num(self.linear),
                 "incoherent": _num(self.incoherent),
                 "static": _num(self.mean_error**2),
+                "source": self.components_source,
             },
             "band": _clean(self.band),
             "periods": _clean(self.periods),
@@ -116,7 +129,11 @@ class AnalysisResult:
                 "gain": _list(self.frf_gain),
                 "phase_deg": _list(self.frf_phase_deg),
                 "coherence": _list(self.frf_coherence),
+                "gain_ci95": _list(self.frf_gain_ci95),
+                "phase_ci95_deg": _list(self.frf_phase_ci95_deg),
+                "source": self.frf_source,
             },
+            "lines": None if self.lines is None else _clean(self.lines.to_dict()),
             "psd": {
                 "freq": _list(self.psd_freq),
                 "error": _list(self.psd_error),

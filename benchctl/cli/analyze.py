@@ -47,6 +47,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--timebase", choices=("given", "fitted"), default="given",
                    help="device instants as given, or fitted to a uniform clock (jittery "
                    "receipt times)")
+    p.add_argument("--period", type=float, metavar="SECONDS",
+                   help="the motion's repetition period: the record holds whole periods of it "
+                   "(line-wise estimate; default: a recording's profile, else detected when "
+                   "the record holds two or more periods)")
+    p.add_argument("--lines", choices=("auto", "off"), default="auto",
+                   help="line-wise estimate: auto (default) or off")
     p.set_defaults(handler=run)
 
 
@@ -69,9 +75,11 @@ def _delay_option(text: str) -> str | float:
 
 def _check_options(args: argparse.Namespace) -> None:
     """The numeric options' ranges (README, the option table), before any file is read."""
-    from benchctl.config import MAX_BAND_HZ, MAX_LAG_S, check_option
+    from benchctl.config import MAX_BAND_HZ, MAX_LAG_S, MAX_RUN_DURATION_S, check_option
 
     check_option("--max-lag", args.max_lag, 0, MAX_LAG_S, lo_open=True, unit="s",
+                 what="a positive number of seconds")
+    check_option("--period", args.period, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s",
                  what="a positive number of seconds")
     if args.band is not None:
         lo, hi = args.band
@@ -99,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         "band_hz": tuple(args.band) if args.band else None,
         "compensate_delay": _delay_option(args.compensate_delay),
         "timebase": args.timebase,
+        "period_s": args.period,
+        "lines": args.lines,
     }
     pair = args.reference is not None or args.device is not None
     if pair and (args.reference is None or args.device is None or args.source is not None):
@@ -120,8 +130,12 @@ def run(args: argparse.Namespace) -> int:
         single_axis = args.axis != "all"
         for ax in axes:
             tr, xr, td, yd = rec.pair(ax)
-            results[ax] = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
-                                 source=str(args.source), axis=ax, **opts)
+            ax_opts, note = _recording_lines(rec, ax, opts)
+            res = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
+                         source=str(args.source), axis=ax, **ax_opts)
+            if note:
+                res.warnings.append(note)
+            results[ax] = res
     else:
         src = Path(args.source)
         if src.is_dir():
@@ -152,6 +166,64 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    """The options for one axis of a recording: its profile's lines unless ``--period`` or
+    ``--lines off`` says otherwise; and a note when the profile's lines cannot be used."""
+    from benchctl.analysis.lines import line_set_from_recording
+
+    if opts["lines"] == "off" or opts["period_s"] is not None:
+        return opts, ""
+    ls, why = line_set_from_recording(rec.meta, axis, rec.analysis_window)
+    if ls is None:
+        return opts, f"lines not taken from the profile: {why}"
+    return {**opts, "lines": ls}, ""
+
+
+def _fmt(v: float | None, spec: str) -> str:
+    return "—" if v is None else format(v, spec)
+
+
+def _periods_table(r: AnalysisResult) -> list[str]:
+    src = "lines" if r.frf_source == "lines" else "H1"
+    out = [f"  period   gain    95 % CI          phase     95 % CI            γ²      ({src})"]
+    for p in r.periods:
+        if not p["excited"]:
+            out.append(f"  {p['period_s']:4.0f} s  not excited (no line near it): no gain, "
+                       "no phase")
+            continue
+        g, gc, ph, pc = p["gain"], p["gain_ci95"], p["phase_deg"], p["phase_ci95_deg"]
+        how = "  (interpolated)" if p.get("source") == "interpolated" else ""
+        out.append(
+            f"  {p['period_s']:4.0f} s  {g:.4f}  {gc[0]:.4f} … {gc[1]:.4f}  {ph:7.2f}°  "
+            f"{pc[0]:7.2f} … {pc[1]:7.2f}°  {_fmt(p['coherence'], '.4f')}{how}"
+        )
+    return out
+
+
+def _lines_block(r: AnalysisResult) -> list[str]:
+    la = r.lines
+    if la is None:
+        return []
+    src = {"profile": "the profile", "period": "--period", "detected": "detected"}.get(
+        la.lines.source, la.lines.source)
+    lo, hi = la.sigma_ci95
+    return [
+        f"  line-wise ({src}): T_p = {la.lines.period_s:.6g} s, {la.n_periods} period(s), "
+        f"{len(la.freq)} lines, noise at the lines from "
+        + ("the local polynomial fit" if la.noise_lpm.all() else
+           "unexcited bins" if not la.noise_lpm.any() else
+           "unexcited bins and the local polynomial fit"),
+        f"    σ = {la.sigma:.5g}°   95 % CI {lo:.5g} … {hi:.5g}°   (mean removal "
+        f"{la.mean_removal:.3g} deg² added back)",
+        f"    linear {la.linear:.5g} deg² ({la.linear_ci95[0]:.3g} … {la.linear_ci95[1]:.3g}), "
+        f"incoherent {la.incoherent:.5g} deg² ({la.incoherent_ci95[0]:.3g} … "
+        f"{la.incoherent_ci95[1]:.3g})",
+        f"    gain {float(la.gain.min()):.4f} … {float(la.gain.max()):.4f}, phase "
+        f"{float(la.phase_deg.min()):.3f} … {float(la.phase_deg.max()):.3f}° over "
+        f"{float(la.freq.min()):.4g} … {float(la.freq.max()):.4g} Hz",
+    ]
+
+
 def summary(r: AnalysisResult) -> str:
     """A readable summary of one result."""
     g = r.gaps
@@ -164,22 +236,22 @@ def summary(r: AnalysisResult) -> str:
         f"longest {g['device']['longest_s']:.3g} s), reference {g['reference']['count']}, "
         f"excluded samples {g['excluded_samples']}",
         f"  σ (dynamic error, about the mean) = {r.sigma:.5g}°   "
-        f"95 % CI {r.sigma_ci95[0]:.5g} … {r.sigma_ci95[1]:.5g}°   (ν = {r.dof:.4g})",
+        f"95 % CI {r.sigma_ci95[0]:.5g} … {r.sigma_ci95[1]:.5g}°   (ν = {r.dof:.4g}, "
+        + ("line-wise)" if r.lines is not None else "lag window)"),
         f"  mean error (static) = {r.mean_error:.5g}°   rms error = {r.rms_error:.5g}°",
         f"  delay = {r.delay * 1e3:.4g} ms"
         + (f", compensated {r.delay_compensated * 1e3:.4g} ms" if r.delay_compensated
            else " (not compensated)"),
-        f"  variance {r.variance:.5g} deg² = linear {r.linear:.5g} + incoherent "
-        f"{r.incoherent:.5g} deg²",
+        f"  variance {r.variance:.5g} deg²: linear {r.linear:.5g} + incoherent "
+        f"{r.incoherent:.5g} deg²"
+        + (" (line-wise, mean removal included)" if r.lines is not None else " (lag window)"),
     ]
+    lines.extend(_lines_block(r))
     if r.band:
         b = r.band
         lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")
     if r.periods:
-        lines.append("  period   gain     phase      γ²")
-        for p in r.periods:
-            lines.append(f"  {p['period_s']:4.0f} s  {p['gain']:.4f}  {p['phase_deg']:7.2f}°  "
-                         f"{p['coherence']:.4f}")
+        lines.extend(_periods_table(r))
     c = r.cross_checks
     welch = ("skipped" if c["welch_area"] is None else
              f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "
