@@ -32,10 +32,12 @@ pytestmark = pytest.mark.slow
 
 
 
-def _run_with_stalls(tmp_path: Path, mode: str) -> tuple[int, dict, object, dict]:  # type: ignore[type-arg]
+def _run_with_stalls(
+    tmp_path: Path, mode: str, stalls_s: tuple[float, float] = (0.1, 0.3), **stand: object
+) -> tuple[int, dict, object, dict]:  # type: ignore[type-arg]
     profile = tmp_path / "p.yaml"
     profile.write_text(ROLL)
-    with live_bench(tmp_path, stand={"mode": mode}) as b:
+    with live_bench(tmp_path, stand={"mode": mode, **stand}) as b:
         runs = tmp_path / "runs"
         cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(b.config_path)]
         cmd += ["--profile", str(profile), "--serial", "STALL", "--operator", "ci", "--json"]
@@ -57,7 +59,7 @@ def _run_with_stalls(tmp_path: Path, mode: str) -> tuple[int, dict, object, dict
             for _ in range(5):
                 time.sleep(float(rng.uniform(1.0, 2.0)))
                 proc.send_signal(signal.SIGSTOP)
-                time.sleep(float(rng.uniform(0.1, 0.3)))
+                time.sleep(float(rng.uniform(*stalls_s)))
                 proc.send_signal(signal.SIGCONT)
             out, err = proc.communicate(timeout=120)
         finally:
@@ -104,3 +106,18 @@ def test_streaming_stand_rejoins_within_limits_after_host_stalls(tmp_path: Path)
     assert np.max(np.abs(v)) <= LIMITS["rate_deg_s"] * (1 + 1e-9)
     assert np.max(np.abs(acc)) <= LIMITS["accel_deg_s2"] * (1 + 1e-6)
     assert st["commanded"]["max_accel_deg_s2"]["roll"] <= LIMITS["accel_deg_s2"] * (1 + 1e-9)
+
+
+def test_buffered_stand_underrun_stops_then_rejoins(tmp_path: Path) -> None:
+    """Stalls longer than the queue (0.4–0.6 s against 0.2 s queued): each runs the queue dry;
+    the stand stops itself within its limits, the loop counts the underrun, waits for rest and
+    rejoins the profile from there; the run still ends (PASS) and the measured motion stays
+    within the limits."""
+    code, res, rec, peaks = _run_with_stalls(tmp_path, "buffered", (0.4, 0.6), buffer_s=0.2)
+    assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+    st = res["stats"]
+    assert st["underruns"] >= 1 and st["rejoins"] == st["underruns"]
+    kinds = [e["kind"] for e in rec.events]  # type: ignore[attr-defined]
+    assert kinds.count("underrun") == st["underruns"] and kinds.count("rejoin") == st["rejoins"]
+    assert peaks["roll"]["rate_deg_s"] <= LIMITS["rate_deg_s"]
+    assert peaks["roll"]["accel_deg_s2"] <= LIMITS["accel_deg_s2"]

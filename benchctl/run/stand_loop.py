@@ -504,6 +504,14 @@ class StandLoop:
             if tr is None:
                 raise SafetyAbort("buffered mode: the stand reports no trajectory queue")
             played = tr.played
+            if underruns is not None and tr.underruns != underruns:
+                # the queue ran dry (a host stall longer than the buffer): the stand is stopping
+                # itself within its limits, so this sample is not judged against the profile
+                self.underruns += (tr.underruns - underruns) & 0xFFFF
+                self.rec.event("underrun", t_host=s.t_host, played=tr.played, queued=j_next)
+                self._check_sample(s, None)
+                return "underrun"
+            underruns = tr.underruns
             slot_t = (base + (s.t_host - t0) / T) * T
             in_profile = slot_t <= plan.duration_s and s.status.trajectory_running
             self._check_sample(s, slot_t if in_profile else None)
@@ -511,12 +519,6 @@ class StandLoop:
             self._advance_state(min(max(slot_t, 0.0), plan.duration_s))
             self._cycle_done(now)
             i += 1
-            if underruns is None:
-                underruns = tr.underruns
-            elif tr.underruns != underruns:
-                self.underruns += (tr.underruns - underruns) & 0xFFFF
-                self.rec.event("underrun", t_host=s.t_host, played=tr.played, queued=j_next)
-                return "underrun"
             if src.done and not s.status.trajectory_running:
                 return "done"
 
