@@ -31,6 +31,7 @@ from benchctl.analysis.lines import (
     LineSet,
     analyze_lines,
     detect_period,
+    periodogram,
     periods_from_lines,
     reference_lines,
     whole_periods,
@@ -269,10 +270,11 @@ def _line_analysis(
                 raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
             ls = LineSet(float(period_s), harm, "period")
         elif lines == "auto":
-            count_or_none = detect_period(al.x, al.mask)
+            power = periodogram(al.x, al.mask)
+            count_or_none = detect_period(al.x, al.mask, power)
             if count_or_none is None:
                 return None
-            harm = reference_lines(al.x, al.mask, count_or_none)
+            harm = reference_lines(al.x, al.mask, count_or_none, power)
             if harm.size == 0:
                 return None
             ls = LineSet(n * al.dt / count_or_none, harm, "detected")

@@ -73,6 +73,7 @@ PERIOD_ON_LINE = 1e-6  # a traditional period "on" a line: relative distance in 
 PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
 PERIOD_PHASE_TOL = 1e-6  # period refinement: stop when the highest line turns less (rad)
 REFINE_MAX_ITER = 6
+REFINE_SKIP = 1e-12  # no refinement when the lines leave less of the reference's variance
 CG_TOL = 1e-13
 CG_MAX_ITER = 200
 TAYLOR_TOL = 1e-10  # the instants' offsets from the grid: expansion remainder |ωδ|^(P+1)/(P+1)!
@@ -125,22 +126,38 @@ def chirp_sum(x: NDArray[Any], alpha: float, n_out: int, sign: int) -> ComplexAr
     return np.asarray(conv * chirp[:n_out], dtype=complex)
 
 
-@dataclass(frozen=True)
+@dataclass
 class LineFit:
     """Least-squares line coefficients of C channels on one grid.
 
     ``coef[c, k]``: complex amplitude of line k (the component is ``Re(coef·e^{j2πf t})``);
-    ``mean[c]``: the fitted constant; ``residual[c]``: data minus fit, zero in the gaps;
-    ``spectrum[c]``: rfft of the zero-filled residual; ``exact``: the DFT path (whole periods,
-    no gaps); ``iterations``: conjugate-gradient iterations (0 on the DFT path).
+    ``mean[c]``: the fitted constant; ``spectrum[c]``: rfft of the zero-filled residual;
+    ``residual[c]``: data minus fit, zero in the gaps (on the DFT path made from the spectrum
+    when first asked for); ``exact``: the DFT path (whole periods, no gaps); ``iterations``:
+    conjugate-gradient iterations (0 on the DFT path).
     """
 
     coef: ComplexArray
     mean: FloatArray
-    residual: FloatArray
     spectrum: ComplexArray
     exact: bool
     iterations: int
+    n: int
+    _residual: FloatArray | None = None
+
+    @property
+    def residual(self) -> FloatArray:
+        if self._residual is None:
+            self._residual = np.asarray(irfft(self.spectrum, self.n, axis=-1), dtype=float)
+        return self._residual
+
+    def residual_power(self) -> FloatArray:
+        """``Σ_s r_s²`` of each channel (Parseval on the spectrum)."""
+        a = self.spectrum.real**2 + self.spectrum.imag**2
+        total = 2.0 * a.sum(axis=-1) - a[..., 0]
+        if self.n % 2 == 0:
+            total = total - a[..., -1]
+        return np.asarray(total / self.n, dtype=float)
 
 
 class _Operator:
@@ -240,8 +257,7 @@ def fit_lines(
         resid_spec = spec.copy()
         resid_spec[..., 0] = 0.0
         resid_spec[..., bins] = 0.0
-        residual = irfft(resid_spec, n, axis=-1)
-        return LineFit(coef, mean, residual, resid_spec, True, 0)
+        return LineFit(coef, mean, resid_spec, True, 0, n)
     op = _Operator(n, mask, dt, period_s, harmonics, None if uniform else offsets)
     rhs = op.adjoint(v)
     kk = len(harmonics)
@@ -274,11 +290,11 @@ def fit_lines(
         )
     coef = p[..., 1 : 1 + kk] - 1j * p[..., 1 + kk :]
     residual = np.where(mask, v - op.forward(p), 0.0)
-    return LineFit(coef, p[..., 0], residual, rfft(residual, axis=-1), False, it)
+    return LineFit(coef, p[..., 0], rfft(residual, axis=-1), False, it, n, residual)
 
 
 # ------------------------------------------------------------------------ finding the lines
-def _periodogram(values: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
+def periodogram(values: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
     """``|X_j|²`` of the zero-filled, demeaned series, j = 0 … N/2 (DC set to 0)."""
     v = np.where(mask, values, 0.0)
     v = np.where(mask, v - v.sum() / max(1, int(mask.sum())), 0.0)
@@ -288,7 +304,9 @@ def _periodogram(values: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
     return np.asarray(p, dtype=float)
 
 
-def detect_period(x: FloatArray, mask: NDArray[np.bool_]) -> int | None:
+def detect_period(
+    x: FloatArray, mask: NDArray[np.bool_], power: FloatArray | None = None
+) -> int | None:
     """The number n ≥ 2 of whole periods of the reference in the record, or None.
 
     A reference periodic in ``T = N·Δt/n`` has its spectrum over the record (DFT bins
@@ -296,9 +314,9 @@ def detect_period(x: FloatArray, mask: NDArray[np.bool_]) -> int | None:
     strongest bin; the largest n whose off-grid bins hold at most ``DETECT_OFF_GRID`` of the
     power (plus twice the share the gaps' own spectrum puts off the grid) is the period.
     One period per record (n = 1) cannot be told from a non-periodic reference: state it
-    with ``period_s``.
+    with ``period_s``. ``power``: :func:`periodogram` of x, if already computed.
     """
-    p = _periodogram(x, mask)
+    p = periodogram(x, mask) if power is None else power
     total = float(p[1:].sum())
     if not total > 0.0:
         return None
@@ -307,25 +325,28 @@ def detect_period(x: FloatArray, mask: NDArray[np.bool_]) -> int | None:
     if not bool(mask.all()):
         ms = rfft(mask.astype(float))
         mp = ms.real**2 + ms.imag**2
-    j = np.arange(len(p))
+        mp_total = float(mp.sum())
     best = None
     for cand in range(2, j_max + 1):
         if j_max % cand:
             continue
-        off = float(p[j % cand != 0].sum()) / total
+        off = 1.0 - float(p[::cand].sum()) / total  # p[0] = 0: the DC bin holds nothing
         allowed = DETECT_OFF_GRID
         if mp is not None:
-            allowed += 2.0 * float(mp[j % cand != 0].sum()) / float(mp.sum())
+            allowed += 2.0 * (1.0 - float(mp[::cand].sum()) / mp_total)
         if off <= allowed:
             best = cand
     return best
 
 
-def reference_lines(x: FloatArray, mask: NDArray[np.bool_], n_periods: int) -> IntArray:
+def reference_lines(
+    x: FloatArray, mask: NDArray[np.bool_], n_periods: int, power: FloatArray | None = None
+) -> IntArray:
     """Harmonics k of ``T_p = N·Δt/n`` where the reference is excited: bin ``n·k`` holds at
     least ``DETECT_MIN_LINE`` of the strongest bin's power and ``DETECT_FLOOR`` times the
-    median power of the off-grid bins (of the upper half of the spectrum when n = 1)."""
-    p = _periodogram(x, mask)
+    median power of the off-grid bins (of the upper half of the spectrum when n = 1).
+    ``power``: :func:`periodogram` of x, if already computed."""
+    p = periodogram(x, mask) if power is None else power
     j = np.arange(len(p))
     on = (j % n_periods == 0) & (j > 0) & (2 * j < 2 * (len(p) - 1))
     floor_bins = p[(j % n_periods != 0)] if n_periods > 1 else p[len(p) // 2 :]
@@ -597,6 +618,13 @@ def _parts(
     return out
 
 
+def _power(spectrum: ComplexArray, n: int) -> float:
+    """``Σ_s r_s²`` of a real series of length n from its rfft (Parseval)."""
+    a = spectrum.real**2 + spectrum.imag**2
+    total = 2.0 * float(a.sum()) - float(a[0]) - (float(a[-1]) if n % 2 == 0 else 0.0)
+    return total / n
+
+
 def _derivative(fit: LineFit, n: int, dt: float, lines: LineSet, mask: NDArray[np.bool_],
                 offsets: FloatArray | None) -> FloatArray:
     """``ẋ(t) = Re Σ jω_k c_k e^{jω_k t}`` of the fitted lines (first row) at the instants."""
@@ -618,19 +646,29 @@ def refine_period(
     dt: float,
     lines: LineSet,
     offsets: FloatArray | None = None,
-) -> LineSet:
+    fit: LineFit | None = None,
+) -> tuple[LineSet, bool]:
     """The line set with its period fitted to the reference (Gauss–Newton on T_p, the lines
     refitted at each step): a stand playing on its own clock, or a period detected from a
     grid step fitted to jittered stamps, is some ppm off the nominal period, and over a long
     record that would leave part of every line in the residual. Stops (keeping the period)
     once the step would turn the highest line by less than ``PERIOD_PHASE_TOL`` over the
-    record."""
+    record, or at once when the lines leave less than ``REFINE_SKIP`` of the reference's
+    variance in the residual. ``fit``: a fit at ``lines`` whose first row is x, if made.
+    Returns the line set and whether its period changed.
+    """
     n = len(mask)
     span = n * dt
+    xd = np.where(mask, x - float(x[mask].mean()), 0.0)
+    xvar = float(np.dot(xd, xd))
     t = np.arange(n) * dt + (0.0 if offsets is None else offsets)
     t = t - float(t[mask].mean())  # centred: the derivative then lies outside the lines' span
+    changed = False
     for _ in range(REFINE_MAX_ITER):
-        fit = fit_lines(x[None, :], mask, dt, lines.period_s, lines.harmonics, offsets)
+        if fit is None:
+            fit = fit_lines(x[None, :], mask, dt, lines.period_s, lines.harmonics, offsets)
+        if float(fit.residual_power()[0]) <= REFINE_SKIP * xvar:
+            break
         g = np.where(mask, -(t / lines.period_s) * _derivative(fit, n, dt, lines, mask, offsets),
                      0.0)
         gg = float(np.dot(g, g))
@@ -641,7 +679,9 @@ def refine_period(
         if turn < PERIOD_PHASE_TOL:
             break
         lines = LineSet(lines.period_s + step, lines.harmonics, lines.source)
-    return lines
+        changed = True
+        fit = None
+    return lines, changed
 
 
 def analyze_lines(
@@ -678,13 +718,16 @@ def analyze_lines(
     whole_periods(n, dt, lines)
     offsets = None if t is None else grid_offsets(t, mask, dt)
     nominal = lines.period_s
-    lines = refine_period(x, mask, dt, lines, offsets)
-    n_periods = whole_periods(n, dt, lines)
     fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
+    lines, changed = refine_period(x, mask, dt, lines, offsets, fit)
+    n_periods = whole_periods(n, dt, lines)
+    if changed:
+        fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
     cx, cy = fit.coef[0], fit.coef[1]
     xd = np.where(mask, x - x[mask].mean(), 0.0)
     ref_var = float(np.dot(xd, xd))
-    ref_fit = 1.0 - float(np.dot(fit.residual[0], fit.residual[0])) / ref_var
+    rpow = fit.residual_power()
+    ref_fit = 1.0 - float(rpow[0]) / ref_var
     if ref_fit < REFERENCE_FIT_MIN or np.any(cx == 0):
         raise LinesError(
             f"the reference is not periodic in {lines.period_s:.6g} s: its {len(cx)} line(s) "
@@ -719,8 +762,7 @@ def analyze_lines(
     # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2
     level1 = float(s[bins == 1][0]) if np.any(bins == 1) else float(u[1])
     mean_removal = 0.5 * level1
-    resid = fit.residual[1] - fit.residual[0]
-    incoherent = float(np.dot(resid, resid)) / n_valid + float(s.sum()) + mean_removal
+    incoherent = float(_power(spec, n)) / n_valid + float(s.sum()) + mean_removal
     theta = linear + incoherent  # = σ̂² + mean_removal over whole periods without gaps
     # --- intervals: noise per bin (variance units) and its variance
     q = u * (n_valid / n)  # the residual's periodogram in variance units
