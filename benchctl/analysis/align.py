@@ -3,18 +3,19 @@
 What is done, in order:
 
 1. Both time series are checked: finite, strictly increasing (no duplicates), enough samples.
-2. Each device sample gets a slot ``k`` on a uniform grid. First guess from the median step
-   ``dt₀``: ``k_i = k_{i−1} + 1 + drops``, where a drop is a lasting jump of
-   ``t_i − i·dt₀``: the medians over ``h`` samples after and before a boundary differ by
-   about ``dt₀`` (``h`` ≥ 7, larger for larger jitter; jitter and short bursts of late
-   receipts do not move a median). Then, until it settles: fit ``t_i ≈ t₀ + k_i·dt`` by
-   least squares, take the slow wander of the instants about that grid (circular means of
-   their phase over blocks of 500 samples, so that samples in wrong slots do not bias it,
-   unwrapped and interpolated), and re-slot every sample by
-   ``k_i = round((t_i − t₀ − wander_i)/dt)``, kept strictly increasing by moving samples
-   that collide back into the free slots before them. So jitter about the device's clock
-   (and bursts of late receipts) does not move samples to other slots or fake drops, and a
-   clock off its nominal rate, or slowly wandering, is followed.
+2. Each device sample gets a slot ``k`` on a uniform grid (``timebase.fit_slots``). First
+   guess from the median step ``dt₀``: ``k_i = k_{i−1} + 1 + drops``, where a drop is a
+   lasting jump of the level of ``t_i − i·dt₀`` (its median over ``h`` ≥ 7 samples, larger
+   for larger jitter, then the lowest such median within 2 s ahead: a burst of late receipts
+   raises the level only until it is read, a drop for good). Then the circular-phase grid
+   (phase means over blocks of 500 samples, so samples in wrong slots do not bias it), and
+   finally, until it settles, the robust clock of the stamps on time (``robust_clock``: a
+   line and a slow wander fitted to the stamps, late ones left out) with every sample
+   re-slotted to the slot nearest its stamp on it, kept strictly increasing by moving
+   samples that collide back into the free slots before them. So jitter about the device's
+   clock and bursts of late receipts (a stalled host reading k samples late after a silence
+   of k slots) do not move samples to other slots or fake drops, and a clock off its nominal
+   rate, or slowly wandering, is followed.
 3. The reference is evaluated at each device instant (minus any compensated delay) by a cubic
    interpolating spline through the reference samples (``scipy.interpolate.make_interp_spline``,
    k = 3): the reference is smooth and oversampled, its interpolation error is negligible.
@@ -29,27 +30,37 @@ What is done, in order:
    estimator uses only the pairs that exist (see ``correlation``), so gaps bias nothing and the
    variance stays that of the analysed samples.
 
-With ``timebase="fitted"`` the device instants are replaced by the fitted grid instants
-``t₀ + k_i·dt`` (for an instrument that samples on its own clock but whose samples carry
-jittery receipt times); the default ``"given"`` takes the given times as the sample instants.
+With ``timebase="fitted"`` the device instants are replaced by the instants of the robust
+clock at their slots, ``t₀ + k_i·dt + w(k_i)`` (for an instrument that samples on its own
+clock but whose samples carry jittery receipt times); the default ``"given"`` takes the given
+times as the sample instants. ``reference_timebase`` does the same for the reference (a
+stream sampled on a uniform clock whose stamps jitter). Instants labelled by their time base
+(``timebase.Instants``, as a recording's ``pair`` gives them) are used as given and carry their
+own label and residual error.
+
+Timing contribution: an error ``δ`` in an instant adds ``ẋ·δ`` to ε, so the instants' residual
+errors add about ``σ_ẋ²·(δ_dev² + δ_ref²)`` to the variance (``Aligned.timing_variance``), with
+``σ_ẋ`` the rms rate of the reference at the device instants and ``δ`` the rms residual of each
+time base: for given stamps their rms jitter about their robust clock (all of it counted: the
+analysis cannot tell a stamp's error from a sample taken off the grid), for fitted ones the
+clock's own error, for labelled ones their label's.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
 
+from benchctl.analysis.timebase import Clock, fit_slots
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
 
 BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
-HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeking a drop
 MIN_SAMPLES = 64
 # Input ranges (README, "Inputs and alignment"): beyond them a stream is refused, not analysed
 MAX_GRID_FACTOR = 100  # a stream's grid (span / median step): at most 100× its samples …
@@ -62,13 +73,15 @@ MAX_ABS_ANGLE_DEG = 1e6  # |angle| at most 10⁶ deg
 
 @dataclass(frozen=True)
 class StreamTiming:
-    """Timing of one stream: nominal step (s), rms jitter about its grid (s), gaps."""
+    """Timing of one stream: nominal step (s), rms jitter about its grid (s), gaps, and the
+    stamps left out of its clock's fit as late (bursts)."""
 
     dt: float
     jitter_rms: float
     gap_count: int
     missing_samples: int
     longest_gap_s: float
+    late: int = 0
 
 
 @dataclass(frozen=True)
@@ -78,7 +91,9 @@ class Aligned:
     ``x``, ``y``: reference and device (deg) per slot, meaningful where ``mask``; ``t``: the
     instants used (s; NaN in empty slots); ``dt``: grid step (s); ``excluded``: device samples
     dropped for lack of reference; ``shift``: the delay subtracted from the device instants
-    before the reference was evaluated (s).
+    before the reference was evaluated (s). ``device_timebase``/``reference_timebase``: where
+    the instants come from; ``*_residual_s``: their estimated rms error (s); ``rate_rms``: the
+    reference's rms rate at the device instants (deg/s).
     """
 
     t: FloatArray
@@ -90,10 +105,34 @@ class Aligned:
     reference: StreamTiming
     excluded: int
     shift: float
+    device_timebase: str = "given"
+    reference_timebase: str = "given"
+    device_residual_s: float = 0.0
+    reference_residual_s: float = 0.0
+    rate_rms: float = 0.0
 
     @property
     def n_valid(self) -> int:
         return int(self.mask.sum())
+
+    @property
+    def timing_variance(self) -> float:
+        """Estimated variance the instants' residual errors add to ε, σ_ẋ²·(δ_dev² + δ_ref²)."""
+        d = np.nan_to_num(self.device_residual_s)
+        r = np.nan_to_num(self.reference_residual_s)
+        return float(self.rate_rms**2 * (d**2 + r**2))
+
+    def timing_fields(self) -> dict[str, float | str]:
+        """The time bases and the timing contribution, for the result's ``timing``."""
+        return {
+            "device_timebase": self.device_timebase,
+            "reference_timebase": self.reference_timebase,
+            "device_time_residual_s": self.device_residual_s,
+            "reference_time_residual_s": self.reference_residual_s,
+            "device_late_stamps": self.device.late,
+            "reference_rate_rms": self.rate_rms,
+            "timing_variance": self.timing_variance,
+        }
 
 
 def check_times(t: FloatArray, name: str) -> None:
@@ -159,95 +198,49 @@ def check_values(v: FloatArray, name: str) -> None:
         raise DataError(f"{name}: the signal is constant ({v[0]!r} deg); nothing to analyse")
 
 
-def _line(k: NDArray[np.int64], t: FloatArray) -> tuple[float, float]:
-    kc = k - k.mean()
-    dt = float(np.dot(kc, t - t.mean()) / np.dot(kc, kc))
-    return dt, float(t.mean() - dt * k.mean())
-
-
-def _wander(u: FloatArray, dt: float, block: int = 500) -> FloatArray:
-    """Slow offset of the instants ``u`` from the grid ``k·dt``, whatever their slots.
-
-    Circular means of the phase ``2π u/dt`` over blocks of samples (a sample in a wrong slot
-    has the same phase), unwrapped across blocks and interpolated to every sample.
-    """
-    n = len(u)
-    nb = max(1, n // block)
-    z = np.exp(2j * np.pi * (u - u[0]) / dt)
-    size = n // nb
-    means = z[: nb * size].reshape(nb, size).mean(axis=1)
-    offset = np.unwrap(np.angle(means)) * dt / (2.0 * np.pi) + u[0]
-    if nb == 1:
-        return np.full(n, offset[0])
-    centres = np.arange(nb) * size + (size - 1) / 2.0
-    return np.interp(np.arange(n), centres, offset)
-
-
-def _first_steps(t: FloatArray, dt0: float) -> NDArray[np.int64]:
-    """Slots advanced between consecutive samples: 1, plus the drops found between them.
-
-    A drop shifts every later sample by ``dt₀``: it is found as a jump between the median of
-    ``t_i − i·dt₀`` over the ``h`` samples after and the ``h`` samples before a boundary (a
-    burst of late receipts, fewer than ``h/2`` samples, does not move a median), placed at
-    the boundary where that jump is largest.
-    """
-    n = len(t)
-    d = np.diff(t)
-    jitter = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
-    h = int(np.clip(np.ceil((14.2 * jitter / dt0) ** 2), HALF_WINDOW, 101)) | 1
-    if n < 4 * h:
-        return np.maximum(1, np.rint(d / dt0)).astype(np.int64)
-    med = median_filter(t - dt0 * np.arange(n), size=h, mode="nearest")  # centred, width h
-    c = h // 2
-    b = np.arange(1, n)  # boundary between samples b−1 and b
-    jump = (med[np.clip(b + c, 0, n - 1)] - med[np.clip(b - 1 - c, 0, n - 1)]) / dt0
-    steps = np.ones(n - 1, dtype=np.int64)
-    cand = jump >= 0.5
-    if cand.any():
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], cand.view(np.int8), [0]))))
-        for a, e in zip(edges[::2], edges[1::2], strict=True):
-            # boundaries a … e−1 (boundary j between samples j and j+1): the level change
-            # across the whole run counts the drops; they sit at its largest raw steps
-            total = (med[min(e + c, n - 1)] - med[max(a - c, 0)]) / dt0
-            m = max(1, round(total))
-            order = a + np.argsort(d[a:e])[::-1]
-            q, r = divmod(m, len(order))  # m drops over the run's largest steps, in turn
-            steps[order] += q
-            steps[order[:r]] += 1
-    return steps
-
-
 def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:
     """Grid slots of the instants ``t``, with the fitted step and origin (see module notes)."""
-    dt0 = float(np.median(np.diff(t)))
-    idx = np.arange(len(t))
-    k = np.concatenate(([0], np.cumsum(_first_steps(t, dt0))))
-    for _ in range(5):
-        dt, t0 = _line(k, t)
-        wander = _wander(t - t0, dt)
-        k_new = np.rint((t - t0 - wander) / dt).astype(np.int64)
-        # strictly increasing: a sample that shares a slot with a later one moves back into
-        # the free slots before it (a burst of late receipts), never pushes later ones on
-        k_new = idx + np.minimum.accumulate((k_new - idx)[::-1])[::-1]
-        k_new -= k_new[0]
-        if np.array_equal(k_new, k):
-            break
-        k = k_new
-    dt, t0 = _line(k, t)
-    return k, dt, t0
+    k, clk = fit_slots(t)
+    return k, clk.dt, float(clk.at(0.0))
 
 
-def _timing(t: FloatArray, k: NDArray[np.int64], dt: float, t0: float) -> StreamTiming:
+def _timing(t: FloatArray, k: NDArray[np.int64], clk: Clock) -> StreamTiming:
     steps = np.diff(k)
     gaps = steps > 1
-    jitter = t - (t0 + k * dt)
+    jitter = t - clk.at(k)
     return StreamTiming(
-        dt=dt,
+        dt=clk.dt,
         jitter_rms=float(np.sqrt(np.mean((jitter - jitter.mean()) ** 2))),
         gap_count=int(gaps.sum()),
         missing_samples=int((steps[gaps] - 1).sum()),
         longest_gap_s=float(np.max(np.diff(t)[gaps])) if gaps.any() else 0.0,
+        late=clk.late,
     )
+
+
+def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
+    """rms rate of the reference (deg/s) from differences over consecutive valid slots."""
+    pair = mask[1:] & mask[:-1]
+    if not pair.any():
+        return 0.0
+    v = np.diff(x)[pair] / dt
+    return float(np.sqrt(np.mean((v - v.mean()) ** 2)))
+
+
+Label = tuple[str, float, dict[str, Any]] | None
+
+
+def _instants(
+    t: FloatArray, mode: str, label: Label
+) -> tuple[FloatArray, NDArray[np.int64], StreamTiming, str, float]:
+    """(instants used, slots, timing, time base, residual error) of one stream."""
+    k, clk = fit_slots(t)
+    timing = _timing(t, k, clk)
+    if mode == "fitted":
+        return clk.at(k), k, timing, "fitted", clk.error_rms
+    if label is not None:
+        return t, k, timing, label[0], label[1]
+    return t, k, timing, "given", timing.jitter_rms
 
 
 def align(
@@ -258,6 +251,8 @@ def align(
     *,
     shift_s: float = 0.0,
     timebase: Literal["given", "fitted"] = "given",
+    reference_timebase: Literal["given", "fitted"] = "given",
+    labels: tuple[Label, Label] = (None, None),
 ) -> Aligned:
     """Evaluate the reference at the device's instants and lay both on the device's grid.
 
@@ -269,8 +264,12 @@ def align(
         Device instants, s, and angles, deg.
     shift_s : float
         Delay to compensate, s: the reference is evaluated at ``t_dev − shift_s``.
-    timebase : {"given", "fitted"}
-        Use the given device instants, or the least-squares grid fitted through them.
+    timebase, reference_timebase : {"given", "fitted"}
+        Use the given device (reference) instants, or those of the robust clock fitted
+        through them.
+    labels : (label, label)
+        ``timebase.label_of`` of the reference's and the device's instants as the caller
+        had them (a recording's time bases), else None.
 
     Returns
     -------
@@ -282,11 +281,8 @@ def align(
         check_times(t, f"{name} time")
         check_grid(t, f"{name} time")
         check_values(v, f"{name} angle")
-    k, dt, t0 = slot_indices(t_dev)
-    dev_timing = _timing(t_dev, k, dt, t0)
-    kr, dtr, t0r = slot_indices(t_ref)
-    ref_timing = _timing(t_ref, kr, dtr, t0r)
-    t_use = t0 + k * dt if timebase == "fitted" else t_dev
+    t_use, k, dev_timing, dev_base, dev_res = _instants(t_dev, timebase, labels[1])
+    t_ref, _, ref_timing, ref_base, ref_res = _instants(t_ref, reference_timebase, labels[0])
     same = shift_s == 0.0 and len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_use)
     t_eval = t_use - shift_s
     ok = (t_eval >= t_ref[0]) & (t_eval <= t_ref[-1])
@@ -326,9 +322,14 @@ def align(
         x=x,
         y=y,
         mask=mask,
-        dt=dt,
+        dt=dev_timing.dt,
         device=dev_timing,
         reference=ref_timing,
         excluded=int(len(ok) - sel.sum()),
         shift=shift_s,
+        device_timebase=dev_base,
+        reference_timebase=ref_base,
+        device_residual_s=float(dev_res),
+        reference_residual_s=float(ref_res),
+        rate_rms=_rate_rms(x, mask, dev_timing.dt),
     )

@@ -47,6 +47,7 @@ from benchctl.analysis.psd import (
     welch_by_runs,
 )
 from benchctl.analysis.result import AnalysisResult
+from benchctl.analysis.timebase import label_of
 from benchctl.analysis.uncertainty import (
     density_interval,
     dof_of_variance,
@@ -62,6 +63,7 @@ LinesMode = LineSet | Literal["auto", "off"]
 MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
+TIMING_SHARE_WARN = 0.01  # warn when the timing contribution exceeds 1 % of σ²
 
 
 def default_max_lag(n_grid: int) -> int:
@@ -171,6 +173,7 @@ def analyze(
     band_hz: tuple[float, float] | None = None,
     compensate_delay: DelayMode = "none",
     timebase: Literal["given", "fitted"] = "given",
+    reference_timebase: Literal["given", "fitted"] = "given",
     lines: LinesMode = "auto",
     period_s: float | None = None,
     source: str = "",
@@ -195,6 +198,10 @@ def analyze(
         the cross-correlation peak. The delay found before compensation is always reported.
     timebase : {"given", "fitted"}
         Device instants as given, or fitted to a uniform clock (jittery receipt times).
+    reference_timebase : {"given", "fitted"}
+        The same for the reference's instants (a reference sampled on a uniform clock whose
+        stamps jitter). Instants labelled with their time base (``timebase.Instants``, as
+        ``Recording.pair`` gives them) are used as given and keep their label.
     lines : LineSet | "auto" | "off"
         The excited lines of a periodic multisine (e.g. from a recording's profile, see
         ``benchctl.analysis.lines.line_set_from_recording``); "auto" (default): detected in
@@ -237,7 +244,9 @@ def analyze(
         raise DataError(f"period: expected a positive number of seconds, got {period_s!r}")
     if not isinstance(lines, LineSet) and lines not in ("auto", "off"):
         raise DataError(f"lines: expected a LineSet, 'auto' or 'off', got {lines!r}")
-    al = align(tr, xr, td, yd, timebase=timebase)
+    labels = (label_of(t_ref), label_of(t_dev))
+    al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
+               labels=labels)
     lag = _max_lag(al, max_lag_s)
     sp = _spectra(al, lag)
     _check_band(band_hz, al, sp.grid.resolution_hz)
@@ -248,7 +257,8 @@ def analyze(
         if not np.isfinite(shift):
             raise DataError("compensate_delay=auto: no delay could be estimated (no excited band)")
         if shift != 0.0:
-            al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase)
+            al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase,
+                       reference_timebase=reference_timebase, labels=labels)
             lag = _max_lag(al, max_lag_s)
             sp = _spectra(al, lag)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s)
@@ -366,6 +376,15 @@ def _result(
             "variance": bv,
             "sigma": float(np.sqrt(max(bv, 0.0))),
         }
+    if al.timing_variance > TIMING_SHARE_WARN * variance:
+        warnings.append(
+            f"timing: the instants' residual errors (device {1e3 * al.device_residual_s:.3g} ms "
+            f"{al.device_timebase}, reference {1e3 * al.reference_residual_s:.3g} ms "
+            f"{al.reference_timebase}) at an rms rate of {al.rate_rms:.3g}°/s add about "
+            f"{100 * al.timing_variance / variance:.3g} % to σ² (σ_ẋ²·jitter²); stamps that "
+            "jitter about a uniform clock: use a fitted time base (--timebase fitted, "
+            "--reference-timebase fitted)"
+        )
     if al.device.gap_count:
         warnings.append(
             f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "
@@ -432,6 +451,8 @@ def _result(
             "device_jitter_rms": al.device.jitter_rms,
             "reference_dt": al.reference.dt,
             "reference_jitter_rms": al.reference.jitter_rms,
+            **al.timing_fields(),
+            "timing_share": al.timing_variance / variance if variance > 0 else 0.0,
         },
         cross_checks=cross,
         uncertainty={

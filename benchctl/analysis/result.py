@@ -90,7 +90,7 @@ class AnalysisResult:
     lines: LineAnalysis | None
     band: dict[str, float] | None
     gaps: dict[str, Any]
-    timing: dict[str, float]
+    timing: dict[str, Any]
     cross_checks: dict[str, Any]
     uncertainty: dict[str, Any]
     source: str = ""
