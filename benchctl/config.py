@@ -103,6 +103,9 @@ class InstrumentConfig(Strict):
     sleep_after_open_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] | None = (
         None
     )
+    # slcan: ask the adapter to timestamp every received frame (Z1, its own ms clock); the
+    # analysis then dates the samples by the adapter's clock, not by their receipt
+    adapter_timestamps: bool = True
     # further keyword arguments for can.Bus (e.g. a hardware interface's own options)
     can_options: dict[str, str | int | Finite | bool] = Field(default_factory=dict)
     connect_timeout_s: Seconds = 3.0  # SDO answers / the first broadcast frame within this

@@ -100,12 +100,14 @@ def test_slcan_frame_lines_and_bitrate() -> None:
     assert a.line_for(msg, 1.5) == b"t18A4E80318FC05DC\r"
 
 
-def test_python_can_open_and_close_bytes(pty: PtyPort) -> None:
-    """The exact bytes python-can's slcan sends on open and on shutdown."""
+@pytest.mark.parametrize(("stamps", "z"), [(True, b"Z1"), (False, b"Z0")])
+def test_python_can_open_and_close_bytes(pty: PtyPort, stamps: bool, z: bytes) -> None:
+    """The exact bytes python-can's slcan sends on open and on shutdown, with our timestamp
+    command while the channel is still closed (LAWICEL takes ``Z`` only then)."""
     cfg = InstrumentConfig(driver="nmea2000", interface="slcan", channel=pty.path,
-                           dbc=DRIVERS / "nmea2000_attitude.dbc")
+                           dbc=DRIVERS / "nmea2000_attitude.dbc", adapter_timestamps=stamps)
     dev = open_instrument(cfg)
-    assert read_all(pty, b"O\rO\r") == b"C\rS6\r\rO\rO\r"
+    assert read_all(pty, b"O\rO\r") == b"C\rS6\r\r" + z + b"\rO\rO\r"
     dev.close()
     assert read_all(pty, b"C\r") == b"C\r"
 
@@ -147,6 +149,25 @@ def test_canopen_tpdo_bytes(pty: PtyPort) -> None:
     assert got[0].angle_deg == {"roll": -10.0, "pitch": 10.0}
     assert got[1].angle_deg == pytest.approx({"roll": -0.01, "pitch": 0.01}, abs=1e-12)
     assert got[0].counter is None and got[0].device_time_s is None
+
+
+def test_adapter_timestamps_reach_the_samples_unwrapped(pty: PtyPort) -> None:
+    """Frames with a Z1 timestamp give their samples ``adapter_time_s``: the adapter's ms clock
+    in seconds, continuous across its wrap at 60 000 ms; a service frame between two samples
+    counts too, and a frame without a timestamp gives None."""
+    cfg = InstrumentConfig(driver="canopen", interface="slcan", channel=pty.path, node_id=10,
+                           eds=DRIVERS / "cia410_inclinometer.eds")
+    lines = [
+        b"t18A4E80318FCEA4C\r",  # 59 980 ms
+        b"t70A105EA56\r",  # heartbeat (operational) at 59 990 ms: a service frame
+        b"t18A40100FFFF0004\r",  # 4 ms after the wrap: 60 004 ms
+        b"t18A40100FFFF\r",  # no timestamp
+    ]
+    got, bad, good = _run_can(pty, cfg, lines, 3)
+    assert good == 3 and bad == {}
+    assert got[0].adapter_time_s == pytest.approx(59.980, abs=1e-12)
+    assert got[1].adapter_time_s == pytest.approx(60.004, abs=1e-12)
+    assert got[2].adapter_time_s is None
 
 
 def test_j1939_ssi_bytes(pty: PtyPort) -> None:

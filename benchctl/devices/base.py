@@ -63,8 +63,10 @@ class TrajectoryStatus:
 class StandSample:
     """One read of the stand's measured state.
 
-    ``t_host`` is the midpoint of request and reply on the monotonic clock; ``rtt_s`` the round
-    trip. Angles are the encoder's (the reference x(t)), never the commanded ones.
+    ``t_host`` is when the stand took the state, on the monotonic clock: the midpoint of request
+    and reply (Modbus TCP) or the end of the request on the wire (Modbus RTU, from the frame's
+    byte times); ``rtt_s`` the round trip. Angles are the encoder's (the reference x(t)), never
+    the commanded ones.
     """
 
     t_host: float
@@ -81,14 +83,17 @@ class InstrumentSample:
     """One decoded instrument output.
 
     ``t_host`` is the receipt time on the monotonic clock. ``device_time_s`` and ``counter`` are
-    the device's own time or counter where the protocol carries one (else None). Angles for the
-    axes the instrument reports (``roll``, ``pitch``).
+    the device's own time or counter where the protocol carries one (else None);
+    ``adapter_time_s`` the CAN adapter's timestamp of the frame (slcan ``Z1``: its own clock, in
+    seconds, unwrapped; None without one). Angles for the axes the instrument reports
+    (``roll``, ``pitch``).
     """
 
     t_host: float
     angle_deg: dict[str, float]
     device_time_s: float | None = None
     counter: int | None = None
+    adapter_time_s: float | None = None
 
 
 @dataclass

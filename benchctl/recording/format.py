@@ -9,7 +9,8 @@
       stand.csv         t_host, rtt_s, <axis>_deg…, <axis>_rate_deg_s…, <axis>_setpoint_deg…,
                         status, fault_code
                         (t_host = midpoint of request and reply, monotonic seconds)
-      instrument.csv    t_host, device_time_s, counter, <axis>_deg…   (t_host = receipt time)
+      instrument.csv    t_host, device_time_s, counter, adapter_time_s, <axis>_deg…
+                        (t_host = receipt time; adapter_time_s = the CAN adapter's timestamp)
       setpoints.csv     t_send, t_slot, <axis>_deg…                    (commanded motion: the
                         profile's value at its slot time t_slot, sent at t_send)
       events.jsonl      one JSON object a line: state changes, faults, notes
@@ -56,7 +57,7 @@ def stand_columns(axes: tuple[str, ...]) -> list[str]:
 
 
 def instrument_columns(axes: tuple[str, ...]) -> list[str]:
-    return ["t_host", "device_time_s", "counter"] + [f"{a}_deg" for a in axes]
+    return ["t_host", "device_time_s", "counter", "adapter_time_s"] + [f"{a}_deg" for a in axes]
 
 
 def setpoint_columns(axes: tuple[str, ...]) -> list[str]:

@@ -6,13 +6,16 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from benchctl.errors import DataError
 from benchctl.recording.format import END_FILE, EVENTS_FILE, FORMAT_NAME, META_FILE, STREAM_FILES
+
+if TYPE_CHECKING:
+    from benchctl.analysis.timebase import Instants
 
 
 def _read_stream(path: Path) -> tuple[list[str], NDArray[np.float64]]:
@@ -122,9 +125,17 @@ class Recording:
             raise DataError(f"{self.path}: stream {stream!r} has no column {name!r}") from None
 
     def pair(
-        self, axis: str, window: bool = True
+        self, axis: str, window: bool = True, timebase: str = "best"
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed.
+
+        The instants are on the host's monotonic clock, from the best time base each stream
+        has (see ``timebases``): the instrument's from its own clock or counter, else the CAN
+        adapter's timestamps, else a clock fitted to its receipt stamps (``timebase`` picks one:
+        ``best``, ``device``, ``adapter``, ``fitted`` or ``receipt``); the stand's at each
+        reply's stamp (``_stamp_certain``: replies that took far longer than usual left out).
+        Both are ``benchctl.analysis.timebase.Instants``: labelled with their time base and
+        residual error, which ``analyze`` reports (``timing``), also after cropping.
 
         A finished run's recording (``end.json`` with ``analysis_window`` [t0, t1]) gives the
         instrument's samples inside that window and the reference up to ``WINDOW_MARGIN_S``
@@ -133,33 +144,74 @@ class Recording:
         """
         if axis not in self.axes:
             raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")
-        tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
-        td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
-        okr = np.isfinite(tr) & np.isfinite(xr) & self._stamp_certain()
-        okd = np.isfinite(td) & np.isfinite(yd)
-        dev_t = self.streams["instrument"].get("device_time_s")
-        td_ok = resolve_batches(td[okd], None if dev_t is None else dev_t[okd])
-        tr, xr, yd = tr[okr], xr[okr], yd[okd]
+        tr, xr, td, yd = self.timebases(axis, timebase)
         win = self.analysis_window if window else None
         if win is not None:
             lo, hi = win
             kr = (tr >= lo - WINDOW_MARGIN_S) & (tr <= hi + WINDOW_MARGIN_S)
-            kd = (td_ok >= lo) & (td_ok <= hi)
-            return tr[kr], xr[kr], td_ok[kd], yd[kd]
-        return tr, xr, td_ok, yd
+            kd = (td >= lo) & (td <= hi)
+            return tr[kr], xr[kr], td[kd], yd[kd]
+        return tr, xr, td, yd
+
+    def timebases(
+        self, axis: str, timebase: str = "best"
+    ) -> tuple[Instants, NDArray[np.float64], Instants, NDArray[np.float64]]:
+        """Both streams of one axis on their time bases, whole (see ``pair``)."""
+        from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error
+
+        tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
+        td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
+        okr = np.isfinite(tr) & np.isfinite(xr)
+        okd = np.isfinite(td) & np.isfinite(yd)
+        inst = self.streams["instrument"]
+        dev_t = inst.get("device_time_s")
+        td_ok = resolve_batches(td[okd], None if dev_t is None else dev_t[okd])
+        stamp = "request_end" if self._driver("stand") == "modbus-rtu" else "midpoint"
+        keep = self._stamp_certain()[okr]
+        err = stamp_error(self.column("stand", "rtt_s")[okr][keep], stamp)
+        t_ref = Instants(tr[okr][keep], stamp, err, {"dropped": int((~keep).sum())})
+        x_ref = xr[okr][keep]
+
+        def col(name: str) -> NDArray[np.float64] | None:
+            c = inst.get(name)
+            return None if c is None else c[okd]
+
+        if td_ok.size < 2:
+            return t_ref, x_ref, Instants(td_ok, "receipt"), yd[okd]
+        if np.any(np.diff(td_ok) <= 0):  # decreasing receipts: left for the analysis to reject
+            return t_ref, x_ref, Instants(td_ok, "receipt"), yd[okd]
+        try:
+            tb = instrument_timebase(
+                td_ok,
+                device_time=col("device_time_s"),
+                counter=col("counter"),
+                adapter_time=col("adapter_time_s"),
+                driver=self._driver("instrument"),
+                prefer=timebase,
+            )
+        except ValueError as e:
+            raise DataError(f"{self.path}: instrument: {e}") from None
+        return t_ref, x_ref, tb.instants(), yd[okd]
 
     def _stamp_certain(self) -> NDArray[np.bool_]:
         """Stand samples whose stamp is certain: a sample is stamped at the midpoint of its
-        request and reply, so its time is uncertain by ±round trip/2; one whose round trip took
-        longer than ``max(RTT_OUTLIER_MIN_S, RTT_OUTLIER_FACTOR × median)`` (the host or the
-        stand was held up mid-request) is left out — a gap the reference spline bridges or the
-        analysis masks, never a sample at the wrong time."""
+        request and reply (Modbus TCP) or at the end of its request on the wire (RTU), so its
+        time is uncertain by up to its round trip; one whose round trip took longer than
+        ``max(RTT_OUTLIER_MIN_S, RTT_OUTLIER_FACTOR × median)`` (the host or the stand was held
+        up mid-request) is left out — a gap the reference spline bridges or the analysis masks,
+        never a sample at the wrong time."""
         rtt = self.column("stand", "rtt_s")
         ok = np.isfinite(rtt)
         if not np.any(ok):
             return np.ones(rtt.shape, dtype=bool)
         bound = max(RTT_OUTLIER_MIN_S, RTT_OUTLIER_FACTOR * float(np.median(rtt[ok])))
         return ~ok | (rtt <= bound)
+
+    def _driver(self, device: str) -> str | None:
+        cfg = self.meta.get("config")
+        sec = cfg.get(device) if isinstance(cfg, dict) else None
+        drv = sec.get("driver") if isinstance(sec, dict) else None
+        return drv if isinstance(drv, str) else None
 
     @property
     def analysis_window(self) -> tuple[float, float] | None:

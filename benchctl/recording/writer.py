@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import numbers
 import os
 import threading
 import time
@@ -37,9 +38,10 @@ from benchctl.recording.format import (
 def _num(x: float | int | None) -> str:
     if x is None:
         return ""
-    if isinstance(x, float) and not math.isfinite(x):
-        return "nan"
-    return repr(x)
+    if isinstance(x, numbers.Integral):  # numpy's integers too
+        return str(int(x))
+    f = float(x)  # numpy's floats too (their repr is not a number)
+    return repr(f) if math.isfinite(f) else "nan"
 
 
 def _atomic_json(path: Path, obj: Mapping[str, Any]) -> None:
@@ -160,7 +162,7 @@ class RecordingWriter:
         self._write("stand", fields)
 
     def write_instrument(self, s: InstrumentSample) -> None:
-        fields = [_num(s.t_host), _num(s.device_time_s), _num(s.counter)]
+        fields = [_num(s.t_host), _num(s.device_time_s), _num(s.counter), _num(s.adapter_time_s)]
         fields += [_num(s.angle_deg.get(ax)) for ax in self.axes]
         self._write("instrument", fields)
 

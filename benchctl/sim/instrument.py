@@ -62,7 +62,7 @@ from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.motion import MotionSource
 from benchctl.sim.pty_port import PtyPort
-from benchctl.sim.slcan import SlcanAdapter
+from benchctl.sim.slcan import SlcanAdapter, frame_bits
 
 FAULTS = ("garbled", "silent", "stuck", "drop")
 CAN_GARBLING = ("length", "range", "id", "line", "bytes")
@@ -333,13 +333,13 @@ class SimInstrument:
         out = can.Message(arbitration_id=cid, is_extended_id=msg.is_extended_id, data=bytes(data))
         if how == "line":
             assert self._adapter is not None
-            line = bytearray(self._adapter.line_for(out, 0.0) or b"")
+            line = bytearray(self._adapter.line_for(out) or b"")
             if line:
                 line[1:2] = b"G"  # not a hex digit
             return bytes(line)
         if how == "bytes":
             assert self._adapter is not None
-            return damage_bytes(self._adapter.line_for(out, 0.0) or b"", self._rng)
+            return damage_bytes(self._adapter.line_for(out) or b"", self._rng)
         return out
 
     def _tick(self, k: int, t: float) -> None:
@@ -369,7 +369,10 @@ class SimInstrument:
                 bad = garbled is not None and self._rng.random() < garbled["fraction"]
                 if bad:
                     item = self._garble_frame(msg, garbled["how"])  # type: ignore[index]
-                line = item if isinstance(item, bytes) else adapter.line_for(item, t)
+                # the adapter stamps a frame when it is complete on the bus: the instrument
+                # sends it at its output instant (the simulator's own lateness is no bus time)
+                t_bus = t + frame_bits(msg) / self.cfg.bitrate
+                line = item if isinstance(item, bytes) else adapter.line_for(item, t_bus=t_bus)
                 self._write(port, line, bad)
         else:
             line = nmea_talker.sentence(self.sentence, t + self._utc_offset, y["roll"], y["pitch"])
@@ -402,7 +405,7 @@ class SimInstrument:
         port.write(answers)
         out, self._bus_out[:] = list(self._bus_out), []
         for msg in out:  # the node's answers (SDO) reach the host after the adapter's acks
-            line = self._adapter.line_for(msg, time.monotonic())
+            line = self._adapter.line_for(msg)
             if line:
                 port.write(line)
 

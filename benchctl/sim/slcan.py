@@ -11,7 +11,8 @@ Host → adapter commands, each ending in CR; the adapter answers CR for OK and 
 ``C``                 close
 ``V`` / ``N``         version ``V1013`` / serial number ``NSIM1``
 ``F``                 status flags ``F00``
-``Z0`` / ``Z1``       timestamps off / on (4 hex digits of ms, 0…EA5F, appended to frames)
+``Z0`` / ``Z1``       timestamps off / on (4 hex digits of ms, 0…EA5F, appended to frames);
+                      only while closed
 ``M``/``m``/``X``/``W`` acceptance code/mask, auto-poll, filter mode: accepted, no effect
 ``tIIIL…`` ``TIIIIIIIIL…`` ``r…`` ``R…``  transmit (open, not listen-only) → ``z``/``Z`` + CR
 empty line            CR
@@ -19,11 +20,16 @@ empty line            CR
 
 Adapter → host: received bus frames as ``tIIILDD…`` / ``TIIIIIIIILDD…`` lines (upper-case hex)
 while open, and only if the host's bitrate equals the bus bitrate (else the adapter sees only
-error frames: nothing).
+error frames: nothing). With ``Z1`` each line ends in the adapter's own millisecond clock
+(``clock``, counted from the adapter's start, ``drift_ppm`` off the host's rate, wrapping at
+60 000 ms) read when the frame was complete on the bus — as a real adapter stamps a frame when
+it takes it off the bus, whatever happens to it on its way to the host: ``line_for(msg,
+t_bus=…)`` with the frame's bus time on the host clock, or now.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import can
@@ -45,6 +51,11 @@ def frame_line(msg: can.Message, timestamp_ms: int | None = None) -> bytes:
     body = "" if msg.is_remote_frame else bytes(msg.data).hex().upper()
     tail = "" if timestamp_ms is None else f"{timestamp_ms % 60000:04X}"
     return (head + body + tail).encode("ascii") + OK
+
+
+def frame_bits(msg: can.Message) -> int:
+    """Bits of a classic data frame on the bus, before stuffing (SOF … EOF and intermission)."""
+    return (67 if msg.is_extended_id else 47) + (0 if msg.is_remote_frame else 8 * msg.dlc)
 
 
 def parse_frame(cmd: str) -> can.Message | None:
@@ -82,11 +93,24 @@ class SlcanAdapter:
         The simulated bus's bitrate (bit/s); the host must select the same to see frames.
     on_transmit : callable
         Called with each frame the host transmits (e.g. SDO requests to a simulated node).
+    clock : callable
+        The host clock the adapter's own clock runs from (s); its timestamps count ms from the
+        adapter's creation, ``drift_ppm`` fast.
     """
 
-    def __init__(self, bus_bitrate: int, on_transmit: Callable[[can.Message], None]) -> None:
+    def __init__(
+        self,
+        bus_bitrate: int,
+        on_transmit: Callable[[can.Message], None],
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        drift_ppm: float = 0.0,
+    ) -> None:
         self.bus_bitrate = bus_bitrate
         self.on_transmit = on_transmit
+        self.clock = clock
+        self.drift_ppm = drift_ppm
+        self._t_boot = clock()
         self.is_open = False
         self.listen_only = False
         self.timestamps = False
@@ -100,11 +124,22 @@ class SlcanAdapter:
         """True when bus frames reach the host."""
         return self.is_open and (self.host_bitrate is None or self.host_bitrate == self.bus_bitrate)
 
-    def line_for(self, msg: can.Message, t_s: float) -> bytes | None:
-        """The line to send the host for a bus frame at time ``t_s``, or None if not forwarded."""
+    def now(self, t_host: float | None = None) -> float:
+        """The adapter's own clock (s since it started) now, or at host time ``t_host``."""
+        t = self.clock() if t_host is None else t_host
+        return (t - self._t_boot) * (1.0 + 1e-6 * self.drift_ppm)
+
+    def line_for(
+        self, msg: can.Message, t_s: float | None = None, *, t_bus: float | None = None
+    ) -> bytes | None:
+        """The line to send the host for a bus frame, or None if not forwarded. Its timestamp
+        (with ``Z1``): ``t_s`` (s on the adapter's clock), else the adapter's clock at the
+        frame's bus time ``t_bus`` (host clock), else now."""
         if not self.forwarding:
             return None
-        return frame_line(msg, int(t_s * 1000) if self.timestamps else None)
+        if not self.timestamps:
+            return frame_line(msg)
+        return frame_line(msg, int((self.now(t_bus) if t_s is None else t_s) * 1000))
 
     def feed(self, data: bytes) -> bytes:
         """Interpret complete CR-terminated commands in ``data``; return the answers."""
@@ -158,6 +193,8 @@ class SlcanAdapter:
         if cmd == "F":
             return b"F00\r" if self.is_open else BEL
         if cmd in ("Z0", "Z1"):
+            if self.is_open:
+                return BEL
             self.timestamps = cmd == "Z1"
             return OK
         if c in "MmXW":

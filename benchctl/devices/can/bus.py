@@ -30,8 +30,9 @@ def _is_pty(channel: str) -> bool:
 def can_bus_kwargs(cfg: InstrumentConfig) -> dict[str, Any]:
     """Keyword arguments for ``can.Bus`` from ``cfg`` (interface, channel, bitrate, options).
 
-    For ``slcan`` the serial baud rate is ``cfg.baudrate`` and the wait after opening is
-    ``cfg.sleep_after_open_s``, or 0 for a pseudo-terminal and 2 s otherwise.
+    For ``slcan`` the serial baud rate is ``cfg.baudrate``, the wait after opening is
+    ``cfg.sleep_after_open_s``, or 0 for a pseudo-terminal and 2 s otherwise, and
+    ``adapter_timestamps`` is ``cfg.adapter_timestamps`` (``SlcanBus``: ``Z1``).
     """
     if not cfg.interface or cfg.channel is None:
         raise DeviceError(f"instrument driver {cfg.driver}: needs interface and channel for CAN")
@@ -43,6 +44,7 @@ def can_bus_kwargs(cfg: InstrumentConfig) -> dict[str, Any]:
             sleep = 0.0 if _is_pty(cfg.channel) else SLCAN_DEFAULT_SLEEP_S
         kwargs["sleep_after_open"] = sleep
         kwargs["tty_baudrate"] = cfg.baudrate
+        kwargs["adapter_timestamps"] = cfg.adapter_timestamps
     kwargs.update(cfg.can_options)
     return kwargs
 

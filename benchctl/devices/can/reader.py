@@ -12,12 +12,17 @@ What ``bus.recv`` gives or raises:
   keeps that line in its buffer, so it is dropped here, else every later line would fail too);
 - any other exception (serial port gone, interface down) → the link is lost (``ConnectionLost``).
 
+A frame with an adapter timestamp (``SlcanBus``: ``Z1``) gives its sample ``adapter_time_s``:
+the adapter's millisecond clock unwrapped into seconds by an ``AdapterClock`` (every frame
+counts the wraps, service frames too).
+
 Every received frame, good or bad, goes to the raw log (``can.Logger``: ``.blf``, ``.asc`` …)
 when a path is given; ``can.LogReader`` reads it back.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -26,7 +31,9 @@ from typing import Any
 import can
 
 from benchctl.config import InstrumentConfig
+from benchctl.devices.base import InstrumentSample
 from benchctl.devices.can.bus import shutdown_bus
+from benchctl.devices.can.slcan import AdapterClock
 from benchctl.devices.reader import (
     BAD_DECODE,
     BAD_ID,
@@ -102,6 +109,8 @@ class CanInstrument(SensorReader):
         super().__init__(cfg, f"{cfg.interface}:{cfg.channel}")
         self._bus = bus
         self._owns_bus = owns_bus
+        self._adapter_clock = AdapterClock()
+        self._adapter_s: float | None = None  # the adapter time of the frame being handled
         self._can_logger: Any = None
         if can_log_path is not None:
             try:
@@ -123,6 +132,8 @@ class CanInstrument(SensorReader):
         if msg is None:
             return []
         t_host = time.monotonic()
+        ms = getattr(msg, "adapter_ms", None)
+        self._adapter_s = None if ms is None else self._adapter_clock.unwrap(ms, t_host)
         self._log_frame(msg)
         if msg.is_error_frame:
             self.stats.count_bad(BAD_DECODE)
@@ -131,6 +142,11 @@ class CanInstrument(SensorReader):
             self.stats.count_bad(BAD_ID)
             return []
         return [(msg, t_host)]
+
+    def _emit(self, sample: InstrumentSample) -> None:
+        if self._adapter_s is not None and sample.adapter_time_s is None:
+            sample = dataclasses.replace(sample, adapter_time_s=self._adapter_s)
+        super()._emit(sample)
 
     def _log_frame(self, msg: can.Message) -> None:
         if self._can_logger is not None:

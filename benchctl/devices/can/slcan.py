@@ -15,6 +15,16 @@ or left over is passed on. ``SlcanBus`` is that bus with its receive side replac
   else: a byte that is not printable ASCII, an unknown command letter, a malformed frame;
 - more than ``MAX_LINE`` bytes without CR or BEL is garbage: dropped, ``SlcanLineError``.
 
+Adapter timestamps: with ``adapter_timestamps=True`` (the default) the bus sends ``Z1`` while
+the channel is closed, before opening it, so the adapter appends to every received frame the
+4 hex digits of its own millisecond clock at the moment it took the frame off the bus
+(LAWICEL: 0…EA5F, wrapping at 60 000 ms; some firmwares wrap at 65 536). ``parse_line`` gives
+that value as the message's ``adapter_ms`` (None when the line has none); ``AdapterClock``
+unwraps it into continuous seconds, counting the wraps by the host's clock. An adapter that
+refuses ``Z1`` (BEL) sends frames without a timestamp: they are read as before. With
+``adapter_timestamps=False`` the bus sends ``Z0`` (an adapter keeps the setting across power
+cycles).
+
 ``SlcanLineError`` is a ``ValueError``, as python-can's own parser raises for bad hex, so the CAN
 reader counts it as a ``decode`` bad frame and reads on. A failing port (``SerialException``,
 ``OSError``) is still python-can's ``CanOperationError``: the link is lost.
@@ -56,8 +66,55 @@ def _hex(field: bytes, line: bytes) -> int:
     return int(field, 16)
 
 
+class SlcanMessage(can.Message):
+    """A received frame with the adapter's timestamp (ms, as sent: wrapping), or None."""
+
+    __slots__ = ("adapter_ms",)
+
+    def __init__(self, *args: Any, adapter_ms: int | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.adapter_ms = adapter_ms
+
+
+#: LAWICEL timestamps wrap at 60 000 ms (0…EA5F); a value beyond shows a 16-bit counter
+WRAP_MS = 60_000
+WRAP_16BIT_MS = 65_536
+
+
+class AdapterClock:
+    """The adapter's wrapping millisecond timestamps as continuous seconds.
+
+    ``unwrap(ms, t_host)``: the number of wraps since the previous frame is the one that
+    brings the adapter's elapsed time nearest to the host's (``t_host``: the receipt time), so
+    gaps and host stalls shorter than half a wrap (30 s) are counted right. The wrap is
+    60 000 ms until a timestamp of 60 000 or more shows a 16-bit counter (65 536).
+    """
+
+    def __init__(self) -> None:
+        self.wrap_ms = WRAP_MS
+        self._last_ms: int | None = None
+        self._last_host = 0.0
+        self._total_ms = 0
+
+    def unwrap(self, ms: int, t_host: float) -> float:
+        if ms >= self.wrap_ms:
+            self.wrap_ms = WRAP_16BIT_MS
+        if self._last_ms is None:
+            self._total_ms = ms
+        else:
+            dv = ms - self._last_ms
+            dh = (t_host - self._last_host) * 1000.0
+            wraps = round((dh - dv) / self.wrap_ms)
+            self._total_ms += dv + wraps * self.wrap_ms
+        self._last_ms = ms
+        self._last_host = t_host
+        return self._total_ms / 1000.0
+
+
 def parse_line(line: bytes) -> can.Message | None:
     """One adapter line (its CR or BEL stripped) as a frame; None for an adapter answer.
+
+    The frame is a ``SlcanMessage``: ``adapter_ms`` is the line's ``Z1`` timestamp, or None.
 
     Raises ``SlcanLineError`` for any other line (see the module docstring).
     """
@@ -87,20 +144,40 @@ def parse_line(line: bytes) -> can.Message | None:
     if rest:
         _hex(rest, line)
     data = b"" if remote else bytes.fromhex(rest[:n_data].decode("ascii"))
-    return can.Message(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote, dlc=dlc,
-                       data=data, timestamp=time.time())
+    stamp = int(rest[n_data:], 16) if len(rest) > n_data else None
+    return SlcanMessage(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote,
+                        dlc=dlc, data=data, timestamp=time.time(), adapter_ms=stamp)
 
 
 class SlcanBus(slcanBus):
     """python-can's slcan bus whose every received line is a frame, an answer or an error.
 
-    Same parameters as ``can.interfaces.slcan.slcanBus``.
+    Same parameters as ``can.interfaces.slcan.slcanBus``, and ``adapter_timestamps``: ask the
+    adapter for its ``Z1`` timestamps (default True) or switch them off (``Z0``).
     """
 
-    def __init__(self, channel: Any, **kwargs: Any) -> None:
+    def __init__(self, channel: Any, *, adapter_timestamps: bool = True, **kwargs: Any) -> None:
         self._rx = bytearray()
         self._lines: deque[tuple[bytes, bytes]] = deque()  # (line, its CR or BEL)
+        self.adapter_timestamps = adapter_timestamps
+        self._channel_open = False
+        self._closed = False  # python-can closes before it sets a bitrate, not otherwise
         super().__init__(channel, **kwargs)
+
+    def open(self) -> None:
+        """Set the timestamps while the channel is closed (closing it first if nothing has),
+        then open it (python-can opens twice: the second ``O`` is accepted while open)."""
+        if not self._channel_open:
+            if not self._closed:
+                self.close()
+            self._write("Z1" if self.adapter_timestamps else "Z0")
+        super().open()
+        self._channel_open = True
+
+    def close(self) -> None:
+        super().close()
+        self._channel_open = False
+        self._closed = True
 
     def _next_line(self) -> tuple[bytes, bytes] | None:
         if not self._lines:
