@@ -14,12 +14,20 @@ Error mapping:
 
 With ``wire_trace`` every frame sent and received is logged at DEBUG on the logger
 ``benchctl.wire``.
+
+Sample stamps (``sample_stamp``): on TCP the midpoint of request and reply; on RTU the moment
+the request's last byte reached the device, ``t_send + request bytes × byte time`` (``t_send``
+the host's clock as the frame was handed to the serial port, the byte time
+``(1 start + 8 data + parity + stop bits) / baud``): a device answers with the state it has
+when the request is complete, and the midpoint would sit late by half the difference of the
+reply's and the request's wire time, plus the client's polling for the reply's end.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -61,17 +69,23 @@ class ModbusLink:
         endpoint: str,
         timeout_s: float,
         wire_trace: bool = False,
+        byte_time_s: float | None = None,
     ) -> None:
         self.device_id = device_id
         self.endpoint = endpoint
         self.timeout_s = timeout_s
         self.wire_trace = wire_trace
+        #: seconds per character on a serial line (RTU); None on TCP
+        self.byte_time_s = byte_time_s
         self._lock = threading.RLock()
         self._rx: list[bytes] = []  # raw receive buffers seen during the current exchange
+        self._sent = threading.local()  # per thread: (monotonic time, bytes) of its last send
         self._client = make_client(self._trace)
 
     # -- tracing ------------------------------------------------------------------------
     def _trace(self, sending: bool, data: bytes) -> bytes:
+        if sending and data:
+            self._sent.last = (time.monotonic(), len(data))
         if not sending and data:
             self._rx.append(bytes(data))
         if self.wire_trace and data:
@@ -91,6 +105,18 @@ class ModbusLink:
     @property
     def connected(self) -> bool:
         return bool(self._client.connected)
+
+    def sample_stamp(self, t0: float, t1: float) -> float:
+        """When the device took the state its reply to this thread's last exchange carries.
+
+        ``t0``/``t1``: the caller's clock before and after the exchange. TCP (or a send not
+        seen between them): the midpoint ``(t0 + t1)/2``; RTU: the end of the request on the
+        wire, ``t_send + request bytes × byte time``.
+        """
+        last = getattr(self._sent, "last", None)
+        if self.byte_time_s is None or last is None or not t0 <= last[0] <= t1:
+            return 0.5 * (t0 + t1)
+        return min(t1, last[0] + last[1] * self.byte_time_s)
 
     # -- requests -----------------------------------------------------------------------
     def read_registers(self, address: int, count: int) -> list[int]:
@@ -238,10 +264,12 @@ def rtu_link(
             trace_packet=trace,
         )
 
+    bits = 1 + 8 + (0 if parity.upper() == "N" else 1) + stopbits
     return ModbusLink(
         make,
         device_id=device_id,
         endpoint=f"modbus-rtu {port}@{baudrate}",
         timeout_s=timeout_s,
         wire_trace=wire_trace,
+        byte_time_s=bits / baudrate,
     )

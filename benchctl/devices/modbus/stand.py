@@ -159,7 +159,9 @@ class ModbusStand:
         return self._read_feedback()[1].status
 
     def read_sample(self) -> StandSample:
-        """Encoder angles, rates and active setpoints, stamped at the request/reply midpoint.
+        """Encoder angles, rates and active setpoints, stamped when the stand took them: the
+        request/reply midpoint on TCP, the end of the request on the wire on RTU
+        (``ModbusLink.sample_stamp``).
 
         Raises
         ------
@@ -195,8 +197,9 @@ class ModbusStand:
                 played=int(get(tr.played)),
                 underruns=int(get(tr.underruns)),
             )
+        stamp = getattr(self.link, "sample_stamp", None)
         sample = StandSample(
-            t_host=0.5 * (t0 + t1),
+            t_host=stamp(t0, t1) if stamp is not None else 0.5 * (t0 + t1),
             rtt_s=t1 - t0,
             angle_deg={a: get(m.axes[a].angle) for a in self.axes},
             rate_deg_s={a: get(m.axes[a].rate) for a in self.axes},
