@@ -347,3 +347,28 @@ def test_rtu_stamp_is_the_end_of_the_request() -> None:
     tcp = tcp_link("127.0.0.1", 1)
     tcp._trace(True, bytes(12))
     assert tcp.sample_stamp(1.0, 2.0) == 1.5
+
+
+def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``benchctl analyze --reference … --device … --timebase fitted --reference-timebase
+    fitted``: both streams' jittery stamps fitted; the JSON states the time bases and the
+    timing contribution; as given, the summary warns."""
+    import json
+
+    from benchctl.cli import main
+
+    tr, x, t, y, jr, jd = _jittered(1e-3)
+    np.savetxt(tmp_path / "ref.csv", np.column_stack([jr, x]), delimiter=",",
+               header="time,angle", comments="", fmt="%.12f")
+    np.savetxt(tmp_path / "dev.csv", np.column_stack([jd, y]), delimiter=",",
+               header="time,angle", comments="", fmt="%.12f")
+    args = ["analyze", "--reference", str(tmp_path / "ref.csv"), "--device",
+            str(tmp_path / "dev.csv"), "--lines", "off"]
+    assert main([*args, "--timebase", "fitted", "--reference-timebase", "fitted", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["timing"]["device_timebase"] == out["timing"]["reference_timebase"] == "fitted"
+    assert out["sigma"] == pytest.approx(0.027, rel=0.002)
+    assert out["timing"]["timing_share"] < 0.001
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "timing: device given" in text and "warning: timing:" in text

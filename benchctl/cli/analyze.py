@@ -47,6 +47,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--timebase", choices=("given", "fitted"), default="given",
                    help="device instants as given, or fitted to a uniform clock (jittery "
                    "receipt times)")
+    p.add_argument("--reference-timebase", choices=("given", "fitted"), default="given",
+                   help="reference instants as given, or fitted to a uniform clock (a "
+                   "reference sampled on its own clock whose stamps jitter)")
+    p.add_argument("--recording-timebase", default="best",
+                   choices=("best", "device", "adapter", "fitted", "receipt"),
+                   help="a recording's instrument instants: the best time base it has "
+                   "(default), or the instrument's own clock, the CAN adapter's timestamps, "
+                   "a clock fitted to the receipts, or the receipt stamps as they are")
     p.add_argument("--period", type=float, metavar="SECONDS",
                    help="the motion's repetition period: the record holds whole periods of it "
                    "(line-wise estimate; default: a recording's profile, else detected when "
@@ -107,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         "band_hz": tuple(args.band) if args.band else None,
         "compensate_delay": _delay_option(args.compensate_delay),
         "timebase": args.timebase,
+        "reference_timebase": args.reference_timebase,
         "period_s": args.period,
         "lines": args.lines,
     }
@@ -129,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
         for ax in axes:
-            tr, xr, td, yd = rec.pair(ax)
+            tr, xr, td, yd = rec.pair(ax, timebase=args.recording_timebase)
             ax_opts, note = _recording_lines(rec, ax, opts)
             res = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
                          source=str(args.source), axis=ax, **ax_opts)
@@ -257,5 +266,13 @@ def summary(r: AnalysisResult) -> str:
              f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "
              + ("agrees" if c["welch_agrees"] else "DISAGREES"))
     lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
+    tm = r.timing
+    if "device_timebase" in tm:
+        lines.append(
+            f"  timing: device {tm['device_timebase']} (±{1e3 * tm['device_time_residual_s']:.2g}"
+            f" ms), reference {tm['reference_timebase']} "
+            f"(±{1e3 * tm['reference_time_residual_s']:.2g} ms): σ_ẋ²·jitter² = "
+            f"{100 * tm['timing_share']:.2g} % of σ²"
+        )
     lines.extend(f"  warning: {w}" for w in r.warnings)
     return "\n".join(lines)
