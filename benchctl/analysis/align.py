@@ -48,6 +48,7 @@ clock's own error, for labelled ones their label's.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -238,7 +239,10 @@ def _instants(
     timing = _timing(t, k, clk)
     if mode == "fitted":
         return clk.at(k), k, timing, "fitted", clk.error_rms
-    if label is not None:
+    if label is not None:  # its own fit's late stamps, not those of a re-fit of the instants
+        late = label[2].get("late")
+        if isinstance(late, int):
+            timing = dataclasses.replace(timing, late=late)
         return t, k, timing, label[0], label[1]
     return t, k, timing, "given", timing.jitter_rms
 
