@@ -357,7 +357,7 @@ def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[
 
     from benchctl.cli import main
 
-    tr, x, t, y, jr, jd = _jittered(1e-3)
+    _, x, _, y, jr, jd = _jittered(1e-3)
     np.savetxt(tmp_path / "ref.csv", np.column_stack([jr, x]), delimiter=",",
                header="time,angle", comments="", fmt="%.12f")
     np.savetxt(tmp_path / "dev.csv", np.column_stack([jd, y]), delimiter=",",

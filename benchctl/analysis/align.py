@@ -62,6 +62,10 @@ from benchctl.errors import DataError
 FloatArray = NDArray[np.float64]
 
 BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
+BRIDGE_MAX_S = 2.0  # a longer one up to this long is bridged when the motion is smooth enough:
+BRIDGE_TOL = 1e-2  # … the spline's worst error across such a gap, tried where the reference is
+BRIDGE_TRIALS = 24  # whole (this many places), is below this × the reference's rms
+BRIDGE_SIDE = 8  # samples each side of a trial gap for its local spline
 MIN_SAMPLES = 64
 # Input ranges (README, "Inputs and alignment"): beyond them a stream is refused, not analysed
 MAX_GRID_FACTOR = 100  # a stream's grid (span / median step): at most 100× its samples …
@@ -111,6 +115,8 @@ class Aligned:
     device_residual_s: float = 0.0
     reference_residual_s: float = 0.0
     rate_rms: float = 0.0
+    bridged: int = 0
+    bridge_variance: float = 0.0
 
     @property
     def n_valid(self) -> int:
@@ -118,10 +124,26 @@ class Aligned:
 
     @property
     def timing_variance(self) -> float:
-        """Estimated variance the instants' residual errors add to ε, σ_ẋ²·(δ_dev² + δ_ref²)."""
+        """Estimated variance the instants' residual errors add to ε, σ_ẋ²·(δ_dev² + δ_ref²),
+        plus that of the reference bridged across longer gaps (``bridge_variance``)."""
         d = np.nan_to_num(self.device_residual_s)
         r = np.nan_to_num(self.reference_residual_s)
-        return float(self.rate_rms**2 * (d**2 + r**2))
+        return float(self.rate_rms**2 * (d**2 + r**2) + self.bridge_variance)
+
+    def timing_warning(self, variance: float) -> str:
+        """The warning when the timing contribution is a noticeable share of ``variance``."""
+        text = (
+            f"timing: the instants' residual errors (device {1e3 * self.device_residual_s:.3g} "
+            f"ms {self.device_timebase}, reference {1e3 * self.reference_residual_s:.3g} ms "
+            f"{self.reference_timebase}) at an rms rate of {self.rate_rms:.3g}°/s"
+        )
+        if self.bridged:
+            text += f" and {self.bridged} samples on a reference bridged across its gaps"
+        return (
+            text + f" add about {100 * self.timing_variance / variance:.3g} % to σ² "
+            "(σ_ẋ²·jitter²); stamps that jitter about a uniform clock: use a fitted time base "
+            "(--timebase fitted, --reference-timebase fitted)"
+        )
 
     def timing_fields(self) -> dict[str, float | str]:
         """The time bases and the timing contribution, for the result's ``timing``."""
@@ -131,6 +153,8 @@ class Aligned:
             "device_time_residual_s": self.device_residual_s,
             "reference_time_residual_s": self.reference_residual_s,
             "device_late_stamps": self.device.late,
+            "reference_bridged_samples": self.bridged,
+            "bridge_variance": self.bridge_variance,
             "reference_rate_rms": self.rate_rms,
             "timing_variance": self.timing_variance,
         }
@@ -219,6 +243,47 @@ def _timing(t: FloatArray, k: NDArray[np.int64], clk: Clock) -> StreamTiming:
     )
 
 
+def _bridgeable(
+    t: FloatArray, x: FloatArray, d: FloatArray, gap: NDArray[np.bool_]
+) -> FloatArray:
+    """The spline's rms error across each reference gap it may bridge (NaN: not bridged).
+
+    Gaps (``gap``: steps ``d`` over ``BRIDGE_STEPS`` median steps) up to ``BRIDGE_MAX_S`` are
+    tried: a cubic spline through the ``BRIDGE_SIDE`` samples each side of the same span left
+    out at ``BRIDGE_TRIALS`` places where the reference is whole; bridged when its worst rms
+    miss there is below ``BRIDGE_TOL`` of the reference's rms (a host stall leaves such gaps in
+    a slow motion polled fast), with the rms of the misses as its error."""
+    from scipy.interpolate import make_interp_spline
+
+    out = np.full(len(d), np.nan)
+    step = float(np.median(d))
+    whole = ~gap
+    tol = BRIDGE_TOL * float(np.std(x))
+    n = len(t)
+    for j in np.flatnonzero(gap & (d <= BRIDGE_MAX_S)):
+        if j < BRIDGE_SIDE or j + 1 + BRIDGE_SIDE > n:
+            continue
+        m = int(np.ceil(d[j] / step)) - 1  # samples a whole stretch has inside such a span
+        span = m + 2 * BRIDGE_SIDE + 1
+        ok = np.convolve(whole.astype(float), np.ones(span - 1), "valid") == span - 1
+        starts = np.flatnonzero(ok)
+        if starts.size == 0 or m < 1:
+            continue
+        worst, sq = 0.0, []
+        for i0 in starts[np.linspace(0, starts.size - 1, BRIDGE_TRIALS).astype(int)]:
+            idx = np.arange(i0, i0 + span)
+            inner = idx[BRIDGE_SIDE : BRIDGE_SIDE + m]
+            outer = np.concatenate((idx[:BRIDGE_SIDE], idx[BRIDGE_SIDE + m :]))
+            e = make_interp_spline(t[outer], x[outer], k=3)(t[inner]) - x[inner]
+            sq.append(float(np.mean(e**2)))
+            worst = max(worst, float(np.sqrt(sq[-1])))
+            if worst > tol:
+                break
+        if worst <= tol:
+            out[j] = float(np.sqrt(np.mean(sq)))
+    return out
+
+
 def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
     """rms rate of the reference (deg/s) from differences over consecutive valid slots."""
     pair = mask[1:] & mask[:-1]
@@ -298,9 +363,16 @@ def align(
         )
     d_ref = np.diff(t_ref)
     gap_ref = d_ref > BRIDGE_STEPS * float(np.median(d_ref))
+    seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
+    inside = (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1])
+    bridge_sq = np.zeros(len(t_eval))  # the spline's estimated squared error there (deg²)
     if gap_ref.any():
-        seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
-        ok &= ~(gap_ref[seg] & (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1]))
+        bridge_err = _bridgeable(t_ref, x_ref, d_ref, gap_ref)
+        bridged = gap_ref & np.isfinite(bridge_err)
+        gap_ref &= ~bridged
+        in_bridge = bridged[seg] & inside
+        bridge_sq[in_bridge] = bridge_err[seg[in_bridge]] ** 2
+        ok &= ~(gap_ref[seg] & inside)
     if same:
         x_at = np.asarray(x_ref, dtype=float)
     else:
@@ -336,4 +408,6 @@ def align(
         device_residual_s=float(dev_res),
         reference_residual_s=float(ref_res),
         rate_rms=_rate_rms(x, mask, dev_timing.dt),
+        bridged=int(np.count_nonzero(bridge_sq[ok])),
+        bridge_variance=float(bridge_sq[ok].sum() / max(1, int(ok.sum()))),
     )

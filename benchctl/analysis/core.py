@@ -377,14 +377,7 @@ def _result(
             "sigma": float(np.sqrt(max(bv, 0.0))),
         }
     if al.timing_variance > TIMING_SHARE_WARN * variance:
-        warnings.append(
-            f"timing: the instants' residual errors (device {1e3 * al.device_residual_s:.3g} ms "
-            f"{al.device_timebase}, reference {1e3 * al.reference_residual_s:.3g} ms "
-            f"{al.reference_timebase}) at an rms rate of {al.rate_rms:.3g}°/s add about "
-            f"{100 * al.timing_variance / variance:.3g} % to σ² (σ_ẋ²·jitter²); stamps that "
-            "jitter about a uniform clock: use a fitted time base (--timebase fitted, "
-            "--reference-timebase fitted)"
-        )
+        warnings.append(al.timing_warning(variance))
     if al.device.gap_count:
         warnings.append(
             f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "
