@@ -153,7 +153,8 @@ def test_short_reference_gaps_are_bridged_and_reported() -> None:
 
 def test_reference_gaps_the_spline_cannot_bridge_exclude_samples() -> None:
     """A gap longer than 2 s, or one across which the spline misses the motion by more than
-    1 % of its rms where tried (here a fast, noisy reference), masks the device samples in it."""
+    1 % of its rms (rms over the places tried; here a noisy reference), masks the device
+    samples in it."""
     rng = np.random.default_rng(3)
     tr = np.arange(0, 100, 0.01)
     keep = np.ones(tr.size, dtype=bool)

@@ -63,7 +63,7 @@ FloatArray = NDArray[np.float64]
 
 BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
 BRIDGE_MAX_S = 2.0  # a longer one up to this long is bridged when the motion is smooth enough:
-BRIDGE_TOL = 1e-2  # … the spline's worst error across such a gap, tried where the reference is
+BRIDGE_TOL = 1e-2  # … the spline's rms error across such a gap, tried where the reference is
 BRIDGE_TRIALS = 24  # whole (this many places), is below this × the reference's rms
 BRIDGE_SIDE = 8  # samples each side of a trial gap for its local spline
 MIN_SAMPLES = 64
@@ -250,9 +250,9 @@ def _bridgeable(
 
     Gaps (``gap``: steps ``d`` over ``BRIDGE_STEPS`` median steps) up to ``BRIDGE_MAX_S`` are
     tried: a cubic spline through the ``BRIDGE_SIDE`` samples each side of the same span left
-    out at ``BRIDGE_TRIALS`` places where the reference is whole; bridged when its worst rms
-    miss there is below ``BRIDGE_TOL`` of the reference's rms (a host stall leaves such gaps in
-    a slow motion polled fast), with the rms of the misses as its error."""
+    out at ``BRIDGE_TRIALS`` places where the reference is whole; bridged when the rms of its
+    misses there is below ``BRIDGE_TOL`` of the reference's rms (a host stall leaves such gaps
+    in a slow motion polled fast), with that rms as its error."""
     from scipy.interpolate import make_interp_spline
 
     out = np.full(len(d), np.nan)
@@ -269,18 +269,16 @@ def _bridgeable(
         starts = np.flatnonzero(ok)
         if starts.size == 0 or m < 1:
             continue
-        worst, sq = 0.0, []
+        sq = []
         for i0 in starts[np.linspace(0, starts.size - 1, BRIDGE_TRIALS).astype(int)]:
             idx = np.arange(i0, i0 + span)
             inner = idx[BRIDGE_SIDE : BRIDGE_SIDE + m]
             outer = np.concatenate((idx[:BRIDGE_SIDE], idx[BRIDGE_SIDE + m :]))
             e = make_interp_spline(t[outer], x[outer], k=3)(t[inner]) - x[inner]
             sq.append(float(np.mean(e**2)))
-            worst = max(worst, float(np.sqrt(sq[-1])))
-            if worst > tol:
-                break
-        if worst <= tol:
-            out[j] = float(np.sqrt(np.mean(sq)))
+        rms = float(np.sqrt(np.mean(sq)))
+        if rms <= tol:
+            out[j] = rms
     return out
 
 
