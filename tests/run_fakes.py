@@ -62,6 +62,7 @@ class FakeStand:
         self.closed = False
         self.heartbeats = 0
         self.sent: list[tuple[float, dict[str, float]]] = []
+        self._history: list[tuple[float, dict[str, float]]] = []  # (time, angle) of each change
         self.on_sample: Callable[[StandSample], None] | None = None
         self.on_setpoint: Callable[[float, dict[str, float], float | None], None] | None = None
 
@@ -84,12 +85,29 @@ class FakeStand:
             self.stall_at = None
             time.sleep(self.stall_s)
 
-    def true_angle(self) -> dict[str, float]:
+    def _set_angle(self, angle: dict[str, float]) -> float:
+        """The stand is now at ``angle`` (lock held); returns the moment, kept in the history."""
+        t = time.monotonic()
+        self.angle = angle
+        self._history.append((t, dict(angle)))
+        if len(self._history) > 400:
+            del self._history[:200]
+        return t
+
+    def true_angle(self, t: float | None = None) -> dict[str, float]:
+        """The stand's angle at host time ``t`` (default now): its table, or the setpoint in
+        force at that moment (the history of setpoint changes), plus its offset."""
         with self._lock:
             if self.table is not None and self.table_t0 is not None:
-                t = time.monotonic() - self.table_t0
-                return {a: self.table[a].at(t) + self.offset_deg for a in self.axes}
-            return {a: v + self.offset_deg for a, v in self.angle.items()}
+                tt = (time.monotonic() if t is None else t) - self.table_t0
+                return {a: self.table[a].at(tt) + self.offset_deg for a in self.axes}
+            angle = self.angle
+            if t is not None:
+                for t_set, a_set in reversed(self._history):
+                    if t_set <= t:
+                        angle = a_set
+                        break
+            return {a: v + self.offset_deg for a, v in angle.items()}
 
     def connect(self) -> DeviceIdentity:
         self.calls.append("connect")
@@ -143,9 +161,8 @@ class FakeStand:
         if self.t_motion is None:
             self.t_motion = time.monotonic()
         self._tick()
-        t = time.monotonic()
         with self._lock:
-            self.angle = {a: self.motion_gain * v for a, v in angle_deg.items()}
+            t = self._set_angle({a: self.motion_gain * v for a, v in angle_deg.items()})
             self.setpoint = dict(angle_deg)
         self.sent.append((t, dict(angle_deg)))
         if self.on_setpoint is not None:
@@ -174,20 +191,20 @@ class FakeStand:
         with self._lock:
             if self.table is not None and self.table_t0 is not None:
                 t = time.monotonic() - self.table_t0
-                self.angle = {a: self.table[a].at(t) for a in self.axes}
+                self._set_angle({a: self.table[a].at(t) for a in self.axes})
             self.table, self.table_t0 = None, None
 
     def go_to_zero(self, timeout_s: float = 30.0) -> None:
         self.calls.append("go_to_zero")
         with self._lock:
-            self.angle = dict.fromkeys(self.axes, 0.0)
+            self._set_angle(dict.fromkeys(self.axes, 0.0))
 
     def ramp_to_zero(self, timeout_s: float = 30.0) -> None:
         self.calls.append("ramp_to_zero")
         if self.drop_at is not None and self.t_motion is not None:
             raise ConnectionLost("fake stand: no link")
         with self._lock:
-            self.angle = dict.fromkeys(self.axes, 0.0)
+            self._set_angle(dict.fromkeys(self.axes, 0.0))
             self.offset_deg = 0.0
         self.ramped = True
 
@@ -246,12 +263,13 @@ class FakeSensor:
                 if not (
                     tm is not None and self.silent_after is not None and tm >= self.silent_after
                 ):
-                    x = self.stand.true_angle()
+                    t = time.monotonic()  # the instant sampled: the angle in force then
+                    x = self.stand.true_angle(t)
                     y = {
                         a: self.gain * v + self.bias + self.noise * rng.standard_normal()
                         for a, v in x.items()
                     }
-                    on_sample(InstrumentSample(time.monotonic(), y, counter=n))
+                    on_sample(InstrumentSample(t, y, counter=n))
                 n += 1
 
         self._thread = threading.Thread(target=run, name="fake instrument", daemon=True)

@@ -57,9 +57,11 @@ def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
     ("transport", "instrument", "mode", "text"),
     [
         ("tcp", "canopen", "table", TWO_AXIS),
-        ("rtu", "nmea0183", "stream", ROLL),
+        ("rtu", "nmea0183", "buffered", ROLL),
     ],
-    ids=["tcp-canopen-table-2axis", "rtu-nmea0183-stream-roll"],
+    # stream mode's σ is not compared with the profile's here: a busy host makes a streaming
+    # stand hold and rejoin, so its true motion is not the profile's (tests/test_run_stalls.py)
+    ids=["tcp-canopen-table-2axis", "rtu-nmea0183-buffered-roll"],
 )
 def test_run_end_to_end_sigma_as_stated(
     tmp_path: Path,

@@ -87,8 +87,15 @@ def test_full_run_fail_and_stream_mode(tmp_path: Path) -> None:
     assert res.state == "done" and res.exit_code == 1
     assert res.report is not None and res.report.verdict == "FAIL"
     assert res.report.axes["roll"].sigma_deg > 0.4
-    sp = load_recording(res.recording).streams["setpoints"]  # type: ignore[arg-type]
-    assert sp["t_send"].size + res.stats["missed_cycles"] == int(DURATION * 100) + 1
+    rec = load_recording(res.recording)  # type: ignore[arg-type]
+    sp = rec.streams["setpoints"]
+    st = res.stats
+    # every slot of the profile sent, missed or stale (a busy host); a rejoin near the end
+    # adds its own points past the last slot
+    extra = sum(e["points"] for e in rec.events if e["kind"] == "rejoin")
+    slots = int(DURATION * 100) + 1
+    n = sp["t_send"].size + st["missed_cycles"] + st["stale_setpoints"]
+    assert slots <= n <= slots + extra
 
 
 def _assert_aborted(
@@ -154,7 +161,7 @@ def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, m
 
         def beyond(tm: float) -> None:
             if tm >= at:
-                stand.offset_deg = 21.0
+                stand.offset_deg = 30.0
 
         stand.on_motion_time = beyond
     cfg = bench_config(tmp_path)

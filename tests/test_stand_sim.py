@@ -87,8 +87,8 @@ def stream(
     """
     period = 1.0 / rate_hz
     pts = np.array([motion(k * period) for k in range(round(duration_s * rate_hz) + 1)])
-    if abs(pts[-1] - pts[-2]) < 1e-6:  # a motion ending at rest: so does the queue (normal end)
-        pts = np.concatenate([pts, pts[-1:], pts[-1:]])
+    if abs(pts[-1] - pts[-2]) <= LIMITS.accel_deg_s2 * period**2:  # ends (nearly) at rest: the
+        pts = np.concatenate([pts, pts[-1:], pts[-1:]])  # queue ends with its last point held
     n = pts.size
     stand.begin_trajectory()
     _, per_push = stand.trajectory_limits
@@ -216,11 +216,14 @@ def test_harmonic_table_runs_in_the_stand(rig: tuple[SimStand, ModbusStand]) -> 
     checked = 0
     for s in samples:
         t = s.t_host - t_start
-        # the stand's active setpoint is the table itself
-        assert s.setpoint_deg["pitch"] == pytest.approx(float(pitch.at(t)), abs=0.03)
+        # a sample is stamped at its request/reply midpoint: its time is known to ±rtt/2 (a
+        # busy host or a slow wire widens that), so the motion over that span is allowed for
+        half = s.rtt_s / 2 + 0.002
+        # the stand's active setpoint is the table itself (pitch moves ≤ 7.9°/s)
+        assert s.setpoint_deg["pitch"] == pytest.approx(float(pitch.at(t)), abs=0.03 + 7.9 * half)
         if 1.0 < t < 1.9:  # steady part of the roll line: angle = Re(H · A e^{j(ωt+φ)})
             pred = float(np.real(h * 2.0 * np.exp(1j * (2 * np.pi * f * t + 0.3))))
-            assert s.angle_deg["roll"] == pytest.approx(pred, abs=0.1)
+            assert s.angle_deg["roll"] == pytest.approx(pred, abs=0.1 + 12.6 * half)
             checked += 1
     assert checked >= 15
     final = stand.read_sample()

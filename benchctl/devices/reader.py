@@ -219,7 +219,7 @@ class SensorReader:
                 return
             self._silence_reported = True
         self._report(DeviceTimeout(
-            f"instrument {self.protocol} on {self._where}: no valid sample for "
+            f"instrument silent: {self.protocol} on {self._where}: no valid sample for "
             f"{now - since:.2f} s (silence_timeout_s={self.cfg.silence_timeout_s})"
         ))
 

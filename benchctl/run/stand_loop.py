@@ -18,13 +18,15 @@
 
 Every stand sample reaches the recording through the driver's listener (``Recorder``). Checks on
 every sample: fault / E-stop and angle limit (at once); tracking error (measured vs the stand's
-own setpoint) and profile departure (measured vs the profile; not while rejoining), each over its
+own setpoint) and departure from the commanded motion (measured vs the profile as commanded: a
+rejoin's path while it lasts, the last setpoint while the stand holds), each over its
 tolerance for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds; a silent instrument. A breach
 raises inside the loop thread; the supervisor turns it into the run's fault at once.
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import threading
@@ -50,6 +52,7 @@ SEND_WINDOW = 0.25  # a setpoint goes out within this fraction of a period after
 DEBOUNCE = 3  # consecutive stand samples over a tolerance before the run aborts …
 # … held for this long: a stand that really does not follow stays over for longer
 BREACH_HOLD_S = 0.25
+HOST_STALL_S = 0.1  # waking up later than this: the process itself was held up
 SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
 REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
 UNDERRUN_STOP_S = 10.0  # after an underrun the stand must be at rest within this
@@ -128,6 +131,14 @@ class PointSource:
                 out[a] = float(p.values[a][min(k, p.n_slots - 1)])
         return out
 
+    def at(self, t: float) -> dict[str, float]:
+        """The commanded motion at profile time ``t``, linear between the points."""
+        x = max(0.0, t / self.plan.period_s)
+        k = math.floor(x)
+        v0, v1 = self.value(k), self.value(k + 1)
+        w = x - k
+        return {a: v0[a] + w * (v1[a] - v0[a]) for a in v0}
+
     def take(self, n: int) -> list[tuple[int, dict[str, float]]]:
         out: list[tuple[int, dict[str, float]]] = []
         while len(out) < n:
@@ -176,9 +187,12 @@ class StandLoop:
         self.t_motion_start: float | None = None
         self.t_motion_end: float | None = None
         self.t_last_cycle: float | None = None
+        self.t_resumed = -math.inf  # when this process last resumed after a stall
         self._t_heartbeat = -math.inf
         self._over: dict[str, tuple[int, float]] = {}
-        self._no_departure_until = -math.inf  # rejoining: the profile is not yet the reference
+        # the commanded motion at profile time t, for the departure check (None: the profile)
+        self._ref: Callable[[float], dict[str, float]] | None = None
+        self._sent: list[tuple[int, dict[str, float]]] = []  # stream: recent (slot, setpoint)
         self._thread: threading.Thread | None = None
 
     # control from the main thread
@@ -205,10 +219,14 @@ class StandLoop:
         return self._stop.is_set() or self.sup.stop_event.is_set()
 
     def _wait_until(self, deadline: float) -> bool:
-        """Sleep until ``deadline``; False when the loop must stop."""
+        """Sleep until ``deadline``; False when the loop must stop. Waking up more than
+        ``HOST_STALL_S`` late means this process was held up: that moment is noted
+        (``t_resumed``), so silence is not counted across the host's own stall."""
         while True:
             now = self.clock()
             if now >= deadline:
+                if now - deadline > HOST_STALL_S:
+                    self.t_resumed = now
                 return not self._stopping()
             if self._stop.wait(min(deadline - now, 0.05)) or self.sup.stop_event.is_set():
                 return False
@@ -238,12 +256,21 @@ class StandLoop:
             self.stand.heartbeat()
             self._t_heartbeat = now
 
-    def _check_instrument(self, now: float) -> None:
+    def instrument_silence(self, now: float) -> float:
+        """How long the instrument has been silent, counted from its last sample or from the
+        end of the last stall of this process, whichever is later (a stalled host reads no
+        frames; the reader needs a moment after it to catch up)."""
         t = self.rec.t_last_instrument
         since = self.rec.t_last_instrument_ref if t is None else t
-        if since is not None and now - since > self.lim.silence_timeout_s:
+        if since is None:
+            return 0.0
+        return now - max(since, self.t_resumed)
+
+    def _check_instrument(self, now: float) -> None:
+        silent = self.instrument_silence(now)
+        if silent > self.lim.silence_timeout_s:
             raise SafetyAbort(
-                f"instrument silent: no sample for {now - since:.2f} s "
+                f"instrument silent: no sample for {silent:.2f} s "
                 f"(silence_timeout_s = {self.lim.silence_timeout_s} s)"
             )
 
@@ -272,7 +299,7 @@ class StandLoop:
                 raise SafetyAbort(f"limit breach: {a} angle {v:.3f}° beyond ±{self.lim.angle_deg}°")
         if profile_t is None:
             return
-        ref = self.plan.at(profile_t)
+        ref = self._ref(profile_t) if self._ref is not None else self.plan.at(profile_t)
         track = {
             a: s.angle_deg[a] - s.setpoint_deg[a] for a in self.plan.axes if a in s.setpoint_deg
         }
@@ -285,9 +312,8 @@ class StandLoop:
                     f"tracking error on {a}: {e:+.3f}° (measured − stand setpoint) beyond "
                     f"±{self.lim.tracking_tolerance_deg}° (stand.tracking_tolerance_deg)"
                 )
-        rejoining = s.t_host < self._no_departure_until
         for a, e in dep.items():
-            over = abs(e) > self.lim.profile_tolerance_deg and not rejoining
+            over = abs(e) > self.lim.profile_tolerance_deg
             if self._over_tol("depart " + a, over, s.t_host):
                 raise SafetyAbort(
                     f"stand departs from the profile on {a}: {e:+.3f}° at t = {profile_t:.2f} s "
@@ -331,6 +357,7 @@ class StandLoop:
         k = 0
         rejoin: Rejoin | None = None
         last: dict[str, AxisCommand] | None = None  # the last setpoint sent and its step's rate
+        self._ref = self._commanded_stream
         held = False  # slots were missed since: the stand has held `last`
         while True:
             deadline = t_start + k * period
@@ -367,6 +394,9 @@ class StandLoop:
                 k += 1
                 continue
             self.cmd.add(sp, held=held)
+            self._sent.append((k, sp))
+            if len(self._sent) > 512:
+                del self._sent[:256]
             prev = last
             last = {
                 a: AxisCommand(x, 0.0 if prev is None else (x - prev[a].angle_deg) / period)
@@ -380,6 +410,20 @@ class StandLoop:
             self._advance_state(min(k * period, plan.duration_s))
             self._cycle_done(now)
             k += 1
+
+    def _commanded_stream(self, t: float) -> dict[str, float]:
+        """Stream mode: the setpoint in force at profile time ``t`` — linear between two
+        consecutive slots sent, the last one held across missed slots."""
+        sent = self._sent
+        x = t / self.plan.period_s
+        i = bisect.bisect_right(sent, x, key=lambda e: e[0]) - 1
+        if i < 0:
+            return self.plan.at(t)
+        k0, v0 = sent[i]
+        if i + 1 < len(sent) and sent[i + 1][0] == k0 + 1:
+            v1, w = sent[i + 1][1], x - k0
+            return {a: v0[a] + w * (v1[a] - v0[a]) for a in v0}
+        return dict(v0)
 
     def _plan_rejoin(
         self, slot: int, last: Mapping[str, AxisCommand], t_slot: float
@@ -396,7 +440,6 @@ class StandLoop:
             raise SafetyAbort(f"cannot rejoin the profile within the stand limits: {e}") from None
         self.rejoins += 1
         dur = rej.n * plan.period_s
-        self._no_departure_until = max(self._no_departure_until, t_slot + dur + BREACH_HOLD_S)
         k_prev = max(0, min(slot, plan.n_slots - 1) - 1)
         dev = {a: last[a].angle_deg - float(plan.values[a][k_prev]) for a in last}
         self.rec.event(
@@ -419,6 +462,7 @@ class StandLoop:
         base = 0  # the queue's point j is the profile's slot base + j
         first = True
         while True:
+            self._ref = src.at
             t0, j_next = self._traj_start(st, src, base, lead, per_push, first)
             first = False
             stop = self._traj_poll(st, src, base, t0, j_next, lead, per_push, poll)
@@ -504,10 +548,11 @@ class StandLoop:
             if tr is None:
                 raise SafetyAbort("buffered mode: the stand reports no trajectory queue")
             played = tr.played
-            if underruns is not None and tr.underruns != underruns:
+            stopped_early = not s.status.trajectory_running and not src.done and j_next > played
+            if (underruns is not None and tr.underruns != underruns) or stopped_early:
                 # the queue ran dry (a host stall longer than the buffer): the stand is stopping
                 # itself within its limits, so this sample is not judged against the profile
-                self.underruns += (tr.underruns - underruns) & 0xFFFF
+                self.underruns += max(1, (tr.underruns - (underruns or 0)) & 0xFFFF)
                 self.rec.event("underrun", t_host=s.t_host, played=tr.played, queued=j_next)
                 self._check_sample(s, None)
                 return "underrun"

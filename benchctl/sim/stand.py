@@ -405,9 +405,9 @@ class SimStand:
         self._mode = "stream"
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
         rate = (last - before) / q.period_s
-        # ran dry while moving faster than one period's deceleration at the stand's limit
-        # can stop: an underrun, a controlled stop; slower, it is the queue's normal end
-        if np.any(np.abs(rate) > self._stop_accel * q.period_s):
+        # ran dry before its end: an underrun, a controlled stop. The normal end of a queue is
+        # its last point repeated (the motion at rest): nothing left to stop.
+        if np.any(last != before):
             q.underruns += 1
             self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
             self._mode = "traj_stop"

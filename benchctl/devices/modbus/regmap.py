@@ -120,9 +120,9 @@ class TrajectoryMap:
     exception 3), plays point k at ``start + k·period`` (``period_s`` register, written before
     the start) interpolating linearly, and reports ``level`` (points queued and not yet
     reached), ``next_index``, ``played`` (the index being played) and ``underruns`` in the
-    feedback block. A queue that runs dry while moving is an underrun: the stand stops within
-    its limits and counts it; a queue ending at rest is the normal end. A push starting at
-    index 0 while the stand is not playing starts a new queue.
+    feedback block. A queue that runs dry before its end is an underrun: the stand stops
+    within its limits and counts it; a queue ending with its last point repeated is the normal
+    end. A push starting at index 0 while the stand is not playing starts a new queue.
     """
 
     capacity: int
