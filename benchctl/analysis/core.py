@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.fft import rfft
 
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
@@ -270,6 +271,7 @@ def _line_analysis(
     """The line-wise estimate, or None (with a warning when lines were given but cannot be
     used, or were detected and fail)."""
     n = len(al.mask)
+    x_spectrum = None
     try:
         if isinstance(lines, LineSet):
             ls = lines
@@ -280,7 +282,12 @@ def _line_analysis(
                 raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
             ls = LineSet(float(period_s), harm, "period")
         elif lines == "auto":
-            power = periodogram(al.x, al.mask)
+            if bool(al.mask.all()):  # one transform of x for the detection and the fit
+                x_spectrum = rfft(al.x)
+                power = x_spectrum.real**2 + x_spectrum.imag**2
+                power[0] = 0.0
+            else:
+                power = periodogram(al.x, al.mask)
             count_or_none = detect_period(al.x, al.mask, power)
             if count_or_none is None:
                 return None
@@ -290,7 +297,7 @@ def _line_analysis(
             ls = LineSet(n * al.dt / count_or_none, harm, "detected")
         else:
             return None
-        return analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t)
+        return analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum)
     except LinesError as e:
         warnings.append(f"no line-wise estimate: {e}")
         return None

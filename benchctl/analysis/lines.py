@@ -73,7 +73,7 @@ PERIOD_ON_LINE = 1e-6  # a traditional period "on" a line: relative distance in 
 PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
 PERIOD_PHASE_TOL = 1e-6  # period refinement: stop when the highest line turns less (rad)
 REFINE_MAX_ITER = 6
-REFINE_SKIP = 1e-12  # no refinement when the lines leave less of the reference's variance
+REFINE_SKIP = 1e-14  # no refinement when the lines leave less of the reference's variance
 CG_TOL = 1e-13
 CG_MAX_ITER = 200
 TAYLOR_TOL = 1e-10  # the instants' offsets from the grid: expansion remainder |ωδ|^(P+1)/(P+1)!
@@ -238,9 +238,11 @@ def fit_lines(
     period_s: float,
     harmonics: IntArray,
     offsets: FloatArray | None = None,
+    first_spectrum: ComplexArray | None = None,
 ) -> LineFit:
     """Least-squares fit of a mean and the lines ``harmonics/period_s`` to each row of
     ``values`` (C × N at the instants ``s·dt + offsets_s``; only slots where ``mask`` count).
+    ``first_spectrum``: the rfft of the first row, if already made (used on the DFT path).
 
     Raises ``LinesError`` when the normal equations do not converge (gaps leave the lines
     indistinguishable).
@@ -251,7 +253,12 @@ def fit_lines(
     uniform = offsets is None or not np.any(offsets[mask])
     bins = _aligned_bins(n, dt, period_s, harmonics) if uniform and bool(mask.all()) else None
     if bins is not None:
-        spec = rfft(v, axis=-1)
+        if first_spectrum is not None and v.shape[0] > 1:
+            spec = np.vstack((first_spectrum[None, :], rfft(v[1:], axis=-1)))
+        elif first_spectrum is not None:
+            spec = first_spectrum[None, :].copy()
+        else:
+            spec = rfft(v, axis=-1)
         mean = spec[..., 0].real / n
         coef = 2.0 * spec[..., bins] / n
         resid_spec = spec.copy()
@@ -651,9 +658,9 @@ def refine_period(
     """The line set with its period fitted to the reference (Gauss–Newton on T_p, the lines
     refitted at each step): a stand playing on its own clock, or a period detected from a
     grid step fitted to jittered stamps, is some ppm off the nominal period, and over a long
-    record that would leave part of every line in the residual. Stops (keeping the period)
-    once the step would turn the highest line by less than ``PERIOD_PHASE_TOL`` over the
-    record, or at once when the lines leave less than ``REFINE_SKIP`` of the reference's
+    record that would leave part of every line in the residual. Stops once a step turns the
+    highest line by less than ``PERIOD_PHASE_TOL`` over the record (that last step is
+    taken), or at once when the lines leave less than ``REFINE_SKIP`` of the reference's
     variance in the residual. ``fit``: a fit at ``lines`` whose first row is x, if made.
     Returns the line set and whether its period changed.
     """
@@ -676,11 +683,13 @@ def refine_period(
             break
         step = float(np.dot(fit.residual[0], g)) / gg
         turn = 2.0 * np.pi * float(lines.freq.max()) * span * abs(step) / lines.period_s
-        if turn < PERIOD_PHASE_TOL:
+        if turn < PERIOD_PHASE_TOL * 1e-3:
             break
         lines = LineSet(lines.period_s + step, lines.harmonics, lines.source)
         changed = True
         fit = None
+        if turn < PERIOD_PHASE_TOL:  # converged: the last (small) step taken, no more fits
+            break
     return lines, changed
 
 
@@ -691,6 +700,7 @@ def analyze_lines(
     dt: float,
     lines: LineSet,
     t: FloatArray | None = None,
+    x_spectrum: ComplexArray | None = None,
 ) -> LineAnalysis:
     """The line-wise estimate on the analysis grid (see module notes).
 
@@ -707,6 +717,8 @@ def analyze_lines(
     t : ndarray, optional
         The samples' instants (s, per slot; NaN in gaps). When they stray from the uniform
         grid the lines are fitted at the instants themselves; default: the grid.
+    x_spectrum : ndarray of complex, optional
+        ``rfft(x)`` of a gap-free grid, if already made (saves a transform of a long record).
 
     Raises
     ------
@@ -718,7 +730,8 @@ def analyze_lines(
     whole_periods(n, dt, lines)
     offsets = None if t is None else grid_offsets(t, mask, dt)
     nominal = lines.period_s
-    fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
+    fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets,
+                    x_spectrum)
     lines, changed = refine_period(x, mask, dt, lines, offsets, fit)
     n_periods = whole_periods(n, dt, lines)
     if changed:
