@@ -142,7 +142,7 @@ KINDS = {
     "drift": (gain(0.99),
               lambda rng, r: np.sqrt(0.46) * rng.normal(0, 0.1, (r, N4))
               + _ar1(rng, r, 0.005, np.sqrt(0.54) * 0.1), 0.1**2),
-    # 99.8 % linear: a 50 ms lag (0.7°) and 0.03° white noise
+    # 99.9 % linear: a 50 ms lag (0.91°) and 0.03° white noise
     "linear": (first_order(0.05), lambda rng, r: rng.normal(0, 0.03, (r, N4)), 0.03**2),
 }
 
