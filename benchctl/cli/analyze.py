@@ -224,9 +224,9 @@ def _lines_block(r: AnalysisResult) -> list[str]:
            "unexcited bins and the local polynomial fit"),
         f"    σ = {la.sigma:.5g}°   95 % CI {lo:.5g} … {hi:.5g}°   (mean removal "
         f"{la.mean_removal:.3g} deg² added back)",
-        f"    linear {la.linear:.5g} deg² ({la.linear_ci95[0]:.3g} … {la.linear_ci95[1]:.3g}), "
-        f"incoherent {la.incoherent:.5g} deg² ({la.incoherent_ci95[0]:.3g} … "
-        f"{la.incoherent_ci95[1]:.3g})",
+        f"    linear {la.linear:.5g} deg² (95 % CI {la.linear_ci95[0]:.5g} … "
+        f"{la.linear_ci95[1]:.5g}), incoherent {la.incoherent:.5g} deg² "
+        f"({la.incoherent_ci95[0]:.5g} … {la.incoherent_ci95[1]:.5g})",
         f"    gain {float(la.gain.min()):.4f} … {float(la.gain.max()):.4f}, phase "
         f"{float(la.phase_deg.min()):.3f} … {float(la.phase_deg.max()):.3f}° over "
         f"{float(la.freq.min()):.4g} … {float(la.freq.max()):.4g} Hz",
