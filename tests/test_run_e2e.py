@@ -33,6 +33,7 @@ from benchctl.run import RunOptions, run_test
 from benchctl.run.session import prepare_motion
 
 pytestmark = pytest.mark.slow
+SYSTEMATIC = 0.01  # stated vs measured σ: allowed beside the interval (see _check_sigma)
 
 
 
@@ -50,7 +51,10 @@ def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
         v = res.report.axes[axis]
         assert v.sigma_deg == pytest.approx(expect, rel=0.05), (axis, v.sigma_deg, expect)
         lo, hi = v.sigma_ci95_deg
-        assert lo <= expect <= hi, (axis, lo, expect, hi)
+        # the interval covers this record's noise; the stated σ is the model's for the nominal
+        # motion through the servo: ≤ 1 % of systematic difference (the stand's real motion,
+        # the time bases) is allowed beside it
+        assert lo * (1 - SYSTEMATIC) <= expect <= hi * (1 + SYSTEMATIC), (axis, lo, expect, hi)
 
 
 @pytest.mark.parametrize(
@@ -293,7 +297,8 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
     )
     roll = rep["axes"]["roll"]
     assert roll["sigma"] == pytest.approx(math.sqrt(var), rel=0.05)
-    assert roll["sigma_ci95"][0] <= math.sqrt(var) <= roll["sigma_ci95"][1]
+    lo, hi = roll["sigma_ci95"]
+    assert lo * (1 - SYSTEMATIC) <= math.sqrt(var) <= hi * (1 + SYSTEMATIC)
     assert roll["mean_error"] == pytest.approx(cfg.sim.instrument.bias_deg, abs=0.01)
     for key in ("serial", "operator", "station", "seed", "stats", "recording", "analysis_window"):
         assert key in rep

@@ -502,6 +502,7 @@ class Session:
 
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
         from benchctl.analysis import analyze
+        from benchctl.analysis.lines import line_set_from_tables
 
         a = self.cfg.run.analysis
         rec = load_recording(self.path)
@@ -518,6 +519,12 @@ class Session:
                     f"{self.path}: too few samples for axis {axis} in the analysis window "
                     f"({int(kr.sum())} stand, {int(kd.sum())} instrument)"
                 )
+            # the line-wise estimate on the profile's own lines (whole periods in the window)
+            tables = getattr(self.prep.motion, "tables", None) or {}
+            lines: Any = "auto"
+            if axis in tables:
+                ls, _why = line_set_from_tables(tables[axis], hi - lo)
+                lines = ls if ls is not None else "auto"
             res = analyze(
                 tr[kr],
                 xr[kr],
@@ -528,6 +535,7 @@ class Session:
                 compensate_delay=a.compensate_delay,
                 source=str(self.path),
                 axis=axis,
+                lines=lines,
             )
             results[axis] = res
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
