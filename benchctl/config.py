@@ -26,6 +26,7 @@ from pydantic import (
 
 from benchctl.errors import ConfigError, InputError
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
+from benchctl.textfile import decode_utf8
 
 # Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
 # that size a buffer or a wait are bounded above (README, "Bench configs").
@@ -546,14 +547,7 @@ def read_yaml(path: Path, what: str) -> Any:
         raw = path.read_bytes()
     except OSError as e:
         raise ConfigError(f"{path}: cannot read {what}: {e.strerror or e}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        line = raw.count(b"\n", 0, e.start) + 1
-        raise ConfigError(
-            f"{path}: byte 0x{raw[e.start]:02x} at offset {e.start} (line {line}) is not UTF-8; "
-            f"expected a UTF-8 text {what}"
-        ) from None
+    text = decode_utf8(raw, path, what, ConfigError)
     loader: BenchYamlLoader | None = None
     try:
         loader = BenchYamlLoader(text, path)  # the reader checks every character here

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from benchctl.analysis.align import MAX_ABS_ANGLE_DEG, check_grid
 from benchctl.errors import DataError
+from benchctl.textfile import decode_utf8
 
 FloatArray = NDArray[np.float64]
 Units = Literal["deg", "rad"]
@@ -73,15 +74,7 @@ def _find(path: Path, header: list[str], name: str, option: str) -> int:
 def _text_lines(path: Path) -> list[str]:
     """The file's lines (universal newlines); ``DataError`` naming the line and byte offset
     of the first byte that is not UTF-8."""
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        line = raw.count(b"\n", 0, e.start) + 1
-        raise DataError(
-            f"{path}: line {line}: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8; "
-            "expected a UTF-8 text CSV file"
-        ) from None
+    text = decode_utf8(path.read_bytes(), path, "CSV file", DataError)
     return io.StringIO(text, newline=None).read().split("\n")
 
 

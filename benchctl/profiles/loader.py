@@ -26,6 +26,7 @@ from benchctl.profiles.schema import (
     RecordedProfile,
     SineStepsProfile,
 )
+from benchctl.textfile import decode_utf8
 
 _ADAPTER: TypeAdapter[Any] = TypeAdapter(ProfileSpec)
 
@@ -158,14 +159,7 @@ def read_angle_csv(
         raw = path.read_bytes()
     except OSError as e:
         raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        lineno = raw.count(b"\n", 0, e.start) + 1
-        raise DataError(
-            f"{path}: line {lineno}: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8; "
-            "expected a UTF-8 text CSV"
-        ) from None
+    text = decode_utf8(raw, path, "CSV", DataError)
     numbered = (
         (n, line.removesuffix("\r"))
         for n, line in enumerate(text.split("\n"), start=1)
