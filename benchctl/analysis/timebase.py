@@ -22,11 +22,12 @@ after a silence of as many slots is a delay, not drops: a sample that would shar
 a later one moves back into the free slots before it) — and its instant is
 ``t₀ + k·Δt + w(k)``, a line and a slow wander (``robust_clock``) fitted to the receipt stamps
 of the samples that arrived on time. "On time" is decided by the stamps' own scatter: a stamp
-more than ``REJECT_LATE`` robust standard deviations (1.4826·MAD) after the clock is late and
-left out of the fit (``REJECT_EARLY`` before it: an outlier), so bursts, batches and stalls do
-not pull the clock. The offset of the clock is that of the receipts on time, so the
-instrument's transmission latency stays part of its measured delay, as with receipt stamps (a
-device clock's offset from the host clock cannot be observed from the data).
+more than ``REJECT_LATE`` robust scales after the clock is late and left out of the fit
+(``REJECT_EARLY`` before it: an outlier), so bursts, batches and stalls do not pull the clock.
+The clock is finally set at the lower envelope of the receipts on time (their 2 % quantile):
+the least latency a receipt had. What remains of the transmission latency stays part of the
+instrument's measured delay, as with receipt stamps (a device clock's offset from the host
+clock cannot be observed from the data).
 
 The residual error of such instants (``Clock.error_rms``) is the uncertainty of the fitted
 wander (block medians of ``WANDER_BLOCK`` samples), far below the stamps' own jitter.
@@ -52,6 +53,7 @@ HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeki
 MAX_REFINE = 12  # re-slotting rounds
 BURST_HORIZON_S = 2.0  # a burst of late stamps ends within this (a host stall's catch-up)
 ONE_SIDED_QUANTILE = 0.1  # first level of receipts (only ever late): their 10 % quantile
+ONE_SIDED_FLOOR = 0.02  # receipts' clock: the 2 % quantile of those on time (lower envelope)
 SCALE_SAMPLES = 65_536  # the robust scale of a longer record from a subsample this long
 BURST_LEVEL = 1.5  # steps above the lowest level ahead: a burst, not drops
 
@@ -217,6 +219,8 @@ def robust_clock(
     interpolated (a record shorter than two blocks: a least-squares line, no wander). "On
     time" is re-decided from the residuals' centre and scale (``_centre_scale``): more than
     ``REJECT_LATE`` scales after it is late, more than ``REJECT_EARLY`` before it an outlier.
+    ``one_sided``: the clock is finally set at the lower envelope of the stamps on time (their
+    ``ONE_SIDED_FLOOR`` quantile), the least latency a receipt had.
     ``floor_s`` is the smallest scale taken (default 10⁻⁶ of a step).
     """
     xa = np.asarray(x, dtype=float)
@@ -259,6 +263,9 @@ def robust_clock(
             break
         inl = new
     r = tr - (a + b * xr) - w
+    if one_sided and inl.any():  # receipts: the clock at their lower envelope, the earliest
+        a += float(np.quantile(r[inl], ONE_SIDED_FLOOR))  # on time (their least latency)
+        r = tr - (a + b * xr) - w
     jit = float(np.sqrt(np.mean((r[inl] - r[inl].mean()) ** 2))) if inl.any() else 0.0
     n_in = max(1, int(inl.sum()))
     if knots.size:
