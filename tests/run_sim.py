@@ -89,7 +89,7 @@ def live_bench(
     model = model or SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0)
     limits = StandLimits(**LIMITS)
     sim_stand = SimStand(
-        SimStandConfig(**(sim_stand or {})),
+        SimStandConfig(**{"watchdog_s": 3.0, **(sim_stand or {})}),
         limits=limits,
         register_map=ROOT / "drivers/stand_generic.yaml",
         transport="rtu" if transport == "rtu" else "tcp",
@@ -104,6 +104,7 @@ def live_bench(
             stand_sec: dict[str, Any] = {
                 "driver": f"modbus-{transport}",
                 "register_map": str(ROOT / "drivers/stand_generic.yaml"),
+                "timeout_s": 2.0,  # generous: the simulators share a loaded machine
                 "limits": LIMITS,
                 **(stand or {}),
             }
@@ -117,7 +118,8 @@ def live_bench(
                 inst["serial_port"] = live.serial_port
             else:
                 inst["channel"] = live.channel
-            inst["silence_timeout_s"] = 1.0
+            # generous: the simulators share a loaded machine with the test and the run
+            inst["silence_timeout_s"] = 3.0
             data = {
                 "station": "e2e",
                 "stand": stand_sec,

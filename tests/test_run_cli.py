@@ -135,8 +135,8 @@ def test_recording_show_and_export(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "aborted (interrupted by SIGTERM)" in capsys.readouterr().out
     assert main(["recording", "export", str(rec), "--csv", str(tmp_path / "csv")]) == 0
     back = (tmp_path / "csv" / "instrument.csv").read_text().splitlines()
-    assert back[0] == "t_host,device_time_s,counter,roll_deg" and len(back) == 51
-    assert float(back[3].split(",")[3]) == pytest.approx(0.21)
+    assert back[0] == "t_host,device_time_s,counter,adapter_time_s,roll_deg" and len(back) == 51
+    assert float(back[3].split(",")[4]) == pytest.approx(0.21)
     assert main(["recording", "export", str(rec), "--mat", str(tmp_path / "r.mat")]) == 0
     from scipy.io import loadmat
 

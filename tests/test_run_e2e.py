@@ -302,5 +302,6 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
     assert roll["mean_error"] == pytest.approx(cfg.sim.instrument.bias_deg, abs=0.01)
     for key in ("serial", "operator", "station", "seed", "stats", "recording", "analysis_window"):
         assert key in rep
-    assert rep["stats"]["missed_cycles"] == 0 or rep["stats"]["missed_cycles"] < 25
+    # buffered (the default config): host stalls miss polls but never touch the motion
+    assert rep["stats"]["underruns"] == 0 and rep["stats"]["rejoins"] == 0
     assert load_recording(rep["recording"]).state == "done"

@@ -110,7 +110,7 @@ def test_streaming_stand_rejoins_within_limits_after_host_stalls(tmp_path: Path)
 
 def test_buffered_stand_underrun_stops_then_rejoins(tmp_path: Path) -> None:
     """Stalls longer than the queue (0.7–0.85 s against 0.48 s queued — two pushes at least —,
-    below the stand's 1 s watchdog): each runs the queue dry;
+    below the stand's watchdog): each runs the queue dry;
     the stand stops itself within its limits, the loop counts the underrun, waits for rest and
     rejoins the profile from there; the run still ends (PASS) and the measured motion stays
     within the limits."""

@@ -58,6 +58,8 @@ def test_sim_bench_where_the_config_says(tmp_path: Path, name: str) -> None:
     (a 'hardware' config pointed at the simulators) works unchanged."""
     cfg = load_config(_config(tmp_path, name))
     with SimBench(cfg) as bench:
+        # generous reply timeout: the simulators share a loaded machine with this test
+        cfg = cfg.model_copy(update={"stand": cfg.stand.model_copy(update={"timeout_s": 2.0})})
         assert (tmp_path / "instrument").is_symlink()
         if cfg.stand.driver == "modbus-rtu":
             assert (tmp_path / "stand-rtu").is_symlink()

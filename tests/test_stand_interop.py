@@ -36,7 +36,7 @@ from benchctl.sim.stand import SimStand
 
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
-REPLY_S = 2.0  # generous: the machine is loaded
+REPLY_S = 5.0  # generous: the machine is loaded
 SILENCE_S = 1.0  # how long "no reply" is listened for
 TID = 0x1234
 H = bytes.fromhex

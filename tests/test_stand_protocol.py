@@ -197,7 +197,7 @@ class PtyPeer(ScriptedPeer):
 def expected_protocol(
     transport: str,
     pairs: Sequence[tuple[bytes, bytes | None]],
-    timeout_s: float = 0.3,
+    timeout_s: float = 2.0,  # generous: a loaded machine
     register_map: Path = MAP,
 ) -> Iterator[ModbusStand]:
     """A ``ModbusStand`` wired to a scripted peer; checks the script when the block ends."""
