@@ -6,8 +6,10 @@ a child process) drives them over the real protocols."""
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,3 +152,24 @@ def expected_sigma(bench: LiveBench, motion: Any, axis: str) -> float:
         tab.amp_deg * hs, tab.freq_hz, resolution_deg=bench.instrument.wire_resolution_deg
     )
     return math.sqrt(var)
+
+
+def recording_in(runs: Path) -> Path | None:
+    """The recording a child run made in ``runs`` (None until its meta.json exists)."""
+    found = [p.parent for p in runs.glob("*/meta.json")]
+    return found[0] if found else None
+
+
+def motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
+    """True once the child's recording shows ``seconds`` of motion (from its own events)."""
+
+    def cond() -> bool:
+        rec = recording_in(runs)
+        if rec is None or not (rec / "events.jsonl").is_file():
+            return False
+        for line in (rec / "events.jsonl").read_text().splitlines():
+            if '"motion_start"' in line:
+                return bool(time.monotonic() - json.loads(line)["t_host"] >= seconds)
+        return False
+
+    return cond

@@ -14,9 +14,8 @@ never an exception that would end a run; a real link failure is still a lost lin
 from __future__ import annotations
 
 import random
-import select
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ import pytest
 import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from wire import read_all, wait_until
 
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import InstrumentSample
@@ -134,24 +134,6 @@ def can_driver(driver: str, **kw: Any) -> Iterator[tuple[Any, FakeBus]]:
         yield dev, bus
     finally:
         dev.close()
-
-
-def wait_until(cond: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met within the deadline")
-        time.sleep(0.01)
-
-
-def read_all(port: PtyPort, until: bytes, timeout: float = 5.0) -> bytes:
-    got = b""
-    deadline = time.monotonic() + timeout
-    assert port.master_fd is not None
-    while until not in got and time.monotonic() < deadline:
-        select.select([port.master_fd], [], [], 0.05)
-        got += port.read()
-    return got
 
 
 @pytest.fixture

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import math
 import os
-import select
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
 import pytest
+from wire import read_all, wait_until
 
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import AngleSensor, InstrumentSample
@@ -27,24 +27,6 @@ from benchctl.sim.slcan import SlcanAdapter, frame_line, parse_frame
 
 ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
-
-
-def wait_until(cond: Callable[[], bool], timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met within the deadline")
-        time.sleep(0.01)
-
-
-def read_all(port: PtyPort, until: bytes, timeout: float = 3.0) -> bytes:
-    got = b""
-    deadline = time.monotonic() + timeout
-    assert port.master_fd is not None
-    while until not in got and time.monotonic() < deadline:
-        select.select([port.master_fd], [], [], 0.05)
-        got += port.read()
-    return got
 
 
 @pytest.fixture

@@ -25,7 +25,16 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROLL, ROOT, TWO_AXIS, LiveBench, expected_sigma, live_bench
+from run_sim import (
+    ROLL,
+    ROOT,
+    TWO_AXIS,
+    LiveBench,
+    expected_sigma,
+    live_bench,
+    motion_for,
+    recording_in,
+)
 
 from benchctl.cli import main
 from benchctl.recording import load_recording
@@ -123,27 +132,6 @@ def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def _recording(runs: Path) -> Path | None:
-    found = [p.parent for p in runs.glob("*/meta.json")]
-    return found[0] if found else None
-
-
-def _motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
-    """True once the child's recording shows ``seconds`` of motion (from its own events)."""
-
-    def cond() -> bool:
-        rec = _recording(runs)
-        if rec is None or not (rec / "events.jsonl").is_file():
-            return False
-        for line in (rec / "events.jsonl").read_text().splitlines():
-            if '"motion_start"' in line:
-                t0 = json.loads(line)["t_host"]
-                return time.monotonic() - t0 >= seconds
-        return False
-
-    return cond
-
-
 def _at_rest(bench: LiveBench) -> bool:
     a = bench.stand.true_angles(time.monotonic())
     time.sleep(0.1)
@@ -193,7 +181,7 @@ def test_every_way_out_of_a_real_child_run(
         proc = _child(b.config_path, profile)
         try:
             if inject is not None:
-                _wait(_motion_for(runs, 1.5), 30.0, "the child's motion")
+                _wait(motion_for(runs, 1.5), 30.0, "the child's motion")
                 inject(b, proc)
             code, out, err = _finish(proc)
         finally:
@@ -205,7 +193,7 @@ def test_every_way_out_of_a_real_child_run(
         _wait(lambda: _at_rest(b), 10.0, "the stand at rest")
         if answers:
             assert all(abs(v) <= 0.05 for v in b.stand.true_angles(time.monotonic()).values())
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
     assert r.state == "aborted" and words in r.end["reason"]  # type: ignore[index]
@@ -237,7 +225,7 @@ def test_kill_9_mid_profile_leaves_a_readable_recording(
         runs = tmp_path / "runs"
         proc = _child(b.config_path, profile)
         try:
-            _wait(_motion_for(runs, 3.0), 30.0, "the child's motion")
+            _wait(motion_for(runs, 3.0), 30.0, "the child's motion")
             t_kill = time.monotonic()
             proc.kill()  # SIGKILL: no cleanup at all
             proc.communicate(timeout=10)
@@ -247,7 +235,7 @@ def test_kill_9_mid_profile_leaves_a_readable_recording(
                 proc.communicate()
         # nothing ramps the stand now: its watchdog must stop it (heartbeat gone)
         _wait(lambda: _at_rest(b), 10.0, "the watchdog to stop the stand")
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
     assert r.state == "incomplete" and r.end is None

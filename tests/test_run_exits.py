@@ -28,7 +28,7 @@ from typing import Any
 import pytest
 import yaml
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
-from run_sim import ROOT, LiveBench, live_bench
+from run_sim import ROOT, LiveBench, live_bench, motion_for, recording_in
 
 from benchctl import exits
 from benchctl.cli import main
@@ -79,26 +79,6 @@ def _reap(proc: subprocess.Popen[str]) -> None:
     if proc.poll() is None:
         proc.kill()
     proc.communicate()
-
-
-def _recording(runs: Path) -> Path | None:
-    found = [p.parent for p in runs.glob("*/meta.json")]
-    return found[0] if found else None
-
-
-def _motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
-    """True once the child's recording shows ``seconds`` of motion (from its own events)."""
-
-    def cond() -> bool:
-        rec = _recording(runs)
-        if rec is None or not (rec / "events.jsonl").is_file():
-            return False
-        for line in (rec / "events.jsonl").read_text().splitlines():
-            if '"motion_start"' in line:
-                return bool(time.monotonic() - json.loads(line)["t_host"] >= seconds)
-        return False
-
-    return cond
 
 
 def _still(bench: LiveBench) -> bool:
@@ -185,7 +165,7 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
         runs = tmp_path / "runs"
         proc = _child(b.config_path, runs)
         try:
-            _wait(_motion_for(runs, 1.0), 60.0, "the child's motion")
+            _wait(motion_for(runs, 1.0), 60.0, "the child's motion")
             proc.send_signal(sig)
             code, out, err = _finish(proc)
         finally:
@@ -195,7 +175,7 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
         assert "Traceback" not in err and "Traceback" not in out, err[-3000:]
         _wait(lambda: _still(b), 15.0, "the stand at rest")
         assert all(abs(v) <= 0.05 for v in b.stand.true_angles(time.monotonic()).values())
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
     assert r.state == "aborted" and r.end is not None
@@ -225,14 +205,14 @@ def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: P
     runs = tmp_path / "runs"
     proc = _child(cfg, runs)
     try:
-        _wait(_motion_for(runs, 1.0), 60.0, "the child's motion")
+        _wait(motion_for(runs, 1.0), 60.0, "the child's motion")
         proc.send_signal(signal.SIGHUP)
         code, out, err = _finish(proc)
     finally:
         _reap(proc)
     assert code == 2 and "interrupted by SIGHUP" in out, (out, err[-3000:])
     assert "Traceback" not in err
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
     assert r.state == "aborted"
@@ -273,7 +253,7 @@ def test_signal_during_startup_is_a_clean_exit_2(tmp_path: Path, sig: signal.Sig
     assert code == 2, (code, out, err[-3000:])
     assert "Traceback" not in err and "Traceback" not in out, err
     assert f"interrupted by {sig.name}" in out + err, (out, err)
-    rec = _recording(runs)
+    rec = recording_in(runs)
     if rec is None:  # the usual case: it never got as far as the run
         assert err.strip().splitlines()[-1] == f"benchctl run: interrupted by {sig.name}", err
     else:  # the machine was slow enough for the run to start: then it is an abort like any
@@ -509,7 +489,7 @@ def test_file_too_large_in_a_real_child_run(tmp_path: Path) -> None:
         assert "(closed, marked aborted)" in out  # end.json is small: it still fits
         _wait(lambda: _still(b), 15.0, "the stand at rest")
         assert all(abs(v) <= 0.05 for v in b.stand.true_angles(time.monotonic()).values())
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
     assert r.state == "aborted" and r.end is not None
@@ -574,7 +554,7 @@ def test_a_second_run_is_refused_naming_the_holder_until_it_dies(
     assert _run_main(cfg) == 2
     err = capsys.readouterr().err
     assert "in use" not in err
-    rec = _recording(tmp_path / "runs")
+    rec = recording_in(tmp_path / "runs")
     assert rec is not None and load_recording(rec).state == "aborted"
     assert not lock_file(locks, key).exists()  # released: removed by its holder
 
@@ -622,7 +602,7 @@ def test_second_real_run_refused_while_the_first_one_finishes_untouched(
         runs = tmp_path / "runs"
         first = _child(b.config_path, runs, "--json", serial="FIRST-1")
         try:
-            _wait(_motion_for(runs, 1.0), 60.0, "the first run's motion")
+            _wait(motion_for(runs, 1.0), 60.0, "the first run's motion")
             assert _run_main(b.config_path) == 2
             err = capsys.readouterr().err
             assert f"is in use by benchctl run (pid {first.pid}" in err, err
@@ -707,7 +687,7 @@ def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(tmp_path:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
-    rec = _recording(runs)
+    rec = recording_in(runs)
     assert rec is not None
     log = rec / "benchctl.log"
     assert "ABORTED: run (exception): unexpected ZeroDivisionError: boom inside the run" in (

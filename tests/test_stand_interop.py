@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import pytest
+from wire import rtu
 
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.base import StandLimitsView
@@ -43,20 +44,6 @@ H = bytes.fromhex
 IDENTITY_READ = H("03 0000 0002")  # FC3, the first two identity registers: vendor "benc"
 IDENTITY_REPLY = H("03 04 6265 6E63")
 HB_ECHO_READ = H("03 00CA 0001")  # FC3 at 202: the heartbeat echo
-
-
-def crc16_modbus(frame: bytes) -> bytes:
-    """CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), low byte first on the wire."""
-    crc = 0xFFFF
-    for b in frame:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc.to_bytes(2, "little")
-
-
-def rtu(pdu: bytes, unit: int = 1) -> bytes:
-    return bytes([unit]) + pdu + crc16_modbus(bytes([unit]) + pdu)
 
 
 def mbap(pdu: bytes, unit: int = 1, tid: int = TID) -> bytes:

@@ -20,6 +20,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
+from wire import rtu
 
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
@@ -44,20 +45,6 @@ READ_REPLY_PDU = H("03 34") + FEEDBACK  # 52 data bytes
 SETPOINT_PDU = H("10 012C 0004 08 3FC00000 C0000000")  # FC16 at 300: roll 1.5, pitch -2.0
 SETPOINT_REPLY_PDU = H("10 012C 0004")
 HEARTBEAT_PDU = H("06 0065 0001")  # FC6 at 101, value 1
-
-
-def crc16_modbus(frame: bytes) -> bytes:
-    """CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), low byte first on the wire."""
-    crc = 0xFFFF
-    for b in frame:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc.to_bytes(2, "little")
-
-
-def rtu(pdu: bytes, unit: int = 1) -> bytes:
-    return bytes([unit]) + pdu + crc16_modbus(bytes([unit]) + pdu)
 
 
 def mbap(tid: int, pdu: bytes, unit: int = 1) -> bytes:
