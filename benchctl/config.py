@@ -185,8 +185,21 @@ class SimStandConfig(Strict):
     faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
 
 
+class CrossAxisConfig(Strict):
+    """Cross-axis coupling of the simulated instrument (a misaligned sensing axis): each
+    axis's input is its own angle plus this fraction of the other axis's angle (|k| ≤ 1)."""
+
+    roll_from_pitch: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    pitch_from_roll: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+
+
 class SimInstrumentConfig(Strict):
-    """The simulated instrument's own model: what it measures of the true stand motion."""
+    """The simulated instrument's own model: what it measures of the true stand motion.
+
+    Optional static effects on each axis's input before the dynamics, in this order: the
+    cross-axis coupling, then the cubic term ``u + cubic_per_deg2 · u³``, then the saturation
+    ``clip(u, −saturation_deg, +saturation_deg)``; all off by default (the model is linear).
+    """
 
     gain: Finite = 1.0
     lag_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0  # 1st order
@@ -201,6 +214,9 @@ class SimInstrumentConfig(Strict):
     seed: int = Field(default=1, ge=0, lt=2**63)
     # exact first-order-hold integration rate of lag / 2nd order
     substep_hz: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] = 4000.0
+    cross_axis: CrossAxisConfig = CrossAxisConfig()
+    cubic_per_deg2: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    saturation_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)] | None = None
 
 
 class SimFault(Strict):

@@ -42,6 +42,12 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
     result = analyze(t_ref, x_ref, t_dev, y_dev, axis=axis, **options)
     if note:
         result.warnings.append(note)
+    if options.get("lines") != "off":  # a two-axis record: this output against the other axis
+        from benchctl.analysis.crossaxis import recording_cross_axis
+
+        result.cross_axis, why_cross = recording_cross_axis(rec, axis)
+        if why_cross:
+            result.warnings.append(why_cross)
     return result
 
 

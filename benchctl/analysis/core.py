@@ -297,7 +297,9 @@ def _line_analysis(
             ls = LineSet(n * al.dt / count_or_none, harm, "detected")
         else:
             return None
-        return analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum)
+        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum)
+        warnings.extend(la.warnings)
+        return la
     except LinesError as e:
         warnings.append(f"no line-wise estimate: {e}")
         return None

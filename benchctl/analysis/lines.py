@@ -42,8 +42,10 @@ Pure computation on arrays; see :func:`analyze_lines`.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +54,7 @@ from numpy.typing import NDArray
 from scipy.fft import fft, ifft, irfft, next_fast_len, rfft
 from scipy.special import stdtrit
 
+from benchctl.analysis.distortion import Distortion, analyze_distortion
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 
 FloatArray = NDArray[np.float64]
@@ -90,12 +93,32 @@ class LineSet:
 
     ``source``: ``"profile"`` (re-synthesised from a recording's profile), ``"period"`` (given
     period, lines found in the reference) or ``"detected"`` (period and lines found in the
-    reference).
+    reference). ``odd``: an odd multisine (its unexcited odd and even harmonics show
+    nonlinear distortion, :mod:`benchctl.analysis.distortion`): from the profile's
+    ``multisine`` option, or for lines found in the reference when there are at least
+    two and all are odd. ``others``: the harmonics (of the same period) excited on the
+    profile's other axes, never counted as unexcited.
     """
 
     period_s: float
     harmonics: IntArray
     source: str
+    odd: bool = False
+    others: IntArray | None = None
+
+    @property
+    def all_excited(self) -> IntArray:
+        """The harmonics excited on any axis."""
+        if self.others is None or self.others.size == 0:
+            return self.harmonics
+        return np.asarray(np.union1d(self.harmonics, self.others), dtype=np.int64)
+
+    @property
+    def is_odd_multisine(self) -> bool:
+        if self.odd:
+            return True
+        h = self.harmonics
+        return self.source != "profile" and h.size >= 2 and bool(np.all(h % 2 == 1))
 
     @property
     def freq(self) -> FloatArray:
@@ -363,25 +386,39 @@ def reference_lines(
     return np.asarray(j[keep] // n_periods, dtype=np.int64)
 
 
+def _table_harmonics(table: Any, period: float) -> IntArray | None:
+    freq = np.asarray(table.freq_hz, dtype=float)
+    freq = freq[np.asarray(table.amp_deg, dtype=float) > 0]
+    k = freq * period
+    ki = np.rint(k).astype(np.int64)
+    if freq.size == 0 or np.any(np.abs(k - ki) > WHOLE_PERIODS_TOL) or ki.min() < 1:
+        return None
+    return np.unique(ki)
+
+
 def line_set_from_tables(
-    table: Any, window_s: float | None
+    table: Any, window_s: float | None, others: Sequence[Any] = ()
 ) -> tuple[LineSet | None, str | None]:
     """The line set of one axis's ``HarmonicTable`` (freq_hz, amp_deg, period_s), or
     ``(None, reason)``. Without a period, the analysis window is the period (its lines must
-    make whole cycles in it)."""
-    freq = np.asarray(table.freq_hz, dtype=float)
+    make whole cycles in it). ``others``: the tables of the profile's other axes (their lines
+    go into ``LineSet.others``); the table's ``meta["multisine"]`` (an odd multisine) sets
+    ``LineSet.odd``."""
     amp = np.asarray(table.amp_deg, dtype=float)
-    freq = freq[amp > 0]
-    if freq.size == 0:
+    if not np.any(amp > 0):
         return None, "the profile's table has no line"
     period = table.period_s if table.period_s else window_s
     if not period:
         return None, "the profile's lines have no repetition period"
-    k = freq * period
-    ki = np.rint(k).astype(np.int64)
-    if np.any(np.abs(k - ki) > WHOLE_PERIODS_TOL) or ki.min() < 1:
+    ki = _table_harmonics(table, period)
+    if ki is None:
         return None, f"the profile's lines are not whole harmonics of {period:g} s"
-    return LineSet(float(period), np.unique(ki), "profile"), None
+    rest = [h for h in (_table_harmonics(t, period) for t in others) if h is not None]
+    other = np.unique(np.concatenate(rest)).astype(np.int64) if rest else None
+    meta = getattr(table, "meta", None) or {}
+    ms = meta.get("multisine") if isinstance(meta, dict) else None
+    odd = isinstance(ms, dict) and bool(ms.get("odd"))
+    return LineSet(float(period), ki, "profile", odd, other), None
 
 
 def line_set_from_recording(
@@ -410,7 +447,8 @@ def line_set_from_recording(
     if not tables or axis not in tables:
         return None, f"the profile gives no harmonic table for {axis}"
     span = None if window is None else window[1] - window[0]
-    return line_set_from_tables(tables[axis], span)
+    others = [t for a, t in tables.items() if a != axis]
+    return line_set_from_tables(tables[axis], span, others)
 
 
 # ------------------------------------------------------------------------ noise at the lines
@@ -511,6 +549,7 @@ class LineAnalysis:
     exact: bool
     iterations: int
     warnings: list[str] = field(default_factory=list)
+    distortion: Distortion | None = None  # an odd multisine over ≥ 2 periods
 
     @property
     def gain(self) -> FloatArray:
@@ -685,7 +724,7 @@ def refine_period(
         turn = 2.0 * np.pi * float(lines.freq.max()) * span * abs(step) / lines.period_s
         if turn < PERIOD_PHASE_TOL * 1e-3:
             break
-        lines = LineSet(lines.period_s + step, lines.harmonics, lines.source)
+        lines = dataclasses.replace(lines, period_s=lines.period_s + step)
         changed = True
         fit = None
         if turn < PERIOD_PHASE_TOL:  # converged: the last (small) step taken, no more fits
@@ -804,6 +843,15 @@ def analyze_lines(
     inc_ci = mls_interval(incoherent, _parts(coef * level, var_inc, groups, coef))
     inc_ci = (max(inc_ci[0], 0.0), max(inc_ci[1], 0.0))
     dof_parts = {f"{a}-{b - 1}": nu for (a, b), (_, nu) in zip(groups, parts, strict=True)}
+    distortion, notes = None, []
+    if lines.is_odd_multisine:
+        if n_periods >= 2:
+            distortion = analyze_distortion(fit.spectrum[0], fit.spectrum[1], n_valid, n_periods,
+                                            lines.period_s, lines.all_excited)
+        elif lines.odd:
+            notes.append("no distortion estimate: an odd multisine, but the record holds one "
+                         "period (the noise lies between the harmonics only over two or more: "
+                         "give the profile a repeat_period_s)")
     return LineAnalysis(
         lines=lines,
         period_nominal=nominal,
@@ -829,6 +877,8 @@ def analyze_lines(
         reference_fit=ref_fit,
         exact=fit.exact,
         iterations=fit.iterations,
+        warnings=notes,
+        distortion=distortion,
     )
 
 

@@ -96,6 +96,8 @@ class AnalysisResult:
     source: str = ""
     axis: str | None = None
     warnings: list[str] = field(default_factory=list)
+    # this axis's output against the other axis's motion (benchctl.analysis.crossaxis)
+    cross_axis: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (NaN/inf → null). See README "Analysis" for every key."""
@@ -134,6 +136,9 @@ class AnalysisResult:
                 "source": self.frf_source,
             },
             "lines": None if self.lines is None else _clean(self.lines.to_dict()),
+            "distortion": None if self.lines is None or self.lines.distortion is None
+            else _clean(self.lines.distortion.to_dict()),
+            "cross_axis": _clean(self.cross_axis),
             "psd": {
                 "freq": _list(self.psd_freq),
                 "error": _list(self.psd_error),

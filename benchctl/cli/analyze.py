@@ -144,6 +144,12 @@ def run(args: argparse.Namespace) -> int:
                          source=str(args.source), axis=ax, **ax_opts)
             if note:
                 res.warnings.append(note)
+            if args.lines != "off":
+                from benchctl.analysis.crossaxis import recording_cross_axis
+
+                res.cross_axis, why = recording_cross_axis(rec, ax, args.recording_timebase)
+                if why:
+                    res.warnings.append(why)
             results[ax] = res
     else:
         src = Path(args.source)
@@ -233,6 +239,38 @@ def _lines_block(r: AnalysisResult) -> list[str]:
     ]
 
 
+def _distortion_block(r: AnalysisResult) -> list[str]:
+    d = None if r.lines is None else r.lines.distortion
+    if d is None:
+        return []
+    out = [f"  nonlinear distortion (odd multisine, {d.n_periods} periods; error at the "
+           f"unexcited lines vs the noise between harmonics): "
+           + ("DETECTED" if d.detected else "not detected") + f" (α = {d.alpha:g})"]
+    for name, g in (("odd", d.odd), ("even", d.even)):
+        lv = g.level
+        if lv.harmonics.size == 0 or lv.level_deg is None or lv.noise_deg is None:
+            out.append(f"    {name:4s}: no unexcited line")
+            continue
+        ratio = 10 * math.log10(lv.ratio) if 0 < lv.ratio < math.inf else math.inf
+        out.append(
+            f"    {name:4s}: {lv.level_deg:.3g}° rms per line vs noise {lv.noise_deg:.3g}° "
+            f"({ratio:+.1f} dB, threshold {10 * math.log10(g.threshold):+.1f} dB, "
+            f"p = {g.p_value:.2g}, {lv.harmonics.size} lines)"
+            + ("  → detected" if g.detected else "")
+        )
+    return out
+
+
+def _cross_axis_block(r: AnalysisResult) -> list[str]:
+    c = r.cross_axis
+    if not c:
+        return []
+    lo, hi = c["coefficient_ci95"]
+    return [f"  cross-axis: {c['output_axis']} output per {c['input_axis']} angle "
+            f"K = {c['coefficient']:+.5f}  95 % CI {lo:+.5f} … {hi:+.5f}  (quadrature "
+            f"{c['quadrature']:+.5f}; {c['n_lines']} lines of {c['input_axis']})"]
+
+
 def summary(r: AnalysisResult) -> str:
     """A readable summary of one result."""
     g = r.gaps
@@ -256,6 +294,8 @@ def summary(r: AnalysisResult) -> str:
         + (" (line-wise, mean removal included)" if r.lines is not None else " (lag window)"),
     ]
     lines.extend(_lines_block(r))
+    lines.extend(_distortion_block(r))
+    lines.extend(_cross_axis_block(r))
     if r.band:
         b = r.band
         lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")

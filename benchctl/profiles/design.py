@@ -47,6 +47,7 @@ from benchctl.profiles.synthesis import (
     line_harmonics,
     random_phases,
     reduce_crest,
+    select_lines,
 )
 
 FloatArray = NDArray[np.float64]
@@ -171,14 +172,29 @@ def _spectral(
                 f"setpoint rate ({setpoint_rate_hz / 2:g} Hz)"
             )
         k = line_harmonics((lo, hi), tp)
+        ms = spec.multisine
+        selection = None
+        if ms is not None:
+            selection = select_lines(
+                k,
+                odd=ms.odd,
+                detection_group=ms.detection_group,
+                interleave_axes=ms.interleave_axes,
+                seed=seed,
+                stream=AXIS_STREAM[axis],
+            )
+            k = selection.kept
         if k.size < spec.min_lines:
             raise ConfigError(
                 f"{profile.label(where)} = [{lo:g}, {hi:g}]: holds {k.size} line(s) at spacing "
-                f"1/T_p = {1 / tp:.4g} Hz, expected at least min_lines = {spec.min_lines}; widen "
+                f"1/T_p = {1 / tp:.4g} Hz"
+                + ("" if selection is None else " (after the multisine option's selection)")
+                + f", expected at least min_lines = {spec.min_lines}; widen "
                 f"the band or lengthen the duration"
             )
         density, kinks = axis_density(profile, axis)
-        design = design_lines(density, (lo, hi), tp, method=spec.amplitudes, breakpoints_hz=kinks)
+        design = design_lines(density, (lo, hi), tp, method=spec.amplitudes, breakpoints_hz=kinks,
+                              keep=None if selection is None else selection.kept)
         if design.target_variance_deg2 <= 0:
             raise ConfigError(f"{profile.label(where)}: the target spectrum is zero in this band")
         phase = random_phases(design.freq_hz.size, seed, AXIS_STREAM[axis])
@@ -194,7 +210,8 @@ def _spectral(
             fi,
             fo,
             tp,
-            {"band_hz": (lo, hi), "n_periods": n_periods, "amplitudes": spec.amplitudes},
+            {"band_hz": (lo, hi), "n_periods": n_periods, "amplitudes": spec.amplitudes}
+            | ({} if selection is None else {"multisine": selection.to_meta()}),
         )
         targets[axis] = AxisTarget(
             density,

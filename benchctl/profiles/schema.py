@@ -46,6 +46,28 @@ class CrestSpec(Strict):
     iterations: int = Field(default=100, ge=1, le=10000)
 
 
+class MultisineSpec(Strict):
+    """Which lines of the band a spectral profile excites (default: every harmonic k/T_p).
+
+    ``odd``: odd harmonics only (an odd random-phase multisine: even-order distortion then
+    falls on unexcited even lines); ``detection_group``: 0, or g ≥ 2 — one line of every group
+    of g consecutive candidates is left out at random (seeded), a detection line for odd
+    distortion; ``interleave_axes``: roll and pitch on disjoint lines (roll k ≡ 1, pitch
+    k ≡ 3 mod 4 when odd; else roll odd, pitch even), so that one run separates each axis's
+    response to roll from its response to pitch (cross-axis).
+    """
+
+    odd: bool = False
+    detection_group: int = Field(default=0, ge=0, le=1000)
+    interleave_axes: bool = False
+
+    @model_validator(mode="after")
+    def _group(self) -> MultisineSpec:
+        if self.detection_group == 1:
+            raise ValueError("detection_group 1 would leave every line out; expected 0 or >= 2")
+        return self
+
+
 class ProfileBase(Strict):
     name: str = Field(min_length=1)
     description: str = ""
@@ -67,6 +89,7 @@ class SpectralBase(TimedBase):
     amplitudes: Literal["cell", "point"] = "cell"
     crest: CrestSpec = CrestSpec()
     min_lines: int = Field(default=3, ge=1, le=100_000)
+    multisine: MultisineSpec | None = None  # odd lines, detection lines, disjoint axes
 
 
 class AxisBand(Strict):

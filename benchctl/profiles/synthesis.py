@@ -64,6 +64,67 @@ def line_harmonics(band_hz: tuple[float, float], period_s: float) -> NDArray[np.
     return np.arange(k_lo, k_hi + 1, dtype=np.int64)
 
 
+@dataclass(frozen=True)
+class LineSelection:
+    """Which of a band's harmonics an axis excites (the ``multisine`` option of a profile).
+
+    ``kept``: the excited harmonics k; ``detection``: odd (or candidate) harmonics left out on
+    purpose, at random, so that nonlinear distortion shows at them; ``odd``, ``interleave``,
+    ``group``: the option itself.
+    """
+
+    kept: NDArray[np.int64]
+    detection: NDArray[np.int64]
+    odd: bool
+    interleave: bool
+    group: int
+
+    def to_meta(self) -> dict[str, object]:
+        return {
+            "odd": self.odd,
+            "interleave_axes": self.interleave,
+            "detection_group": self.group,
+            "detection_harmonics": [int(k) for k in self.detection],
+        }
+
+
+def select_lines(
+    harmonics: ArrayLike,
+    *,
+    odd: bool = False,
+    detection_group: int = 0,
+    interleave_axes: bool = False,
+    seed: int = 0,
+    stream: int = 0,
+) -> LineSelection:
+    """The excited harmonics of one axis of an (odd) random-phase multisine.
+
+    The candidates are ``harmonics`` (the band's k), reduced to the odd k with ``odd``; with
+    ``interleave_axes`` each axis takes its own residue class, so that two axes never share a
+    line (roll ``k ≡ 1``, pitch ``k ≡ 3 (mod 4)`` when odd; else roll odd k, pitch even k).
+    With ``detection_group = g ≥ 2`` the candidates are cut into consecutive groups of g and one
+    line of every whole group is left out, drawn uniformly from
+    ``Generator(PCG64(SeedSequence([seed, stream, 1])))`` (Pintelon & Schoukens' detection
+    lines: a nonlinearity shows at them, a linear system leaves only noise there).
+    """
+    k = np.asarray(harmonics, dtype=np.int64)
+    if odd:
+        k = k[k % 2 == 1]
+    if interleave_axes:
+        step, residue = (4, (1, 3)[stream % 2]) if odd else (2, (1, 0)[stream % 2])
+        k = k[k % step == residue]
+    left: list[int] = []
+    if detection_group >= 2 and k.size >= detection_group:
+        rng = np.random.Generator(
+            np.random.PCG64(np.random.SeedSequence([int(seed), int(stream), 1]))
+        )
+        for start in range(0, k.size - detection_group + 1, detection_group):
+            left.append(int(k[start + int(rng.integers(detection_group))]))
+    detection = np.asarray(left, dtype=np.int64)
+    kept = np.setdiff1d(k, detection).astype(np.int64)
+    return LineSelection(kept, detection, odd, interleave_axes, int(detection_group))
+
+
 def band_integral(
     density: Density, edges_hz: FloatArray, breakpoints_hz: ArrayLike | None = None
 ) -> FloatArray:
@@ -93,6 +154,7 @@ def design_lines(
     *,
     method: str = "cell",
     breakpoints_hz: ArrayLike | None = None,
+    keep: ArrayLike | None = None,
 ) -> LineDesign:
     """Lines ``f_k = k/T_p`` inside ``band_hz`` with amplitudes from the one-sided density.
 
@@ -108,6 +170,12 @@ def design_lines(
         Amplitude rule (module docstring).
     breakpoints_hz : array_like, optional
         Kinks of a piecewise-linear density, integrated exactly.
+    keep : array_like of int, optional
+        Only these harmonics k (a subset of the band's, see :func:`select_lines`). Each kept
+        line then stands for the density over its own, wider cell (edges halfway to the next
+        kept line, the first and last stretched to the band edges): ``cell`` amplitudes still
+        add up to ``Σ A_k²/2 = ∫_band G df`` and follow the density's shape; ``point`` uses
+        ``A_k = √(2 G(f_k) w_k)`` with ``w_k`` that cell's width.
 
     Returns
     -------
@@ -119,6 +187,11 @@ def design_lines(
     if k.size == 0:
         raise ValueError(f"no line k/{period_s:g} s falls inside the band {lo:g}…{hi:g} Hz")
     df = 1.0 / period_s
+    if keep is not None:
+        kk = np.asarray(keep, dtype=np.int64)
+        if kk.size == 0 or not np.all(np.isin(kk, k)):
+            raise ValueError(f"keep: expected a non-empty subset of the band's harmonics {k}")
+        k = np.unique(kk)
     f = k / period_s
     edges = np.concatenate([[lo], (f[:-1] + f[1:]) / 2.0, [hi]])
     cells = band_integral(density, edges, breakpoints_hz)
@@ -126,7 +199,8 @@ def design_lines(
     if method == "cell":
         power = cells
     elif method == "point":
-        power = np.asarray(density(f), dtype=float) * df
+        width = np.diff(edges) if keep is not None else df
+        power = np.asarray(density(f), dtype=float) * width
     else:
         raise ValueError(f"method must be 'cell' or 'point', got {method!r}")
     amp = np.sqrt(2.0 * np.clip(power, 0.0, None))

@@ -102,6 +102,25 @@ class Report:
         }
 
 
+def _extra_lines(analysis: dict[str, Any]) -> list[str]:
+    """An axis's cross-axis response and distortion test, when its analysis has them."""
+    out = []
+    c = analysis.get("cross_axis")
+    if c:
+        lo, hi = c["coefficient_ci95"]
+        out.append(f"        cross-axis {c['output_axis']} per {c['input_axis']}: K = "
+                   f"{c['coefficient']:+.5f}  95 % CI [{lo:+.5f}, {hi:+.5f}]")
+    d = analysis.get("distortion")
+    if d:
+        def deg(v: float | None) -> str:
+            return "—" if v is None else f"{v:.3g}°"
+
+        out.append(f"        nonlinear distortion {'DETECTED' if d['detected'] else 'not detected'}"
+                   f": odd {deg(d['odd_deg'])}, even {deg(d['even_deg'])} rms per line, noise "
+                   f"{deg(d['noise_deg'])}")
+    return out
+
+
 def format_report(rep: Report) -> str:
     m = rep.meta
     lines = [
@@ -121,6 +140,7 @@ def format_report(rep: Report) -> str:
             f"  → {'PASS' if v.passed else 'FAIL'}   (mean error {v.mean_error_deg:+.4f}°, "
             f"dof {v.dof:.0f})"
         )
+        lines.extend(_extra_lines(v.analysis))
     st = rep.stats
     lat = st.get("cycle_lateness_s", {})
     rtt = st.get("stand_rtt_s", {})

@@ -502,13 +502,16 @@ class Session:
 
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
         from benchctl.analysis import analyze
-        from benchctl.analysis.lines import line_set_from_tables
+        from benchctl.analysis.crossaxis import cross_axis_for
+        from benchctl.analysis.lines import LineSet, line_set_from_tables
 
         a = self.cfg.run.analysis
         rec = load_recording(self.path)
         lo, hi = window
         results: dict[str, Any] = {}
         verdicts = {}
+        pairs: dict[str, Any] = {}
+        line_sets: dict[str, LineSet] = {}
         for axis in self.axes:
             tr, xr, td, yd = rec.pair(axis, window=False)
             margin = WINDOW_MARGIN_S  # the same crop as Recording.pair once end.json is written
@@ -523,8 +526,12 @@ class Session:
             tables = getattr(self.prep.motion, "tables", None) or {}
             lines: Any = "auto"
             if axis in tables:
-                ls, _why = line_set_from_tables(tables[axis], hi - lo)
+                others = [t for ax, t in tables.items() if ax != axis]
+                ls, _why = line_set_from_tables(tables[axis], hi - lo, others)
                 lines = ls if ls is not None else "auto"
+                if ls is not None:
+                    line_sets[axis] = ls
+            pairs[axis] = (tr[kr], xr[kr], td[kd], yd[kd])
             res = analyze(
                 tr[kr],
                 xr[kr],
@@ -538,6 +545,11 @@ class Session:
                 lines=lines,
             )
             results[axis] = res
+        for axis, res in results.items():
+            if len(pairs) > 1:  # both axes moved: each output against the other axis's motion
+                res.cross_axis, why = cross_axis_for(pairs, line_sets, axis)
+                if why:
+                    res.warnings.append(why)
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
         return Report(verdicts, self.path, meta, self._stats(), window), results

@@ -10,6 +10,13 @@ in cascade), ``L`` the latency (s), ``n`` white Gaussian noise of standard devia
 independent per output sample and axis) and ``t0`` the first output instant. Quantisation
 rounds to the nearest multiple of ``quantisation_deg``.
 
+Optional static effects act on each axis's input ``u`` before the dynamics (all off by
+default, leaving the model linear and its output bit-identical): the cross-axis coupling
+``u_roll = roll + k_rp · pitch``, ``u_pitch = pitch + k_pr · roll`` (``cross_axis``; a
+misaligned sensing axis), then a cubic term ``u + c·u³`` (``cubic_per_deg2``), then a
+saturation ``clip(u, −s, s)`` (``saturation_deg``). The coupling is linear: the response of
+one axis's output to the other axis's angle is ``k · H(f)`` (:meth:`cross_transfer_function`).
+
 The dynamics are integrated exactly for an input that is linear between sub-steps (first-order
 hold, by the matrix exponential of the augmented system) at ``substep_hz``. For a sine of
 frequency f the linear interpolation departs from the sine by a relative amplitude of at most
@@ -31,6 +38,7 @@ from benchctl.config import SimInstrumentConfig
 from benchctl.devices.base import AXES
 
 MotionFn = Callable[[float], Mapping[str, float]]
+_OTHER = {"roll": "pitch", "pitch": "roll"}
 
 
 def _state_space(cfg: SimInstrumentConfig) -> tuple[NDArray[np.float64], NDArray[np.float64],
@@ -97,6 +105,10 @@ class InstrumentModel:
         self._tm: float | None = None  # last measurement instant
         self._t0: float | None = None
         self._h_max = 1.0 / cfg.substep_hz
+        ca = cfg.cross_axis
+        self._coupling = {a: k for a, k in (("roll", ca.roll_from_pitch),
+                                            ("pitch", ca.pitch_from_roll)) if k}
+        self._static = bool(cfg.cubic_per_deg2) or cfg.saturation_deg is not None
 
     # ------------------------------------------------------------------ frequency domain
     def dynamics_response(self, f_hz: ArrayLike) -> NDArray[np.complex128]:
@@ -138,6 +150,14 @@ class InstrumentModel:
         f = np.asarray(f_hz, dtype=float)
         return np.asarray(self.cfg.gain * np.exp(-2j * math.pi * f * self.cfg.latency_s)
                           * self.dynamics_response(f), dtype=np.complex128)
+
+    def cross_transfer_function(self, f_hz: ArrayLike, axis: str) -> NDArray[np.complex128]:
+        """Response of ``axis``'s output to the *other* axis's angle: ``k · H(f)`` with k the
+        coupling into ``axis`` (``cross_axis.roll_from_pitch`` for roll, ``pitch_from_roll``
+        for pitch); zero without coupling. Exact without the static nonlinearity."""
+        k = {"roll": self.cfg.cross_axis.roll_from_pitch,
+             "pitch": self.cfg.cross_axis.pitch_from_roll}[axis]
+        return np.asarray(k * self.transfer_function(f_hz), dtype=np.complex128)
 
     def expected_error_variance(
         self,
@@ -203,7 +223,22 @@ class InstrumentModel:
 
     def _input(self, motion: MotionFn, t: float) -> NDArray[np.float64]:
         angles = motion(t)
-        return np.array([float(angles[a]) for a in self.axes])
+        u = np.array([float(angles[a]) for a in self.axes])
+        if self._coupling:
+            u = u + np.array([self._coupling.get(a, 0.0) * float(angles.get(_OTHER[a], 0.0))
+                              for a in self.axes])
+        return self.static_curve(u) if self._static else u
+
+    def static_curve(self, u: ArrayLike) -> NDArray[np.float64]:
+        """The static nonlinearity on an input angle (deg): ``u + c·u³``, then clipped at
+        ``±saturation_deg`` (the identity when neither is set)."""
+        v = np.asarray(u, dtype=float)
+        c = self.cfg.cubic_per_deg2
+        if c:
+            v = v + c * v**3
+        if self.cfg.saturation_deg is not None:
+            v = np.clip(v, -self.cfg.saturation_deg, self.cfg.saturation_deg)
+        return np.asarray(v, dtype=float)
 
     def true_output(self, t: float, motion: MotionFn) -> NDArray[np.float64]:
         """Noise-free ``gain · (h * x)(t − L)`` per axis (deg), advancing the dynamics to ``t``."""
