@@ -24,7 +24,7 @@ from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
 
 # subcommand modules, in the order --help lists them
-SUBCOMMANDS = ("run", "analyze", "profile", "sim", "recording")
+SUBCOMMANDS = ("run", "analyze", "predict", "profile", "sim", "recording")
 
 EXIT_OK, EXIT_FAIL, EXIT_ERROR = 0, 1, 2
 

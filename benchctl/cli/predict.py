@@ -1,0 +1,193 @@
+"""``benchctl predict``: σ expected under another profile from a recording's measured H(f) and
+incoherent error (``benchctl.analysis.predict``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from benchctl.errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    from benchctl.analysis import AnalysisResult
+    from benchctl.analysis.predict import Prediction
+    from benchctl.harmonics import HarmonicTable
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "predict",
+        help="σ expected under another profile (sea state, ship) from a recording's H(f) and noise",
+        description=(
+            "Predict the dynamic error σ under another profile's motion from the frequency "
+            "response and the incoherent error measured line-wise in a recording: "
+            "σ² = Σ |H(f_j) − 1|²·A_j²/2 + noise, over the profile's lines where H was measured."
+        ),
+    )
+    p.add_argument("source", metavar="RECORDING", help="a benchctl recording folder")
+    p.add_argument("--profile", required=True, metavar="PROFILE.yaml",
+                   help="the other profile: its lines are the motion to predict for")
+    p.add_argument("--axis", choices=("roll", "pitch", "all"), default="all",
+                   help="axis (default all: every axis of the recording the profile moves)")
+    p.add_argument("--duration", type=float, metavar="SEC",
+                   help="the profile's duration override (its lines follow, as for a run)")
+    p.add_argument("--recording-timebase", default="best",
+                   choices=("best", "device", "adapter", "fitted", "receipt"),
+                   help="the recording's instrument instants (as for benchctl analyze)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=run)
+
+
+def _tables(profile_path: str, duration: float | None) -> tuple[Any, dict[str, HarmonicTable]]:
+    from benchctl.profiles import load_profile, synthesize
+
+    profile = load_profile(profile_path)
+    motion = synthesize(profile, duration_s=duration)
+    tables = motion.tables
+    if not tables:
+        raise ConfigError(
+            f"{profile_path}: kind {profile.kind} has no single table of lines (a grid of sine "
+            "steps); a prediction needs the motion as lines: give a spectral, harmonics or "
+            "sine profile"
+        )
+    return profile, tables
+
+
+def _measure(rec: Any, source: str, axis: str, timebase: str) -> AnalysisResult:
+    from benchctl.analysis import analyze
+    from benchctl.analysis.lines import line_set_from_recording
+
+    tr, xr, td, yd = rec.pair(axis, timebase=timebase)
+    ls, why = line_set_from_recording(rec.meta, axis, rec.analysis_window)
+    try:
+        res = analyze(tr, xr, td, yd, source=source, axis=axis,
+                      lines=ls if ls is not None else "auto")
+    except DataError as e:
+        raise DataError(f"{source} [{axis}]: {e}") from None
+    if res.lines is None:
+        head = "no line-wise estimate: "
+        reasons = [w[len(head):] for w in res.warnings if w.startswith(head)]
+        if why:
+            reasons.insert(0, f"lines not taken from the profile: {why}")
+        raise DataError(
+            f"{source} [{axis}]: no line-wise estimate of H "
+            f"({'; '.join(reasons) or 'no whole periods of known lines detected'}); a "
+            "prediction needs a record of whole periods of the motion's lines"
+        )
+    return res
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchctl.analysis.predict import noise_from_lines, predict, response_from_lines
+    from benchctl.config import MAX_RUN_DURATION_S, check_option
+    from benchctl.recording import is_recording, load_recording
+
+    check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s",
+                 what="a positive number of seconds")
+    src = Path(args.source)
+    if not is_recording(src):
+        what = "a folder but not a benchctl recording (no meta.json)" if src.is_dir() else (
+            "not a recording folder (predict reads recordings)" if src.exists() else
+            "no such recording folder")
+        raise DataError(f"{src}: {what}")
+    profile, tables = _tables(args.profile, args.duration)
+    rec = load_recording(src)
+    wanted = list(rec.axes) if args.axis == "all" else [args.axis]
+    if args.axis != "all" and args.axis not in rec.axes:
+        raise DataError(f"{src}: --axis {args.axis}: the recording holds {', '.join(rec.axes)}")
+    axes = [a for a in wanted if a in tables]
+    if not axes:
+        raise ConfigError(
+            f"{args.profile}: axes: moves {', '.join(tables)}, none of the recording's "
+            f"{', '.join(wanted)}; expected a profile for the axis measured"
+        )
+    docs: dict[str, dict[str, Any]] = {}
+    texts: list[str] = []
+    for ax in axes:
+        res = _measure(rec, str(src), ax, args.recording_timebase)
+        la = res.lines
+        assert la is not None
+        tab = tables[ax]
+        pred = predict(response_from_lines(la), noise_from_lines(la), tab.freq_hz, tab.amp_deg)
+        doc = _doc(args, profile, tab, res, pred, ax)
+        docs[ax] = doc
+        texts.append(_summary(doc, pred))
+    if args.json:
+        out = docs[axes[0]] if args.axis != "all" else {"axes": docs}
+        sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
+    else:
+        print("\n".join(texts))
+    return 0
+
+
+def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: AnalysisResult,
+         pred: Prediction, axis: str) -> dict[str, Any]:
+    from benchctl.analysis.result import _clean
+
+    la = res.lines
+    assert la is not None
+    timing = float(res.timing.get("timing_variance", 0.0) or 0.0)
+    return _clean({
+        "recording": str(args.source),
+        "profile": str(args.profile),
+        "profile_name": profile.name,
+        "axis": axis,
+        "duration_s": tab.duration_s,
+        "period_s": tab.period_s,
+        **pred.to_dict(),
+        "measured": {
+            "sigma": res.sigma,
+            "sigma_ci95": list(res.sigma_ci95),
+            "linear": la.linear,
+            "incoherent": la.incoherent,
+            "n_lines": len(la.freq),
+            "period_s": la.lines.period_s,
+            "lines_source": la.lines.source,
+            "timing_variance": timing,
+        },
+        "assumptions": {
+            "noise": "independent of the motion (carried over whole)",
+            "outside_band": "excluded from sigma; sigma_outside_bound takes |1 - H| <= 1 there",
+            "interval": "linear part: delta method over the line estimates; noise: scaled "
+                        "chi-square; combined by the modified large-sample method",
+        },
+    })
+
+
+def _summary(doc: dict[str, Any], pred: Prediction) -> str:
+    m = doc["measured"]
+    lo_b, hi_b = pred.tested_band_hz
+    s_lo, s_hi = pred.sigma_ci95
+    lines = [
+        f"benchctl predict: {doc['recording']}  [{doc['axis']}]  →  {doc['profile']} "
+        f"({doc['profile_name']}, {doc['duration_s']:g} s)",
+        f"  measured: σ = {m['sigma']:.5g}° (linear {m['linear']:.4g} + incoherent "
+        f"{m['incoherent']:.4g} deg²), H at {m['n_lines']} lines over {lo_b:.4g} … "
+        f"{hi_b:.4g} Hz",
+        f"  predicted σ = {pred.sigma:.5g}°   95 % CI {s_lo:.5g} … {s_hi:.5g}°",
+        f"    linear Σ|H−1|²A²/2 = {pred.linear:.5g} deg² (95 % CI {pred.linear_ci95[0]:.4g} … "
+        f"{pred.linear_ci95[1]:.4g}), noise {pred.noise:.5g} deg² (95 % CI "
+        f"{pred.noise_ci95[0]:.4g} … {pred.noise_ci95[1]:.4g}, ν = {pred.noise_dof:.4g}), "
+        f"interpolation bound {pred.interpolation_bound:.2g} deg²",
+        f"  the profile's motion: {len(pred.freq)} lines over {pred.freq.min():.4g} … "
+        f"{pred.freq.max():.4g} Hz, {pred.target_variance:.5g} deg²; "
+        + (f"outside the tested band {100 * pred.outside_share:.3g} % "
+           f"({pred.outside_variance:.4g} deg², {len(pred.freq) - pred.n_inside} lines): not in "
+           f"σ; with |1 − H| ≤ 1 there σ ≤ {pred.sigma_outside_bound:.5g}°"
+           if pred.n_inside < len(pred.freq) else "all inside the tested band"),
+        "  assumes: the noise independent of the motion (carried over whole); H between "
+        "measured lines interpolated, never outside them",
+    ]
+    if pred.untested_gaps_hz:
+        gaps = ", ".join(f"{a:.4g} … {b:.4g}" for a, b in pred.untested_gaps_hz)
+        lines.append(f"  holes between measured lines not interpolated: {gaps} Hz")
+    if m["timing_variance"] > 0.01 * pred.noise:
+        lines.append(
+            f"  note: {m['timing_variance']:.3g} deg² of the noise is the time bases' error, "
+            "which grows with the motion's rate (not scaled here)"
+        )
+    lines.extend(f"  warning: {w}" for w in pred.warnings)
+    return "\n".join(lines)
