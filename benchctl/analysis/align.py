@@ -249,33 +249,39 @@ def _bridgeable(
     """The spline's rms error across each reference gap it may bridge (NaN: not bridged).
 
     Gaps (``gap``: steps ``d`` over ``BRIDGE_STEPS`` median steps) up to ``BRIDGE_MAX_S`` are
-    tried: a cubic spline through the ``BRIDGE_SIDE`` samples each side of the same span left
-    out at ``BRIDGE_TRIALS`` places where the reference is whole; bridged when the rms of its
-    misses there is below ``BRIDGE_TOL`` of the reference's rms (a host stall leaves such gaps
-    in a slow motion polled fast), with that rms as its error."""
+    tried: a cubic spline through the ``BRIDGE_SIDE`` samples present each side of the same
+    span left out at ``BRIDGE_TRIALS`` places over the record (at least half of them with a
+    sample inside); bridged when the rms of its misses there is below ``BRIDGE_TOL`` of the
+    reference's rms (a host stall leaves such gaps in a slow motion polled fast), with that
+    rms as its error."""
     from scipy.interpolate import make_interp_spline
 
     out = np.full(len(d), np.nan)
-    step = float(np.median(d))
-    whole = ~gap
     tol = BRIDGE_TOL * float(np.std(x))
     n = len(t)
+    if n < 2 * BRIDGE_SIDE + 2:
+        return out
+    side = BRIDGE_SIDE
     for j in np.flatnonzero(gap & (d <= BRIDGE_MAX_S)):
-        if j < BRIDGE_SIDE or j + 1 + BRIDGE_SIDE > n:
+        if j < side or j + 1 + side > n:
             continue
-        m = int(np.ceil(d[j] / step)) - 1  # samples a whole stretch has inside such a span
-        span = m + 2 * BRIDGE_SIDE + 1
-        ok = np.convolve(whole.astype(float), np.ones(span - 1), "valid") == span - 1
-        starts = np.flatnonzero(ok)
-        if starts.size == 0 or m < 1:
+        # trial spans as long as this gap, left out where the samples are: the spline through
+        # the BRIDGE_SIDE samples present each side against the samples present inside (a
+        # reference with other gaps of its own — scattered replies left out — is tried too)
+        lo, hi = float(t[side]), float(t[n - 1 - side]) - float(d[j])
+        if hi <= lo:
             continue
         sq = []
-        for i0 in starts[np.linspace(0, starts.size - 1, BRIDGE_TRIALS).astype(int)]:
-            idx = np.arange(i0, i0 + span)
-            inner = idx[BRIDGE_SIDE : BRIDGE_SIDE + m]
-            outer = np.concatenate((idx[:BRIDGE_SIDE], idx[BRIDGE_SIDE + m :]))
-            e = make_interp_spline(t[outer], x[outer], k=3)(t[inner]) - x[inner]
+        for ts in np.linspace(lo, hi, BRIDGE_TRIALS):
+            a = int(np.searchsorted(t, ts, side="right"))
+            b = int(np.searchsorted(t, ts + float(d[j]), side="left"))
+            if b - a < 1 or a < side or b + side > n:
+                continue
+            outer = np.r_[a - side : a, b : b + side]
+            e = make_interp_spline(t[outer], x[outer], k=3)(t[a:b]) - x[a:b]
             sq.append(float(np.mean(e**2)))
+        if len(sq) < BRIDGE_TRIALS // 2:
+            continue
         rms = float(np.sqrt(np.mean(sq)))
         if rms <= tol:
             out[j] = rms

@@ -184,6 +184,7 @@ class SimStand:
         self._start_time = 0.0
         self._tick_s = 1.0 / sim_cfg.tick_hz
         self._k = 0  # ticks done: the state is at time t0 + k * tick
+        self._clock_on = False  # t0 set: the physics runs (lazily too, see _advance)
 
         self._regs: list[int] | None = None
         self._regs_start = 0
@@ -211,6 +212,7 @@ class SimStand:
     def _start(self) -> None:
         now = time.monotonic()
         self._t0 = now
+        self._clock_on = True
         self._hb_time = now
         self._start_time = now
         if self.transport == "rtu":
@@ -276,6 +278,7 @@ class SimStand:
         The history reaches back about 4 s; earlier or later times are clamped to its ends.
         """
         with self._lock:
+            self._advance(min(t + self._tick_s, time.monotonic()))  # a late physics thread
             k_end = self._k
             n = self._hist.shape[0]
             u = (t - self._t0) / self._tick_s
@@ -321,16 +324,25 @@ class SimStand:
             next_t = self._t0 + (self._k + 1) * tick
             if self._stop_evt.wait(max(0.0, next_t - time.monotonic())):
                 return
-            k_target = int((time.monotonic() - self._t0) / tick)
             with self._lock:
-                if k_target - self._k > _MAX_CATCHUP_TICKS:
-                    self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
-                while self._k < k_target:
-                    self._k += 1
-                    self._tick(self._t0 + self._k * tick)
-                    self._hist[self._k % self._hist.shape[0]] = [
-                        self._state[a].angle_deg for a in self.axes
-                    ]
+                self._advance(time.monotonic())
+
+    def _advance(self, now: float) -> None:
+        """Run the physics up to ``now`` (lock held): the state is a function of time, whoever
+        looks at it first — the physics thread, a reply's feedback or the instrument — so a
+        late physics thread never hands out an old state as the present one."""
+        if not self._clock_on:
+            return
+        tick = self._tick_s
+        k_target = int((now - self._t0) / tick)
+        if k_target - self._k > _MAX_CATCHUP_TICKS:
+            self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
+        while self._k < k_target:
+            self._k += 1
+            self._tick(self._t0 + self._k * tick)
+            self._hist[self._k % self._hist.shape[0]] = [
+                self._state[a].angle_deg for a in self.axes
+            ]
 
     def _tick(self, t: float) -> None:
         """One physics tick at time ``t`` (lock held)."""
@@ -598,6 +610,7 @@ class SimStand:
             code = self._comm.take_exception(now)
             if code is not None:
                 return ExcCodes(code)
+            self._advance(now)  # the state as it is now, however late the physics thread is
             if values is None:
                 self._fill_feedback(address, count, regs, start)
                 return None
