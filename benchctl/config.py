@@ -288,6 +288,8 @@ class RunConfig(Strict):
     instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.2
     # stand motion departing from the profile beyond this aborts the run
     profile_tolerance_deg: Positive = 1.0
+    # sine_steps profiles: PASS when max − min of the steps' gains ≤ this (per axis)
+    linearity_spread_limit: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.01
     analysis: AnalysisConfig = AnalysisConfig()
     lock_dir: Path | None = None  # one run per stand: its lock files (None: <tmp>/benchctl-locks)
 

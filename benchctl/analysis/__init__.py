@@ -25,7 +25,8 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
     The line-wise estimate uses the lines of the recording's profile (re-synthesised from
     its metadata: profile, seed, duration) unless ``lines`` or ``period_s`` is given; when
     they cannot be re-synthesised, a warning says why and the lines are detected as for any
-    record.
+    record. A recording of a ``sine_steps`` profile also gets its linearity table
+    (``result.steps``, :mod:`benchctl.analysis.steps`).
     """
     from benchctl.recording import load_recording
 
@@ -48,6 +49,14 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
         result.cross_axis, why_cross = recording_cross_axis(rec, axis)
         if why_cross:
             result.warnings.append(why_cross)
+    from benchctl.analysis.steps import steps_for_recording
+
+    steps, why = steps_for_recording(rec.meta, rec.events, axis, t_ref, x_ref, t_dev, y_dev)
+    if why:
+        result.warnings.append(why)
+    if steps is not None:
+        result.steps = steps
+        result.warnings.extend(steps.warnings)
     return result
 
 

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 if TYPE_CHECKING:
     from benchctl.analysis.lines import LineAnalysis
+    from benchctl.analysis.steps import StepsAnalysis
 
 FloatArray = NDArray[np.float64]
 
@@ -96,6 +97,7 @@ class AnalysisResult:
     source: str = ""
     axis: str | None = None
     warnings: list[str] = field(default_factory=list)
+    steps: StepsAnalysis | None = None  # sine_steps: the linearity table and its verdict
     # this axis's output against the other axis's motion (benchctl.analysis.crossaxis)
     cross_axis: dict[str, Any] | None = None
 
@@ -149,4 +151,9 @@ class AnalysisResult:
             "cross_checks": _clean(self.cross_checks),
             "uncertainty": _clean(self.uncertainty),
             "warnings": list(self.warnings),
+            **(
+                {"steps": None, "linearity": None}
+                if self.steps is None
+                else _clean(self.steps.to_dict())
+            ),
         }

@@ -533,7 +533,12 @@ DEVICE_CLOCKS: dict[str, tuple[str, float]] = {
     "nmea0183": ("time", 86_400.0),  # $PASHR UTC time of day (a leap second reads 86 400)
     "nmea2000": ("counter", 253.0),  # PGN 127257 SID 0…252
 }
-MIN_ON_TIME = 0.5  # a clock whose slots leave fewer receipts on time than this is not used
+# a device or adapter clock is not used when more than this share of the receipts came before
+# the instants it gives (by more than EARLY_MARGIN_S + 8 × the receipts' jitter): a receipt
+# can be late by any amount on a busy host, never early — early ones are a clock that is not
+# the samples' own (slots counted wrong, a time that is not the sampling instant)
+MAX_EARLY = 0.01
+EARLY_MARGIN_S = 1e-3
 
 
 def _receipt(t: FloatArray) -> TimeBase:
@@ -558,7 +563,8 @@ def instrument_timebase(
     ``device_time``/``counter``: the protocol's own time or counter (NaN where absent; used
     for the drivers in ``DEVICE_CLOCKS``); ``adapter_time``: the CAN adapter's timestamps (s,
     unwrapped; NaN where absent). ``prefer``: ``best`` (device, adapter, fitted, in that order:
-    the first the samples all have and whose slots leave at least half the receipts on time),
+    the first the samples all have and that no more than ``MAX_EARLY`` of the receipts
+    precede),
     or one of ``TIMEBASES`` (``ValueError`` if the samples do not have it).
     """
     tr = np.asarray(t_receipt, dtype=float)
@@ -596,6 +602,7 @@ def instrument_timebase(
                 raise ValueError(f"the samples have no usable {kind} time base")
             continue
         tb = clock_timebase(tr, kind, k)
-        if len(tr) - tb.late >= MIN_ON_TIME * len(tr) or prefer != "best":
+        early = tr - tb.t < -(EARLY_MARGIN_S + 8.0 * tb.jitter_s)
+        if np.mean(early) <= MAX_EARLY or prefer != "best":
             return tb
     return clock_timebase(tr, "fitted")  # not reached

@@ -144,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
                          source=str(args.source), axis=ax, **ax_opts)
             if note:
                 res.warnings.append(note)
+            _recording_steps(rec, ax, res, tr, xr, td, yd)
             if args.lines != "off":
                 from benchctl.analysis.crossaxis import recording_cross_axis
 
@@ -192,6 +193,18 @@ def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[st
     if ls is None:
         return opts, f"lines not taken from the profile: {why}"
     return {**opts, "lines": ls}, ""
+
+
+def _recording_steps(rec: Any, axis: str, res: AnalysisResult, *pair: Any) -> None:
+    """A sine_steps recording: the linearity table (``res.steps``) on the same samples."""
+    from benchctl.analysis.steps import steps_for_recording
+
+    sa, why = steps_for_recording(rec.meta, rec.events, axis, *pair)
+    if why:
+        res.warnings.append(why)
+    if sa is not None:
+        res.steps = sa
+        res.warnings.extend(sa.warnings)
 
 
 def _fmt(v: float | None, spec: str) -> str:
@@ -301,6 +314,10 @@ def summary(r: AnalysisResult) -> str:
         lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")
     if r.periods:
         lines.extend(_periods_table(r))
+    if r.steps is not None:
+        from benchctl.analysis.steps import format_steps
+
+        lines.extend(format_steps(r.steps))
     c = r.cross_checks
     welch = ("skipped" if c["welch_area"] is None else
              f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "

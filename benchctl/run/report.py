@@ -1,4 +1,5 @@
-"""The verdict and the report: PASS when σ ≤ the limit on every axis, FAIL otherwise.
+"""The verdict and the report: PASS when σ ≤ the limit on every axis — and, for a sine_steps
+profile, the linearity of its steps' gains within ``run.linearity_spread_limit`` — FAIL otherwise.
 
 Written into the recording folder: ``report.json`` (machine-readable, the same object
 ``benchctl run --json`` prints), ``report.txt`` (for the operator) and one analysis plot per
@@ -24,7 +25,9 @@ ARCHIVE_INDEX = "index.jsonl"
 
 @dataclass
 class AxisVerdict:
-    """σ of one axis against the limit (degrees)."""
+    """σ of one axis against the limit (degrees); with sine steps, also the linearity table
+    (``steps``) and its verdict (``linearity``: spread, limit, verdict): the axis passes when
+    both do."""
 
     axis: str
     sigma_deg: float
@@ -35,10 +38,20 @@ class AxisVerdict:
     delay_s: float | None
     limit_deg: float
     analysis: dict[str, Any] = field(default_factory=dict, repr=False)
+    steps: list[dict[str, Any]] | None = None
+    linearity: dict[str, Any] | None = None
+
+    @property
+    def sigma_passed(self) -> bool:
+        return math.isfinite(self.sigma_deg) and self.sigma_deg <= self.limit_deg
+
+    @property
+    def linearity_passed(self) -> bool:
+        return self.linearity is None or self.linearity.get("verdict") == "PASS"
 
     @property
     def passed(self) -> bool:
-        return math.isfinite(self.sigma_deg) and self.sigma_deg <= self.limit_deg
+        return self.sigma_passed and self.linearity_passed
 
     def to_dict(self, full: bool = True) -> dict[str, Any]:
         d: dict[str, Any] = {
@@ -51,7 +64,11 @@ class AxisVerdict:
             "mean_error": self.mean_error_deg,
             "rms_error": self.rms_error_deg,
             "delay": self.delay_s,
+            "sigma_verdict": "PASS" if self.sigma_passed else "FAIL",
         }
+        if self.linearity is not None:
+            d["linearity"] = self.linearity
+            d["steps"] = self.steps
         if full:
             d["analysis"] = self.analysis
         return d
@@ -60,6 +77,8 @@ class AxisVerdict:
 def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
     """From an ``AnalysisResult`` (sigma, sigma_ci95, dof, mean_error, rms_error, delay)."""
     ci = tuple(float(v) for v in result.sigma_ci95)
+    steps = getattr(result, "steps", None)
+    table = None if steps is None else steps.to_dict()
     return AxisVerdict(
         axis=axis,
         sigma_deg=float(result.sigma),
@@ -70,6 +89,8 @@ def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
         delay_s=None if getattr(result, "delay", None) is None else float(result.delay),
         limit_deg=limit_deg,
         analysis=result.to_dict() if hasattr(result, "to_dict") else {},
+        steps=None if table is None else table["steps"],
+        linearity=None if table is None else table["linearity"],
     )
 
 
@@ -137,9 +158,11 @@ def format_report(rep: Report) -> str:
         lines.append(
             f"  {v.axis:<5} σ = {v.sigma_deg:.4f}°  95 % CI [{lo:.4f}, {hi:.4f}]°"
             f"  limit {v.limit_deg:g}°"
-            f"  → {'PASS' if v.passed else 'FAIL'}   (mean error {v.mean_error_deg:+.4f}°, "
+            f"  → {'PASS' if v.sigma_passed else 'FAIL'}   (mean error {v.mean_error_deg:+.4f}°, "
             f"dof {v.dof:.0f})"
         )
+        if v.steps is not None and v.linearity is not None:
+            lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))
     st = rep.stats
     lat = st.get("cycle_lateness_s", {})
@@ -166,6 +189,28 @@ def format_report(rep: Report) -> str:
     )
     lines.append(f"  recording {rep.recording}")
     return "\n".join(lines)
+
+
+def _steps_lines(steps: list[dict[str, Any]], lin: dict[str, Any]) -> list[str]:
+    """The sine steps' table (period × amplitude: gain and phase with 95 % intervals) and the
+    linearity verdict, from the JSON form."""
+    out = ["        period  ampl.   gain    95 % CI            phase     95 % CI"]
+    for s in steps:
+        g, gc, ph, pc = s.get("gain"), s.get("gain_ci95"), s.get("phase_deg"), s.get(
+            "phase_ci95_deg")
+        head = f"        {s['period_s']:4.3g} s  {s['amplitude_deg']:4.3g}°  "
+        if g is None or gc is None or ph is None or pc is None:
+            out.append(head + f"no estimate: {s.get('note') or '?'}")
+            continue
+        out.append(head + f"{g:.4f}  [{gc[0]:.4f}, {gc[1]:.4f}]  {ph:7.2f}°  "
+                   f"[{pc[0]:.2f}, {pc[1]:.2f}]°")
+    spread = lin.get("spread")
+    out.append(
+        "        linearity: spread (max − min gain) "
+        + ("—" if spread is None else f"{spread:.4f}")
+        + f"  limit {lin.get('limit'):g}  → {lin.get('verdict')}"
+    )
+    return out
 
 
 def _plot(result: Any, dest: Path) -> bool:

@@ -544,6 +544,7 @@ class Session:
                 axis=axis,
                 lines=lines,
             )
+            self._steps(axis, res, (tr[kr], xr[kr], td[kd], yd[kd]))
             results[axis] = res
         for axis, res in results.items():
             if len(pairs) > 1:  # both axes moved: each output against the other axis's motion
@@ -553,6 +554,22 @@ class Session:
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
         return Report(verdicts, self.path, meta, self._stats(), window), results
+
+    def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
+        """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
+        whole full-amplitude cycles placed on the motion's start; its verdict joins σ's."""
+        from benchctl.analysis.steps import analyze_steps, step_windows
+
+        motion = self.prep.motion
+        if not getattr(motion, "segments", None):
+            return
+        assert self.loop is not None and self.loop.t_motion_start is not None
+        wins = step_windows(motion, axis, self.loop.t_motion_start)
+        if not wins:
+            return
+        sa = analyze_steps(*pair, wins, spread_limit=self.cfg.run.linearity_spread_limit)
+        res.steps = sa
+        res.warnings.extend(sa.warnings)
 
     # ---- the run
     def _recording_failed(self, e: RecordingError) -> None:
