@@ -1,0 +1,89 @@
+"""`benchctl predict` on the simulated bench: a recording made with one profile predicts the σ
+of a run with another (a sea state and ship), within 5 % of the σ that run measures.
+
+The instrument is the MEMS-like model of ``config/sim.yaml`` (gain 0.995, 80 ms lag, 10 ms
+latency, 0.05° white noise). Profile A is a flat multisine over 0.025–0.6 Hz (40 s steady, lines
+k/40 s); profile B is ``sea_state_4_small_vessel`` shortened to 50 s (lines k/30 s over
+0.067–0.5 Hz), which lies inside A's tested band, so nothing of it is outside. The prediction
+from A alone is compared with the σ B's run measures (its verdict, the published σ) and with
+the model's stated σ for B (tests/run_sim.py: ``expected_sigma``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+from run_sim import ROOT, expected_sigma, live_bench
+
+from benchctl.cli import main
+from benchctl.config import SimInstrumentConfig, load_config
+from benchctl.run import RunOptions, run_test
+from benchctl.run.session import prepare_motion
+
+pytestmark = pytest.mark.slow
+
+PROFILE_A = """
+name: predict_flat
+description: flat multisine for the prediction test (0.025-0.6 Hz, 48 s)
+reference: a white roll table, for measuring H over a wide band
+kind: roll_spectrum
+duration_s: 48
+fade_in_s: 4
+fade_out_s: 4
+seed: 11
+band_hz: [0.025, 0.6]
+axes:
+  roll: {model: table, freq_hz: [0.02, 0.65], density_deg2_hz: [5.0, 5.0]}
+"""
+PROFILE_B = ROOT / "profiles/sea_state_4_small_vessel.yaml"
+DURATION_B = 50.0
+MODEL = SimInstrumentConfig(gain=0.995, lag_s=0.08, latency_s=0.01, noise_deg=0.05,
+                            rate_hz=100.0, seed=7)
+SILENCE_S = 15.0  # a host stall of seconds under load is not a silent instrument here
+
+
+def test_prediction_agrees_with_the_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                        ) -> None:
+    prof_a = tmp_path / "predict_flat.yaml"
+    prof_a.write_text(PROFILE_A)
+    # generous: the simulators share a loaded computer (the run layer's own tests keep 3 s)
+    with live_bench(tmp_path, model=MODEL, stand={"mode": "table", "timeout_s": 5.0}) as b:
+        data = yaml.safe_load(b.config_path.read_text())
+        data["instrument"]["silence_timeout_s"] = SILENCE_S
+        b.config_path.write_text(yaml.safe_dump(data))
+        cfg = load_config(b.config_path)
+        res_a = run_test(cfg, prof_a, RunOptions("PRED-A", "ci"))
+        assert res_a.state == "done", res_a.reason
+        res_b = run_test(cfg, PROFILE_B, RunOptions("PRED-B", "ci", duration_s=DURATION_B))
+        assert res_b.state == "done", res_b.reason
+        prep = prepare_motion(b.cfg, PROFILE_B, RunOptions("x", "y", duration_s=DURATION_B))
+        stated = expected_sigma(b, prep.motion, "roll")
+        stated_noise = MODEL.noise_deg**2 + b.instrument.wire_resolution_deg**2 / 12.0
+    assert res_a.recording is not None and res_b.report is not None
+    measured = res_b.report.axes["roll"].sigma_deg
+    capsys.readouterr()
+    code = main(["predict", str(res_a.recording), "--profile", str(PROFILE_B),
+                 "--duration", str(DURATION_B), "--axis", "roll", "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    doc = json.loads(out.out)
+    with capsys.disabled():  # the figures, for the README (pytest -s)
+        print(f"predicted {doc['sigma']:.5f} {doc['sigma_ci95']}, measured {measured:.5f}, "
+              f"stated {stated:.5f}; linear {doc['linear']:.5f}, noise {doc['noise']:.5f} "
+              f"(stated {stated_noise:.5f})")
+    assert doc["outside_band_share"] == 0.0 and doc["n_inside"] == doc["n_lines"] == 14
+    assert doc["sigma"] == pytest.approx(measured, rel=0.05), ("run B", res_b.stats)
+    assert doc["sigma"] == pytest.approx(stated, rel=0.05)
+    lo, hi = doc["sigma_ci95"]
+    assert lo <= doc["sigma"] <= hi
+    # the noise carried over is the model's (white noise and the wire's quantisation)
+    assert doc["noise"] == pytest.approx(stated_noise, rel=0.15)
+    assert doc["noise_ci95"][0] <= stated_noise <= doc["noise_ci95"][1]
+    # the text summary says the same
+    assert main(["predict", str(res_a.recording), "--profile", str(PROFILE_B),
+                 "--duration", str(DURATION_B)]) == 0
+    text = capsys.readouterr().out
+    assert f"predicted σ = {doc['sigma']:.5g}°" in text and "all inside the tested band" in text
