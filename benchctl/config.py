@@ -279,6 +279,42 @@ class AnalysisConfig(Strict):
         return band
 
 
+class ExcitationConfig(Strict):
+    """Excitation fidelity (``benchctl.analysis.excitation``): the measured stand angle's
+    spectrum against the profile's, judged per band: beyond ±``alarm_db`` an alarm, beyond
+    ±``abort_db`` the abort level. Lines below ``weak_line_db`` (amplitude re the strongest)
+    and bands below ``weak_band_db`` (power re the strongest band) are not judged, nor a band
+    whose 95 % half-width exceeds ``max_ci_db``. ``band_edges_hz``: the bands' edges, ascending
+    (default: third-octave bands)."""
+
+    alarm_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.5
+    abort_db: Annotated[float, Field(gt=0, le=40, allow_inf_nan=False)] = 3.0
+    weak_line_db: Annotated[float, Field(ge=-120, lt=0, allow_inf_nan=False)] = -30.0
+    weak_band_db: Annotated[float, Field(ge=-120, lt=0, allow_inf_nan=False)] = -20.0
+    max_ci_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 0.5
+    band_edges_hz: tuple[Positive, ...] | None = None
+
+    @field_validator("band_edges_hz")
+    @classmethod
+    def _edges(cls, e: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if e is not None and (
+            len(e) < 2 or any(e[i + 1] <= e[i] for i in range(len(e) - 1))
+            or e[-1] > MAX_BAND_HZ
+        ):
+            raise ValueError(
+                f"expected at least two band edges in Hz, strictly ascending, ≤ {MAX_BAND_HZ:g}"
+            )
+        return e
+
+    @model_validator(mode="after")
+    def _levels(self) -> ExcitationConfig:
+        if self.abort_db < self.alarm_db:
+            raise ValueError(
+                f"abort_db = {self.abort_db:g}: expected ≥ alarm_db ({self.alarm_db:g})"
+            )
+        return self
+
+
 class RunConfig(Strict):
     limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
     output_dir: Path = Path("runs")
@@ -291,6 +327,7 @@ class RunConfig(Strict):
     # sine_steps profiles: PASS when max − min of the steps' gains ≤ this (per axis)
     linearity_spread_limit: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.01
     analysis: AnalysisConfig = AnalysisConfig()
+    excitation: ExcitationConfig = ExcitationConfig()  # measured excitation fidelity
     lock_dir: Path | None = None  # one run per stand: its lock files (None: <tmp>/benchctl-locks)
 
 

@@ -100,6 +100,8 @@ class AnalysisResult:
     steps: StepsAnalysis | None = None  # sine_steps: the linearity table and its verdict
     # this axis's output against the other axis's motion (benchctl.analysis.crossaxis)
     cross_axis: dict[str, Any] | None = None
+    # the measured stand angle's spectrum against the profile's (benchctl.analysis.excitation)
+    excitation: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (NaN/inf → null). See README "Analysis" for every key."""
@@ -141,6 +143,7 @@ class AnalysisResult:
             "distortion": None if self.lines is None or self.lines.distortion is None
             else _clean(self.lines.distortion.to_dict()),
             "cross_axis": _clean(self.cross_axis),
+            "excitation": _clean(self.excitation),
             "psd": {
                 "freq": _list(self.psd_freq),
                 "error": _list(self.psd_error),

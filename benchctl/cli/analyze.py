@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -10,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from benchctl.errors import DataError
+from benchctl.errors import BenchError, DataError
 
 if TYPE_CHECKING:
     from benchctl.analysis import AnalysisResult
@@ -145,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
             if note:
                 res.warnings.append(note)
             _recording_steps(rec, ax, res, tr, xr, td, yd)
+            _recording_excitation(rec, ax, res, tr, xr)
             if args.lines != "off":
                 from benchctl.analysis.crossaxis import recording_cross_axis
 
@@ -193,6 +195,65 @@ def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[st
     if ls is None:
         return opts, f"lines not taken from the profile: {why}"
     return {**opts, "lines": ls}, ""
+
+
+def _recording_excitation(rec: Any, axis: str, res: AnalysisResult, t: Any, x: Any) -> None:
+    """A finished run's recording whose profile gives harmonic tables: the measured excitation
+    fidelity of ``axis`` (``res.excitation``) over its analysis window, with the bench config's
+    ``run.excitation`` settings and ``stand.limits`` as recorded (else the defaults)."""
+    from benchctl.analysis.excitation import (
+        FidelityLimits,
+        StandReach,
+        fidelity_of_table,
+        limits_of,
+        reach_of,
+    )
+    from benchctl.analysis.steps import motion_start
+    from benchctl.config import ExcitationConfig, StandLimits
+    from benchctl.profiles import parse_profile, synthesize
+
+    meta = rec.meta
+    prof = meta.get("profile")
+    if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
+        return
+    if prof["spec"].get("kind") == "sine_steps":
+        return  # its steps have their own table
+    window, t0 = rec.analysis_window, motion_start(rec.events)
+    if window is None or t0 is None:
+        res.warnings.append("no excitation fidelity: the recording has no analysis window or "
+                            "motion_start event (the run did not finish)")
+        return
+    try:
+        seed, duration = meta.get("seed"), meta.get("duration_s")
+        motion = synthesize(
+            parse_profile(prof["spec"], prof.get("source")),
+            duration_s=float(duration) if isinstance(duration, int | float) else None,
+            seed=int(seed) if isinstance(seed, int) else None,
+        )
+    except (BenchError, OSError, ValueError, TypeError) as e:
+        res.warnings.append(f"no excitation fidelity: the profile could not be "
+                            f"re-synthesised ({e})")
+        return
+    tables = getattr(motion, "tables", None) or {}
+    if axis not in tables:
+        return
+    cfg = meta.get("config") if isinstance(meta.get("config"), dict) else {}
+    limits, reach = FidelityLimits(), None
+    with contextlib.suppress(ValueError, TypeError, KeyError, AttributeError):  # older ones
+        limits = limits_of(ExcitationConfig(**cfg["run"]["excitation"]))
+    with contextlib.suppress(ValueError, TypeError, KeyError, AttributeError):
+        reach = reach_of(StandLimits(**cfg["stand"]["limits"]))
+    if reach is None:
+        reach = StandReach(math.inf, math.inf, math.inf)
+    scale = meta.get("scale")
+    try:
+        fid = fidelity_of_table(t, x, tables[axis], window, t0, limits=limits, reach=reach,
+                                scale=float(scale) if isinstance(scale, int | float) else 1.0)
+    except DataError as e:
+        res.warnings.append(f"no excitation fidelity: {e}")
+        return
+    res.excitation = fid.to_dict()
+    res.warnings.extend(fid.warnings)
 
 
 def _recording_steps(rec: Any, axis: str, res: AnalysisResult, *pair: Any) -> None:
@@ -314,6 +375,10 @@ def summary(r: AnalysisResult) -> str:
         lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")
     if r.periods:
         lines.extend(_periods_table(r))
+    if r.excitation is not None:
+        from benchctl.analysis.excitation import format_fidelity
+
+        lines.append(f"  {format_fidelity(r.excitation)}")
     if r.steps is not None:
         from benchctl.analysis.steps import format_steps
 

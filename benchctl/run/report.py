@@ -40,6 +40,7 @@ class AxisVerdict:
     analysis: dict[str, Any] = field(default_factory=dict, repr=False)
     steps: list[dict[str, Any]] | None = None
     linearity: dict[str, Any] | None = None
+    excitation: dict[str, Any] | None = None  # measured excitation fidelity (informative)
 
     @property
     def sigma_passed(self) -> bool:
@@ -69,6 +70,7 @@ class AxisVerdict:
         if self.linearity is not None:
             d["linearity"] = self.linearity
             d["steps"] = self.steps
+        d["excitation"] = self.excitation
         if full:
             d["analysis"] = self.analysis
         return d
@@ -91,6 +93,7 @@ def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
         analysis=result.to_dict() if hasattr(result, "to_dict") else {},
         steps=None if table is None else table["steps"],
         linearity=None if table is None else table["linearity"],
+        excitation=getattr(result, "excitation", None),
     )
 
 
@@ -164,6 +167,10 @@ def format_report(rep: Report) -> str:
         if v.steps is not None and v.linearity is not None:
             lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))
+        if v.excitation is not None:
+            from benchctl.analysis.excitation import format_fidelity
+
+            lines.append(f"        {format_fidelity(v.excitation)}")
     st = rep.stats
     lat = st.get("cycle_lateness_s", {})
     rtt = st.get("stand_rtt_s", {})

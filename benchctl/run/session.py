@@ -545,6 +545,7 @@ class Session:
                 lines=lines,
             )
             self._steps(axis, res, (tr[kr], xr[kr], td[kd], yd[kd]))
+            self._excitation(axis, res, tr[kr], xr[kr], window)
             results[axis] = res
         for axis, res in results.items():
             if len(pairs) > 1:  # both axes moved: each output against the other axis's motion
@@ -554,6 +555,35 @@ class Session:
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
         return Report(verdicts, self.path, meta, self._stats(), window), results
+
+    def _excitation(self, axis: str, res: Any, t: Any, x: Any,
+                    window: tuple[float, float]) -> None:
+        """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
+        against the profile's lines over the window's whole periods; a warning when a band is
+        beyond the alarm level (run.excitation)."""
+        from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
+
+        tables = getattr(self.prep.motion, "tables", None) or {}
+        if axis not in tables or getattr(self.prep.motion, "segments", None):
+            return
+        assert self.loop is not None and self.loop.t_motion_start is not None
+        try:
+            fid = fidelity_of_table(t, x, tables[axis], window, self.loop.t_motion_start,
+                                    limits=limits_of(self.cfg.run.excitation),
+                                    reach=reach_of(self.cfg.stand.limits))
+        except DataError as e:
+            res.warnings.append(f"no excitation fidelity: {e}")
+            return
+        res.excitation = fid.to_dict()
+        res.warnings.extend(fid.warnings)
+        bad = breached(fid)
+        if bad:
+            worst = fid.worst_band or {}
+            msg = (f"excitation {fid.judgement.upper()} on {axis}: {len(bad)} band(s) beyond "
+                   f"±{fid.limits.alarm_db:g} dB, worst {worst.get('error_db', math.nan):+.2f} dB "
+                   f"at {worst.get('centre_hz', math.nan):.3g} Hz (run.excitation)")
+            res.warnings.append(msg)
+            log.warning("%s", msg)
 
     def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
         """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
