@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
-from benchctl.errors import ConfigError
+from benchctl.errors import ConfigError, InputError
 
 
 def register(sub: Any) -> None:
@@ -34,6 +35,13 @@ def register(sub: Any) -> None:
         "--scale-to-fit",
         action="store_true",
         help="scale a profile over the stand limits down (the report says by how much)",
+    )
+    p.add_argument(
+        "--precision",
+        type=float,
+        metavar="FRACTION",
+        help="stop once σ's 95 %% interval is within ± this fraction of σ (0 < FRACTION < 1, "
+        "e.g. 0.05; after at least one whole period of the multisine; overrides run.precision)",
     )
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default run.output_dir)")
     p.add_argument("--json", action="store_true", help="print one JSON object (report) on stdout")
@@ -74,6 +82,13 @@ def handle(args: argparse.Namespace) -> int:
     # option ranges (README, the option table), before anything is read or opened
     check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s")
     check_option("--seed", args.seed, 0, MAX_SEED)
+    if args.precision is not None and not (
+        math.isfinite(args.precision) and 0.0 < args.precision < 1.0
+    ):
+        raise InputError(
+            f"--precision {args.precision!r}: expected a fraction 0 < value < 1 (e.g. 0.05 for "
+            "±5 %)"
+        )
     cfg = load_config(args.config)
     if args.duration is not None:
         rate = max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz)  # any mode
@@ -91,6 +106,7 @@ def handle(args: argparse.Namespace) -> int:
         out_dir=args.out,
         seed=args.seed,
         scale_to_fit=args.scale_to_fit,
+        precision=args.precision,
     )
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)

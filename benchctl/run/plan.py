@@ -45,6 +45,27 @@ class MotionPlan:
         w = x - i
         return {a: float(v[i] + w * (v[i + 1] - v[i])) for a, v in self.values.items()}
 
+    def ending_at(self, k_stop: int, fade_s: float) -> MotionPlan:
+        """The plan ended early: the points up to slot ``k_stop`` as they are, then the motion
+        faded out over ``fade_s`` (the profile's own raised-cosine fade, so the rate stays
+        continuous and the stand comes to rest at zero), nothing after. Pure; ``self`` is
+        left as it is."""
+        n_fade = max(2, math.ceil(fade_s / self.period_s - 1e-9))
+        if not 0 <= k_stop < self.n_slots:
+            raise ValueError(f"slot {k_stop} outside the plan's 0 … {self.n_slots - 1}")
+        u = np.arange(n_fade + 1, dtype=np.float64) / n_fade
+        w = 0.5 * (1.0 + np.cos(np.pi * u))  # 1 → 0, zero slope at both ends
+        values = {}
+        for a, v in self.values.items():
+            tail = v[k_stop : k_stop + n_fade + 1]
+            if tail.size < n_fade + 1:  # the plan ends before the fade would: hold its last
+                tail = np.concatenate((tail, np.full(n_fade + 1 - tail.size, v[-1])))
+            values[a] = np.concatenate((v[:k_stop], tail * w))
+        duration = (k_stop + n_fade) * self.period_s
+        peaks = {a: profile_peaks(v, self.period_s) for a, v in values.items()}
+        return MotionPlan(self.axes, self.period_s, values, duration, self.fade_in_s,
+                          n_fade * self.period_s, self.mode, self.tables, peaks)
+
     def state_at(self, t: float) -> RunState:
         if t < self.fade_in_s:
             return RunState.FADE_IN

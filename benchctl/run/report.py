@@ -104,6 +104,9 @@ class Report:
     meta: dict[str, Any]  # serial, operator, station, profile, seed, start/end, mode …
     stats: dict[str, Any]
     window: tuple[float, float]
+    # why the motion ended (benchctl.run.precision.ended_summary): reason, precision reached,
+    # requested, motion_s, periods, period_s
+    ended: dict[str, Any] | None = None
 
     @property
     def verdict(self) -> str:
@@ -121,6 +124,7 @@ class Report:
             "recording": str(self.recording),
             "axes": {a: v.to_dict(full) for a, v in self.axes.items()},
             "analysis_window": list(self.window),
+            "ended": self.ended,
             **self.meta,
             "stats": self.stats,
         }
@@ -194,8 +198,24 @@ def format_report(rep: Report) -> str:
         f"lost {st.get('instrument_lost', 0)}, "
         f"bad frames {st.get('instrument_bad_frames', 0)}"
     )
+    if rep.ended is not None:
+        lines.append(_ended_line(rep.ended))
     lines.append(f"  recording {rep.recording}")
     return "\n".join(lines)
+
+
+def _ended_line(e: dict[str, Any]) -> str:
+    """Why the motion ended, the precision σ's interval reached and the one asked for."""
+    def pct(v: Any) -> str:
+        return "—" if v is None else f"±{100 * float(v):.2f} %"
+
+    periods = e.get("periods")
+    per = "" if periods is None else f", {periods} period(s) of {e.get('period_s', 0):.4g} s"
+    motion = e.get("motion_s")
+    mot = "" if motion is None else f"; motion {motion:.1f} s"
+    req = e.get("requested")
+    return (f"  ended: {e.get('reason', '?')}; precision {pct(e.get('precision'))} (95 %)"
+            + ("" if req is None else f", requested {pct(req)}") + per + mot)
 
 
 def _steps_lines(steps: list[dict[str, Any]], lin: dict[str, Any]) -> list[str]:

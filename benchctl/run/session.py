@@ -58,6 +58,15 @@ from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.lock import stand_lock
 from benchctl.run.plan import MotionPlan, make_plan
+from benchctl.run.precision import (
+    PrecisionCheck,
+    PrecisionWatch,
+    check_window,
+    ended_summary,
+    profile_period,
+    relative_halfwidth,
+    whole_periods_in,
+)
 from benchctl.run.recorder import Recorder
 from benchctl.run.report import Report, archive, archive_abort, axis_verdict, write_report
 from benchctl.run.stand_loop import (
@@ -86,6 +95,7 @@ class RunOptions:
     out_dir: Path | None = None
     seed: int | None = None
     scale_to_fit: bool = False  # scale a profile over the limits down instead of refusing it
+    precision: float | None = None  # --precision: overrides run.precision (see run.precision)
 
 
 @dataclass
@@ -190,6 +200,16 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         tables=tables,
     )
     pdict = profile.to_dict() if hasattr(profile, "to_dict") else {}
+    requested = opts.precision if opts.precision is not None else cfg.run.precision
+    if requested is not None:  # a precision stop: whole periods of a multisine, not table mode
+        where = (f"--precision {requested:g}" if opts.precision is not None
+                 else f"{src}: field run.precision = {requested:g}")
+        if cfg.stand.mode == "table":
+            raise ConfigError(
+                f"{where}: a precision stop needs stand.mode 'stream' or 'buffered' (a stand "
+                "playing its table cannot be faded out early); expected no precision here"
+            )
+        profile_period(motion, axes, f"{where} with profile {profile_path}")
     meta = {
         "profile_path": str(profile_path),
         "profile_name": getattr(profile, "name", profile_path.stem),
@@ -200,6 +220,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         "fade_out_s": fade_out,
         "motion_check": figures,
         "scale": result.scale,
+        "precision_requested": requested,
     }
     return PreparedMotion(profile, motion, plan, check, meta)
 
@@ -296,6 +317,7 @@ class Session:
         self.moved = False
         self.meta: dict[str, Any] = {}
         self._final_stats: dict[str, Any] | None = None
+        self.precision: PrecisionWatch | None = None  # the precision checks (run.precision)
 
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
@@ -328,7 +350,7 @@ class Session:
         elapsed = remaining = None
         if live.t_motion_start is not None:
             elapsed = time.monotonic() - live.t_motion_start
-            remaining = self.prep.plan.duration_s - elapsed
+            remaining = self.loop.plan.duration_s - elapsed  # shorter after an early stop
         return Snapshot(
             state=str(self.machine.state),
             elapsed_s=elapsed,
@@ -473,12 +495,74 @@ class Session:
                 )
             if now - t0 > limit:
                 raise SafetyAbort(f"motion did not finish within {limit:.0f} s")
+            if self.precision is None and loop.t_motion_start is not None:
+                self.precision = self._precision_watch()
+            if self.precision is not None:
+                self._precision_poll(now)
             self.display.update(self._snapshot())
         self.supervisor.check()
+
+    def _precision_watch(self) -> PrecisionWatch | None:
+        """The precision checks, once moving (None when no precision was requested)."""
+        requested = self.prep.meta.get("precision_requested")
+        loop, plan = self.loop, self.prep.plan
+        if requested is None or loop is None or loop.t_motion_start is None:
+            return None
+        tables = dict(getattr(self.prep.motion, "tables", None) or {})
+        period = profile_period(self.prep.motion, self.axes, "run.precision")
+        t_start = loop.t_motion_start
+        steady = plan.duration_s - plan.fade_in_s - plan.fade_out_s
+
+        def analyse(window: tuple[float, float]) -> dict[str, Any]:
+            return check_window(self.path, self.cfg, tables, window, t_start, self.axes)
+
+        return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
+                              whole_periods_in(steady, period))
+
+    def _precision_poll(self, now: float) -> None:
+        """A finished check: into the recording; when it says stop, the stand loop fades out."""
+        watch, loop = self.precision, self.loop
+        assert watch is not None and loop is not None
+        check: PrecisionCheck | None = watch.poll(now)
+        if check is None:
+            return
+        assert self.writer is not None
+        with contextlib.suppress(RecordingError):
+            self.writer.event("precision_check", **check.to_dict())
+        msg = (f"precision check, {check.periods} period(s): "
+               + ("σ " + ", ".join(f"{a} {c.sigma:.4f}° ±{100 * c.precision:.2f} %"
+                                   for a, c in check.axes.items()) + "; " if check.axes else "")
+               + check.decision.reason)
+        self.display.message(msg)
+        if check.decision.stop and loop.ended_early is None:
+            loop.request_end(reason=check.decision.reason, precision=check.precision,
+                             requested=watch.requested, periods=check.periods,
+                             check_window=list(check.window))
+
+    def _ended(self, report: Report) -> dict[str, Any]:
+        """Why the motion ended, and the precision the verdict reached (the report's
+        ``ended``)."""
+        loop = self.loop
+        early = None if loop is None else loop.ended_early
+        motion_s = None
+        if loop is not None and loop.t_motion_start is not None and loop.t_motion_end is not None:
+            motion_s = loop.t_motion_end - loop.t_motion_start
+        precision = max((relative_halfwidth(v.sigma_deg, v.sigma_ci95_deg)
+                         for v in report.axes.values()), default=math.inf)
+        period = None
+        tables = getattr(self.prep.motion, "tables", None) or {}
+        if tables and not getattr(self.prep.motion, "segments", None):
+            period = next(iter(tables.values())).period_s
+        lo, hi = report.window
+        periods = None if not period else whole_periods_in(hi - lo, float(period))
+        return ended_summary(early, precision, self.prep.meta.get("precision_requested"),
+                             motion_s, periods, period)
 
     def _stop_loops(self) -> None:
         if self.loop is not None:
             self.loop.stop()
+        if self.precision is not None:  # a check still reading the recording: let it finish
+            self.precision.join()
 
     def _stats(self) -> dict[str, Any]:
         if self._final_stats is not None:
@@ -495,6 +579,11 @@ class Session:
         assert self.loop is not None and self.loop.t_motion_start is not None
         p = self.prep.plan
         t0 = self.loop.t_motion_start
+        early = self.loop.ended_early
+        if early is not None and self.precision is not None:  # the whole periods to the stop
+            lo = t0 + p.fade_in_s
+            n = whole_periods_in(early["t_profile_s"] - p.fade_in_s, self.precision.period_s)
+            return lo, lo + n * self.precision.period_s
         lo, hi = t0 + p.fade_in_s, t0 + p.duration_s - p.fade_out_s
         if hi - lo < 0.5 * p.duration_s:  # mostly fades: analyse the whole motion
             lo, hi = t0, t0 + p.duration_s
@@ -554,7 +643,9 @@ class Session:
                     res.warnings.append(why)
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
-        return Report(verdicts, self.path, meta, self._stats(), window), results
+        report = Report(verdicts, self.path, meta, self._stats(), window)
+        report.ended = self._ended(report)
+        return report, results
 
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
                     window: tuple[float, float]) -> None:

@@ -39,7 +39,14 @@ import numpy as np
 
 from benchctl.devices.base import AngleSensor, Stand, StandSample
 from benchctl.errors import LimitError, SafetyAbort, StandFault
-from benchctl.kinematics import AxisCommand, Limits, Rejoin, StaleSetpoint, plan_rejoin
+from benchctl.kinematics import (
+    AxisCommand,
+    Limits,
+    Rejoin,
+    StaleSetpoint,
+    plan_rejoin,
+    profile_peaks,
+)
 from benchctl.run.live import CommandStats, Histogram
 from benchctl.run.plan import MotionPlan
 from benchctl.run.recorder import Recorder
@@ -194,6 +201,10 @@ class StandLoop:
         self._ref: Callable[[float], dict[str, float]] | None = None
         self._sent: list[tuple[int, dict[str, float]]] = []  # stream: recent (slot, setpoint)
         self._thread: threading.Thread | None = None
+        # an early end asked for by the main thread (request_end); applied by this thread at
+        # the next slot not yet sent or queued
+        self._end_request: dict[str, Any] | None = None
+        self.ended_early: dict[str, Any] | None = None  # where the early fade-out began
 
     # control from the main thread
     def start(self) -> None:
@@ -202,6 +213,47 @@ class StandLoop:
 
     def begin_motion(self) -> None:
         self._go.set()
+
+    def request_end(self, **fields: Any) -> None:
+        """End the motion early (stream and buffered modes): from the next slot not yet sent
+        or queued, the profile fades out over its own ``fade_out_s`` (lengthened when needed to
+        stay within the rate and acceleration limits) and the run goes on as at a normal end
+        (fade-out, settle, analysis). ``fields`` go into the ``early_stop`` event. Ignored
+        once the profile's own fade-out has begun, or when asked for again."""
+        if self._end_request is None:
+            self._end_request = dict(fields)
+
+    def _apply_end(self, k: int) -> MotionPlan:
+        """In this thread: the plan ended early from slot ``k`` (see ``request_end``); the
+        plan unchanged when its own fade-out is already on or no fade fits the limits."""
+        req, plan = self._end_request, self.plan
+        if req is None or self.ended_early is not None:
+            return plan
+        self._end_request = {}  # handled: once only
+        steady_end = round((plan.duration_s - plan.fade_out_s) / plan.period_s)
+        if k >= steady_end or plan.mode == "table":
+            self.rec.event("early_stop_skipped", slot=k, reason="the profile's fade-out has begun")
+            return plan
+        fade = max(plan.fade_out_s, 2 * plan.period_s)
+        lim = self.lim
+        for factor in (1.0, 1.5, 2.0, 3.0, 4.0):
+            new = plan.ending_at(k, fade * factor)
+            lo = max(0, k - 2)
+            ok = all(
+                r <= lim.rate_deg_s * (1 + 1e-9) and acc <= lim.accel_deg_s2 * (1 + 1e-9)
+                for r, acc in (profile_peaks(v[lo:], plan.period_s) for v in new.values.values())
+            )
+            if ok:
+                break
+        else:
+            self.rec.event("early_stop_skipped", slot=k,
+                           reason="no fade-out from here within the rate/acceleration limits")
+            return plan
+        self.ended_early = {"slot": k, "t_profile_s": k * plan.period_s,
+                            "fade_out_s": new.fade_out_s}
+        self.rec.event("early_stop", **req, **self.ended_early)
+        self.plan = new
+        return new
 
     def stop(self, timeout_s: float = 5.0) -> None:
         self._stop.set()
@@ -374,6 +426,8 @@ class StandLoop:
                 k += skip
                 held = True
                 continue
+            if self._end_request and (rejoin is None or k >= rejoin.first_slot + rejoin.n):
+                plan = self._apply_end(k)  # an early end: fade out from this slot
             src = PointSource(plan, k, rejoin)
             if k >= src._end():
                 break
@@ -475,7 +529,7 @@ class StandLoop:
             k_now = base + round((self.clock() - t0) / T)
             held = {a: AxisCommand(s.setpoint_deg[a], 0.0) for a in plan.axes}
             rejoin = self._plan_rejoin(k_now, held, self.clock())
-            src = PointSource(plan, rejoin.first_slot, rejoin)
+            src = PointSource(self.plan, rejoin.first_slot, rejoin)
             base = rejoin.first_slot
 
     def _traj_start(
@@ -537,6 +591,10 @@ class StandLoop:
             if nxt is None:
                 return None
             i, now = nxt
+            if self._end_request and not src.done and (
+                src.rejoin is None or src.k >= src.rejoin.first_slot + src.rejoin.n
+            ):
+                plan = src.plan = self._apply_end(src.k)  # an early end: fade out from here
             if not src.done and j_next - played < lead:
                 pts = src.take(per_push)
                 s = st.push_points(j_next, self._arrays(pts), read=True)
