@@ -510,6 +510,52 @@ def valid_clock(c: FloatArray | None) -> bool:
 
 
 # ---------------------------------------------------------------------------------- reference
+STAND_WINDOW_QUANTILE = 0.01  # the stand clock's offset: between the 99 % quantile of the
+# windows' earliest ends and the 1 % quantile of their latest (a few glitches do not move it)
+
+
+def stand_clock(
+    t_stand: ArrayLike, wrap_s: float, t_lo: ArrayLike, t_hi: ArrayLike, anchor: str = "window"
+) -> tuple[FloatArray, float, dict[str, Any]]:
+    """Host instants of the stand's samples from the stand's own clock.
+
+    ``t_stand``: the stand's clock when it took each state (s, wrapping every ``wrap_s``);
+    ``[t_lo, t_hi]``: the host times it can have been taken between (each exchange's window).
+    The stand's clock runs at its own rate and offset. The rate is the least-squares line of
+    the windows' centres against the unwrapped clock (windows up to twice the median width).
+    The offset is set where every window allows it: midway between the latest of the windows'
+    earliest ends and the earliest of their latest ends (their 99 % and 1 % quantiles) — the
+    fastest exchanges bound it, so a busy host or a slow turnaround does not move it;
+    ``anchor="earliest"`` sets it at the earliest end instead (RTU: a stand answers with the
+    state it has as the request is complete). Returns (instants, residual rms error, info):
+    the error is that of a uniform offset within the interval the windows leave (its
+    width/√12), plus the rate's.
+    """
+    lo = np.asarray(t_lo, dtype=float)
+    hi = np.asarray(t_hi, dtype=float)
+    mid = 0.5 * (lo + hi)
+    c = unwrap(np.asarray(t_stand, dtype=float), wrap_s, mid)
+    c0 = float(c[0])
+    x = c - c0
+    width = hi - lo
+    tight = width <= 2.0 * float(np.median(width))  # a stalled exchange's centre says little
+    a0, b = _fit_line(x[tight], (mid - mid[0])[tight])
+    a_ls = a0 - b * float(x[tight].mean()) + float(mid[0])
+    q = STAND_WINDOW_QUANTILE
+    low = float(np.quantile(lo - (a_ls + b * x), 1.0 - q))
+    high = float(np.quantile(hi - (a_ls + b * x), q))
+    consistent = low <= high
+    off = (0.5 * (low + high) if anchor == "window" else low) if consistent else 0.0
+    t = a_ls + off + b * x
+    room = max(high - low, 0.0)
+    n = int(tight.sum())
+    scatter = float(np.std((mid - (a_ls + b * x))[tight]))
+    rate_err = scatter * math.sqrt(2.0 / n) if n > 2 else 0.0  # the fitted line's own error
+    err = math.hypot(room / math.sqrt(12.0), rate_err) if consistent else scatter
+    info = {"rate": b, "offset_interval_s": room, "consistent": consistent}
+    return t, err, info
+
+
 def stamp_error(rtt: ArrayLike, stamp: str = "midpoint") -> float:
     """Estimated rms error of stand stamps (s) from the round trips ``rtt`` of the samples
     kept: half the rms variation of the round trip about its median (``midpoint``: the stand

@@ -76,6 +76,11 @@ class StandSample:
     setpoint_deg: dict[str, float]
     status: StandStatus
     trajectory: TrajectoryStatus | None = None  # stands with a trajectory queue
+    #: the stand's own clock when it took the state (s, wrapping), where its map offers one
+    t_stand: float | None = None
+    #: (earliest, latest) host time the stand can have taken the state: TCP request sent to
+    #: reply received; RTU the end of the request on the wire to the start of the reply
+    t_window: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

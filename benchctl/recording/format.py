@@ -7,8 +7,11 @@
                         device identities, serial number, operator, station, software version,
                         start time (UTC and monotonic), axes
       stand.csv         t_host, rtt_s, <axis>_deg…, <axis>_rate_deg_s…, <axis>_setpoint_deg…,
-                        status, fault_code
-                        (t_host = midpoint of request and reply, monotonic seconds)
+                        status, fault_code, t_lo, t_hi, stand_time_s
+                        (t_host = where the stand took the state: TCP the midpoint of request
+                        and reply, RTU the end of the request on the wire, monotonic seconds;
+                        [t_lo, t_hi] the host times it can have been taken between; stand_time_s
+                        the stand's own clock then, wrapping, where its map has sample_time)
       instrument.csv    t_host, device_time_s, counter, adapter_time_s, <axis>_deg…
                         (t_host = receipt time; adapter_time_s = the CAN adapter's timestamp)
       setpoints.csv     t_send, t_slot, <axis>_deg…                    (commanded motion: the
@@ -52,7 +55,7 @@ def stand_columns(axes: tuple[str, ...]) -> list[str]:
         + [f"{a}_deg" for a in axes]
         + [f"{a}_rate_deg_s" for a in axes]
         + [f"{a}_setpoint_deg" for a in axes]
-        + ["status", "fault_code"]
+        + ["status", "fault_code", "t_lo", "t_hi", "stand_time_s"]
     )
 
 

@@ -125,15 +125,18 @@ class Recording:
             raise DataError(f"{self.path}: stream {stream!r} has no column {name!r}") from None
 
     def pair(
-        self, axis: str, window: bool = True, timebase: str = "best"
+        self, axis: str, window: bool = True, timebase: str = "best",
+        reference_timebase: str = "best",
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(t_reference, reference_deg, t_device, device_deg) for one axis, NaN rows removed.
 
         The instants are on the host's monotonic clock, from the best time base each stream
         has (see ``timebases``): the instrument's from its own clock or counter, else the CAN
         adapter's timestamps, else a clock fitted to its receipt stamps (``timebase`` picks one:
-        ``best``, ``device``, ``adapter``, ``fitted`` or ``receipt``); the stand's at each
-        reply's stamp (``_stamp_certain``: replies that took far longer than usual left out).
+        ``best``, ``device``, ``adapter``, ``fitted`` or ``receipt``); the stand's by its own
+        clock where its map has one (``stand``, see ``_stand_clock``), else at each reply's
+        stamp (``stamp``; ``_stamp_certain``: replies that took far longer than usual left
+        out) — ``reference_timebase`` picks one: ``best``, ``stand`` or ``stamp``.
         Both are ``benchctl.analysis.timebase.Instants``: labelled with their time base and
         residual error, which ``analyze`` reports (``timing``), also after cropping.
 
@@ -144,7 +147,7 @@ class Recording:
         """
         if axis not in self.axes:
             raise DataError(f"{self.path}: no axis {axis!r}; recorded axes are {list(self.axes)}")
-        tr, xr, td, yd = self.timebases(axis, timebase)
+        tr, xr, td, yd = self.timebases(axis, timebase, reference_timebase)
         win = self.analysis_window if window else None
         if win is not None:
             lo, hi = win
@@ -154,7 +157,7 @@ class Recording:
         return tr, xr, td, yd
 
     def timebases(
-        self, axis: str, timebase: str = "best"
+        self, axis: str, timebase: str = "best", reference_timebase: str = "best"
     ) -> tuple[Instants, NDArray[np.float64], Instants, NDArray[np.float64]]:
         """Both streams of one axis on their time bases, whole (see ``pair``)."""
         from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error
@@ -171,6 +174,13 @@ class Recording:
         err = stamp_error(self.column("stand", "rtt_s")[okr][keep], stamp)
         t_ref = Instants(tr[okr][keep], stamp, err, {"dropped": int((~keep).sum())})
         x_ref = xr[okr][keep]
+        if reference_timebase in ("best", "stand"):
+            by_clock = self._stand_clock(okr)
+            if by_clock is not None:  # every sample: a long round trip leaves its date exact
+                t_ref, x_ref = by_clock, xr[okr]
+            elif reference_timebase == "stand":
+                raise DataError(f"{self.path}: the stand's samples carry no usable clock "
+                                "(stand_time_s with its wrap, t_lo, t_hi)")
 
         def col(name: str) -> NDArray[np.float64] | None:
             c = inst.get(name)
@@ -192,6 +202,30 @@ class Recording:
         except ValueError as e:
             raise DataError(f"{self.path}: instrument: {e}") from None
         return t_ref, x_ref, tb.instants(), yd[okd]
+
+    def _stand_clock(self, rows: NDArray[np.bool_]) -> Any:
+        """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.
+        stand_clock``), or None when the recording has no such clock or it contradicts the
+        exchanges' windows."""
+        from benchctl.analysis.timebase import Instants, stand_clock
+
+        st = self.streams["stand"]
+        ts, lo, hi = st.get("stand_time_s"), st.get("t_lo"), st.get("t_hi")
+        extra = ((self.meta.get("devices") or {}).get("stand") or {}).get("extra") or {}
+        try:
+            wrap = float(extra.get("sample_time_wrap_s", "nan"))
+        except (TypeError, ValueError):
+            return None
+        if ts is None or lo is None or hi is None or not math.isfinite(wrap) or wrap <= 0:
+            return None
+        ts, lo, hi = ts[rows], lo[rows], hi[rows]
+        if ts.size < 3 or not (np.isfinite(ts).all() and np.isfinite(lo).all()
+                               and np.isfinite(hi).all()):
+            return None
+        t, err, info = stand_clock(ts, wrap, lo, hi)
+        if not info["consistent"] or np.any(np.diff(t) <= 0):
+            return None
+        return Instants(t, "stand", err, info)
 
     def _stamp_certain(self) -> NDArray[np.bool_]:
         """Stand samples whose stamp is certain: a sample is stamped at the midpoint of its

@@ -159,6 +159,8 @@ class RecordingWriter:
             | int(st.table_running) << 6
         )
         fields += [str(word), str(st.fault_code)]
+        lo, hi = s.t_window if s.t_window is not None else (None, None)
+        fields += [_num(lo), _num(hi), _num(s.t_stand)]
         self._write("stand", fields)
 
     def write_instrument(self, s: InstrumentSample) -> None:

@@ -612,12 +612,18 @@ class SimStand:
                 return ExcCodes(code)
             self._advance(now)  # the state as it is now, however late the physics thread is
             if values is None:
-                self._fill_feedback(address, count, regs, start)
+                self._fill_feedback(address, count, regs, start, now)
                 return None
             return self._write(address, values, regs, start, now)
 
-    def _fill_feedback(self, address: int, count: int, regs: list[int], start: int) -> None:
+    def _fill_feedback(
+        self, address: int, count: int, regs: list[int], start: int, now: float
+    ) -> None:
+        """The feedback registers as the stand latches them on this request, at ``now``: the
+        encoder read between two physics ticks (the last tick's angle carried on at its rate)
+        and, where the map has ``sample_time``, the stand's clock then (lock held)."""
         m = self.map
+        since = max(0.0, now - (self._t0 + self._k * self._tick_s)) if self._clock_on else 0.0
         fb_addr, fb_count = m.feedback_span()
         if address >= fb_addr + fb_count or address + count <= fb_addr:
             return
@@ -637,10 +643,15 @@ class SimStand:
             (m.fault_code, self._fault_code),
             (m.heartbeat_echo, self._hb_value),
         ]
+        st = m.sample_time
+        if st is not None:  # the stand's clock at the latch (wrapping)
+            ticks = round((now - self._t0) / st.scale) % (1 << (16 * st.n_registers))
+            put.append((st, ticks * st.scale))
         for a, ax in m.axes.items():
             s = self._state[a]
+            angle = s.angle_deg + s.rate_deg_s * since
             put += [
-                (ax.angle, quantise(s.angle_deg, self.cfg.encoder_resolution_deg)),
+                (ax.angle, quantise(angle, self.cfg.encoder_resolution_deg)),
                 (ax.rate, s.rate_deg_s),
                 (ax.setpoint, self._target[a]),
                 (ax.fault_code, self._axis_fault[a]),

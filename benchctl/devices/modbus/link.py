@@ -70,6 +70,7 @@ class ModbusLink:
         timeout_s: float,
         wire_trace: bool = False,
         byte_time_s: float | None = None,
+        reply_poll_s: float = 0.0,
     ) -> None:
         self.device_id = device_id
         self.endpoint = endpoint
@@ -77,6 +78,8 @@ class ModbusLink:
         self.wire_trace = wire_trace
         #: seconds per character on a serial line (RTU); None on TCP
         self.byte_time_s = byte_time_s
+        #: the least time the client takes to see a reply complete after its last byte (RTU)
+        self.reply_poll_s = reply_poll_s
         self._lock = threading.RLock()
         self._rx: list[bytes] = []  # raw receive buffers seen during the current exchange
         self._sent = threading.local()  # per thread: (monotonic time, bytes) of its last send
@@ -117,6 +120,19 @@ class ModbusLink:
         if self.byte_time_s is None or last is None or not t0 <= last[0] <= t1:
             return 0.5 * (t0 + t1)
         return min(t1, last[0] + last[1] * self.byte_time_s)
+
+    def sample_window(self, t0: float, t1: float) -> tuple[float, float]:
+        """(earliest, latest) host time the device can have taken the state its reply to this
+        thread's last exchange carries: TCP (or a send not seen) ``(t0, t1)``; RTU from the
+        end of the request on the wire to the start of the reply (``t1 − reply bytes × byte
+        time − reply_poll_s``, the client's own least delay in seeing the reply complete):
+        both frames' wire times are no time the device can have read its state in."""
+        last = getattr(self._sent, "last", None)
+        if self.byte_time_s is None or last is None or not t0 <= last[0] <= t1:
+            return t0, t1
+        lo = min(t1, last[0] + last[1] * self.byte_time_s)
+        reply = sum(len(b) for b in self._rx)
+        return lo, max(lo, t1 - reply * self.byte_time_s - self.reply_poll_s)
 
     # -- requests -----------------------------------------------------------------------
     def read_registers(self, address: int, count: int) -> list[int]:
@@ -272,4 +288,8 @@ def rtu_link(
         timeout_s=timeout_s,
         wire_trace=wire_trace,
         byte_time_s=bits / baudrate,
+        # pymodbus's serial client sees a reply complete when its count of waiting bytes has
+        # not changed over one poll: every 4 characters' time (a frame bit count of 1 + 8 +
+        # stop bits), at least 1 ms — so its read returns at least that long after the last byte
+        reply_poll_s=max(4.0 * (1 + 8 + stopbits) / baudrate, 0.001),
     )

@@ -161,6 +161,17 @@ class RegisterMap:
     axes: dict[str, AxisMap]
     table: TableLayout
     trajectory: TrajectoryMap | None = None
+    #: the stand's own clock when it took the state a reply carries (optional, status section):
+    #: an unsigned count of ``scale`` seconds that wraps (``sample_time_wrap_s``)
+    sample_time: Field | None = None
+
+    @property
+    def sample_time_wrap_s(self) -> float:
+        """Seconds after which ``sample_time`` wraps (NaN without one)."""
+        f = self.sample_time
+        if f is None:
+            return math.nan
+        return float(2 ** (16 * f.n_registers)) * f.scale
 
     # -- encoding -------------------------------------------------------------------------
     def encode(self, field: Field, value: float | int | str) -> list[int]:
@@ -224,6 +235,8 @@ class RegisterMap:
     def feedback_fields(self) -> list[Field]:
         """Everything read each cycle: status, fault code, heartbeat echo, per-axis feedback."""
         out = [self.status_word, self.fault_code, self.heartbeat_echo]
+        if self.sample_time is not None:
+            out.append(self.sample_time)
         for ax in self.axes.values():
             out += [ax.angle, ax.rate, ax.setpoint, ax.fault_code]
         tr = self.trajectory
@@ -449,7 +462,14 @@ def parse_register_map(data: Mapping[str, Any], source: Path) -> RegisterMap:
         axes=axes,
         table=table,
         trajectory=_trajectory(ld, data, len(axes), max_write),
+        sample_time=(None if st.get("sample_time") is None
+                     else ld.field(st.get("sample_time"), "status.sample_time")),
     )
+    stime = rmap.sample_time
+    if stime is not None and (stime.type not in ("uint16", "uint32") or stime.offset != 0
+                              or not stime.scale > 0):
+        raise ld.fail("status.sample_time", f"{stime.type}, scale {stime.scale}, offset "
+                      f"{stime.offset}", "uint16 or uint32 with a positive scale (s) and no offset")
     if rmap.trajectory is not None:
         for bits, names in (
             (rmap.control_bits, _CONTROL_BITS_TRAJ),

@@ -137,6 +137,8 @@ class ModbusStand:
             k: v for k, v in values.items() if k not in ("vendor", "model", "serial", "firmware")
         }
         extra["register_map"] = self.map.name
+        if self.map.sample_time is not None:  # the recording needs it to unwrap stand_time_s
+            extra["sample_time_wrap_s"] = repr(self.map.sample_time_wrap_s)
         self.identity = DeviceIdentity(
             vendor=values["vendor"],
             model=values["model"],
@@ -198,9 +200,12 @@ class ModbusStand:
                 underruns=int(get(tr.underruns)),
             )
         stamp = getattr(self.link, "sample_stamp", None)
+        window = getattr(self.link, "sample_window", None)
         sample = StandSample(
             t_host=stamp(t0, t1) if stamp is not None else 0.5 * (t0 + t1),
             rtt_s=t1 - t0,
+            t_stand=None if m.sample_time is None else float(get(m.sample_time)),
+            t_window=window(t0, t1) if window is not None else (t0, t1),
             angle_deg={a: get(m.axes[a].angle) for a in self.axes},
             rate_deg_s={a: get(m.axes[a].rate) for a in self.axes},
             setpoint_deg={a: get(m.axes[a].setpoint) for a in self.axes},
