@@ -21,7 +21,10 @@ import pytest
 import yaml
 
 from benchctl.analysis.excitation import (
+    ABORT_CONFIRM,
+    RUNNING_MIN_S,
     FidelityLimits,
+    RunningFidelity,
     StandReach,
     excitation_fidelity,
     format_fidelity,
@@ -29,6 +32,7 @@ from benchctl.analysis.excitation import (
 )
 from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError
+from benchctl.harmonics import HarmonicTable
 from benchctl.sim.servo import ServoModel
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -276,3 +280,79 @@ def test_config_section(tmp_path: Path) -> None:
         load_config(_config(tmp_path, {"alarm_db": -1}))
     with pytest.raises(ConfigError, match=r"run\.excitation\.alarm_dB"):
         load_config(_config(tmp_path, {"alarm_dB": 1}))
+
+
+# ------------------------------------------------------------------- the running estimate
+def _feed(rf: RunningFidelity, t: np.ndarray, x: np.ndarray, every: int = 100) -> list[float]:
+    """Feed the samples in blocks of ``every``, updating after each; the instants at which an
+    abort was reported."""
+    aborts = []
+    for j in range(0, t.size, every):
+        for tj, xj in zip(t[j:j + every], x[j:j + every], strict=True):
+            rf.add(float(tj), float(xj))
+        rf.update()
+        if rf.abort_reason():
+            aborts.append(float(t[min(j + every, t.size) - 1]))
+    return aborts
+
+
+def test_running_estimate_confirms_an_abort_level_only_when_meaningful() -> None:
+    period = 19.0
+    freq, amp, phase = _lines(np.arange(2, 10), period)
+    table = HarmonicTable(freq, amp, phase, duration_s=25.0, period_s=period)
+    gain = 1.6  # +4.08 dB on every line
+    t, x = _motion(freq, amp, phase, np.full(freq.size, gain, dtype=complex), period,
+                   noise=0.001)
+    rf = RunningFidelity(table, _window(period), T0, axis="roll")
+    assert len(rf.bands) == 7  # every third-octave band with a line (none weak here)
+    aborts = _feed(rf, t, x)
+    assert aborts, "a +4.1 dB stand never reached the abort level"
+    # not before RUNNING_MIN_S of steady motion and ABORT_CONFIRM updates
+    assert aborts[0] >= T0 + FADE + RUNNING_MIN_S + (ABORT_CONFIRM - 1) * 1.0 - 0.05
+    why = rf.abort_reason()
+    assert why is not None and why.startswith("excitation roll: the stand's motion in the band")
+    assert "beyond the abort level ±3 dB" in why
+    for b in rf.estimate:
+        assert b["error_db"] == pytest.approx(20 * math.log10(gain), abs=0.02)
+    # the lowest bands need 4 cycles of their lowest line: 38 s for 0.105 Hz, never in 19 s
+    assert not rf.estimate[0]["judged"] and rf.estimate[-1]["judged"]
+    # +2.3 dB: within the abort level, never an abort
+    t, x = _motion(freq, amp, phase, np.full(freq.size, 1.3, dtype=complex), period,
+                   noise=0.001)
+    rf = RunningFidelity(table, _window(period), T0, axis="roll")
+    assert _feed(rf, t, x) == []
+    assert rf.estimate[-1]["error_db"] == pytest.approx(20 * math.log10(1.3), abs=0.02)
+
+
+def test_running_estimate_is_the_power_weighted_response_and_skips_the_unjudged() -> None:
+    """Over whole periods of uniform samples a band's gain is Σ A²H / Σ A² over its lines;
+    samples outside the window or NaN do not count; weak bands and unreachable lines are left
+    out."""
+    period = 19.0
+    freq, amp, phase = _lines(np.arange(2, 10), period)
+    amp[-1] = amp.max() * 10 ** (-40 / 20)  # the 0.47 Hz line alone in its band: weak
+    table = HarmonicTable(freq, amp, phase, duration_s=25.0, period_s=period)
+    h = RESONANT.response(freq)
+    lo, hi = _window(period)
+    t = lo + (np.arange(1900) + 0.5) * 0.01  # one period, uniform
+    c = h * amp * np.exp(1j * phase)
+    x = np.real(np.exp(2j * np.pi * np.outer(t - T0, freq)) @ c) + 0.2
+    w = 2 * np.pi * freq
+    reach = StandReach(30.0, 30.0, float(amp[-2] * w[-2] ** 2) * 0.99)  # 0.42 Hz unreachable
+    rf = RunningFidelity(table, (lo, hi), T0, reach=reach)
+    assert [round(cb, 3) for _lo, cb, _hi in rf.bands] == [0.1, 0.158, 0.2, 0.251, 0.316, 0.398]
+    _feed(rf, t, x)
+    for (blo, _c, bhi), b in zip(rf.bands, rf.estimate, strict=True):
+        inb = (freq >= blo) & (freq < bhi) & (np.arange(freq.size) < freq.size - 2)
+        g = np.sum(amp[inb] ** 2 * h[inb]) / np.sum(amp[inb] ** 2)
+        assert b["error_db"] == pytest.approx(20 * math.log10(abs(g)), abs=1e-9)
+        assert b["span_s"] == pytest.approx(period, abs=0.011)
+    # junk outside the window and NaN readings change nothing
+    junk = RunningFidelity(table, (lo, hi), T0, reach=reach)
+    tj = np.concatenate(([lo - 1.0, lo - 0.5], t, [hi + 0.5]))
+    xj = np.concatenate(([50.0, 50.0], x, [50.0]))
+    tj = np.insert(tj, 500, t[497] + 0.001)
+    xj = np.insert(xj, 500, np.nan)
+    _feed(junk, tj, xj)
+    for a, b in zip(rf.estimate, junk.estimate, strict=True):
+        assert a["error_db"] == pytest.approx(b["error_db"], abs=1e-12)

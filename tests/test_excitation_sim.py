@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,9 @@ import numpy as np
 import pytest
 from run_sim import ROOT, live_bench
 
+from benchctl.analysis.steps import motion_start
 from benchctl.cli import main
+from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run.session import prepare_motion
 
@@ -107,3 +110,41 @@ def test_default_stand_reproduces_the_profile(tmp_path: Path) -> None:
     assert np.max(np.abs(got[judged])) <= TOL_DB  # the 8 Hz servo is flat here: within ±0.1 dB
     assert ex["judgement"] == "ok" and math.isfinite(ex["rms_error_db"])
     assert abs(ex["rms_error_db"]) < TOL_DB
+
+
+def test_abort_level_stops_the_run(tmp_path: Path) -> None:
+    """A stand resonant enough (0.6 Hz, damping 0.2: the upper bands +4 … +6 dB) is stopped
+    during the motion once the running estimate confirms a band beyond ±3 dB: exit 2, the
+    reason names the band, the stand brought to rest. With run.excitation.abort_run off the
+    same stand runs to the end and the report judges it `abort`."""
+    profile = ROOT / "profiles/ci_short.yaml"
+    stand = {"mode": "buffered", "tracking_tolerance_deg": 3.0}
+    sim = {"bandwidth_hz": 0.6, "damping": 0.2}
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    with live_bench(tmp_path / "a", stand=stand, run={"profile_tolerance_deg": 3.0},
+                    sim_stand=sim) as b:
+        res = run_test(b.cfg, profile, RunOptions("EXC-2", "ci"))
+        assert res.state == "aborted" and res.exit_code == 2
+        assert res.reason is not None and "excitation roll: the stand's motion in the band" in (
+            res.reason), res.reason
+        assert "beyond the abort level ±3 dB" in res.reason
+        rec = load_recording(res.recording)  # type: ignore[arg-type]
+        t0 = motion_start(rec.events)
+        assert t0 is not None
+        t_abort = [e["t_state"] for e in rec.events
+                   if e.get("kind") == "state" and e.get("to") == "aborted"]
+        assert t_abort and t_abort[0] - t0 < 22.0  # before the fade-out: during the motion
+        deadline = time.monotonic() + 10.0
+        while not b.stand_at_rest() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert b.stand_at_rest()
+    with live_bench(tmp_path / "b", stand=stand,
+                    run={"profile_tolerance_deg": 3.0, "excitation": {"abort_run": False}},
+                    sim_stand=sim) as b:
+        res = run_test(b.cfg, profile, RunOptions("EXC-3", "ci"))
+        assert res.state == "done", res.reason
+        assert res.report is not None
+        ex = res.report.axes["roll"].excitation
+        assert ex is not None and ex["judgement"] == "abort"
+        assert ex["worst_band"]["error_db"] > 3.0

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 from benchctl.devices.base import InstrumentSample, Stand, StandSample
 from benchctl.errors import BenchError
@@ -52,6 +52,9 @@ class Recorder:
         self._window: deque[InstrumentSample] = deque(maxlen=100_000)
         self._collect = False
         self._write_failed = False
+        # listeners of the stand's samples beside the recording (the running excitation
+        # estimate): each must be cheap and must not raise (it runs in the stand's thread)
+        self.stand_taps: list[Callable[[StandSample], None]] = []
 
     def attach(self, stand: Stand) -> None:
         """Listen to the stand driver: every sample it decodes, every setpoint it sends."""
@@ -96,6 +99,8 @@ class Recorder:
         self.last_stand = s
         self.t_last_stand = s.t_host
         self.sigma.add_stand(s.t_host, s.angle_deg)
+        for tap in self.stand_taps:
+            tap(s)
 
     def on_setpoint(
         self, t_send: float, angle_deg: Mapping[str, float], t_slot: float | None
