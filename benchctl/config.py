@@ -285,7 +285,8 @@ class ExcitationConfig(Strict):
     ±``abort_db`` the abort level. Lines below ``weak_line_db`` (amplitude re the strongest)
     and bands below ``weak_band_db`` (power re the strongest band) are not judged, nor a band
     whose 95 % half-width exceeds ``max_ci_db``. ``band_edges_hz``: the bands' edges, ascending
-    (default: third-octave bands)."""
+    (default: third-octave bands). ``abort_run``: abort the run when a band's running estimate
+    during the motion is confirmed beyond ±``abort_db``."""
 
     alarm_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.5
     abort_db: Annotated[float, Field(gt=0, le=40, allow_inf_nan=False)] = 3.0
@@ -293,6 +294,8 @@ class ExcitationConfig(Strict):
     weak_band_db: Annotated[float, Field(ge=-120, lt=0, allow_inf_nan=False)] = -20.0
     max_ci_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 0.5
     band_edges_hz: tuple[Positive, ...] | None = None
+    # stop the run when, during the motion, a band's running estimate lies beyond ±abort_db
+    abort_run: bool = True
 
     @field_validator("band_edges_hz")
     @classmethod

@@ -85,6 +85,7 @@ EXIT_PASS, EXIT_FAIL, EXIT_ABORT = 0, 1, 2
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
+FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
 
 
 @dataclass
@@ -474,10 +475,21 @@ class Session:
         t0 = time.monotonic()
         t_wake = t0
         resumed = -math.inf  # this thread's last wake-up after a stall of the process
+        watch: list[Any] | None = None  # the running excitation estimates, once moving
+        t_fidelity = t0
         while not loop.motion_done.wait(0.1):
             if self.supervisor.faulted:
                 break
             now = time.monotonic()
+            if watch is None and loop.t_motion_start is not None:
+                watch = self._excitation_watch()
+            if watch and now - t_fidelity >= FIDELITY_EVERY_S:
+                t_fidelity = now
+                for rf in watch:
+                    rf.update()
+                    why = rf.abort_reason()
+                    if why:
+                        raise SafetyAbort(why)
             if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
                 resumed = now  # get a moment to catch up before their silence counts
             t_wake = now
@@ -500,7 +512,36 @@ class Session:
             if self.precision is not None:
                 self._precision_poll(now)
             self.display.update(self._snapshot())
+        self.recorder.stand_taps.clear()
         self.supervisor.check()
+
+    def _excitation_watch(self) -> list[Any]:
+        """The running excitation estimates (``run.excitation.abort_run``): one per axis with
+        a harmonic table and a band to judge, listening to the stand's samples from now on."""
+        from benchctl.analysis.excitation import RunningFidelity, limits_of, reach_of
+
+        ex = self.cfg.run.excitation
+        motion = self.prep.motion
+        tables = getattr(motion, "tables", None) or {}
+        if not ex.abort_run or getattr(motion, "segments", None) or self.recorder is None:
+            return []
+        assert self.loop is not None and self.loop.t_motion_start is not None
+        out = []
+        for axis in self.axes:
+            if axis not in tables:
+                continue
+            rf = RunningFidelity(tables[axis], self._window(), self.loop.t_motion_start,
+                                 limits=limits_of(ex), reach=reach_of(self.cfg.stand.limits),
+                                 axis=axis)
+            if not rf.bands:
+                continue
+
+            def tap(s: Any, rf: RunningFidelity = rf, axis: str = axis) -> None:
+                rf.add(s.t_host, s.angle_deg.get(axis, math.nan))
+
+            self.recorder.stand_taps.append(tap)
+            out.append(rf)
+        return out
 
     def _precision_watch(self) -> PrecisionWatch | None:
         """The precision checks, once moving (None when no precision was requested)."""
