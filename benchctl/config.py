@@ -8,6 +8,7 @@ was expected; it is always fatal.
 
 from __future__ import annotations
 
+import datetime
 import math
 import re
 from pathlib import Path
@@ -80,6 +81,8 @@ class StandConfig(Strict):
     tracking_tolerance_deg: Positive = 0.5  # |measured - commanded| beyond this aborts
     zero_tolerance_deg: Positive = 0.05  # "at rest" means |angle| below this
     wire_trace: bool = False  # debug-log every frame sent and received
+    # the stand's calibration due date (YYYY-MM-DD), into the run's record and report
+    calibration_due: datetime.date | None = None
 
     @model_validator(mode="after")
     def _transport(self) -> StandConfig:
@@ -318,8 +321,34 @@ class ExcitationConfig(Strict):
         return self
 
 
+class RunLimits(Strict):
+    """Optional limits of further measurements (benchctl.results.measurements): each one set
+    makes that measurement decide the verdict with σ; unset, it is recorded, not judged."""
+
+    gain_min: Positive | None = None  # gain at the periods 3/5/7/10 s (where excited) ≥ this
+    gain_max: Positive | None = None  # … ≤ this
+    phase_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)] | None = None  # |φ| ≤
+    delay_s: Annotated[float, Field(gt=0, le=MAX_WAIT_S, allow_inf_nan=False)] | None = None
+    mean_error_deg: Positive | None = None  # |mean error| ≤ this
+
+    @model_validator(mode="after")
+    def _gain(self) -> RunLimits:
+        if self.gain_min is not None and self.gain_max is not None and (
+            self.gain_min >= self.gain_max
+        ):
+            raise ValueError(
+                f"gain_min = {self.gain_min:g}: expected below gain_max ({self.gain_max:g})"
+            )
+        return self
+
+
 class RunConfig(Strict):
     limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
+    # how σ (and every measurement with an interval) is judged against its limit:
+    # simple (value ≤ limit) or guarded (the 95 % interval wholly within: PASS; wholly beyond:
+    # FAIL; else INCONCLUSIVE, exit 3); benchctl.results.measurements
+    decision_rule: Literal["simple", "guarded"] = "simple"
+    limits: RunLimits = RunLimits()  # optional limits for gain, phase, delay, mean error
     output_dir: Path = Path("runs")
     min_free_disk_mb: Positive = 200.0
     precheck_window_s: Seconds = 1.0  # instrument rate and static agreement measured over this
@@ -337,8 +366,15 @@ class RunConfig(Strict):
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None
 
 
+class UnitConfig(Strict):
+    """The unit under test's part number (the serial is given per run: --serial)."""
+
+    part_number: str | None = None
+
+
 class BenchConfig(Strict):
     station: str = "bench"
+    unit: UnitConfig = UnitConfig()
     stand: StandConfig
     instrument: InstrumentConfig
     run: RunConfig

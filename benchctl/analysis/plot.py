@@ -10,13 +10,13 @@ from benchctl.analysis.result import AnalysisResult
 
 
 def plot_result(result: AnalysisResult, dest: str | Path) -> Path:
-    """Draw the four panels into a PNG file ``dest`` (matplotlib, Agg backend)."""
-    import matplotlib
+    """Draw the four panels into a PNG file ``dest``. matplotlib's object API (a ``Figure``
+    with its own canvas): no global backend switch, no pyplot state, safe beside a host
+    application's own figures and in threads."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(4, 1, figsize=(8, 11), constrained_layout=True)
+    fig = Figure(figsize=(8, 11), constrained_layout=True)
+    axes = fig.subplots(4, 1)
     f = result.psd_freq
     pos = f > 0
     ax = axes[0]
@@ -54,5 +54,4 @@ def plot_result(result: AnalysisResult, dest: str | Path) -> Path:
         a.grid(True, alpha=0.3)
     out = Path(dest)
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return out

@@ -5,7 +5,9 @@ adds its parser and sets ``handler`` (a function taking the parsed args and retu
 code). Heavy imports happen inside handlers so ``benchctl --help`` stays fast.
 
 Exit codes: 0 pass/success, 1 a measured FAIL (only that), 2 everything else: bad input, a
-device fault, an abort, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), an unexpected exception.
+device fault, an abort, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), an unexpected exception;
+3 a run judged INCONCLUSIVE by the guarded decision rule (σ's 95 % interval straddles the
+limit).
 No traceback reaches the console: ``main`` prints one line, ``benchctl <cmd>: error: …``, and an
 unexpected exception's traceback goes to a log file named on that line (``benchctl.exits``).
 """
@@ -24,9 +26,9 @@ from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
 
 # subcommand modules, in the order --help lists them
-SUBCOMMANDS = ("run", "analyze", "predict", "profile", "sim", "recording")
+SUBCOMMANDS = ("run", "analyze", "predict", "profile", "sim", "recording", "schema")
 
-EXIT_OK, EXIT_FAIL, EXIT_ERROR = 0, 1, 2
+EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 
 
 class _Parser(argparse.ArgumentParser):

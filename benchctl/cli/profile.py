@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 from benchctl.errors import InputError
+from benchctl.jsonout import dumps
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -166,7 +166,7 @@ def handle_show(args: argparse.Namespace) -> int:
     profile, motion, check, rate = _prepare(args)
     report = _report(profile, motion, check, rate)
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(dumps(report, indent=2))
     else:
         _print_report(report)
     return 0
@@ -205,7 +205,7 @@ def handle_synth(args: argparse.Namespace) -> int:
         }
     )
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(dumps(report, indent=2))
     else:
         print(
             f"wrote {args.out}: {t.size} samples at {rate:g} Hz, {motion.duration_s:g} s, "
@@ -217,18 +217,16 @@ def handle_synth(args: argparse.Namespace) -> int:
 
 
 def handle_plot(args: argparse.Namespace) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.figure import Figure
 
     from benchctl.profiles import sample_times
     from benchctl.profiles.synthesis import periodogram_lines
 
     profile, motion, _check, rate = _prepare(args)
     axes = motion.axes
-    fig, ax = plt.subplots(2, 1, figsize=(9, 7))
+    fig = Figure(figsize=(9, 7))  # the object API: no backend switch, no pyplot state
+    ax = fig.subplots(2, 1)
     tables = motion.tables
     for a in axes:
         tab = tables[a] if tables else None
@@ -264,7 +262,5 @@ def handle_plot(args: argparse.Namespace) -> int:
         fig.savefig(args.out, dpi=110)
     except OSError as e:
         raise InputError(f"{args.out}: cannot write: {e.strerror}") from None
-    finally:
-        plt.close(fig)
     print(f"wrote {args.out}")
     return 0

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 from benchctl.errors import InputError
+from benchctl.jsonout import dumps
 
 
 def register(sub: Any) -> None:
@@ -60,7 +60,7 @@ def summary(path: Path) -> dict[str, Any]:
 def handle_show(args: argparse.Namespace) -> int:
     s = summary(args.path)
     if args.json:
-        print(json.dumps(s, default=str))
+        print(dumps(s))
         return 0
     print(f"recording {s['path']}")
     print(f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else ""))

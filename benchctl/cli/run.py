@@ -1,10 +1,10 @@
-"""``benchctl run``: one whole test, prechecks to verdict. Exit 0 PASS, 1 FAIL, 2 error/abort."""
+"""``benchctl run``: one whole test, prechecks to verdict. Exit 0 PASS, 1 FAIL, 2 error/abort,
+3 INCONCLUSIVE (guarded decision rule)."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import sys
 from pathlib import Path
@@ -43,6 +43,14 @@ def register(sub: Any) -> None:
         help="stop once σ's 95 %% interval is within ± this fraction of σ (0 < FRACTION < 1, "
         "e.g. 0.05; after at least one whole period of the multisine; overrides run.precision)",
     )
+    p.add_argument(
+        "--decision-rule",
+        choices=("simple", "guarded"),
+        help="how σ is judged against its limit: simple (σ ≤ limit) or guarded (the 95 %% "
+        "interval wholly within: PASS, wholly beyond: FAIL, else INCONCLUSIVE, exit 3); "
+        "overrides run.decision_rule",
+    )
+    p.add_argument("--part-number", help="part number of the unit (overrides unit.part_number)")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default run.output_dir)")
     p.add_argument("--json", action="store_true", help="print one JSON object (report) on stdout")
     p.add_argument("--quiet", action="store_true", help="no live progress on stderr")
@@ -72,9 +80,10 @@ def handle(args: argparse.Namespace) -> int:
         check_option,
         load_config,
     )
+    from benchctl.jsonout import dumps
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
-    from benchctl.run.report import format_report, json_default
+    from benchctl.run.report import format_report
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -107,22 +116,27 @@ def handle(args: argparse.Namespace) -> int:
         seed=args.seed,
         scale_to_fit=args.scale_to_fit,
         precision=args.precision,
+        decision_rule=args.decision_rule,
+        part_number=args.part_number,
     )
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)
     # the console may be gone (SIGHUP, a closed pipe): the exit code still tells
     with contextlib.suppress(OSError):
         if args.json:
-            print(json.dumps(result.to_dict(), default=json_default))
+            print(dumps(result.to_dict()))
         elif result.report is not None:
             print(format_report(result.report))
         else:
-            print(f"ABORTED: {result.reason}")
+            kind = f" ({result.abort['kind']})" if result.abort else ""
+            print(f"ABORTED{kind}: {result.reason}")
             if result.recording is not None:
                 closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
                 how = "closed, marked aborted" if closed else "NOT closed: no end.json"
                 print(f"  recording {result.recording} ({how})")
             if result.log is not None:
                 print(f"  log {result.log}")
+            if result.record is not None:
+                print(f"  record {result.record}")
     return result.exit_code
 

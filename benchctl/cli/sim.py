@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
 from typing import Any
+
+from benchctl.jsonout import dumps
 
 
 def register(sub: Any) -> None:
@@ -57,11 +58,11 @@ def handle(args: argparse.Namespace) -> int:
         bench.start()
     except Exception as e:
         if args.ready_json:
-            print(json.dumps({"ready": False, "error": str(e)}), flush=True)
+            print(dumps({"ready": False, "error": str(e)}), flush=True)
         raise
     try:
         if args.ready_json:
-            print(json.dumps({"ready": True, **bench.endpoints()}), flush=True)
+            print(dumps({"ready": True, **bench.endpoints()}), flush=True)
             # the parent reads nothing more there: later output joins stderr (its log file)
             os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
             watcher = threading.Thread(target=_wait_eof, args=(done,), daemon=True)

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchctl.errors import DataError
+from benchctl.jsonout import dumps
 from benchctl.recording.format import END_FILE, EVENTS_FILE, FORMAT_NAME, META_FILE, STREAM_FILES
 
 if TYPE_CHECKING:
@@ -274,8 +275,8 @@ class Recording:
 
         d = Path(dest)
         payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}
-        payload["meta_json"] = json.dumps(self.meta, default=str)
-        payload["end_json"] = json.dumps(self.end, default=str)
+        payload["meta_json"] = dumps(self.meta)
+        payload["end_json"] = dumps(self.end)
         savemat(d, payload, do_compression=True)
         return d
 

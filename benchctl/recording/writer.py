@@ -10,7 +10,6 @@ errno, and reports it to ``on_error``; from then on rows and events are dropped 
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import numbers
 import os
@@ -24,6 +23,7 @@ from typing import IO, Any
 from benchctl import __version__
 from benchctl.devices.base import InstrumentSample, StandSample
 from benchctl.errors import InputError, RecordingError
+from benchctl.jsonout import dumps
 from benchctl.recording.format import (
     END_FILE,
     EVENTS_FILE,
@@ -48,7 +48,7 @@ def _atomic_json(path: Path, obj: Mapping[str, Any]) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     try:
         with tmp.open("w", encoding="utf-8") as f:
-            json.dump(obj, f, indent=2, default=str)
+            f.write(dumps(obj, indent=2))
             f.write("\n")
             f.flush()
             os.fsync(f.fileno())
@@ -190,7 +190,7 @@ class RecordingWriter:
 
     def event(self, kind: str, **fields: Any) -> None:
         rec = {"t_host": time.monotonic(), "utc": utc_now(), "kind": kind, **fields}
-        line = json.dumps(rec, default=str) + "\n"
+        line = dumps(rec) + "\n"
         with self._lock:
             if self._closed:
                 return

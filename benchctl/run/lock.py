@@ -36,6 +36,7 @@ from typing import Any
 
 from benchctl.config import BenchConfig, StandConfig
 from benchctl.errors import ConfigError, StandInUse
+from benchctl.jsonout import dumps
 
 DEFAULT_LOCK_DIR = Path(tempfile.gettempdir()) / "benchctl-locks"
 HOLDER_WAIT_S = 1.0  # a holder that has just taken the lock writes its details within this
@@ -151,7 +152,7 @@ class StandLock:
             "endpoint": self.key,
         }
         info.setdefault("start_utc", datetime.now(UTC).isoformat(timespec="seconds"))
-        data = (json.dumps(info, default=str) + "\n").encode()
+        data = (dumps(info) + "\n").encode()
         try:
             os.ftruncate(fd, 0)
             os.pwrite(fd, data, 0)

@@ -1,5 +1,8 @@
-"""The verdict and the report: PASS when σ ≤ the limit on every axis — and, for a sine_steps
-profile, the linearity of its steps' gains within ``run.linearity_spread_limit`` — FAIL otherwise.
+"""The verdict and the report: PASS when σ is within the limit on every axis under the run's
+decision rule — and, for a sine_steps profile, the linearity of its steps' gains within
+``run.linearity_spread_limit`` — FAIL otherwise; under the guarded rule a σ whose 95 % interval
+straddles the limit is INCONCLUSIVE (exit 3). With measurements (``benchctl.results``) the
+verdict is their decisive outcomes' (:func:`benchctl.results.measurements.overall`).
 
 Written into the recording folder: ``report.json`` (machine-readable, the same object
 ``benchctl run --json`` prints), ``report.txt`` (for the operator) and one analysis plot per
@@ -9,18 +12,30 @@ per run to ``<output_dir>/index.jsonl``: the results archive of a bench.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchctl.jsonout import dumps, plain
+from benchctl.results.measurements import (
+    FAIL,
+    INCONCLUSIVE,
+    PASS,
+    RULE_TEXT,
+    Measurement,
+    combine,
+    decide,
+    overall,
+)
+
 log = logging.getLogger(__name__)
 
 REPORT_JSON = "report.json"
 REPORT_TXT = "report.txt"
 ARCHIVE_INDEX = "index.jsonl"
+EXIT_CODES = {PASS: 0, FAIL: 1, INCONCLUSIVE: 3}  # aborted: 2 (benchctl.run.session)
 
 
 @dataclass
@@ -41,23 +56,34 @@ class AxisVerdict:
     steps: list[dict[str, Any]] | None = None
     linearity: dict[str, Any] | None = None
     excitation: dict[str, Any] | None = None  # measured excitation fidelity (informative)
+    rule: str = "simple"  # the decision rule σ is judged by (simple | guarded)
+
+    @property
+    def sigma_outcome(self) -> str:
+        """PASS, FAIL or (guarded rule) INCONCLUSIVE."""
+        return decide(self.sigma_deg, None, self.limit_deg, self.sigma_ci95_deg, self.rule)
 
     @property
     def sigma_passed(self) -> bool:
-        return math.isfinite(self.sigma_deg) and self.sigma_deg <= self.limit_deg
+        return self.sigma_outcome == PASS
 
     @property
     def linearity_passed(self) -> bool:
         return self.linearity is None or self.linearity.get("verdict") == "PASS"
 
     @property
+    def outcome(self) -> str:
+        return combine([self.sigma_outcome, PASS if self.linearity_passed else FAIL])
+
+    @property
     def passed(self) -> bool:
-        return self.sigma_passed and self.linearity_passed
+        return self.outcome == PASS
 
     def to_dict(self, full: bool = True) -> dict[str, Any]:
         d: dict[str, Any] = {
             "axis": self.axis,
-            "verdict": "PASS" if self.passed else "FAIL",
+            "verdict": self.outcome,
+            "rule": self.rule,
             "sigma": self.sigma_deg,
             "sigma_ci95": list(self.sigma_ci95_deg),
             "limit": self.limit_deg,
@@ -65,7 +91,7 @@ class AxisVerdict:
             "mean_error": self.mean_error_deg,
             "rms_error": self.rms_error_deg,
             "delay": self.delay_s,
-            "sigma_verdict": "PASS" if self.sigma_passed else "FAIL",
+            "sigma_verdict": self.sigma_outcome,
         }
         if self.linearity is not None:
             d["linearity"] = self.linearity
@@ -76,8 +102,9 @@ class AxisVerdict:
         return d
 
 
-def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
-    """From an ``AnalysisResult`` (sigma, sigma_ci95, dof, mean_error, rms_error, delay)."""
+def axis_verdict(axis: str, result: Any, limit_deg: float, rule: str = "simple") -> AxisVerdict:
+    """From an ``AnalysisResult`` (sigma, sigma_ci95, dof, mean_error, rms_error, delay),
+    σ judged by ``rule`` (simple | guarded)."""
     ci = tuple(float(v) for v in result.sigma_ci95)
     steps = getattr(result, "steps", None)
     table = None if steps is None else steps.to_dict()
@@ -94,6 +121,7 @@ def axis_verdict(axis: str, result: Any, limit_deg: float) -> AxisVerdict:
         steps=None if table is None else table["steps"],
         linearity=None if table is None else table["linearity"],
         excitation=getattr(result, "excitation", None),
+        rule=rule,
     )
 
 
@@ -107,22 +135,39 @@ class Report:
     # why the motion ended (benchctl.run.precision.ended_summary): reason, precision reached,
     # requested, motion_s, periods, period_s
     ended: dict[str, Any] | None = None
+    decision_rule: str = "simple"  # simple | guarded (run.decision_rule, --decision-rule)
+    # every result with its limits and outcome (benchctl.results.measurements); when given,
+    # the verdict is their decisive outcomes'
+    measurements: list[Measurement] = field(default_factory=list)
+    deviations: list[str] = field(default_factory=list)  # e.g. the profile scaled to fit
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
-        return "PASS" if self.axes and all(v.passed for v in self.axes.values()) else "FAIL"
+        """PASS, FAIL or INCONCLUSIVE (guarded rule)."""
+        if self.measurements:
+            v = overall(self.measurements)
+            return v if v in EXIT_CODES else FAIL  # nothing judged is no pass
+        if not self.axes:
+            return FAIL
+        return combine(v.outcome for v in self.axes.values())
 
     @property
     def exit_code(self) -> int:
-        return 0 if self.verdict == "PASS" else 1
+        return EXIT_CODES[self.verdict]
 
     def to_dict(self, full: bool = True) -> dict[str, Any]:
         return {
             "verdict": self.verdict,
             "state": "done",
             "exit_code": self.exit_code,
+            "decision_rule": {"name": self.decision_rule,
+                              "text": RULE_TEXT.get(self.decision_rule, "")},
+            "deviations": list(self.deviations),
+            "warnings": list(self.warnings),
             "recording": str(self.recording),
             "axes": {a: v.to_dict(full) for a, v in self.axes.items()},
+            "measurements": [m.to_dict() for m in self.measurements],
             "analysis_window": list(self.window),
             "ended": self.ended,
             **self.meta,
@@ -154,18 +199,20 @@ def format_report(rep: Report) -> str:
     lines = [
         f"{rep.verdict}   serial {m.get('serial', '?')}   operator {m.get('operator', '?')}   "
         f"station {m.get('station', '?')}",
+        f"  decision rule: {RULE_TEXT.get(rep.decision_rule, rep.decision_rule)}",
         f"profile {m.get('profile_name', '?')} (seed {m.get('seed', '?')}), "
         f"{m.get('duration_s', float('nan')):.1f} s, mode {m.get('mode', '?')}",
     ]
     scale = m.get("scale")
     if scale is not None and scale != 1.0:
         lines.append(f"  profile scaled by {scale:g} to fit the stand limits")
+    lines.extend(f"  DEVIATION: {d}" for d in rep.deviations)
     for v in rep.axes.values():
         lo, hi = v.sigma_ci95_deg
         lines.append(
             f"  {v.axis:<5} σ = {v.sigma_deg:.4f}°  95 % CI [{lo:.4f}, {hi:.4f}]°"
             f"  limit {v.limit_deg:g}°"
-            f"  → {'PASS' if v.sigma_passed else 'FAIL'}   (mean error {v.mean_error_deg:+.4f}°, "
+            f"  → {v.sigma_outcome}   (mean error {v.mean_error_deg:+.4f}°, "
             f"dof {v.dof:.0f})"
         )
         if v.steps is not None and v.linearity is not None:
@@ -200,8 +247,27 @@ def format_report(rep: Report) -> str:
     )
     if rep.ended is not None:
         lines.append(_ended_line(rep.ended))
+    judged = [x for x in rep.measurements if x.outcome != "NOT_JUDGED" and x.rule != "check"]
+    if judged:
+        lines.append("  measurements judged:")
+        lines.extend(f"    {_measurement_line(x)}" for x in judged)
+    lines.extend(f"  warning: {w}" for w in rep.warnings)
     lines.append(f"  recording {rep.recording}")
     return "\n".join(lines)
+
+
+def _measurement_line(x: Measurement) -> str:
+    """``sigma roll 0.2831 deg [0.2712, 0.2950] ≤ 0.4 → PASS (guarded)``."""
+    def num(v: Any) -> str:
+        return "—" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    lim = ("" if x.low is None else f"≥ {num(x.low)} ") + (
+        "" if x.high is None else f"≤ {num(x.high)}")
+    ci = "" if x.ci95 is None else f" [{num(x.ci95[0])}, {num(x.ci95[1])}]"
+    what = " ".join(p for p in (x.name, x.axis) if p)
+    tag = "" if x.decisive else ", informative"
+    return (f"{what}: {num(x.value)} {x.unit or ''}{ci}  {lim.strip()} → {x.outcome} "
+            f"({x.rule}{tag})")
 
 
 def _ended_line(e: dict[str, Any]) -> str:
@@ -256,9 +322,7 @@ def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Pat
     """report.json, report.txt (and plots) into the recording folder; returns the files."""
     folder = rep.recording
     out = [folder / REPORT_JSON, folder / REPORT_TXT]
-    out[0].write_text(
-        json.dumps(rep.to_dict(), indent=2, default=json_default) + "\n", encoding="utf-8"
-    )
+    out[0].write_text(dumps(rep.to_dict(), indent=2) + "\n", encoding="utf-8")
     out[1].write_text(format_report(rep) + "\n", encoding="utf-8")
     for axis, res in (results or {}).items():
         dest = folder / f"analysis_{axis}.png"
@@ -270,7 +334,7 @@ def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Pat
 def archive(output_dir: Path, rep: Report) -> Path:
     """Append the run's summary to the bench's results archive ``index.jsonl``."""
     index = output_dir / ARCHIVE_INDEX
-    line = json.dumps(
+    line = dumps(
         {
             **{
                 k: rep.meta.get(k)
@@ -280,8 +344,7 @@ def archive(output_dir: Path, rep: Report) -> Path:
             "sigma": {a: v.sigma_deg for a, v in rep.axes.items()},
             "limit": {a: v.limit_deg for a, v in rep.axes.items()},
             "recording": str(rep.recording),
-        },
-        default=json_default,
+        }
     )
     with index.open("a", encoding="utf-8") as f:
         f.write(line + "\n")
@@ -291,7 +354,7 @@ def archive(output_dir: Path, rep: Report) -> Path:
 def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reason: str) -> Path:
     """An aborted run is archived too, with its reason."""
     index = output_dir / ARCHIVE_INDEX
-    line = json.dumps(
+    line = dumps(
         {
             **{
                 k: meta.get(k)
@@ -300,8 +363,7 @@ def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reaso
             "verdict": "ABORTED",
             "reason": reason,
             "recording": str(recording),
-        },
-        default=json_default,
+        }
     )
     with index.open("a", encoding="utf-8") as f:
         f.write(line + "\n")
@@ -309,14 +371,6 @@ def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reaso
 
 
 def json_default(o: Any) -> Any:
-    """``json.dumps`` fallback: numpy arrays and scalars as lists and numbers, else ``str``."""
-    try:
-        import numpy as np
-
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, np.generic):
-            return o.item()
-    except ImportError:  # pragma: no cover
-        pass
-    return str(o)
+    """Kept for callers of the old ``default=`` fallback of ``json``: the strict encoder's
+    conversion (:func:`benchctl.jsonout.plain`). New code calls ``benchctl.jsonout.dumps``."""
+    return plain(o)

@@ -16,8 +16,13 @@ Order of things (each state change is an event in the recording):
 4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
 5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
    abort takes, here with nothing to ramp);
-6. **analysing**: per axis, on the steady part of the profile (fades excluded), verdict, report,
-   archive; → **done**, the recording closed ``done``.
+6. **analysing**: per axis, on the steady part of the profile (fades excluded), measurements
+   with their limits judged by the decision rule (``benchctl.results.measurements``), verdict,
+   report, archive; → **done**, the recording closed ``done``.
+
+Every run — done or aborted — ends with ``record.json`` in the recording
+(``benchctl.results.record``); an aborted one says whether the operator stopped it, the
+equipment failed or the software did.
 
 Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
 that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
@@ -54,6 +59,15 @@ from benchctl.errors import (
 from benchctl.exits import run_log, set_log_dir
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
+from benchctl.results.measurements import (
+    Measurement,
+    axis_measurements,
+    limits_from_config,
+    precheck_measurements,
+    reported_serial,
+    serial_measurement,
+)
+from benchctl.results.record import abort_kind, build_record, sha256_file, write_record
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.lock import stand_lock
@@ -68,7 +82,15 @@ from benchctl.run.precision import (
     whole_periods_in,
 )
 from benchctl.run.recorder import Recorder
-from benchctl.run.report import Report, archive, archive_abort, axis_verdict, write_report
+from benchctl.run.report import (
+    REPORT_JSON,
+    REPORT_TXT,
+    Report,
+    archive,
+    archive_abort,
+    axis_verdict,
+    write_report,
+)
 from benchctl.run.stand_loop import (
     HOST_STALL_S,
     LoopLimits,
@@ -81,7 +103,7 @@ from benchctl.run.supervisor import Supervisor, describe, shutdown
 
 log = logging.getLogger(__name__)
 
-EXIT_PASS, EXIT_FAIL, EXIT_ABORT = 0, 1, 2
+EXIT_PASS, EXIT_FAIL, EXIT_ABORT, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
@@ -97,6 +119,8 @@ class RunOptions:
     seed: int | None = None
     scale_to_fit: bool = False  # scale a profile over the limits down instead of refusing it
     precision: float | None = None  # --precision: overrides run.precision (see run.precision)
+    decision_rule: str | None = None  # --decision-rule: overrides run.decision_rule
+    part_number: str | None = None  # --part-number: overrides unit.part_number
 
 
 @dataclass
@@ -109,14 +133,20 @@ class RunResult:
     stats: dict[str, Any] = field(default_factory=dict)
     shutdown: list[dict[str, Any]] = field(default_factory=list)
     log: Path | None = None  # the run's log file (<recording>/benchctl.log)
+    abort: dict[str, Any] | None = None  # aborted: {kind: operator|equipment|software, reason}
+    record: Path | None = None  # <recording>/record.json when written
 
     def to_dict(self) -> dict[str, Any]:
         if self.report is not None:
-            return self.report.to_dict(full=True)
+            d = self.report.to_dict(full=True)
+            d["record"] = None if self.record is None else str(self.record)
+            return d
         return {
             "verdict": "ABORTED",
             "state": self.state,
             "reason": self.reason,
+            "abort": self.abort,
+            "record": None if self.record is None else str(self.record),
             "exit_code": self.exit_code,
             "recording": None if self.recording is None else str(self.recording),
             "log": None if self.log is None else str(self.log),
@@ -319,6 +349,8 @@ class Session:
         self.meta: dict[str, Any] = {}
         self._final_stats: dict[str, Any] | None = None
         self.precision: PrecisionWatch | None = None  # the precision checks (run.precision)
+        self.prechecks: list[dict[str, Any]] = []  # each precheck's result, as recorded
+        self.rule = opts.decision_rule or cfg.run.decision_rule
 
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
@@ -333,6 +365,7 @@ class Session:
 
     def _precheck(self, result: pc.CheckResult) -> None:
         assert self.writer is not None
+        self.prechecks.append(result.to_dict())
         self.writer.event("precheck", **result.to_dict())
         self.display.message(
             f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
@@ -377,6 +410,10 @@ class Session:
             "config": cfg.model_dump(mode="json"),
             "mode": cfg.stand.mode,
             "limit_sigma_deg": cfg.run.limit_sigma_deg,
+            "decision_rule": self.rule,
+            "part_number": self.opts.part_number or cfg.unit.part_number,
+            "config_sha256": sha256_file(cfg.source),
+            "profile_sha256": sha256_file(self.prep.meta.get("profile_path")),
             **self.prep.meta,
         }
 
@@ -682,11 +719,68 @@ class Session:
                 res.cross_axis, why = cross_axis_for(pairs, line_sets, axis)
                 if why:
                     res.warnings.append(why)
-            verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg)
+            verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
-        report = Report(verdicts, self.path, meta, self._stats(), window)
+        measurements, warnings = self._measurements(verdicts, results)
+        report = Report(verdicts, self.path, meta, self._stats(), window,
+                        decision_rule=self.rule, measurements=measurements,
+                        deviations=self._deviations(), warnings=warnings)
         report.ended = self._ended(report)
         return report, results
+
+    def _deviations(self) -> list[str]:
+        """What departs from the test as specified: a profile scaled to fit the stand."""
+        out = []
+        scale = self.prep.meta.get("scale")
+        if scale is not None and scale != 1.0:
+            out.append(f"profile scaled by {scale:g} to fit the stand limits (--scale-to-fit): "
+                       "the motion is not the profile's as specified")
+        return out
+
+    def _measurements(self, verdicts: dict[str, Any],
+                      results: dict[str, Any]) -> tuple[list[Measurement], list[str]]:
+        """Every result with its limits and outcome (benchctl.results.measurements), and the
+        warnings for the record: the analyses', a serial mismatch."""
+        limits = limits_from_config(self.cfg)
+        out = precheck_measurements(self.prechecks)
+        for axis, v in verdicts.items():
+            out.extend(axis_measurements(axis, v.to_dict(full=True), limits, self.rule))
+        warnings = [f"{axis}: {w}" for axis, r in results.items()
+                    for w in getattr(r, "warnings", [])]
+        meta = self.writer.meta if self.writer is not None else self.meta
+        dut = (meta.get("devices") or {}).get("instrument")
+        sm = serial_measurement(self.opts.serial, reported_serial(dut))
+        out.append(sm)
+        if sm.outcome == "FAIL":
+            warnings.append(f"serial mismatch: {sm.note}")
+            log.warning("serial mismatch: %s", sm.note)
+        return out, warnings
+
+    def _write_record(self, outcome: str, exit_code: int, *, report: Report | None = None,
+                      abort: dict[str, Any] | None = None) -> Path | None:
+        """record.json into the recording (never raises: a record that cannot be written is
+        a warning; the recording stays the source of truth)."""
+        try:
+            if report is not None:
+                measurements: list[Measurement] = report.measurements
+                deviations, warnings = report.deviations, report.warnings
+            else:
+                measurements = precheck_measurements(self.prechecks)
+                deviations, warnings = self._deviations(), []
+            rj, rt = self.path / REPORT_JSON, self.path / REPORT_TXT
+            meta = self.writer.meta if self.writer is not None else self.meta  # + devices
+            rec = build_record(
+                meta, recording=self.path, outcome=outcome, measurements=measurements,
+                decision_rule=self.rule, abort=abort, deviations=deviations,
+                warnings=warnings, report_json=rj if rj.exists() else None,
+                report_txt=rt if rt.exists() else None, log=self.log_path,
+                exit_code=exit_code,
+            )
+            return write_record(self.path, rec)
+        except Exception as e:
+            log.warning("record.json not written: %s", describe(e), exc_info=e)
+            return None
+
 
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
                     window: tuple[float, float]) -> None:
@@ -787,6 +881,9 @@ class Session:
                 report, results = self._analyse(window)
                 self.supervisor.check()  # a signal during the analysis still ends the run
                 files = write_report(report, results)
+                record = self._write_record(report.verdict, report.exit_code, report=report)
+                if record is not None:
+                    files.append(record)
                 archive(self.out_dir, report)
                 self.writer.event("verdict", **report.to_dict(full=False))
                 self.machine.to(RunState.DONE)
@@ -806,6 +903,7 @@ class Session:
                     report,
                     report.stats,
                     log=self.log_path,
+                    record=record,
                 )
             except BaseException as e:  # every way out, the same path
                 if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
@@ -818,6 +916,12 @@ class Session:
         """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
         reason = f.reason if f else "aborted"
+        abort = {
+            "kind": abort_kind(f.error if f else None, f.source if f else None),
+            "reason": reason,
+            "source": f.source if f else None,
+            "error": type(f.error).__name__ if f else None,
+        }
         try:
             self.machine.abort(reason)
         except Exception as e:  # a listener's failure must not skip the cleanup
@@ -847,12 +951,14 @@ class Session:
         )
         for s in rep.steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
+        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort)
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
         except Exception as e:  # a full disk: the recording's end.json still says it all
             log.warning("archive not updated: %s", describe(e))
         return RunResult(
-            "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path
+            "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path,
+            abort=abort, record=record,
         )
 
 
@@ -897,7 +1003,8 @@ def run_test(
 ) -> RunResult:
     """Run one test. Bad input raises ``BenchError`` before anything opens, and so does a stand
     in use by another run (``StandInUse``, naming it: ``benchctl.run.lock``); after that, every
-    outcome is a ``RunResult`` (done → exit 0/1 by verdict, aborted → exit 2).
+    outcome is a ``RunResult`` (done → exit 0/1/3 by verdict PASS/FAIL/INCONCLUSIVE, aborted →
+    exit 2).
 
     With a ``sim:`` section the simulators run on a free port of the run's own (nothing to lock);
     they start once the recording exists (their output in its ``sim.log``)."""
@@ -924,6 +1031,7 @@ def run_test(
 __all__ = [
     "EXIT_ABORT",
     "EXIT_FAIL",
+    "EXIT_INCONCLUSIVE",
     "EXIT_PASS",
     "RunOptions",
     "RunResult",

@@ -1,0 +1,85 @@
+"""One strict JSON encoder for everything benchctl writes or prints.
+
+JSON has no ``NaN`` or ``Infinity``; Python's ``json`` writes them anyway unless told not to,
+and most readers (JavaScript, PostgreSQL's ``jsonb``, jq) reject such a file. Every output goes
+through :func:`dumps` / :func:`dump`: the value is first made plain (:func:`plain`) — a
+non-finite float becomes ``null``, numpy scalars and arrays become numbers and lists, tuples
+and sets lists, paths and datetimes strings, dataclasses dicts — then encoded with
+``allow_nan=False``, so a value that slips through raises instead of writing bad JSON.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import enum
+import json
+import math
+import sys
+from collections.abc import Mapping
+from pathlib import PurePath
+from typing import IO, Any
+
+
+def plain(obj: Any) -> Any:
+    """``obj`` as plain JSON types: dict (str keys), list, str, int, finite float, bool, None.
+
+    Non-finite floats → None; numpy scalars/arrays → Python numbers/lists; tuples and sets →
+    lists; paths, datetimes and enums → strings; dataclasses → dicts; anything else → ``str``.
+    """
+    if obj is None or isinstance(obj, bool | str):
+        return obj
+    if isinstance(obj, int):
+        return int(obj)
+    if isinstance(obj, float):
+        return float(obj) if math.isfinite(obj) else None
+    np = sys.modules.get("numpy")  # numpy values exist only once numpy is imported
+    if np is not None:
+        if isinstance(obj, np.generic):
+            return plain(obj.item())
+        if isinstance(obj, np.ndarray):
+            return [plain(v) for v in obj.tolist()]
+    if isinstance(obj, Mapping):
+        return {_key(k): plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | set | frozenset):
+        items = sorted(obj, key=repr) if isinstance(obj, set | frozenset) else obj
+        return [plain(v) for v in items]
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return plain(dataclasses.asdict(obj))
+    if isinstance(obj, enum.Enum):
+        return plain(obj.value)
+    if isinstance(obj, _dt.datetime | _dt.date | _dt.time):
+        return obj.isoformat()
+    if isinstance(obj, PurePath):
+        return str(obj)
+    return str(obj)
+
+
+def _key(k: Any) -> str:
+    if isinstance(k, str):
+        return k
+    p = plain(k)
+    return "null" if p is None else str(p)
+
+
+def dumps(obj: Any, *, indent: int | None = None, sort_keys: bool = False) -> str:
+    """Strict JSON text of ``obj`` (see the module notes); never ``NaN``/``Infinity``."""
+    return json.dumps(plain(obj), indent=indent, sort_keys=sort_keys, allow_nan=False)
+
+
+def dump(obj: Any, fp: IO[str], *, indent: int | None = None) -> None:
+    """Write :func:`dumps` of ``obj`` to the text stream ``fp``."""
+    fp.write(dumps(obj, indent=indent))
+
+
+def loads_strict(text: str) -> Any:
+    """Parse JSON refusing ``NaN``/``Infinity``/``-Infinity`` (what :func:`dumps` never
+    writes): a ``ValueError`` names the constant."""
+
+    def refuse(name: str) -> Any:
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+__all__ = ["dump", "dumps", "loads_strict", "plain"]

@@ -1,0 +1,245 @@
+"""The run's record: ``record.json`` in the recording folder at the end of every run.
+
+One JSON object per run — passed, failed, inconclusive or aborted — shaped like the line-data
+conventions (IPC-CFX ``UnitsTested``, HardPy's run record): the unit under test (serial typed,
+serial reported, part number), operator and station, the stand with its identity and
+calibration due date, the instruments with their identities, the profile (name, kind, seed,
+SHA-256), the config's SHA-256, every measurement with its limits and outcome, the decision
+rule, deviations, warnings, an abort's kind and reason, and the files with their SHA-256.
+
+Its JSON Schema is versioned in the package: ``benchctl/schemas/record-1.schema.json``
+(``benchctl schema record`` prints it). ``schema`` in a record names the version it follows.
+
+- :func:`build_record` builds one from the recording's metadata and the results;
+- :func:`write_record` writes ``<dir>/record.json`` (strict JSON, atomically) after
+  validating it; :func:`load_record` reads and validates one; :func:`validate_record` raises
+  ``DataError`` naming the key and the expectation.
+
+An abort's ``kind`` (:func:`abort_kind`): ``operator`` — a signal (Ctrl-C, SIGTERM, SIGHUP,
+SIGQUIT: someone stopped it); ``equipment`` — a device fault or error, a failed precheck, a
+safety stop (tracking, silent instrument, limit, excitation), a recording that cannot be
+written; ``software`` — an unexpected exception or a failed internal cross-check of the
+analysis (a bug).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping
+from datetime import UTC, datetime
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from benchctl.errors import AnalysisError, BenchError, DataError
+from benchctl.jsonout import dumps, loads_strict, plain
+from benchctl.results.measurements import RULE_TEXT, Measurement, reported_serial, serial_match
+
+SCHEMA_ID = "benchctl-record/1"
+SCHEMA_FILE = "record-1.schema.json"
+RECORD_JSON = "record.json"
+ABORT_KINDS = ("operator", "equipment", "software")
+
+
+@cache
+def record_schema() -> dict[str, Any]:
+    """The record's JSON Schema (draft 2020-12), from the package."""
+    text = resources.files("benchctl.schemas").joinpath(SCHEMA_FILE).read_text("utf-8")
+    schema: dict[str, Any] = json.loads(text)
+    return schema
+
+
+def schema_text() -> str:
+    """The schema as it is shipped (``benchctl schema record``)."""
+    return resources.files("benchctl.schemas").joinpath(SCHEMA_FILE).read_text("utf-8")
+
+
+def validate_record(record: Mapping[str, Any]) -> None:
+    """Raise ``DataError`` unless ``record`` is valid against the schema (every problem
+    listed: where in the record, what was found, what was expected)."""
+    from jsonschema import Draft202012Validator
+
+    v = Draft202012Validator(record_schema())
+    errors = sorted(v.iter_errors(plain(record)), key=lambda e: list(e.absolute_path))
+    if errors:
+        parts = []
+        for e in errors[:10]:
+            where = "/".join(str(p) for p in e.absolute_path) or "(top)"
+            parts.append(f"{where}: {e.message}")
+        more = f" (and {len(errors) - 10} more)" if len(errors) > 10 else ""
+        raise DataError(f"record not valid against {SCHEMA_ID}: " + "; ".join(parts) + more)
+
+
+def sha256_file(path: Path | str | None) -> str | None:
+    """SHA-256 of a file's bytes, or None when there is no such readable file."""
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    except OSError:
+        return None
+    return h.hexdigest()
+
+
+def abort_kind(error: BaseException | None, source: str | None = None) -> str:
+    """``operator``, ``equipment`` or ``software`` for the first fault of an aborted run (see
+    the module notes)."""
+    if source == "signal" or isinstance(error, KeyboardInterrupt):
+        return "operator"
+    if isinstance(error, AnalysisError):
+        return "software"
+    if isinstance(error, BenchError):
+        return "equipment"
+    return "software"
+
+
+def _file(path: Path | None) -> dict[str, str] | None:
+    if path is None:
+        return None
+    digest = sha256_file(path)
+    return None if digest is None else {"path": str(path), "sha256": digest}
+
+
+def _profile_kind(profile: Any) -> str | None:
+    if not isinstance(profile, Mapping):
+        return None
+    spec = profile.get("spec")
+    kind = spec.get("kind") if isinstance(spec, Mapping) else None
+    kind = kind or profile.get("kind")
+    return None if kind is None else str(kind)
+
+
+def build_record(
+    meta: Mapping[str, Any],
+    *,
+    recording: Path,
+    outcome: str,
+    measurements: Iterable[Measurement | Mapping[str, Any]] = (),
+    decision_rule: str = "simple",
+    abort: Mapping[str, Any] | None = None,
+    deviations: Iterable[str] = (),
+    warnings: Iterable[str] = (),
+    report_json: Path | None = None,
+    report_txt: Path | None = None,
+    log: Path | None = None,
+    exit_code: int | None = None,
+    end_utc: str | None = None,
+) -> dict[str, Any]:
+    """The record of one run from the recording's metadata (``meta.json``: serial, operator,
+    station, devices, profile, seed, config, start time, software version, hashes) and its
+    results. ``abort``: {kind, reason, …} for an aborted run (``outcome`` ABORTED)."""
+    from benchctl import __version__
+
+    devices = meta.get("devices") or {}
+    dut = devices.get("instrument")
+    typed = str(meta.get("serial") or "")
+    reported = reported_serial(dut)
+    config = meta.get("config") or {}
+    stand_cfg = config.get("stand") or {}
+    unit_cfg = config.get("unit") or {}
+    profile = meta.get("profile") or {}
+    part = meta.get("part_number") or unit_cfg.get("part_number")
+    due = stand_cfg.get("calibration_due")
+    ms = [m.to_dict() if isinstance(m, Measurement) else dict(m) for m in measurements]
+    record = {
+        "schema": SCHEMA_ID,
+        "run_id": recording.name,
+        "software": {"name": "benchctl",
+                     "version": str(meta.get("software_version") or __version__)},
+        "outcome": outcome,
+        "exit_code": exit_code,
+        "abort": None if abort is None else dict(abort),
+        "decision_rule": {"name": decision_rule, "text": RULE_TEXT.get(decision_rule, "")},
+        "deviations": list(deviations),
+        "warnings": list(warnings),
+        "start_utc": meta.get("start_utc"),
+        "end_utc": end_utc or datetime.now(UTC).isoformat(timespec="milliseconds"),
+        "unit": {
+            "serial": typed,
+            "part_number": None if part is None else str(part),
+            "reported_serial": reported,
+            "serial_match": serial_match(typed, reported),
+        },
+        "operator": str(meta.get("operator") or ""),
+        "station": str(meta.get("station") or ""),
+        "stand": {"identity": devices.get("stand"),
+                  "calibration_due": None if due is None else str(due)[:10]},
+        "instruments": [{"role": "dut", "identity": dut}],
+        "profile": {
+            "name": meta.get("profile_name"),
+            "kind": _profile_kind(profile),
+            "seed": meta.get("seed"),
+            "sha256": meta.get("profile_sha256"),
+            "path": meta.get("profile_path"),
+            "scale": meta.get("scale"),
+        },
+        "config_sha256": meta.get("config_sha256"),
+        "measurements": ms,
+        "files": {
+            "recording": str(recording.resolve()),
+            "report_json": _file(report_json),
+            "report_txt": _file(report_txt),
+            "log": None if log is None else str(log),
+        },
+    }
+    if exit_code is None:
+        del record["exit_code"]
+    out: dict[str, Any] = plain(record)
+    return out
+
+
+def write_record(folder: Path, record: Mapping[str, Any]) -> Path:
+    """Validate ``record`` and write it as ``<folder>/record.json`` (strict JSON; a temporary
+    file renamed over it, so a reader never sees half a record)."""
+    validate_record(record)
+    dest = folder / RECORD_JSON
+    tmp = folder / (RECORD_JSON + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(dumps(record, indent=2) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, dest)
+    return dest
+
+
+def load_record(path: Path | str) -> dict[str, Any]:
+    """A record from ``record.json`` (or a recording folder holding one), validated."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / RECORD_JSON
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise DataError(f"{p}: cannot read the record: {e.strerror}") from None
+    try:
+        data = loads_strict(text)
+    except ValueError as e:
+        raise DataError(f"{p}: not valid JSON: {e}") from None
+    if not isinstance(data, dict):
+        raise DataError(f"{p}: expected a JSON object, found {type(data).__name__}")
+    try:
+        validate_record(data)
+    except DataError as e:
+        raise DataError(f"{p}: {e}") from None
+    return data
+
+
+__all__ = [
+    "ABORT_KINDS",
+    "RECORD_JSON",
+    "SCHEMA_ID",
+    "abort_kind",
+    "build_record",
+    "load_record",
+    "record_schema",
+    "schema_text",
+    "sha256_file",
+    "validate_record",
+    "write_record",
+]

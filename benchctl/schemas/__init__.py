@@ -1,0 +1,1 @@
+"""Versioned JSON Schemas of benchctl's outputs (``record-1.schema.json``: ``record.json``)."""

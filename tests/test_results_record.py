@@ -1,0 +1,402 @@
+"""Measurements, decision rules, outcomes and the run's record (issue 11 items 1, 5, 8).
+
+- decision rules: examples, and properties (guarded never PASSes with the upper bound over the
+  limit, never FAILs with the lower bound within it; simple and guarded agree when the
+  interval is on one side of the limit);
+- a report's verdict and exit code under each rule (INCONCLUSIVE → exit 3);
+- runs against the in-process fakes: record.json valid for a PASS, and for aborts by the
+  operator (SIGINT), the equipment (a stand fault) and the software (an exception in a driver);
+- a real simulated run through the CLI: record.json valid, part number and rule in it;
+- ``benchctl schema record``; the strict JSON encoder; the version from package metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
+from run_sim import ROOT
+
+from benchctl.cli import main
+from benchctl.config import BenchConfig, parse_config
+from benchctl.errors import AnalysisError, DataError, DeviceTimeout, SafetyAbort, StandFault
+from benchctl.jsonout import dumps, loads_strict, plain
+from benchctl.results.measurements import (
+    FAIL,
+    INCONCLUSIVE,
+    NOT_JUDGED,
+    PASS,
+    Limits,
+    axis_measurements,
+    decide,
+    judge,
+    overall,
+    serial_match,
+    serial_measurement,
+)
+from benchctl.results.record import (
+    RECORD_JSON,
+    abort_kind,
+    build_record,
+    load_record,
+    record_schema,
+    validate_record,
+    write_record,
+)
+from benchctl.run.report import AxisVerdict, Report
+from benchctl.run.session import RunOptions, RunResult, Session, prepare_motion
+
+finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
+positive = st.floats(min_value=1e-6, max_value=1e3, allow_nan=False, allow_infinity=False)
+
+
+# ------------------------------------------------------------------------------ decision rules
+@pytest.mark.parametrize(
+    ("value", "ci", "rule", "expect"),
+    [
+        (0.30, (0.28, 0.32), "simple", PASS),
+        (0.30, (0.28, 0.32), "guarded", PASS),
+        (0.39, (0.37, 0.42), "simple", PASS),  # value within, interval straddles the limit
+        (0.39, (0.37, 0.42), "guarded", INCONCLUSIVE),
+        (0.41, (0.38, 0.44), "simple", FAIL),
+        (0.41, (0.38, 0.44), "guarded", INCONCLUSIVE),
+        (0.45, (0.41, 0.49), "guarded", FAIL),
+        (0.40, (0.40, 0.40), "guarded", PASS),  # on the limit: within
+        (math.nan, (0.1, 0.2), "simple", FAIL),  # no value is no pass
+        (0.30, (0.28, math.inf), "guarded", INCONCLUSIVE),  # an open upper bound never passes
+    ],
+)
+def test_decision_rule_examples(value: float, ci: tuple[float, float], rule: str,
+                                expect: str) -> None:
+    assert decide(value, None, 0.4, ci, rule) == expect
+
+
+def test_two_sided_limits_and_no_limit() -> None:
+    assert decide(1.02, 0.95, 1.05, (1.00, 1.04), "guarded") == PASS
+    assert decide(1.02, 0.95, 1.05, (1.00, 1.06), "guarded") == INCONCLUSIVE
+    assert decide(0.90, 0.95, 1.05, (0.88, 0.93), "guarded") == FAIL  # wholly below
+    assert decide(0.90, 0.95, 1.05, None, "guarded") == FAIL  # no interval: simple
+    assert decide(0.90, None, None, (0.8, 1.0), "guarded") == NOT_JUDGED
+    with pytest.raises(ValueError, match="expected one of simple, guarded"):
+        decide(0.1, None, 0.4, None, "lenient")
+
+
+@given(value=finite, a=finite, b=finite, limit=finite)
+def test_guarded_never_passes_over_nor_fails_within(value: float, a: float, b: float,
+                                                    limit: float) -> None:
+    lo, hi = min(a, b), max(a, b)
+    out = decide(value, None, limit, (lo, hi), "guarded")
+    if hi > limit:
+        assert out != PASS
+    if lo <= limit:
+        assert out != FAIL
+    # and it is decided whenever the interval is on one side
+    if hi <= limit:
+        assert out == PASS
+    if lo > limit:
+        assert out == FAIL
+
+
+@given(half=positive, limit=positive, rel=st.floats(min_value=-3, max_value=3))
+def test_simple_and_guarded_agree_off_the_limit(half: float, limit: float, rel: float) -> None:
+    """An interval wholly on one side of the limit: both rules say the same; straddling, the
+    guarded rule says INCONCLUSIVE where the simple one decides by the value."""
+    value = limit + rel * half
+    ci = (value - half, value + half)
+    simple, guarded = decide(value, None, limit, ci, "simple"), decide(
+        value, None, limit, ci, "guarded")
+    if ci[1] <= limit or ci[0] > limit:
+        assert simple == guarded
+    else:
+        assert guarded == INCONCLUSIVE and simple in (PASS, FAIL)
+
+
+def _verdict(sigma: float, ci: tuple[float, float], rule: str) -> AxisVerdict:
+    return AxisVerdict("roll", sigma, ci, 100.0, 0.0, sigma, 0.01, 0.4, rule=rule)
+
+
+@pytest.mark.parametrize(
+    ("rule", "ci", "verdict", "code"),
+    [
+        ("simple", (0.37, 0.42), PASS, 0),
+        ("guarded", (0.37, 0.42), INCONCLUSIVE, 3),
+        ("guarded", (0.30, 0.35), PASS, 0),
+        ("guarded", (0.41, 0.45), FAIL, 1),
+    ],
+)
+def test_report_verdict_and_exit_code_by_rule(tmp_path: Path, rule: str, ci: tuple[float, float],
+                                              verdict: str, code: int) -> None:
+    sigma = 0.5 * (ci[0] + ci[1]) if rule != "simple" else 0.39
+    v = _verdict(sigma, ci, rule)
+    ms = axis_measurements("roll", v.to_dict(), Limits(sigma_deg=0.4), rule)
+    rep = Report({"roll": v}, tmp_path, {}, {}, (0.0, 1.0), decision_rule=rule, measurements=ms)
+    assert rep.verdict == verdict and rep.exit_code == code
+    assert v.to_dict()["sigma_verdict"] == verdict
+    d = rep.to_dict()
+    assert d["decision_rule"]["name"] == rule and rule in d["decision_rule"]["text"]
+    # the same report without measurements: the axes decide alike
+    assert Report({"roll": v}, tmp_path, {}, {}, (0.0, 1.0)).verdict == verdict
+
+
+def test_plan_limits_judge_gain_at_periods() -> None:
+    """A plan's own limits: the gain at the periods it excites decides, the rest not judged."""
+    axis = {
+        "sigma": 0.2, "sigma_ci95": [0.19, 0.21], "mean_error": 0.001, "delay": 0.01,
+        "analysis": {"periods": [
+            {"period_s": 5.0, "excited": True, "gain": 1.03, "gain_ci95": [1.025, 1.035],
+             "phase_deg": -2.0, "phase_ci95_deg": [-2.5, -1.5]},
+            {"period_s": 10.0, "excited": False, "gain": None},
+        ]},
+    }
+    ms = judge({"roll": axis}, Limits(sigma_deg=0.4, gain=(0.98, 1.02), delay_s=0.05), "guarded")
+    by = {m.name: m for m in ms}
+    assert by["gain at 5 s"].outcome == FAIL and by["gain at 5 s"].decisive
+    assert by["gain at 10 s"].outcome == NOT_JUDGED and not by["gain at 10 s"].decisive
+    assert by["gain at 3 s"].note == "not analysed"
+    assert by["delay"].outcome == PASS and by["delay"].rule == "simple"  # no interval
+    assert by["phase at 5 s"].outcome == NOT_JUDGED  # no phase limit
+    assert overall(ms) == FAIL
+    ms = judge({"roll": axis}, Limits(sigma_deg=0.4, gain=(0.98, 1.05)), "guarded")
+    assert overall(ms) == PASS
+
+
+def test_serial_match() -> None:
+    assert serial_match("sn 0042", "SN 0042") is True
+    assert serial_match("0042", "42") is True  # a numeric serial's leading zeros
+    assert serial_match("SN-1", "I1") is False
+    assert serial_match("SN-1", None) is None
+    m = serial_measurement("SN-1", "I1")
+    assert m.outcome == FAIL and not m.decisive and "I1" in (m.note or "")
+
+
+@pytest.mark.parametrize(
+    ("error", "source", "kind"),
+    [
+        (SafetyAbort("interrupted by SIGTERM"), "signal", "operator"),
+        (KeyboardInterrupt(), "run", "operator"),
+        (StandFault("stand fault code 7", 7), "stand loop", "equipment"),
+        (DeviceTimeout("no answer"), "instrument reader", "equipment"),
+        (DataError("too few samples"), "analysis", "equipment"),
+        (AnalysisError("Parseval check failed"), "analysis", "software"),
+        (RuntimeError("driver bug"), "run (exception)", "software"),
+    ],
+)
+def test_abort_kind(error: BaseException, source: str, kind: str) -> None:
+    assert abort_kind(error, source) == kind
+
+
+# ------------------------------------------------------------------------------ strict JSON
+def test_strict_json_nan_to_null_and_numpy() -> None:
+    obj = {"a": math.nan, "b": [np.float64(np.inf), np.float32(1.5), np.int64(3)],
+           "c": np.array([1.0, np.nan]), "d": (Path("/x"), {1: -math.inf}), "e": np.bool_(True)}
+    text = dumps(obj)
+    assert "NaN" not in text and "Infinity" not in text
+    assert loads_strict(text) == {"a": None, "b": [None, 1.5, 3], "c": [1.0, None],
+                                  "d": ["/x", {"1": None}], "e": True}
+    with pytest.raises(ValueError, match="NaN"):
+        loads_strict('{"x": NaN}')
+    assert plain({"k": float("nan")}) == {"k": None}
+
+
+def test_no_bare_json_dump_in_the_package() -> None:
+    """Every output goes through benchctl.jsonout (json.dumps only with allow_nan=False)."""
+    offenders = []
+    for p in (ROOT / "benchctl").rglob("*.py"):
+        if p.name == "jsonout.py":
+            continue
+        for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+            if ("json.dump(" in line or "json.dumps(" in line) and "allow_nan=False" not in line:
+                offenders.append(f"{p.relative_to(ROOT)}:{i}: {line.strip()}")
+    assert not offenders, "\n".join(offenders)
+
+
+def test_plots_without_global_backend_switch() -> None:
+    for p in (ROOT / "benchctl").rglob("*.py"):
+        text = p.read_text(encoding="utf-8")
+        assert "matplotlib.use(" not in text, p
+        assert "import matplotlib.pyplot" not in text, p
+
+
+# ------------------------------------------------------------------------------ schema, version
+def test_schema_command_prints_a_valid_json_schema(capsys: pytest.CaptureFixture[str]) -> None:
+    from jsonschema import Draft202012Validator
+
+    assert main(["schema", "record"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    Draft202012Validator.check_schema(schema)
+    assert schema == record_schema()
+    assert schema["properties"]["schema"]["const"] == "benchctl-record/1"
+
+
+def test_version_from_package_metadata_not_a_constant() -> None:
+    import benchctl
+
+    assert benchctl.__version__ == metadata.version("benchctl")
+    text = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    project = text.split("[project]", 1)[1].split("\n[", 1)[0]
+    assert 'dynamic = ["version"]' in project
+    assert not any(line.strip().startswith("version") for line in project.splitlines())
+    assert "setuptools-scm" in text.split("[build-system]", 1)[1].split("\n[", 1)[0]
+    init = (ROOT / "benchctl/__init__.py").read_text(encoding="utf-8")
+    assert 'version("benchctl")' in init
+
+
+def test_invalid_record_names_the_key(tmp_path: Path) -> None:
+    rec = build_record({"serial": "SN", "operator": "o", "station": "s"},
+                       recording=tmp_path, outcome="PASS")
+    validate_record(rec)
+    bad = dict(rec, outcome="MAYBE")
+    with pytest.raises(DataError, match="outcome"):
+        validate_record(bad)
+    (tmp_path / RECORD_JSON).write_text(json.dumps(rec).replace('"PASS"', "NaN"))
+    with pytest.raises(DataError, match="not valid JSON"):
+        load_record(tmp_path)
+    assert load_record(write_record(tmp_path, rec)) == rec
+
+
+# ------------------------------------------------------------------------------ runs (fakes)
+DURATION, FADE = 5.0, 0.5
+
+
+def _run(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, cfg: BenchConfig | None = None,
+         **opts: Any) -> RunResult:
+    cfg = cfg or bench_config(tmp_path)
+    prep = sine_motion(stand.axes, duration_s=DURATION, mode="stream", fade_s=FADE)
+    sess = Session(cfg, prep, RunOptions("SN-1", "tester", **opts),
+                   device_factory=lambda c, p: (stand, sensor))
+    return sess.run()
+
+
+def test_record_of_a_passing_run(tmp_path: Path) -> None:
+    cfg = bench_config(tmp_path, decision_rule="guarded")
+    stand = FakeStand()
+    res = _run(tmp_path, stand, FakeSensor(stand, gain=1.05), cfg, part_number="PN-7")
+    assert res.state == "done" and res.exit_code == 0, res.reason
+    assert res.recording is not None and res.record == res.recording / RECORD_JSON
+    rec = load_record(res.recording)
+    assert rec["outcome"] == "PASS" and rec["abort"] is None and rec["exit_code"] == 0
+    assert rec["decision_rule"]["name"] == "guarded"
+    assert rec["unit"] == {"serial": "SN-1", "part_number": "PN-7", "reported_serial": "I1",
+                           "serial_match": False}
+    assert any("serial mismatch" in w for w in rec["warnings"])
+    assert rec["stand"]["identity"]["serial"] == "S1"
+    assert rec["instruments"][0]["identity"]["serial"] == "I1"
+    assert rec["run_id"] == res.recording.name and rec["operator"] == "tester"
+    sig = [m for m in rec["measurements"] if m["name"] == "sigma"]
+    assert len(sig) == 1 and sig[0]["outcome"] == "PASS" and sig[0]["rule"] == "guarded"
+    assert sig[0]["ci95"][0] <= sig[0]["value"] <= sig[0]["ci95"][1] <= 0.4
+    names = {m["name"] for m in rec["measurements"]}
+    assert {"precheck: static agreement", "mean error", "delay", "gain at 5 s",
+            "serial match"} <= names
+    rj = rec["files"]["report_json"]
+    import hashlib
+
+    assert hashlib.sha256(Path(rj["path"]).read_bytes()).hexdigest() == rj["sha256"]
+    report = json.loads((res.recording / "report.json").read_text())
+    assert report["decision_rule"]["name"] == "guarded"
+    assert "decision rule: guarded" in (res.recording / "report.txt").read_text()
+
+
+def _aborted(res: RunResult, kind: str) -> dict[str, Any]:
+    assert res.state == "aborted" and res.exit_code == 2, res.reason
+    assert res.abort is not None and res.abort["kind"] == kind, res.abort
+    assert res.recording is not None
+    rec = load_record(res.recording)
+    assert rec["outcome"] == "ABORTED" and rec["abort"]["kind"] == kind
+    assert rec["abort"]["reason"] == res.reason and rec["files"]["report_json"] is None
+    assert res.to_dict()["abort"]["kind"] == kind
+    return rec
+
+
+def test_record_of_an_operator_stop(tmp_path: Path) -> None:
+    stand = FakeStand()
+    sent: list[float] = []
+
+    def kill(tm: float) -> None:
+        if tm >= 1.0 and not sent:
+            sent.append(tm)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    stand.on_motion_time = kill
+    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "operator")
+    assert "SIGINT" in rec["abort"]["reason"]
+    assert all(m["outcome"] == PASS for m in rec["measurements"])  # its prechecks
+
+
+def test_record_of_an_equipment_fault(tmp_path: Path) -> None:
+    stand = FakeStand()
+    stand.fault_at = 1.0
+    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "equipment")
+    assert "fault code 7" in rec["abort"]["reason"]
+
+
+def test_record_of_a_failed_precheck(tmp_path: Path) -> None:
+    stand = FakeStand()
+    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand, bias=1.0)), "equipment")
+    last = rec["measurements"][-1]
+    assert last["name"] == "precheck: static agreement" and last["outcome"] == FAIL
+
+
+def test_record_of_a_software_error(tmp_path: Path) -> None:
+    stand = FakeStand()
+    stand.raise_at = 1.0
+    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "software")
+    assert "RuntimeError" in rec["abort"]["reason"] and rec["abort"]["error"] == "RuntimeError"
+
+
+def test_scaled_to_fit_is_a_deviation(tmp_path: Path) -> None:
+    data = bench_config(tmp_path).model_dump(mode="json")
+    data["stand"]["limits"] = {"angle_deg": 1.0, "rate_deg_s": 50.0, "accel_deg_s2": 300.0}
+    cfg = parse_config(data, tmp_path / "bench.yaml")
+    opts = RunOptions("SN-1", "tester", scale_to_fit=True, duration_s=20.0)
+    prep = prepare_motion(cfg, ROOT / "profiles/ci_short.yaml", opts)
+    assert prep.meta["scale"] < 1.0
+    sess = Session(cfg, prep, opts)
+    dev = sess._deviations()
+    assert len(dev) == 1 and "scaled by" in dev[0] and "--scale-to-fit" in dev[0]
+    unscaled = Session(bench_config(tmp_path), prepare_motion(
+        bench_config(tmp_path), ROOT / "profiles/ci_short.yaml",
+        RunOptions("SN-1", "t", duration_s=20.0)), opts)
+    assert unscaled._deviations() == []
+
+
+# ------------------------------------------------------------------------------ a simulated run
+@pytest.mark.slow
+def test_record_of_a_simulated_run_through_the_cli(tmp_path: Path) -> None:
+    """config/sim.yaml starts its simulators; the record is valid and says what ran."""
+    cfg_src = yaml.safe_load((ROOT / "config/sim.yaml").read_text(encoding="utf-8"))
+    cfg_src["stand"]["calibration_due"] = "2027-03-31"
+    for section, key in (("stand", "register_map"), ("instrument", "eds")):
+        cfg_src[section][key] = str((ROOT / "config" / cfg_src[section][key]).resolve())
+    cfg_path = tmp_path / "sim.yaml"
+    cfg_path.write_text(yaml.safe_dump(cfg_src), encoding="utf-8")
+    cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(cfg_path),
+           "--profile", str(ROOT / "profiles/ci_short.yaml"), "--duration", "20",
+           "--serial", "DEMO-1", "--operator", "ci", "--part-number", "PN-42",
+           "--out", str(tmp_path / "runs"), "--json", "--quiet"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert proc.returncode in (0, 1, 3), proc.stderr[-3000:]
+    out = loads_strict(proc.stdout)
+    rec = load_record(out["record"])
+    assert rec["outcome"] == out["verdict"] and rec["exit_code"] == proc.returncode
+    assert rec["outcome"] == "PASS", [m for m in rec["measurements"] if m["outcome"] == FAIL]
+    assert rec["unit"]["part_number"] == "PN-42" and rec["station"] == "sim-bench"
+    assert rec["stand"]["calibration_due"] == "2027-03-31"
+    assert rec["stand"]["identity"] and rec["instruments"][0]["identity"]
+    assert rec["profile"]["kind"] == "roll_spectrum" and len(rec["profile"]["sha256"]) == 64
+    assert len(rec["config_sha256"]) == 64 and rec["software"]["version"] == metadata.version(
+        "benchctl")
+    assert any(m["name"] == "sigma" and m["axis"] == "roll" for m in rec["measurements"])
