@@ -366,6 +366,31 @@ class RunConfig(Strict):
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None
 
 
+_ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)
+
+
+class ArchiveConfig(Strict):
+    """The results archive (``benchctl.archive``): every run stored in a database.
+    ``url``: ``sqlite:///PATH`` (a relative PATH against this config's folder) or
+    ``postgresql+psycopg://USER[:PASSWORD]@HOST[:PORT]/DB`` for a line of benches sharing one;
+    None: ``sqlite:///<run.output_dir>/archive.sqlite``. ``queue_dir``: where records wait
+    while the database cannot be reached (None: ``<run.output_dir>/archive-queue``)."""
+
+    enabled: bool = True
+    url: str | None = None
+    queue_dir: Path | None = None
+    connect_timeout_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] = 2.0
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str | None) -> str | None:
+        if v is not None and not _ARCHIVE_URL.match(v):
+            raise ValueError(
+                "expected sqlite:///PATH or postgresql+psycopg://USER@HOST[:PORT]/DB"
+            )
+        return v
+
+
 class UnitConfig(Strict):
     """The unit under test's part number (the serial is given per run: --serial)."""
 
@@ -379,6 +404,7 @@ class BenchConfig(Strict):
     instrument: InstrumentConfig
     run: RunConfig
     sim: SimConfig | None = None
+    archive: ArchiveConfig = ArchiveConfig()  # the results archive (benchctl.archive)
 
     source: Path | None = Field(default=None, exclude=True)  # the file it came from
 
@@ -389,6 +415,7 @@ _PATH_FIELDS = {
     ("instrument", "dbc"),
     ("run", "output_dir"),
     ("run", "lock_dir"),
+    ("archive", "queue_dir"),
 }
 
 

@@ -10,6 +10,8 @@
     │   │                           the file and the errno
     │   └── LimitError              a motion exceeds the stand limits (needed vs allowed)
     ├── AnalysisError               an internal cross-check failed (Parseval): a bug, never silent
+    ├── ArchiveError                the results archive (a database) cannot be opened or written;
+    │                               names the archive (password hidden) and the cause
     ├── DeviceError                 a device answered with an error or could not be used
     │   ├── DeviceTimeout           no answer in time (also a TimeoutError)
     │   ├── ConnectionLost          a link dropped mid-run
@@ -83,6 +85,10 @@ class LimitError(InputError):
 
 class AnalysisError(BenchError):
     """An internal consistency check of the analysis failed: a bug, raised, never hidden."""
+
+
+class ArchiveError(BenchError):
+    """The results archive cannot be reached, migrated or written (or its URL is wrong)."""
 
 
 class DeviceError(BenchError):

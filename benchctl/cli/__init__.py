@@ -26,7 +26,10 @@ from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
 
 # subcommand modules, in the order --help lists them
-SUBCOMMANDS = ("run", "analyze", "predict", "profile", "sim", "recording", "schema")
+SUBCOMMANDS = (
+    "run", "analyze", "predict", "profile", "sim", "recording", "schema", "archive", "history",
+    "show",
+)
 
 EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 

@@ -1039,3 +1039,27 @@ __all__ = [
     "describe",
     "run_test",
 ]
+                _archive(self.cfg, self.out_dir, self.path)  # after the verdict; never fails
+        _archive(self.cfg, self.out_dir, self.path)
+def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
+    """The run into the results archive (``benchctl.archive``) once its recording is closed:
+    never raises and never waits long (a database out of reach: the record is queued)."""
+    try:
+        from benchctl.archive.service import archive_run, settings_for
+
+        archive_run(settings_for(cfg, out_dir), recording)
+    except Exception as e:
+        log.warning("archive not updated: %s", describe(e), exc_info=e)
+
+
+def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> None:
+    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent."""
+    try:
+        from benchctl.archive.service import archive_at_start, settings_for
+
+        archive_at_start(settings_for(cfg, out_dir), out_dir)
+    except Exception as e:
+        log.warning("archive not updated: %s", describe(e), exc_info=e)
+
+
+    _archive_at_start(cfg, Path(out_dir))

@@ -1,0 +1,317 @@
+"""The history of a bench or a unit from the archive: a text table, CSV, JSON and a
+self-contained HTML page (Jinja2 with autoescaping; inline SVG plots of a unit's σ over its
+runs with the limit and of each station's yield per day; no JavaScript, no external
+resource).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+HISTORY_COLUMNS = ("run_id", "start_utc", "serial", "part_number", "station", "operator",
+                   "outcome", "sigma", "sigma_limit", "profile", "seed", "abort_reason")
+
+
+def _sigma_text(d: dict[str, Any]) -> str:
+    if not d:
+        return ""
+    return " ".join(f"{axis}={v:.4g}" if isinstance(v, int | float) else f"{axis}=?"
+                    for axis, v in sorted(d.items()))
+
+
+def flat(row: dict[str, Any]) -> dict[str, Any]:
+    """One history row as flat fields (CSV, the text table)."""
+    abort = row.get("abort") or {}
+    return {
+        "run_id": row["run_id"], "start_utc": row.get("start_utc") or "",
+        "serial": row.get("serial") or "", "part_number": row.get("part_number") or "",
+        "station": row.get("station") or "", "operator": row.get("operator") or "",
+        "outcome": row.get("outcome") or "", "sigma": _sigma_text(row.get("sigma") or {}),
+        "sigma_limit": _sigma_text(row.get("sigma_limit") or {}),
+        "profile": (row.get("profile") or {}).get("name") or "",
+        "seed": "" if (row.get("profile") or {}).get("seed") is None
+        else str(row["profile"]["seed"]),
+        "abort_reason": abort.get("reason") or "",
+    }
+
+
+def to_csv(rows: Sequence[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(HISTORY_COLUMNS), lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(flat(r))
+    return buf.getvalue()
+
+
+def to_text(rows: Sequence[dict[str, Any]]) -> str:
+    if not rows:
+        return "no runs"
+    cols = ("start_utc", "serial", "station", "operator", "outcome", "sigma", "run_id")
+    table = [[flat(r)[c] for c in cols] for r in rows]
+    for t in table:
+        t[0] = t[0][:19].replace("T", " ")
+    widths = [max(len(c), *(len(t[i]) for t in table)) for i, c in enumerate(cols)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(cols, widths, strict=True)).rstrip()]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)).rstrip()
+              for t in table]
+    return "\n".join(lines)
+
+
+def show_text(run: dict[str, Any]) -> str:
+    """One run, for the terminal."""
+    p = run.get("profile") or {}
+    abort = run.get("abort") or {}
+    lines = [
+        f"run        {run['run_id']}",
+        f"outcome    {run['outcome']}"
+        + (f" ({abort.get('kind')}: {abort.get('reason')})" if abort else "")
+        + (f", rule {run['decision_rule']}" if run.get("decision_rule") else ""),
+        f"unit       {run['serial']}"
+        + (f" (part {run['part_number']})" if run.get("part_number") else ""),
+        f"station    {run['station']}   operator {run['operator']}",
+        f"start/end  {run.get('start_utc')} → {run.get('end_utc')}",
+        f"profile    {p.get('name')} ({p.get('kind') or '?'}), seed {p.get('seed')}",
+        f"software   {run.get('software_version')}   config sha256 {run.get('config_sha256')}",
+        f"recording  {run['recording']['path']}",
+        f"           sha256 {run['recording']['sha256']}",
+        f"report     {run['report_json']['path']}",
+        f"           sha256 {run['report_json']['sha256']}",
+        f"archived   {run.get('archived_utc')} (from {run.get('source')})",
+    ]
+    ms = run.get("measurements") or []
+    if ms:
+        lines.append("measurements")
+        for m in ms:
+            lim = ""
+            if m.get("low") is not None or m.get("high") is not None:
+                lo = "" if m.get("low") is None else f"{m['low']:.4g} ≤ "
+                hi = "" if m.get("high") is None else f" ≤ {m['high']:.4g}"
+                lim = f"{lo}x{hi}"
+            ci = m.get("ci95")
+            ci_text = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
+            val = "—" if m.get("value") is None else f"{m['value']:.4g}"
+            name = m["name"] + (f" {m['axis']}" if m.get("axis") else "")
+            lines.append(f"  {name:<28} {val}{ci_text} {m.get('unit') or ''}".rstrip()
+                         + (f"   {lim}" if lim else "") + f"   {m.get('outcome') or ''}")
+    return "\n".join(lines)
+
+
+# --- the HTML page ----------------------------------------------------------------------------
+
+W, H = 720, 260
+ML, MR, MT, MB = 60, 20, 20, 50  # margins
+
+
+def _ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return [lo]
+    step = 10 ** math.floor(math.log10((hi - lo) / n))
+    for m in (1, 2, 5, 10):
+        if (hi - lo) / (step * m) <= n:
+            step *= m
+            break
+    first = math.ceil(lo / step) * step
+    out = []
+    v = first
+    while v <= hi + 1e-12 * abs(hi):
+        out.append(round(v, 12))
+        v += step
+    return out
+
+
+def sigma_plot(series: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
+    """SVG geometry of a unit's σ over its runs (one polyline per axis, the 95 % interval as
+    bars, the limit as a dashed line); x: the run's index (oldest left)."""
+    pts = [s for s in series if isinstance(s.get("sigma"), int | float)]
+    if not pts:
+        return None
+    runs = list(dict.fromkeys(s["run_id"] for s in pts))
+    values = [float(s["sigma"]) for s in pts]
+    for s in pts:
+        if s.get("ci95"):
+            values += [float(v) for v in s["ci95"]]
+        if isinstance(s.get("limit"), int | float):
+            values.append(float(s["limit"]))
+    lo, hi = 0.0, max(values) * 1.1 or 1.0
+    pw, ph = W - ML - MR, H - MT - MB
+
+    def x(i: int) -> float:
+        return ML + (pw * (i + 0.5) / len(runs))
+
+    def y(v: float) -> float:
+        return MT + ph * (1 - (v - lo) / (hi - lo))
+
+    colours = {"roll": "#1f77b4", "pitch": "#d62728"}
+    axes: dict[str, dict[str, Any]] = {}
+    for s in pts:
+        a = axes.setdefault(str(s["axis"]), {"axis": str(s["axis"]), "points": [],
+                                             "colour": colours.get(str(s["axis"]), "#2ca02c")})
+        i = runs.index(s["run_id"])
+        ci = s.get("ci95")
+        a["points"].append({
+            "x": round(x(i), 1), "y": round(y(float(s["sigma"])), 1),
+            "ci": None if not ci else (round(y(float(ci[1])), 1), round(y(float(ci[0])), 1)),
+            "fail": s.get("outcome") not in ("PASS", None),
+            "title": f"{s['run_id']} {s['axis']}: σ = {float(s['sigma']):.4g}"
+                     + (f" [{float(ci[0]):.4g}, {float(ci[1]):.4g}]" if ci else "")
+                     + f" ({s.get('outcome')})",
+        })
+    for a in axes.values():
+        a["polyline"] = " ".join(f"{p['x']},{p['y']}" for p in a["points"])
+    limits = sorted({float(s["limit"]) for s in pts if isinstance(s.get("limit"), int | float)})
+    label_every = max(1, math.ceil(len(runs) / 8))
+    return {
+        "width": W, "height": H, "left": ML, "right": W - MR, "top": MT, "bottom": H - MB,
+        "axes": list(axes.values()),
+        "limits": [{"y": round(y(v), 1), "value": v} for v in limits],
+        "yticks": [{"y": round(y(v), 1), "label": f"{v:.3g}"} for v in _ticks(lo, hi)],
+        "xlabels": [{"x": round(x(i), 1), "label": (pts_start(series, r) or r)[:10]}
+                    for i, r in enumerate(runs) if i % label_every == 0],
+    }
+
+
+def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
+    for s in series:
+        if s["run_id"] == run_id:
+            return s.get("start_utc")
+    return None
+
+
+def yield_plot(days: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """SVG geometry per station: a bar per UTC day, its height the yield (0…100 %), with the
+    day's counts in its title."""
+    out = []
+    stations = sorted({d["station"] for d in days})
+    pw, ph = W - ML - MR, H - MT - MB
+    for st in stations:
+        ds = [d for d in days if d["station"] == st]
+        bw = pw / max(len(ds), 1)
+        bars = []
+        for i, d in enumerate(ds):
+            yv = d["yield"]
+            h = 0.0 if yv is None else ph * float(yv)
+            bars.append({
+                "x": round(ML + i * bw + bw * 0.15, 1), "width": round(bw * 0.7, 1),
+                "y": round(MT + ph - h, 1), "height": round(h, 1),
+                "label": d["day"], "label_x": round(ML + (i + 0.5) * bw, 1),
+                "text": "—" if yv is None else f"{100 * float(yv):.0f} %",
+                "title": f"{d['day']}: {d['pass']} pass, {d['fail']} fail, "
+                         f"{d['inconclusive']} inconclusive, {d['aborted']} aborted",
+            })
+        out.append({
+            "station": st, "width": W, "height": H, "left": ML, "right": W - MR, "top": MT,
+            "bottom": H - MB, "bars": bars,
+            "yticks": [{"y": round(MT + ph * (1 - f), 1), "label": f"{int(f * 100)} %"}
+                       for f in (0.0, 0.25, 0.5, 0.75, 1.0)],
+            "label_every": max(1, math.ceil(len(ds) / 10)),
+        })
+    return out
+
+
+TEMPLATE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>benchctl history{% if serial %} — {{ serial }}{% endif %}</title>
+<style>
+body { font-family: sans-serif; margin: 1.5em; color: #222; }
+table { border-collapse: collapse; font-size: 0.9em; }
+th, td { border: 1px solid #bbb; padding: 0.2em 0.5em; text-align: left; }
+th { background: #eee; }
+td.PASS { color: #176117; font-weight: bold; } td.FAIL { color: #a11; font-weight: bold; }
+td.INCONCLUSIVE { color: #a60; font-weight: bold; } td.ABORTED { color: #555; }
+svg { border: 1px solid #ddd; margin: 0.5em 0; }
+svg text { font-size: 11px; font-family: sans-serif; }
+@media print { @page { size: A4; margin: 12mm; } body { margin: 0; } }
+</style></head><body>
+<h1>benchctl history{% if serial %}: unit {{ serial }}{% endif %}</h1>
+<p>Archive {{ archive }}; {{ rows|length }} run(s){% if station %}, station {{ station }}{% endif
+%}{% if since %}, since {{ since }}{% endif %}; made {{ made }}.</p>
+{% if sigma %}
+<h2>σ of unit {{ serial }} over its runs</h2>
+<svg xmlns="http://www.w3.org/2000/svg" width="{{ sigma.width }}" height="{{ sigma.height }}"
+ role="img" aria-label="sigma over runs">
+<line x1="{{ sigma.left }}" y1="{{ sigma.bottom }}" x2="{{ sigma.right }}" y2="{{ sigma.bottom
+}}" stroke="#000"/>
+<line x1="{{ sigma.left }}" y1="{{ sigma.top }}" x2="{{ sigma.left }}" y2="{{ sigma.bottom
+}}" stroke="#000"/>
+{% for t in sigma.yticks %}<line x1="{{ sigma.left - 4 }}" y1="{{ t.y }}" x2="{{ sigma.right
+}}" y2="{{ t.y }}" stroke="#eee"/><text x="{{ sigma.left - 6 }}" y="{{ t.y + 4 }}"
+ text-anchor="end">{{ t.label }}</text>
+{% endfor %}
+{% for t in sigma.xlabels %}<text x="{{ t.x }}" y="{{ sigma.bottom + 16 }}"
+ text-anchor="middle">{{ t.label }}</text>{% endfor %}
+<text x="14" y="{{ (sigma.top + sigma.bottom) / 2 }}" transform="rotate(-90 14 {{ (sigma.top
+ + sigma.bottom) / 2 }})" text-anchor="middle">σ (deg)</text>
+<text x="{{ (sigma.left + sigma.right) / 2 }}" y="{{ sigma.height - 8 }}"
+ text-anchor="middle">run (oldest left)</text>
+{% for l in sigma.limits %}<line class="limit" x1="{{ sigma.left }}" y1="{{ l.y }}" x2="{{
+ sigma.right }}" y2="{{ l.y }}" stroke="#a11" stroke-dasharray="6 4"/><text x="{{ sigma.right
+ }}" y="{{ l.y - 4 }}" text-anchor="end" fill="#a11">limit {{ '%.3g'|format(l.value) }}</text>
+{% endfor %}
+{% for a in sigma.axes %}<polyline class="sigma" fill="none" stroke="{{ a.colour }}"
+ points="{{ a.polyline }}"/>
+{% for p in a.points %}{% if p.ci %}<line x1="{{ p.x }}" y1="{{ p.ci[0] }}" x2="{{ p.x }}"
+ y2="{{ p.ci[1] }}" stroke="{{ a.colour }}"/>{% endif %}<circle cx="{{ p.x }}" cy="{{ p.y
+ }}" r="3.5" fill="{{ '#fff' if p.fail else a.colour }}" stroke="{{ a.colour }}"><title>{{
+ p.title }}</title></circle>
+{% endfor %}{% endfor %}
+{% for a in sigma.axes %}<text x="{{ sigma.left + 10 + loop.index0 * 70 }}" y="{{ sigma.top
+ + 12 }}" fill="{{ a.colour }}">● {{ a.axis }}</text>{% endfor %}
+</svg>
+<p>Filled: PASS; open: not PASS. Bars: σ's 95 % interval.</p>
+{% endif %}
+{% for st in yields %}
+<h2>Yield per day: station {{ st.station }}</h2>
+<svg xmlns="http://www.w3.org/2000/svg" width="{{ st.width }}" height="{{ st.height }}"
+ role="img" aria-label="yield per day">
+{% for t in st.yticks %}<line x1="{{ st.left }}" y1="{{ t.y }}" x2="{{ st.right }}" y2="{{ t.y
+}}" stroke="#eee"/><text x="{{ st.left - 6 }}" y="{{ t.y + 4 }}" text-anchor="end">{{ t.label
+}}</text>{% endfor %}
+<line x1="{{ st.left }}" y1="{{ st.bottom }}" x2="{{ st.right }}" y2="{{ st.bottom }}"
+ stroke="#000"/>
+{% for b in st.bars %}<rect class="yield" x="{{ b.x }}" y="{{ b.y }}" width="{{ b.width }}"
+ height="{{ b.height }}" fill="#4a8"><title>{{ b.title }}</title></rect><text x="{{ b.label_x
+ }}" y="{{ b.y - 3 }}" text-anchor="middle">{{ b.text }}</text>
+{% if loop.index0 % st.label_every == 0 %}<text x="{{ b.label_x }}" y="{{ st.bottom + 16 }}"
+ text-anchor="middle">{{ b.label }}</text>{% endif %}
+{% endfor %}
+<text x="{{ (st.left + st.right) / 2 }}" y="{{ st.height - 8 }}" text-anchor="middle">day
+ (UTC); yield = PASS / (PASS + FAIL + INCONCLUSIVE)</text>
+</svg>
+{% endfor %}
+<h2>Runs</h2>
+<table>
+<tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}</tr>
+{% for r in rows %}<tr>{% for c in columns %}<td{% if c == 'outcome' %} class="{{ r[c]
+}}"{% endif %}>{{ r[c] }}</td>{% endfor %}</tr>
+{% endfor %}
+</table>
+</body></html>
+"""
+
+
+def html_page(rows: Sequence[dict[str, Any]], *, archive: str, serial: str | None = None,
+              sigma_series: Sequence[dict[str, Any]] = (),
+              yields: Sequence[dict[str, Any]] = (), station: str | None = None,
+              since: str | None = None) -> str:
+    """The history page: self-contained HTML (inline SVG, no script)."""
+    from jinja2 import Environment, StrictUndefined
+
+    env = Environment(autoescape=True, undefined=StrictUndefined)
+    t = env.from_string(TEMPLATE)
+    return t.render(
+        rows=[flat(r) for r in rows], columns=HISTORY_COLUMNS, archive=archive,
+        serial=serial, station=station, since=since,
+        made=datetime.now(UTC).isoformat(timespec="seconds"),
+        sigma=sigma_plot(sigma_series) if serial else None,
+        yields=yield_plot(yields),
+    )
+
+
+__all__ = ["HISTORY_COLUMNS", "flat", "html_page", "show_text", "sigma_plot", "to_csv",
+           "to_text", "yield_plot"]

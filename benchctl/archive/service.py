@@ -1,0 +1,309 @@
+"""The archive as a run sees it: where it is (``ArchiveSettings`` from the config), storing a
+finished run without ever failing or holding it up, the local queue, sync and rebuild.
+
+- ``archive_run``: after a run's verdict (or abort) the recording's record is stored; when the
+  database cannot be reached or written within its short timeouts (connect ~2 s, SQLite busy
+  2 s), the record goes into the queue folder instead, one ``<run_id>.json`` per run;
+- ``archive_at_start``: at the start of a run, recordings left without ``end.json`` (a killed
+  run) are stored ABORTED ("killed (no end.json)") and the queue is sent, when there is
+  anything to do;
+- ``sync``: sends the queue (``benchctl archive sync``); a file leaves the queue only once its
+  run is in the database;
+- ``rebuild``: stores every recording under a folder (``benchctl archive rebuild DIR``) — the
+  recordings are the source of truth.
+
+Storing is idempotent by run_id, so a record sent twice (queued and stored) is one run.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from benchctl.archive.ingest import incomplete_recordings, record_of, recording_sha256
+from benchctl.archive.store import DEFAULT_CONNECT_TIMEOUT_S, Archive, shown
+from benchctl.errors import ArchiveError, BenchError, DataError
+
+if TYPE_CHECKING:
+    from benchctl.config import BenchConfig
+
+log = logging.getLogger(__name__)
+
+DEFAULT_DB = "archive.sqlite"
+DEFAULT_QUEUE = "archive-queue"
+RUN_BUSY_TIMEOUT_S = 2.0  # a run's own store waits no longer than this for a busy SQLite
+QUEUE_SUFFIX = ".json"
+
+
+@dataclass(frozen=True)
+class ArchiveSettings:
+    url: str
+    queue_dir: Path
+    enabled: bool = True
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
+
+
+def settings_for(cfg: BenchConfig | None, out_dir: Path | None = None, *,
+                 url: str | None = None, queue_dir: Path | None = None) -> ArchiveSettings:
+    """The archive of a bench: ``url`` / ``queue_dir`` given here, else the config's
+    ``archive:`` section, else ``sqlite:///<out_dir>/archive.sqlite`` and
+    ``<out_dir>/archive-queue`` (``out_dir``: the run's output folder, by default the
+    config's ``run.output_dir``)."""
+    section = getattr(cfg, "archive", None) if cfg is not None else None
+    if out_dir is None:
+        out_dir = cfg.run.output_dir if cfg is not None else Path("runs")
+    out_dir = Path(out_dir).resolve()
+    u = url or (section.url if section is not None else None)
+    if u is None:
+        u = f"sqlite:///{out_dir / DEFAULT_DB}"
+    elif u.startswith("sqlite:///") and not u.startswith("sqlite:////"):
+        # a relative SQLite path: against the config file's folder, as every path in a config
+        rel = u[len("sqlite:///"):]
+        base = cfg.source.parent if cfg is not None and cfg.source is not None and not url \
+            else Path.cwd()
+        u = f"sqlite:///{(base / rel).resolve()}"
+    q = queue_dir or (section.queue_dir if section is not None else None)
+    return ArchiveSettings(
+        url=u,
+        queue_dir=Path(q) if q is not None else out_dir / DEFAULT_QUEUE,
+        enabled=bool(section.enabled) if section is not None else True,
+        connect_timeout_s=float(section.connect_timeout_s) if section is not None
+        else DEFAULT_CONNECT_TIMEOUT_S,
+    )
+
+
+# --- the queue -------------------------------------------------------------------------------
+
+def _entry(record: dict[str, Any], sha: str | None, source: str) -> dict[str, Any]:
+    return {"record": record, "recording_sha256": sha, "source": source,
+            "queued_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def enqueue(queue_dir: Path, entry: dict[str, Any]) -> Path:
+    """Write one pending record as ``<queue_dir>/<run_id>.json`` (atomically; a newer entry
+    for the same run replaces the older)."""
+    run_id = str(entry["record"]["run_id"])
+    queue_dir.mkdir(parents=True, exist_ok=True)
+    dest = queue_dir / f"{run_id}{QUEUE_SUFFIX}"
+    tmp = queue_dir / f".{run_id}.{os.getpid()}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(entry, f, sort_keys=True, default=str)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, dest)
+    return dest
+
+
+def queued(queue_dir: Path) -> list[Path]:
+    """The pending records, oldest first."""
+    if not queue_dir.is_dir():
+        return []
+    files = [p for p in queue_dir.glob(f"*{QUEUE_SUFFIX}") if not p.name.startswith(".")]
+    return sorted(files, key=lambda p: (p.stat().st_mtime, p.name))
+
+
+@dataclass
+class SyncResult:
+    sent: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)  # unreadable queue files (left in place)
+    left: int = 0  # still queued
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"sent": self.sent, "failed": self.failed, "left": self.left}
+
+
+def sync(settings: ArchiveSettings, archive: Archive | None = None) -> SyncResult:
+    """Send the queue to the database. ``ArchiveError`` when it cannot be reached (nothing
+    leaves the queue then); an unreadable queue file is reported and left."""
+    res = SyncResult()
+    files = queued(settings.queue_dir)
+    if not files:
+        return res
+    own = archive is None
+    a = archive or Archive(settings.url, connect_timeout_s=settings.connect_timeout_s)
+    try:
+        for p in files:
+            try:
+                entry = json.loads(p.read_text(encoding="utf-8"))
+                record = entry["record"]
+            except (OSError, ValueError, KeyError, TypeError) as e:
+                log.warning("%s: not a queued record (%s): left in the queue", p, e)
+                res.failed.append(p.name)
+                continue
+            a.store(record, recording_sha256=entry.get("recording_sha256"),
+                    source=str(entry.get("source") or "record.json"))
+            p.unlink(missing_ok=True)
+            res.sent.append(str(record.get("run_id")))
+    finally:
+        res.left = len(queued(settings.queue_dir))
+        if own:
+            a.close()
+    return res
+
+
+# --- a run's own archive ---------------------------------------------------------------------
+
+def _open_for_run(settings: ArchiveSettings) -> Archive:
+    return Archive(settings.url, connect_timeout_s=settings.connect_timeout_s,
+                   busy_timeout_s=RUN_BUSY_TIMEOUT_S)
+
+
+def _store_or_queue(settings: ArchiveSettings, entries: list[dict[str, Any]],
+                    archive: Archive | None) -> tuple[list[str], list[str]]:
+    stored, queued_ids = [], []
+    for e in entries:
+        run_id = str(e["record"]["run_id"])
+        if archive is not None:
+            try:
+                archive.store(e["record"], recording_sha256=e["recording_sha256"],
+                              source=e["source"])
+                stored.append(run_id)
+                continue
+            except ArchiveError as err:
+                log.warning("%s", err)
+        enqueue(settings.queue_dir, e)
+        queued_ids.append(run_id)
+    return stored, queued_ids
+
+
+def archive_run(settings: ArchiveSettings, recording: Path) -> str:
+    """Store the run in ``recording`` (its record.json, or one built from its files); never
+    raises. Returns what happened: ``stored``, ``queued`` (the database unreachable: the
+    record waits in the queue for ``benchctl archive sync``), ``disabled`` or ``failed`` (not
+    even the queue could be written: a warning; ``benchctl archive rebuild`` recovers it from
+    the recording)."""
+    if not settings.enabled:
+        return "disabled"
+    try:
+        record, source = record_of(recording)
+        entry = _entry(record, recording_sha256(recording), source)
+    except (BenchError, OSError) as e:
+        log.warning("archive: %s: cannot read the run's record: %s", recording, e)
+        return "failed"
+    try:
+        archive: Archive | None = _open_for_run(settings)
+    except ArchiveError as e:
+        log.warning("%s", e)
+        archive = None
+    try:
+        stored, _ = _store_or_queue(settings, [entry], archive)
+        if stored and queued(settings.queue_dir) and archive is not None:
+            try:  # the database is back: send what waited
+                sync(settings, archive)
+            except ArchiveError as e:
+                log.warning("%s", e)
+    except OSError as e:
+        log.warning("archive: run %s neither stored nor queued (%s: %s); "
+                    "`benchctl archive rebuild` recovers it from the recording",
+                    recording.name, settings.queue_dir, e.strerror)
+        return "failed"
+    finally:
+        if archive is not None:
+            archive.close()
+    if stored:
+        log.info("archive: run %s stored in %s", recording.name, shown(settings.url))
+        return "stored"
+    log.warning("archive: run %s queued in %s (the archive %s is unreachable; "
+                "`benchctl archive sync` sends it)", recording.name, settings.queue_dir,
+                shown(settings.url))
+    return "queued"
+
+
+def archive_at_start(settings: ArchiveSettings, out_dir: Path,
+                     exclude: Path | None = None) -> dict[str, list[str]]:
+    """At the start of a run: recordings in ``out_dir`` left without end.json (a killed run)
+    and not yet archived are stored ABORTED, and the queue is sent. Does nothing (opens no
+    database) when there is neither; never raises."""
+    done: dict[str, list[str]] = {"killed": [], "queued": [], "synced": []}
+    if not settings.enabled:
+        return done
+    try:
+        killed = incomplete_recordings(out_dir, exclude=exclude)
+        pending = queued(settings.queue_dir)
+        if not killed and not pending:
+            return done
+        try:
+            archive: Archive | None = _open_for_run(settings)
+        except ArchiveError as e:
+            log.warning("%s", e)
+            archive = None
+        try:
+            known = archive.run_ids(d.name for d in killed) if archive is not None else set()
+            entries = []
+            for d in killed:
+                if d.name in known or (settings.queue_dir / f"{d.name}{QUEUE_SUFFIX}").exists():
+                    continue
+                try:
+                    record, source = record_of(d)
+                except (DataError, OSError) as e:
+                    log.warning("archive: %s: %s", d, e)
+                    continue
+                entries.append(_entry(record, recording_sha256(d), source))
+            stored, queued_ids = _store_or_queue(settings, entries, archive)
+            done["killed"], done["queued"] = stored, queued_ids
+            if archive is not None and queued(settings.queue_dir):
+                done["synced"] = sync(settings, archive).sent
+        finally:
+            if archive is not None:
+                archive.close()
+        for run_id in done["killed"] + done["queued"]:
+            log.warning("archive: run %s was killed (no end.json): archived ABORTED", run_id)
+    except (BenchError, OSError) as e:
+        log.warning("archive: not updated at the start of the run: %s", e)
+    return done
+
+
+# --- rebuild -------------------------------------------------------------------------------
+
+@dataclass
+class RebuildResult:
+    stored: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # live runs, unreadable recordings
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stored": self.stored, "skipped": self.skipped}
+
+
+def rebuild(archive: Archive, root: Path,
+            progress: Callable[[str, str], None] | None = None) -> RebuildResult:
+    """Store every recording under ``root`` (record.json where there is one, else built from
+    its files; a killed run ABORTED). A run still being written is skipped."""
+    from benchctl.archive.ingest import is_live, recordings_under
+
+    if not root.is_dir():
+        raise DataError(f"{root}: not a folder of recordings")
+    res = RebuildResult()
+    for folder in recordings_under(root):
+        if is_live(folder):
+            res.skipped.append(f"{folder.name}: in progress (no end.json, written recently)")
+            continue
+        try:
+            record, source = record_of(folder)
+        except (DataError, OSError) as e:
+            res.skipped.append(f"{folder.name}: {e}")
+            continue
+        archive.store(record, recording_sha256=recording_sha256(folder), source=source)
+        res.stored.append(folder.name)
+        if progress is not None:
+            progress(folder.name, str(record.get("outcome")))
+    return res
+
+
+__all__ = [
+    "ArchiveSettings",
+    "RebuildResult",
+    "SyncResult",
+    "archive_at_start",
+    "archive_run",
+    "enqueue",
+    "queued",
+    "rebuild",
+    "settings_for",
+    "sync",
+]

@@ -1,0 +1,506 @@
+"""The results archive: one database (SQLite by default, PostgreSQL for a line of benches)
+opened with ``Archive(url)``, its schema brought to the newest migration on open (Alembic,
+programmatically: no alembic.ini at the user's site), runs stored idempotently by ``run_id``.
+
+SQLite runs in WAL mode with a busy timeout, every write transaction beginning IMMEDIATE (so
+two writers wait for each other instead of failing); PostgreSQL goes through psycopg 3
+(``postgresql+psycopg://``; a plain ``postgresql://`` means the same) with a short connect
+timeout. Every failure to reach or write the database is an ``ArchiveError`` naming the
+archive (its password hidden) and the cause.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from datetime import UTC, date, datetime
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, delete, event, func, inspect, select, text
+from sqlalchemy.engine import URL, Connection, make_url
+from sqlalchemy.exc import ArgumentError, SQLAlchemyError
+from sqlalchemy.pool import NullPool
+
+from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
+from benchctl.errors import ArchiveError
+
+log = logging.getLogger(__name__)
+
+MIGRATIONS = Path(__file__).resolve().parent / "migrations"
+OUTCOMES = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
+SOURCES = ("record.json", "recording", "killed")
+DEFAULT_CONNECT_TIMEOUT_S = 2.0
+DEFAULT_BUSY_TIMEOUT_S = 30.0  # SQLite: how long a writer waits for another one
+
+
+def parse_url(url: str, field: str = "archive.url") -> URL:
+    """An archive URL checked and normalised: ``sqlite:///PATH`` or
+    ``postgresql[+psycopg]://…`` (psycopg 3 either way). ``ArchiveError`` names ``field``."""
+    try:
+        u = make_url(url)
+    except (ArgumentError, ValueError) as e:
+        raise ArchiveError(f"{field} = {url!r}: not a database URL ({e})") from None
+    backend, _, driver = u.drivername.partition("+")
+    if backend == "sqlite":
+        if driver not in ("", "pysqlite"):
+            raise ArchiveError(f"{field} = {url!r}: expected sqlite:///PATH (driver {driver}?)")
+        if not u.database or u.database == ":memory:":
+            raise ArchiveError(f"{field} = {url!r}: expected sqlite:///PATH (a file)")
+        return u.set(drivername="sqlite")
+    if backend in ("postgresql", "postgres"):
+        if driver not in ("", "psycopg"):
+            raise ArchiveError(
+                f"{field} = {shown(u)}: expected postgresql+psycopg://… (psycopg 3), "
+                f"not driver {driver}"
+            )
+        return u.set(drivername="postgresql+psycopg")
+    raise ArchiveError(
+        f"{field} = {shown(u)}: expected sqlite:///PATH or postgresql+psycopg://USER@HOST/DB"
+    )
+
+
+def shown(url: URL | str) -> str:
+    """A URL for messages and logs: its password hidden."""
+    try:
+        u = url if isinstance(url, URL) else make_url(url)
+    except (ArgumentError, ValueError):
+        return repr(str(url))
+    return u.render_as_string(hide_password=True)
+
+
+def utc_naive(value: Any) -> datetime | None:
+    """An ISO time (or datetime) as naive UTC (how the archive stores times); None when absent
+    or unreadable."""
+    if value is None or value == "":
+        return None
+    if isinstance(value, datetime):
+        d = value
+    elif isinstance(value, date):
+        d = datetime(value.year, value.month, value.day)
+    else:
+        try:
+            d = datetime.fromisoformat(str(value).replace("Z", "+00:00"))
+        except ValueError:
+            return None
+    if d.tzinfo is not None:
+        d = d.astimezone(UTC).replace(tzinfo=None)
+    return d
+
+
+def iso(d: datetime | None) -> str | None:
+    """A stored (naive UTC) time as ISO 8601 with its zone."""
+    return None if d is None else d.replace(tzinfo=UTC).isoformat(timespec="milliseconds")
+
+
+def _num(v: Any) -> float | None:
+    if isinstance(v, bool):
+        return 1.0 if v else 0.0
+    if isinstance(v, int | float):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    return None
+
+
+def _text(v: Any, limit: int) -> str | None:
+    if v is None:
+        return None
+    s = str(v)
+    return s[:limit]
+
+
+def _map(v: Any) -> Mapping[str, Any]:
+    return v if isinstance(v, Mapping) else {}
+
+
+def _ci(m: Mapping[str, Any]) -> tuple[float | None, float | None]:
+    ci = m.get("ci95")
+    if isinstance(ci, list | tuple) and len(ci) == 2:
+        return _num(ci[0]), _num(ci[1])
+    return None, None
+
+
+def run_row(record: Mapping[str, Any], *, recording_sha256: str | None = None,
+            source: str = "record.json") -> dict[str, Any]:
+    """The ``runs`` row of a record (``benchctl-record/1``; read defensively: any field may be
+    missing). ``ArchiveError`` when it has no run_id."""
+    run_id = record.get("run_id")
+    if not isinstance(run_id, str) or not run_id:
+        raise ArchiveError(f"record: run_id = {run_id!r}: expected the recording folder's name")
+    unit = _map(record.get("unit"))
+    profile = _map(record.get("profile"))
+    abort_v = record.get("abort")
+    abort = abort_v if isinstance(abort_v, Mapping) else None
+    rule = record.get("decision_rule")
+    files = _map(record.get("files"))
+    report = _map(files.get("report_json"))
+    software = _map(record.get("software"))
+    outcome = str(record.get("outcome") or "ABORTED").upper()
+    seed = profile.get("seed")
+    return {
+        "run_id": run_id[:255],
+        "serial": (_text(unit.get("serial"), 200) or ""),
+        "part_number": _text(unit.get("part_number"), 200),
+        "station": _text(record.get("station"), 200) or "",
+        "operator": _text(record.get("operator"), 200) or "",
+        "start_utc": utc_naive(record.get("start_utc")),
+        "end_utc": utc_naive(record.get("end_utc")),
+        "outcome": outcome[:20],
+        "exit_code": record.get("exit_code") if isinstance(record.get("exit_code"), int) else None,
+        "abort_kind": None if abort is None else _text(abort.get("kind"), 20),
+        "abort_reason": None if abort is None else _text(abort.get("reason"), 10000),
+        "decision_rule": _text(rule.get("name") if isinstance(rule, Mapping) else rule, 20),
+        "profile_name": _text(profile.get("name"), 200),
+        "profile_kind": _text(profile.get("kind"), 100),
+        "profile_seed": seed if isinstance(seed, int) and not isinstance(seed, bool)
+        and -(2**63) <= seed < 2**63 else None,
+        "profile_sha256": _text(profile.get("sha256"), 64),
+        "config_sha256": _text(record.get("config_sha256"), 64),
+        "software_version": _text(software.get("version"), 100),
+        "recording_path": _text(files.get("recording"), 10000),
+        "recording_sha256": recording_sha256,
+        "report_path": _text(report.get("path"), 10000),
+        "report_sha256": _text(report.get("sha256"), 64),
+        "source": source if source in SOURCES else "record.json",
+        "record_json": json.dumps(record, sort_keys=True, allow_nan=False, default=str),
+        "archived_utc": datetime.now(UTC).replace(tzinfo=None),
+    }
+
+
+def measurement_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The ``measurements`` rows of a record, in its order."""
+    out = []
+    ms = record.get("measurements")
+    for i, m in enumerate(ms if isinstance(ms, list) else []):
+        if not isinstance(m, Mapping):
+            continue
+        lo, hi = _ci(m)
+        out.append({
+            "run_id": str(record["run_id"])[:255],
+            "seq": i,
+            "name": _text(m.get("name"), 200) or "?",
+            "axis": _text(m.get("axis"), 50),
+            "value": _num(m.get("value")),
+            "unit": _text(m.get("unit"), 50),
+            "low": _num(m.get("low")),
+            "high": _num(m.get("high")),
+            "ci95_low": lo,
+            "ci95_high": hi,
+            "outcome": _text(m.get("outcome"), 20),
+            "rule": _text(m.get("rule"), 20),
+        })
+    return out
+
+
+_MIGRATE_LOCK = threading.Lock()
+
+
+class Archive:
+    """An open archive. ``Archive(url)`` connects and migrates (``ArchiveError`` when it
+    cannot); use as a context manager or call ``close()``."""
+
+    def __init__(self, url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+                 busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S, migrate: bool = True) -> None:
+        self.url = parse_url(url)
+        self.name = shown(self.url)
+        self.backend = "sqlite" if self.url.drivername == "sqlite" else "postgresql"
+        self.engine = self._engine(connect_timeout_s, busy_timeout_s)
+        try:
+            if migrate:
+                self.migrate()
+            else:
+                with self.engine.connect():
+                    pass
+        except BaseException:
+            self.engine.dispose()
+            raise
+
+    def _engine(self, connect_timeout_s: float, busy_timeout_s: float) -> Engine:
+        if self.backend == "sqlite":
+            db = Path(str(self.url.database)).expanduser()
+            try:
+                db.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise ArchiveError(
+                    f"archive {self.name}: cannot create the folder {db.parent}: {e.strerror}"
+                ) from None
+            engine = create_engine(
+                self.url.set(database=str(db)),
+                connect_args={"timeout": busy_timeout_s, "check_same_thread": False},
+                poolclass=NullPool,
+            )
+            busy_ms = int(busy_timeout_s * 1000)
+
+            @event.listens_for(engine, "connect")
+            def _on_connect(dbapi_conn: Any, _record: Any) -> None:
+                dbapi_conn.isolation_level = None  # we BEGIN ourselves (IMMEDIATE)
+                cur = dbapi_conn.cursor()
+                cur.execute(f"PRAGMA busy_timeout = {busy_ms}")
+                cur.execute("PRAGMA journal_mode = WAL")
+                cur.execute("PRAGMA synchronous = NORMAL")
+                cur.execute("PRAGMA foreign_keys = ON")
+                cur.close()
+
+            @event.listens_for(engine, "begin")
+            def _on_begin(conn: Connection) -> None:
+                conn.exec_driver_sql("BEGIN IMMEDIATE")
+
+            return engine
+        timeout = max(1, math.ceil(connect_timeout_s))
+        return create_engine(
+            self.url,
+            connect_args={"connect_timeout": timeout, "application_name": "benchctl"},
+            pool_pre_ping=True,
+            pool_size=2,
+            max_overflow=2,
+        )
+
+    @contextmanager
+    def _tx(self, what: str) -> Iterator[Connection]:
+        try:
+            with self.engine.begin() as conn:
+                yield conn
+        except SQLAlchemyError as e:
+            raise ArchiveError(f"archive {self.name}: cannot {what}: {_cause(e)}") from e
+
+    def _read(self, what: str) -> Any:
+        @contextmanager
+        def cm() -> Iterator[Connection]:
+            try:
+                with self.engine.connect() as conn:
+                    yield conn
+            except SQLAlchemyError as e:
+                raise ArchiveError(f"archive {self.name}: cannot {what}: {_cause(e)}") from e
+        return cm()
+
+    def migrate(self) -> None:
+        """Bring the schema to the newest migration (Alembic ``upgrade head``; Alembic is
+        loaded only when the schema is not at ``HEAD`` already)."""
+        with _MIGRATE_LOCK:
+            if self.revision() == HEAD:
+                return
+            from alembic import command
+            from alembic.config import Config
+
+            cfg = Config()
+            cfg.set_main_option("script_location", str(MIGRATIONS))
+            try:
+                with self.engine.connect() as conn:
+                    cfg.attributes["connection"] = conn
+                    command.upgrade(cfg, "head")
+                    conn.commit()
+            except SQLAlchemyError as e:
+                raise ArchiveError(
+                    f"archive {self.name}: cannot create or upgrade the schema: {_cause(e)}"
+                ) from e
+
+    def revision(self) -> str | None:
+        """The schema's migration revision (None: an empty database)."""
+        with self._read("read the schema version") as conn:
+            if not inspect(conn).has_table(VERSION_TABLE):
+                return None
+            row = conn.execute(text(f"SELECT version_num FROM {VERSION_TABLE}")).first()
+            return None if row is None else str(row[0])
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    def __enter__(self) -> Archive:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- writing --------------------------------------------------------------------------
+
+    def _insert(self) -> Any:
+        if self.backend == "sqlite":
+            from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+
+            return sqlite_insert
+        from sqlalchemy.dialects.postgresql import insert as pg_insert
+
+        return pg_insert
+
+    def store(self, record: Mapping[str, Any], *, recording_sha256: str | None = None,
+              source: str = "record.json") -> str:
+        """Insert or replace one run (its unit, its row, its measurements) in one transaction;
+        returns its run_id. Storing the same record twice leaves one run."""
+        row = run_row(record, recording_sha256=recording_sha256, source=source)
+        ms = measurement_rows(record)
+        ins = self._insert()
+        with self._tx(f"store run {row['run_id']}") as conn:
+            u = ins(units).values(serial=row["serial"], part_number=row["part_number"])
+            u = u.on_conflict_do_update(
+                index_elements=[units.c.serial],
+                set_={"part_number": func.coalesce(u.excluded.part_number, units.c.part_number)},
+            ).returning(units.c.id)
+            unit_id = conn.execute(u).scalar_one()
+            values = {**row, "unit_id": unit_id}
+            r = ins(runs).values(**values)
+            r = r.on_conflict_do_update(
+                index_elements=[runs.c.run_id],
+                set_={k: r.excluded[k] for k in values if k != "run_id"},
+            )
+            conn.execute(r)
+            conn.execute(delete(measurements).where(measurements.c.run_id == row["run_id"]))
+            if ms:
+                conn.execute(measurements.insert(), ms)
+        return str(row["run_id"])
+
+    # --- reading --------------------------------------------------------------------------
+
+    def run_ids(self, among: Iterable[str] | None = None) -> set[str]:
+        """The run_ids stored (only those in ``among`` when given)."""
+        q = select(runs.c.run_id)
+        if among is not None:
+            ids = list(among)
+            if not ids:
+                return set()
+            q = q.where(runs.c.run_id.in_(ids))
+        with self._read("list runs") as conn:
+            return {str(r[0]) for r in conn.execute(q)}
+
+    def count(self) -> tuple[int, int]:
+        """(runs, measurements) stored."""
+        with self._read("count runs") as conn:
+            n = conn.execute(select(func.count()).select_from(runs)).scalar_one()
+            m = conn.execute(select(func.count()).select_from(measurements)).scalar_one()
+        return int(n), int(m)
+
+    def history(self, serial: str | None = None, *, since: datetime | None = None,
+                station: str | None = None, limit: int | None = None) -> list[dict[str, Any]]:
+        """Runs, oldest first, with each axis' σ (and its limit): filtered by serial, start
+        time (naive UTC, ≥) and station."""
+        q = select(runs).order_by(runs.c.start_utc, runs.c.run_id)
+        if serial is not None:
+            q = q.where(runs.c.serial == serial)
+        if station is not None:
+            q = q.where(runs.c.station == station)
+        if since is not None:
+            q = q.where(runs.c.start_utc >= since)
+        with self._read("list runs") as conn:
+            rows = [dict(r._mapping) for r in conn.execute(q)]
+            if limit is not None:
+                rows = rows[-limit:]
+            sigmas = self._sigmas(conn, [r["run_id"] for r in rows])
+        return [_summary(r, sigmas.get(r["run_id"], [])) for r in rows]
+
+    def _sigmas(self, conn: Connection, ids: Sequence[str]) -> dict[str, list[dict[str, Any]]]:
+        out: dict[str, list[dict[str, Any]]] = {}
+        for i in range(0, len(ids), 500):
+            chunk = ids[i:i + 500]
+            q = (select(measurements)
+                 .where(measurements.c.run_id.in_(chunk), measurements.c.name == "sigma")
+                 .order_by(measurements.c.run_id, measurements.c.seq))
+            for m in conn.execute(q):
+                out.setdefault(m.run_id, []).append(_measurement(dict(m._mapping)))
+        return out
+
+    def show(self, run_id: str) -> dict[str, Any] | None:
+        """One run: its row, its measurements and its whole record; None when not stored."""
+        with self._read(f"read run {run_id}") as conn:
+            r = conn.execute(select(runs).where(runs.c.run_id == run_id)).first()
+            if r is None:
+                return None
+            row = dict(r._mapping)
+            ms = conn.execute(select(measurements).where(measurements.c.run_id == run_id)
+                              .order_by(measurements.c.seq))
+            mlist = [_measurement(dict(m._mapping)) for m in ms]
+        out = _summary(row, [m for m in mlist if m["name"] == "sigma"])
+        out["measurements"] = mlist
+        try:
+            out["record"] = json.loads(row["record_json"])
+        except ValueError:
+            out["record"] = None
+        return out
+
+    def sigma_series(self, serial: str) -> list[dict[str, Any]]:
+        """A unit's σ over its runs, oldest first: one entry per run and axis with σ, its 95 %
+        interval, the limit and the outcome."""
+        q = (select(runs.c.run_id, runs.c.start_utc, runs.c.station, runs.c.outcome,
+                    measurements.c.axis, measurements.c.value, measurements.c.ci95_low,
+                    measurements.c.ci95_high, measurements.c.high,
+                    measurements.c.outcome.label("m_outcome"))
+             .join(measurements, measurements.c.run_id == runs.c.run_id)
+             .where(runs.c.serial == serial, measurements.c.name == "sigma")
+             .order_by(runs.c.start_utc, runs.c.run_id, measurements.c.seq))
+        with self._read(f"read σ of {serial}") as conn:
+            return [
+                {"run_id": r.run_id, "start_utc": iso(r.start_utc), "station": r.station,
+                 "run_outcome": r.outcome, "axis": r.axis, "sigma": r.value,
+                 "ci95": None if r.ci95_low is None or r.ci95_high is None
+                 else [r.ci95_low, r.ci95_high],
+                 "limit": r.high, "outcome": r.m_outcome}
+                for r in conn.execute(q)
+            ]
+
+    def station_yield(self, station: str | None = None, *,
+                      since: datetime | None = None) -> list[dict[str, Any]]:
+        """Per station and UTC day: runs, how many passed, failed, were inconclusive or
+        aborted, and the yield (passed / runs that reached a verdict: PASS, FAIL or
+        INCONCLUSIVE; None on a day with none)."""
+        q = select(runs.c.station, runs.c.start_utc, runs.c.outcome)
+        if station is not None:
+            q = q.where(runs.c.station == station)
+        if since is not None:
+            q = q.where(runs.c.start_utc >= since)
+        days: dict[tuple[str, str], dict[str, int]] = {}
+        with self._read("read the yield") as conn:
+            for r in conn.execute(q):
+                day = r.start_utc.date().isoformat() if r.start_utc is not None else "unknown"
+                c = days.setdefault((r.station, day), dict.fromkeys(OUTCOMES, 0))
+                if r.outcome in c:
+                    c[r.outcome] += 1
+        out = []
+        for (st, day), c in sorted(days.items()):
+            judged = c["PASS"] + c["FAIL"] + c["INCONCLUSIVE"]
+            out.append({"station": st, "day": day, "runs": sum(c.values()),
+                        "pass": c["PASS"], "fail": c["FAIL"],
+                        "inconclusive": c["INCONCLUSIVE"], "aborted": c["ABORTED"],
+                        "yield": None if judged == 0 else c["PASS"] / judged})
+        return out
+
+
+def _measurement(m: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "name": m["name"], "axis": m["axis"], "value": m["value"], "unit": m["unit"],
+        "low": m["low"], "high": m["high"],
+        "ci95": None if m["ci95_low"] is None or m["ci95_high"] is None
+        else [m["ci95_low"], m["ci95_high"]],
+        "outcome": m["outcome"], "rule": m["rule"],
+    }
+
+
+def _summary(r: dict[str, Any], sigmas: list[dict[str, Any]]) -> dict[str, Any]:
+    return {
+        "run_id": r["run_id"], "serial": r["serial"], "part_number": r["part_number"],
+        "station": r["station"], "operator": r["operator"],
+        "start_utc": iso(r["start_utc"]), "end_utc": iso(r["end_utc"]),
+        "outcome": r["outcome"], "exit_code": r["exit_code"],
+        "abort": None if r["abort_kind"] is None and r["abort_reason"] is None
+        else {"kind": r["abort_kind"], "reason": r["abort_reason"]},
+        "decision_rule": r["decision_rule"],
+        "profile": {"name": r["profile_name"], "kind": r["profile_kind"],
+                    "seed": r["profile_seed"], "sha256": r["profile_sha256"]},
+        "config_sha256": r["config_sha256"], "software_version": r["software_version"],
+        "recording": {"path": r["recording_path"], "sha256": r["recording_sha256"]},
+        "report_json": {"path": r["report_path"], "sha256": r["report_sha256"]},
+        "source": r["source"], "archived_utc": iso(r["archived_utc"]),
+        "sigma": {str(m["axis"]): m["value"] for m in sigmas},
+        "sigma_limit": {str(m["axis"]): m["high"] for m in sigmas},
+    }
+
+
+def _cause(e: SQLAlchemyError) -> str:
+    orig = getattr(e, "orig", None)
+    text_ = str(orig if orig is not None else e).strip().splitlines()
+    return text_[0] if text_ else type(e).__name__
+
+
+__all__ = ["OUTCOMES", "Archive", "iso", "measurement_rows", "parse_url", "run_row", "shown",
+           "utc_naive"]

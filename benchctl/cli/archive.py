@@ -1,0 +1,91 @@
+"""``benchctl archive sync|rebuild DIR``: the results archive's queue and its rebuild from
+recordings. Which archive: ``--url``, else the config's ``archive:`` section (``--config``),
+else the default SQLite file in the output folder (``--out``, else the config's
+``run.output_dir``, else ./runs)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from benchctl.errors import InputError
+from benchctl.jsonout import dumps
+
+
+def add_archive_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, help="bench config YAML (its archive: section)")
+    p.add_argument("--url", metavar="URL",
+                   help="the archive: sqlite:///PATH or postgresql+psycopg://USER@HOST/DB")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder whose default archive to use (archive.sqlite there)")
+
+
+def settings(args: argparse.Namespace) -> Any:
+    from benchctl.archive.service import settings_for
+    from benchctl.archive.store import parse_url
+    from benchctl.config import load_config
+
+    cfg = load_config(args.config) if args.config is not None else None
+    if args.url is not None:
+        parse_url(args.url, "--url")
+    s = settings_for(cfg, args.out, url=args.url)
+    parse_url(s.url, "archive.url")
+    return s
+
+
+def open_archive(args: argparse.Namespace) -> Any:
+    from benchctl.archive.store import Archive
+
+    s = settings(args)
+    return Archive(s.url, connect_timeout_s=s.connect_timeout_s)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("archive", help="the results archive: send the queue, rebuild")
+    rs = p.add_subparsers(dest="archive_command", metavar="ACTION")
+    rs.required = True
+    sy = rs.add_parser("sync", help="send the records queued while the archive was unreachable")
+    add_archive_options(sy)
+    sy.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    sy.set_defaults(handler=handle_sync)
+    rb = rs.add_parser("rebuild", help="store every recording under DIR in the archive")
+    rb.add_argument("dir", type=Path, metavar="DIR", help="a recording or a folder of them")
+    add_archive_options(rb)
+    rb.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    rb.set_defaults(handler=handle_rebuild)
+
+
+def handle_sync(args: argparse.Namespace) -> int:
+    from benchctl.archive.service import queued, sync
+    from benchctl.archive.store import shown
+
+    s = settings(args)
+    n = len(queued(s.queue_dir))
+    res = sync(s)
+    if args.json:
+        print(dumps({"archive": shown(s.url), "queue_dir": str(s.queue_dir), **res.to_dict()}))
+    elif n == 0:
+        print(f"queue {s.queue_dir}: empty, nothing to send")
+    else:
+        print(f"sent {len(res.sent)} run(s) to {shown(s.url)}; {res.left} left in {s.queue_dir}")
+        for name in res.failed:
+            print(f"  not a queued record, left in place: {name}")
+    return 0 if not res.failed else 2
+
+
+def handle_rebuild(args: argparse.Namespace) -> int:
+    from benchctl.archive.service import rebuild
+
+    if not args.dir.is_dir():
+        raise InputError(f"{args.dir}: not a folder (expected a recording or a folder of them)")
+    with open_archive(args) as a:
+        res = rebuild(a, args.dir)
+        name = a.name
+    if args.json:
+        print(dumps({"archive": name, **res.to_dict()}))
+    else:
+        print(f"stored {len(res.stored)} run(s) from {args.dir} in {name}")
+        for why in res.skipped:
+            print(f"  skipped {why}")
+    return 0

@@ -1,0 +1,77 @@
+"""``benchctl history [SERIAL] [--since DATE] [--station S] [--json|--csv] [--html FILE]``:
+the runs in the results archive, oldest first; with a serial, that unit's σ over its runs;
+the stations' yield per day (JSON and the HTML page)."""
+
+from __future__ import annotations
+
+import argparse
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from benchctl.cli.archive import add_archive_options, open_archive
+from benchctl.errors import InputError
+from benchctl.jsonout import dumps
+
+
+def since_date(text: str) -> datetime:
+    """--since: a date (YYYY-MM-DD, UTC midnight) or an ISO time (naive: UTC)."""
+    from benchctl.archive.store import utc_naive
+
+    d = utc_naive(text)
+    if d is None:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected a date YYYY-MM-DD or an ISO time YYYY-MM-DDTHH:MM[:SS][+00:00]"
+        )
+    return d
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("history", help="runs in the results archive (a unit's, a station's)")
+    p.add_argument("serial", nargs="?", help="only this unit's runs (and its σ over them)")
+    p.add_argument("--since", type=since_date, metavar="DATE", help="runs started from DATE on")
+    p.add_argument("--station", metavar="S", help="only runs of station S")
+    add_archive_options(p)
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--json", action="store_true",
+                   help="one JSON object: runs, sigma (with SERIAL), yield per day")
+    g.add_argument("--csv", action="store_true", help="the runs as CSV")
+    p.add_argument("--html", type=Path, metavar="FILE",
+                   help="also write the history page (σ plot, yield per day) to FILE")
+    p.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from benchctl.archive import history as h
+
+    with open_archive(args) as a:
+        rows = a.history(args.serial, since=args.since, station=args.station)
+        series = a.sigma_series(args.serial) if args.serial else []
+        if args.since is not None:
+            series = [s for s in series if (s["start_utc"] or "") >= args.since.isoformat()]
+        if args.station is not None:
+            series = [s for s in series if s["station"] == args.station]
+        stations = {r["station"] for r in rows} if args.serial else None
+        yields = [y for y in a.station_yield(args.station, since=args.since)
+                  if stations is None or y["station"] in stations]
+        name = a.name
+    if args.html is not None:
+        page = h.html_page(rows, archive=name, serial=args.serial, sigma_series=series,
+                           yields=yields, station=args.station,
+                           since=None if args.since is None else args.since.isoformat())
+        try:
+            args.html.write_text(page, encoding="utf-8")
+        except OSError as e:
+            raise InputError(f"{args.html}: cannot write the history page: {e.strerror}") from None
+    if args.json:
+        out: dict[str, Any] = {"archive": name, "runs": rows, "yield_per_day": yields}
+        if args.serial:
+            out["sigma"] = series
+        print(dumps(out))
+    elif args.csv:
+        print(h.to_csv(rows), end="")
+    else:
+        print(h.to_text(rows))
+        if args.html is not None:
+            print(f"history page: {args.html}")
+    return 0

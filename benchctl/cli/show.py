@@ -1,0 +1,37 @@
+"""``benchctl show RUN [--json]``: one run from the results archive (RUN: its recording
+folder's name, or the folder itself)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from benchctl.cli.archive import add_archive_options, open_archive
+from benchctl.errors import InputError
+from benchctl.jsonout import dumps
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("show", help="one run from the results archive")
+    p.add_argument("run", metavar="RUN", help="run id (the recording folder's name) or folder")
+    add_archive_options(p)
+    p.add_argument("--json", action="store_true",
+                   help="one JSON object: the run, its measurements and its whole record")
+    p.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    from benchctl.archive.history import show_text
+
+    run_id = Path(args.run.rstrip("/")).name or args.run
+    with open_archive(args) as a:
+        run = a.show(run_id)
+        name = a.name
+    if run is None:
+        raise InputError(f"run {run_id!r}: not in the archive {name}")
+    if args.json:
+        print(dumps(run))
+    else:
+        print(show_text(run))
+    return 0
