@@ -895,6 +895,7 @@ class Session:
                     report=[f.name for f in files],
                 )
                 self.display.message(f"{report.verdict}: recording closed")
+                _archive(self.cfg, self.out_dir, self.path)  # after the verdict; never fails
                 return RunResult(
                     "done",
                     report.verdict,
@@ -956,6 +957,7 @@ class Session:
             archive_abort(self.out_dir, self.meta, self.path, reason)
         except Exception as e:  # a full disk: the recording's end.json still says it all
             log.warning("archive not updated: %s", describe(e))
+        _archive(self.cfg, self.out_dir, self.path)
         return RunResult(
             "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path,
             abort=abort, record=record,
@@ -976,6 +978,27 @@ _REPORT_META = (
     "limit_sigma_deg",
     "scale",
 )
+
+
+def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
+    """The run into the results archive (``benchctl.archive``) once its recording is closed:
+    never raises and never waits long (a database out of reach: the record is queued)."""
+    try:
+        from benchctl.archive.service import archive_run, settings_for
+
+        archive_run(settings_for(cfg, out_dir), recording)
+    except Exception as e:
+        log.warning("archive not updated: %s", describe(e), exc_info=e)
+
+
+def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> None:
+    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent."""
+    try:
+        from benchctl.archive.service import archive_at_start, settings_for
+
+        archive_at_start(settings_for(cfg, out_dir), out_dir)
+    except Exception as e:
+        log.warning("archive not updated: %s", describe(e), exc_info=e)
 
 
 def _id_text(d: dict[str, Any]) -> str:
@@ -1011,6 +1034,7 @@ def run_test(
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
+    _archive_at_start(cfg, Path(out_dir))
     if device_factory is not None:
         return Session(cfg, prepared, opts, display, device_factory).run()
     if cfg.sim is not None:
@@ -1039,27 +1063,3 @@ __all__ = [
     "describe",
     "run_test",
 ]
-                _archive(self.cfg, self.out_dir, self.path)  # after the verdict; never fails
-        _archive(self.cfg, self.out_dir, self.path)
-def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
-    """The run into the results archive (``benchctl.archive``) once its recording is closed:
-    never raises and never waits long (a database out of reach: the record is queued)."""
-    try:
-        from benchctl.archive.service import archive_run, settings_for
-
-        archive_run(settings_for(cfg, out_dir), recording)
-    except Exception as e:
-        log.warning("archive not updated: %s", describe(e), exc_info=e)
-
-
-def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> None:
-    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent."""
-    try:
-        from benchctl.archive.service import archive_at_start, settings_for
-
-        archive_at_start(settings_for(cfg, out_dir), out_dir)
-    except Exception as e:
-        log.warning("archive not updated: %s", describe(e), exc_info=e)
-
-
-    _archive_at_start(cfg, Path(out_dir))
