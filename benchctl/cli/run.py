@@ -12,6 +12,9 @@ from typing import Any
 
 from benchctl.errors import ConfigError, InputError
 
+ABORT_WORDS = {"operator": "operator stop", "equipment": "equipment fault",
+               "software": "software error"}
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
@@ -128,8 +131,9 @@ def handle(args: argparse.Namespace) -> int:
         elif result.report is not None:
             print(format_report(result.report))
         else:
-            kind = f" ({result.abort['kind']})" if result.abort else ""
-            print(f"ABORTED{kind}: {result.reason}")
+            print(f"ABORTED: {result.reason}")
+            if result.abort is not None:
+                print(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
             if result.recording is not None:
                 closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
                 how = "closed, marked aborted" if closed else "NOT closed: no end.json"
