@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 from benchctl.archive.ingest import incomplete_recordings, record_of, recording_sha256
 from benchctl.archive.store import DEFAULT_CONNECT_TIMEOUT_S, Archive, shown
 from benchctl.errors import ArchiveError, BenchError, DataError
+from benchctl.jsonout import dumps
 
 if TYPE_CHECKING:
     from benchctl.config import BenchConfig
@@ -93,7 +94,7 @@ def enqueue(queue_dir: Path, entry: dict[str, Any]) -> Path:
     dest = queue_dir / f"{run_id}{QUEUE_SUFFIX}"
     tmp = queue_dir / f".{run_id}.{os.getpid()}.tmp"
     with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(entry, f, sort_keys=True, default=str)
+        f.write(dumps(entry, sort_keys=True))  # strict JSON (benchctl.jsonout)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, dest)
