@@ -400,3 +400,57 @@ def test_record_of_a_simulated_run_through_the_cli(tmp_path: Path) -> None:
     assert len(rec["config_sha256"]) == 64 and rec["software"]["version"] == metadata.version(
         "benchctl")
     assert any(m["name"] == "sigma" and m["axis"] == "roll" for m in rec["measurements"])
+
+
+# ------------------------------------------------------------------------------ CLI and config
+def test_cli_passes_the_rule_and_part_number_and_names_the_abort_kind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`benchctl run --decision-rule guarded --part-number PN`: into RunOptions; an aborted
+    run's summary names who ended it under its ABORTED line."""
+    import benchctl.run as run_pkg
+
+    seen: list[RunOptions] = []
+
+    def fake_run_test(cfg: Any, profile: Any, opts: RunOptions, display: Any = None) -> RunResult:
+        seen.append(opts)
+        return RunResult("aborted", "stand loop: StandFault: fault code 7", 2, tmp_path,
+                         abort={"kind": "equipment", "reason": "x"},
+                         record=tmp_path / RECORD_JSON)
+
+    monkeypatch.setattr(run_pkg, "run_test", fake_run_test)
+    code = main(["run", "--config", str(ROOT / "config/sim.yaml"), "--profile",
+                 str(ROOT / "profiles/ci_short.yaml"), "--serial", "SN", "--operator", "me",
+                 "--decision-rule", "guarded", "--part-number", "PN-9", "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 2
+    assert seen[0].decision_rule == "guarded" and seen[0].part_number == "PN-9"
+    lines = out.splitlines()
+    assert lines[0] == "ABORTED: stand loop: StandFault: fault code 7"
+    assert "  abort: equipment fault" in lines and f"  record {tmp_path / RECORD_JSON}" in lines
+    with pytest.raises(SystemExit) as e:  # argparse: a usage error, exit 2
+        main(["run", "--config", "x.yaml", "--profile", "p.yaml", "--decision-rule", "lenient"])
+    assert e.value.code == 2
+
+
+@pytest.mark.parametrize(
+    ("where", "value", "match"),
+    [
+        (("run", "decision_rule"), "lenient", "run.decision_rule"),
+        (("run", "limits"), {"gain_min": 1.1, "gain_max": 1.0}, "expected below gain_max"),
+        (("run", "limits"), {"delay": 0.1}, "run.limits.delay"),
+        (("stand", "calibration_due"), "31.12.2027", "stand.calibration_due"),
+        (("unit",), {"part_number": "PN", "serial": "x"}, "unit.serial"),
+    ],
+)
+def test_config_fields_refused_with_their_path(tmp_path: Path, where: tuple[str, ...],
+                                               value: Any, match: str) -> None:
+    from benchctl.errors import ConfigError
+
+    data = bench_config(tmp_path).model_dump(mode="json")
+    target = data
+    for k in where[:-1]:
+        target = target[k]
+    target[where[-1]] = value
+    with pytest.raises(ConfigError, match=match):
+        parse_config(data, tmp_path / "bench.yaml")
