@@ -371,6 +371,10 @@ def test_a_session_run_is_archived_at_its_end(tmp_path: Path) -> None:
     assert run["recording"]["sha256"] == recording_sha256(res.recording)
     expected, _ = record_of(res.recording)
     assert run["record"]["run_id"] == expected["run_id"] == res.recording.name
+    assert run["source"] == "record.json"  # the run's own record (benchctl.results.record)
+    assert run["record"] == json.loads((res.recording / "record.json").read_text())
+    assert [m["name"] for m in run["measurements"]] == [
+        m["name"] for m in expected["measurements"]]
     assert queued(s.queue_dir) == []
 
 

@@ -46,11 +46,9 @@ def handle(args: argparse.Namespace) -> int:
 
     with open_archive(args) as a:
         rows = a.history(args.serial, since=args.since, station=args.station)
-        series = a.sigma_series(args.serial) if args.serial else []
-        if args.since is not None:
-            series = [s for s in series if (s["start_utc"] or "") >= args.since.isoformat()]
-        if args.station is not None:
-            series = [s for s in series if s["station"] == args.station]
+        listed = {r["run_id"] for r in rows}  # the σ series of the runs selected
+        series = [s for s in a.sigma_series(args.serial) if s["run_id"] in listed] \
+            if args.serial else []
         stations = {r["station"] for r in rows} if args.serial else None
         yields = [y for y in a.station_yield(args.station, since=args.since)
                   if stations is None or y["station"] in stations]
