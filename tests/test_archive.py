@@ -231,6 +231,21 @@ def test_rebuild_from_recordings(url: str, tmp_path: Path) -> None:
         assert a.count()[0] == 4
 
 
+def test_record_of_prefers_record_json_and_falls_back(tmp_path: Path) -> None:
+    good = make_recording(tmp_path, "G", record=make_record("G", outcome="FAIL"))
+    rec, source = record_of(good)
+    assert source == "record.json" and rec["outcome"] == "FAIL"
+    (good / "record.json").write_text("{torn")  # unreadable: built from the recording
+    rec, source = record_of(good)
+    assert source == "recording" and rec["outcome"] == "PASS"  # end.json: done, PASS
+    assert rec["run_id"] == "G" and rec["unit"]["serial"] == "SN-1"
+    killed = make_recording(tmp_path, "K", close=None)
+    (killed / "record.json").write_text(json.dumps(make_record("K")))
+    rec, source = record_of(killed)  # no end.json: killed, whatever a record says
+    assert source == "killed" and rec["outcome"] == "ABORTED"
+    assert rec["abort"]["reason"] == KILLED_REASON
+
+
 def test_recording_sha256_covers_the_recording(tmp_path: Path) -> None:
     rec = make_recording(tmp_path, "R")
     before = recording_sha256(rec)
@@ -348,34 +363,83 @@ def test_two_processes_writing_at_once_lose_nothing(url: str) -> None:
 
 # --- a run through the session --------------------------------------------------------------
 
-def test_a_session_run_is_archived_at_its_end(tmp_path: Path) -> None:
-    from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
+SINE = """name: archive_sine
+description: a short sine for the archive tests
+reference: none (a test)
+kind: sine
+duration_s: 4
+fade_in_s: 0.5
+fade_out_s: 0.5
+seed: 0
+axes:
+  roll: {amplitude_deg: 2.0, period_s: 2.0}
+"""
 
-    from benchctl.run.session import RunOptions, Session
+
+def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(
+        tmp_path: Path) -> None:
+    """run_test with in-process fakes of the stand and the instrument: at its start the
+    killed run left in the output folder is stored ABORTED and the queue is sent; at its end
+    the run itself is stored from its own record.json."""
+    from run_fakes import FakeSensor, FakeStand, bench_config
+
+    from benchctl.run.session import RunOptions, run_test
 
     cfg = bench_config(tmp_path)
+    s = settings_for(cfg)
+    killed = make_recording(tmp_path, "20261120T080000Z_OLD", serial="OLD", close=None)
+    age(killed, 3600)
+    enqueue(s.queue_dir, {"record": make_record("queued-1"), "recording_sha256": None,
+                          "source": "record.json"})
+    profile = tmp_path / "sine.yaml"
+    profile.write_text(SINE)
     stand = FakeStand(("roll",))
     sensor = FakeSensor(stand, gain=1.05)
-    prep = sine_motion(("roll",), duration_s=3.0, mode="table", fade_s=0.5)
-    res = Session(cfg, prep, RunOptions("SN-A", "tester"),
-                  device_factory=lambda c, p: (stand, sensor)).run()
-    assert res.state == "done", res.reason
-    s = settings_for(cfg)
+    res = run_test(cfg, profile, RunOptions("SN-A", "tester"),
+                   device_factory=lambda c, p: (stand, sensor))
+    assert res.state == "done" and res.report is not None, res.reason
+    assert res.recording is not None
     with Archive(s.url) as a:
+        assert a.run_ids() == {killed.name, "queued-1", res.recording.name}
+        old = a.show(killed.name)
         run = a.show(res.recording.name)
+    assert queued(s.queue_dir) == []
+    assert old is not None and old["outcome"] == "ABORTED"
+    assert old["abort"] == {"kind": "software", "reason": KILLED_REASON}
     assert run is not None
-    assert run["outcome"] == res.report.verdict if res.report else False
+    assert run["outcome"] == res.report.verdict
     assert run["serial"] == "SN-A" and run["station"] == "test-bench"
-    assert run["operator"] == "tester"
+    assert run["operator"] == "tester" and run["profile"]["name"] == "archive_sine"
     assert run["sigma"]["roll"] == pytest.approx(res.report.axes["roll"].sigma_deg, rel=1e-9)
     assert run["recording"]["sha256"] == recording_sha256(res.recording)
-    expected, _ = record_of(res.recording)
-    assert run["record"]["run_id"] == expected["run_id"] == res.recording.name
     assert run["source"] == "record.json"  # the run's own record (benchctl.results.record)
-    assert run["record"] == json.loads((res.recording / "record.json").read_text())
-    assert [m["name"] for m in run["measurements"]] == [
-        m["name"] for m in expected["measurements"]]
-    assert queued(s.queue_dir) == []
+    own = json.loads((res.recording / "record.json").read_text())
+    assert run["record"] == own
+    assert [m["name"] for m in run["measurements"]] == [m["name"] for m in own["measurements"]]
+    assert run["report_json"]["sha256"] == own["files"]["report_json"]["sha256"]
+
+
+def test_an_aborted_run_is_archived_with_its_abort(tmp_path: Path) -> None:
+    """An E-stop mid-motion: the run is ABORTED (equipment) and so is its archived row."""
+    from run_fakes import FakeSensor, FakeStand, bench_config
+
+    from benchctl.run.session import RunOptions, run_test
+
+    cfg = bench_config(tmp_path)
+    profile = tmp_path / "sine.yaml"
+    profile.write_text(SINE)
+    stand = FakeStand(("roll",))
+    stand.estop_at = 1.0
+    sensor = FakeSensor(stand)
+    res = run_test(cfg, profile, RunOptions("SN-E", "tester"),
+                   device_factory=lambda c, p: (stand, sensor))
+    assert res.state == "aborted" and res.recording is not None
+    with Archive(settings_for(cfg).url) as a:
+        run = a.show(res.recording.name)
+    assert run is not None and run["outcome"] == "ABORTED" and run["exit_code"] == 2
+    assert res.abort is not None
+    assert run["abort"] == {"kind": res.abort["kind"], "reason": res.reason}
+    assert run["abort"]["kind"] == "equipment" and "E-stop" in run["abort"]["reason"]
 
 
 # --- the CLI ------------------------------------------------------------------------------------
