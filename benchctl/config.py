@@ -266,6 +266,26 @@ class SimConfig(Strict):
     motion_threshold_deg: Positive = 0.01  # "the stand first moves": |true angle| beyond this
 
 
+class EqualiseConfig(Strict):
+    """Equalisation (``benchctl.analysis.equalise``): before the motion a short pre-test at
+    ``level`` × the profile's amplitudes measures the stand's response on the profile's lines
+    over ``periods`` whole periods (a period over ``max_period_s``: a shorter one, the response
+    interpolated), and the drive is corrected so the measured motion is the profile's. A line
+    where the stand moves less than ``min_gain_db`` or whose response is uncertain beyond
+    ``max_uncertainty_db`` is not corrected; no line is driven up by more than
+    ``max_boost_db``, nor beyond the stand's limits."""
+
+    enabled: bool = False
+    level: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.2
+    periods: Annotated[int, Field(ge=1, le=20)] = 1
+    max_period_s: Annotated[float, Field(ge=1, le=600, allow_inf_nan=False)] = 20.0
+    fade_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
+    settle_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)] = 3.0
+    min_gain_db: Annotated[float, Field(ge=-60, lt=0, allow_inf_nan=False)] = -20.0
+    max_boost_db: Annotated[float, Field(ge=0, le=40, allow_inf_nan=False)] = 10.0
+    max_uncertainty_db: Annotated[float, Field(gt=0, le=6, allow_inf_nan=False)] = 0.5
+
+
 class AnalysisConfig(Strict):
     # default: the documented rule in benchctl.analysis
     max_lag_s: Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)] | None = None
@@ -364,6 +384,9 @@ class RunConfig(Strict):
     # stop the motion once σ's 95 % interval is within ± this fraction of σ (after at least one
     # whole period of the multisine; benchctl.run.precision); None: the whole profile runs
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None
+    # a low-level pre-test and the drive corrected by the stand's measured response (off by
+    # default; --equalise turns it on)
+    equalise: EqualiseConfig = EqualiseConfig()
 
 
 _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)

@@ -47,6 +47,13 @@ def register(sub: Any) -> None:
         "e.g. 0.05; after at least one whole period of the multisine; overrides run.precision)",
     )
     p.add_argument(
+        "--equalise",
+        action="store_true",
+        default=None,
+        help="before the motion, a short low-level pre-test measures the stand's response on the "
+        "profile's lines and the drive is corrected by it (turns run.equalise.enabled on)",
+    )
+    p.add_argument(
         "--decision-rule",
         choices=("simple", "guarded"),
         help="how σ is judged against its limit: simple (σ ≤ limit) or guarded (the 95 %% "
@@ -121,6 +128,7 @@ def handle(args: argparse.Namespace) -> int:
         precision=args.precision,
         decision_rule=args.decision_rule,
         part_number=args.part_number,
+        equalise=args.equalise,
     )
     display = make_display(sys.stderr, quiet=args.quiet)
     result = run_test(cfg, args.profile, opts, display=display)

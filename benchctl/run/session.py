@@ -70,6 +70,7 @@ from benchctl.results.measurements import (
 from benchctl.results.record import abort_kind, build_record, sha256_file, write_record
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
+from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
 from benchctl.run.plan import MotionPlan, make_plan
 from benchctl.run.precision import (
@@ -121,6 +122,7 @@ class RunOptions:
     precision: float | None = None  # --precision: overrides run.precision (see run.precision)
     decision_rule: str | None = None  # --decision-rule: overrides run.decision_rule
     part_number: str | None = None  # --part-number: overrides unit.part_number
+    equalise: bool | None = None  # --equalise: overrides run.equalise.enabled
 
 
 @dataclass
@@ -163,6 +165,64 @@ class PreparedMotion:
     plan: MotionPlan
     check: pc.CheckResult
     meta: dict[str, Any]
+    # run.equalise: the pre-test (its designs per axis, its checked plan); None: no pre-test
+    pretest: Pretest | None = None
+
+
+@dataclass
+class Pretest:
+    """The equalisation pre-test, checked against the limits like any motion."""
+
+    designs: dict[str, Any]  # axis → benchctl.analysis.equalise.PretestDesign
+    motion: Any
+    plan: MotionPlan
+    check: dict[str, Any]
+
+
+def prepare_pretest(cfg: BenchConfig, motion: Any, rate: float, where: str) -> Pretest:
+    """The low-level pre-test of ``motion`` (``run.equalise``), checked against the stand's
+    limits before anything moves; raises ``ConfigError``/``LimitError`` naming ``where``."""
+    import dataclasses
+
+    from benchctl.analysis.equalise import pretest_design
+    from benchctl.profiles import check_motion
+
+    eq = cfg.run.equalise
+    tables = getattr(motion, "tables", None) or {}
+    if not tables or getattr(motion, "segments", None):
+        raise ConfigError(
+            f"{where}: equalisation needs a profile of lines (one harmonic table per axis); "
+            f"profile kind {getattr(motion, 'kind', '?')!r} has none; expected no equalisation"
+        )
+    try:
+        designs = {
+            a: pretest_design(t, level=eq.level, periods=eq.periods,
+                              max_period_s=eq.max_period_s, fade_s=eq.fade_s,
+                              settle_s=eq.settle_s)
+            for a, t in tables.items()
+        }
+    except DataError as e:
+        raise ConfigError(f"{where}: {e}; expected a profile whose lines repeat") from None
+    duration = max(d.table.duration_s for d in designs.values())
+    pre_tables = {  # one duration for every axis: the longest pre-test
+        a: dataclasses.replace(d.table, duration_s=duration) for a, d in designs.items()}
+    pre_motion = dataclasses.replace(motion, name=f"{motion.name} (equalisation pre-test)",
+                                     table_by_axis=pre_tables)
+    try:  # a pre-test over the limits (another crest): scaled down, it only measures
+        result = check_motion(pre_motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=True)
+    except LimitError as e:
+        raise LimitError(f"{where}: the equalisation pre-test: {e}") from None
+    pre_motion = result.motion
+    tabs = dict(pre_motion.tables or {})
+    designs = {a: dataclasses.replace(d, table=tabs[a]) for a, d in designs.items()}
+
+    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
+        return {a: np.asarray(v, dtype=float) for a, v in pre_motion.evaluate(t).items()}
+
+    fade = cfg.run.equalise.fade_s
+    plan = make_plan(evaluate, tuple(tabs), duration, rate, fade, fade, mode=cfg.stand.mode,
+                     tables=tabs)
+    return Pretest(designs, pre_motion, plan, result.to_dict())
 
 
 def _fades(motion: Any) -> tuple[float, float]:
@@ -232,6 +292,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
     )
     pdict = profile.to_dict() if hasattr(profile, "to_dict") else {}
     requested = opts.precision if opts.precision is not None else cfg.run.precision
+    equalise = opts.equalise if opts.equalise is not None else cfg.run.equalise.enabled
     if requested is not None:  # a precision stop: whole periods of a multisine, not table mode
         where = (f"--precision {requested:g}" if opts.precision is not None
                  else f"{src}: field run.precision = {requested:g}")
@@ -252,8 +313,18 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         "motion_check": figures,
         "scale": result.scale,
         "precision_requested": requested,
+        "equalise_requested": equalise,
     }
-    return PreparedMotion(profile, motion, plan, check, meta)
+    pretest = None
+    if equalise:
+        where = "--equalise" if opts.equalise else f"{src}: field run.equalise.enabled = true"
+        pretest = prepare_pretest(cfg, motion, rate, f"{where} with profile {profile_path}")
+        meta["equalise_pretest"] = {
+            "axes": {a: d.to_dict() for a, d in pretest.designs.items()},
+            "duration_s": pretest.plan.duration_s,
+            "check": pretest.check,
+        }
+    return PreparedMotion(profile, motion, plan, check, meta, pretest)
 
 
 # -------------------------------------------------------------------------- devices
@@ -441,12 +512,22 @@ class Session:
         w.update_meta(devices=ids)
         self._precheck(pc.check_stand_ready(stand.read_status(), stand.read_sample(), self.axes))
 
-        self.loop = StandLoop(
-            stand,
-            rec,
+        self.loop = self._new_loop(self.prep.plan)
+        start_instrument(self.sensor, rec)
+        self.loop.start()  # hold: heartbeat and stand samples from now on
+        self._rate_and_zero()
+
+    def _new_loop(self, plan: MotionPlan, machine: StateMachine | None = None) -> StandLoop:
+        """A stand loop for ``plan`` (not started); ``machine``: whose states it moves (the
+        run's; the pre-test its own, so the run stays in ``equalising``)."""
+        cfg = self.cfg
+        assert self.stand is not None and self.recorder is not None
+        return StandLoop(
+            self.stand,
+            self.recorder,
             self.supervisor,
-            self.machine,
-            self.prep.plan,
+            self.machine if machine is None else machine,
+            plan,
             LoopLimits(
                 angle_deg=cfg.stand.limits.angle_deg,
                 tracking_tolerance_deg=cfg.stand.tracking_tolerance_deg,
@@ -460,8 +541,10 @@ class Session:
                 buffer_s=cfg.stand.buffer_s,
             ),
         )
-        start_instrument(self.sensor, rec)
-        self.loop.start()  # hold: heartbeat and stand samples from now on
+
+    def _rate_and_zero(self) -> None:
+        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
+        assert w is not None and rec is not None and stand is not None
 
         # a window with the wrong rate is measured again (a host or a bus held up for a moment
         # skews one window; an instrument at the wrong rate fails every one)
@@ -497,10 +580,125 @@ class Session:
             self.display.message("bringing the stand to zero")
             stand.go_to_zero()
         self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
+        if self.prep.plan.mode == "table" and self.prep.pretest is None:
+            assert self.prep.plan.tables is not None
+            stand.upload_table(self.prep.plan.tables)
+            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+
+    def _equalise(self) -> None:
+        """The equalisation pre-test (``run.equalise``): the low-level multisine played and
+        recorded, the stand's response on the profile's lines estimated, the drive corrected
+        and checked against the limits like any motion; the main motion's loop then waits in
+        hold with the corrected plan."""
+        import dataclasses
+
+        from benchctl.analysis.equalise import corrected_table, estimate_response, response_at
+        from benchctl.analysis.excitation import reach_of
+        from benchctl.profiles import check_motion
+
+        pre, w, stand = self.prep.pretest, self.writer, self.stand
+        assert pre is not None and w is not None and stand is not None and self.loop is not None
+        cfg, eq = self.cfg, self.cfg.run.equalise
+        self.machine.to(RunState.EQUALISING, "pre-test")
+        self.loop.stop()  # the hold loop: the pre-test's own loop takes the stand over
+        self.loop = loop = self._new_loop(pre.plan, StateMachine())
+        loop.motion_event = "equalise_motion_start"
+        if pre.plan.mode == "table":
+            assert pre.plan.tables is not None
+            stand.upload_table(pre.plan.tables)
+            w.event("table_uploaded", axes=list(pre.plan.tables), pretest=True)
+        w.event("equalise_start", level=eq.level, duration_s=pre.plan.duration_s,
+                axes={a: d.to_dict() for a, d in pre.designs.items()})
+        self.display.message(f"equalisation pre-test: {pre.plan.duration_s:.1f} s at "
+                             f"{eq.level:g} × the profile's amplitudes")
+        loop.start()
+        self._play(loop)
+        t_start = loop.t_motion_start
+        assert t_start is not None
+        loop.stop()
+        if self.recorder is not None:  # the live σ: the profile's motion only
+            self.recorder.sigma = RunningSigma(self.axes)
+        # the response per axis, from the recording (the same instants the verdict will use)
+        rec = load_recording(self.path)
+        target = self.prep.motion
+        rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
+        drives, report = {}, {}
+        for axis, design in pre.designs.items():
+            tr, xr, _, _ = rec.pair(axis, window=False)
+            try:
+                resp = estimate_response(tr, xr, design, t_start)
+            except DataError as e:
+                raise DataError(f"{self.path}: equalisation pre-test on {axis}: {e}") from None
+            tab = target.tables[axis]
+            h, sd = response_at(resp, tab.freq_hz)
+            corr = corrected_table(tab, h, sd, reach_of(cfg.stand.limits), rate,
+                                   min_gain_db=eq.min_gain_db, max_boost_db=eq.max_boost_db,
+                                   max_uncertainty_db=eq.max_uncertainty_db)
+            drives[axis] = corr.drive
+            report[axis] = {**corr.to_dict(), "pretest": design.to_dict(),
+                            "pretest_response": resp.to_dict()}
+        drive = dataclasses.replace(target, table_by_axis=drives)
+        try:  # the corrected drive through the same checks as any motion
+            result = check_motion(drive, cfg.stand.limits, rate_hz=rate)
+        except LimitError as e:
+            raise LimitError(
+                f"{self.path}: the equalised drive (field stand.limits): {e}"
+            ) from None
+
+        def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
+            return {a: np.asarray(v, dtype=float) for a, v in result.motion.evaluate(t).items()}
+
+        old = self.prep.plan
+        self.prep.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
+                                   old.fade_in_s, old.fade_out_s, mode=old.mode,
+                                   tables=dict(result.motion.tables or {}))
+        summary = {"level": eq.level, "drive_check": result.to_dict(), "axes": report}
+        w.event("equalise_done", **summary)
+        w.update_meta(equalisation=summary)
+        self.meta["equalisation"] = summary
+        for axis, r in report.items():
+            bad = r["not_corrected"]
+            self.display.message(
+                f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
+                f" on {len(r['freq_hz'])} lines; "
+                + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
+        self.loop = self._new_loop(self.prep.plan)
         if self.prep.plan.mode == "table":
             assert self.prep.plan.tables is not None
             stand.upload_table(self.prep.plan.tables)
             w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        self.loop.start()  # hold until the motion begins
+
+    def _play(self, loop: StandLoop) -> None:
+        """Play ``loop``'s plan to its end, watching it as the motion is watched (faults,
+        stalls, a silent instrument, a time limit)."""
+        loop.begin_motion()
+        limit = loop.plan.duration_s + 60.0
+        t0 = time.monotonic()
+        t_wake, resumed = t0, -math.inf
+        while not loop.motion_done.wait(0.1):
+            if self.supervisor.faulted:
+                break
+            now = time.monotonic()
+            if now - t_wake > 0.1 + HOST_STALL_S:
+                resumed = now
+            t_wake = now
+            if not loop.alive:
+                raise SafetyAbort("stand loop ended without finishing the pre-test")
+            last = loop.t_last_cycle
+            stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
+            if last is not None and now - max(last, resumed) > stall:
+                raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
+            silent = min(loop.instrument_silence(now), now - resumed)
+            if silent > self.cfg.instrument.silence_timeout_s + 0.5:
+                raise SafetyAbort(
+                    f"instrument silent: no sample for {silent:.2f} s "
+                    f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
+                )
+            if now - t0 > limit:
+                raise SafetyAbort(f"pre-test did not finish within {limit:.0f} s")
+            self.display.update(self._snapshot())
+        self.supervisor.check()
 
     def _motion(self) -> None:
         loop = self.loop
@@ -781,7 +979,6 @@ class Session:
             log.warning("record.json not written: %s", describe(e), exc_info=e)
             return None
 
-
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
                     window: tuple[float, float]) -> None:
         """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
@@ -858,6 +1055,8 @@ class Session:
                     self.writer.update_meta(config=self.cfg.model_dump(mode="json"))
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
+                if self.prep.pretest is not None:
+                    self._equalise()
                 self._motion()
                 # normal end: the stand is at rest; the same cleanup path, nothing to ramp
                 rep = shutdown(
@@ -977,6 +1176,7 @@ _REPORT_META = (
     "software_version",
     "limit_sigma_deg",
     "scale",
+    "equalisation",
 )
 
 

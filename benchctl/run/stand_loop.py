@@ -205,6 +205,9 @@ class StandLoop:
         # the next slot not yet sent or queued
         self._end_request: dict[str, Any] | None = None
         self.ended_early: dict[str, Any] | None = None  # where the early fade-out began
+        # the event marking the motion's start (the equalisation pre-test names its own, so
+        # the recording's motion_start stays the profile's)
+        self.motion_event = "motion_start"
 
     # control from the main thread
     def start(self) -> None:
@@ -398,7 +401,7 @@ class StandLoop:
     def _start_motion(self, t_start: float) -> None:
         self.t_motion_start = t_start
         self.rec.live.t_motion_start = t_start
-        self.rec.event("motion_start", t_host=t_start, mode=self.plan.mode)
+        self.rec.event(self.motion_event, t_host=t_start, mode=self.plan.mode)
         self._advance_state(0.0)
 
     def _stream(self) -> None:

@@ -2,8 +2,11 @@
 
 ::
 
-    idle → prechecks → fade-in → running → fade-out → analysing → done
-      └──────┴───────────┴──────────┴──────────┴───────────┴──────→ aborted
+    idle → prechecks → [equalising →] fade-in → running → fade-out → analysing → done
+      └──────┴──────────────┴────────────┴──────────┴──────────┴───────────┴──────→ aborted
+
+``equalising`` (the low-level pre-test and the drive's correction, ``run.equalise``) is taken
+only when asked for: ``advance_to`` steps over it.
 
 Every transition is validated against ``TRANSITIONS`` (an illegal one is a bug and raises
 ``TransitionError``) and handed to the listeners, which log it as an event in the recording.
@@ -23,6 +26,7 @@ from benchctl.errors import BenchError
 class RunState(StrEnum):
     IDLE = "idle"
     PRECHECKS = "prechecks"
+    EQUALISING = "equalising"
     FADE_IN = "fade-in"
     RUNNING = "running"
     FADE_OUT = "fade-out"
@@ -48,6 +52,8 @@ _ORDER = (
 TRANSITIONS: dict[RunState, frozenset[RunState]] = {
     s: frozenset({_ORDER[i + 1], RunState.ABORTED}) for i, s in enumerate(_ORDER[:-1])
 }
+TRANSITIONS[RunState.PRECHECKS] |= {RunState.EQUALISING}  # the optional pre-test
+TRANSITIONS[RunState.EQUALISING] = frozenset({RunState.FADE_IN, RunState.ABORTED})
 TRANSITIONS[RunState.DONE] = frozenset()
 TRANSITIONS[RunState.ABORTED] = frozenset()
 
@@ -115,9 +121,10 @@ class StateMachine:
             cur = self._state
             if cur is target:
                 return
-            if cur in FINAL or _ORDER.index(cur) > _ORDER.index(target):
+            here = _ORDER.index(RunState.PRECHECKS if cur is RunState.EQUALISING else cur)
+            if cur in FINAL or target is RunState.EQUALISING or here >= _ORDER.index(target):
                 raise TransitionError(f"run state {cur} cannot advance to {target}")
-            self.to(_ORDER[_ORDER.index(cur) + 1])
+            self.to(_ORDER[here + 1])
 
     def abort(self, reason: str) -> bool:
         """Move to aborted unless already final; True if this call did it."""
