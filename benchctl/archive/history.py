@@ -15,6 +15,8 @@ from typing import Any
 
 HISTORY_COLUMNS = ("run_id", "start_utc", "serial", "part_number", "station", "operator",
                    "outcome", "sigma", "sigma_limit", "profile", "seed", "abort_reason")
+PAGE_COLUMNS = ("start_utc", "serial", "station", "operator", "outcome", "sigma", "sigma_limit",
+                "abort_reason", "run_id")  # the page's table (A4)
 
 
 def _sigma_text(d: dict[str, Any]) -> str:
@@ -219,7 +221,8 @@ TEMPLATE = """<!DOCTYPE html>
 <title>benchctl history{% if serial %} — {{ serial }}{% endif %}</title>
 <style>
 body { font-family: sans-serif; margin: 1.5em; color: #222; }
-table { border-collapse: collapse; font-size: 0.9em; }
+table { border-collapse: collapse; font-size: 0.8em; }
+td { white-space: nowrap; }
 th, td { border: 1px solid #bbb; padding: 0.2em 0.5em; text-align: left; }
 th { background: #eee; }
 td.PASS { color: #176117; font-weight: bold; } td.FAIL { color: #a11; font-weight: bold; }
@@ -304,8 +307,13 @@ def html_page(rows: Sequence[dict[str, Any]], *, archive: str, serial: str | Non
 
     env = Environment(autoescape=True, undefined=StrictUndefined)
     t = env.from_string(TEMPLATE)
+    table = []
+    for r in rows:
+        f = flat(r)
+        f["start_utc"] = f["start_utc"][:16].replace("T", " ")
+        table.append(f)
     return t.render(
-        rows=[flat(r) for r in rows], columns=HISTORY_COLUMNS, archive=archive,
+        rows=table, columns=PAGE_COLUMNS, archive=archive,
         serial=serial, station=station, since=since,
         made=datetime.now(UTC).isoformat(timespec="seconds"),
         sigma=sigma_plot(sigma_series) if serial else None,
