@@ -307,6 +307,23 @@ def test_unreachable_archive_queues_then_sync(url: str, tmp_path: Path) -> None:
     assert sync(ArchiveSettings("sqlite:////proc/none/x.sqlite", queue)).sent == []
 
 
+def test_queued_warning_hides_the_password_and_disabled_does_nothing(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    rec = make_recording(tmp_path / "runs", "R", record=make_record("R"))
+    dead = f"postgresql+psycopg://bench:s3cret@127.0.0.1:{_closed_port()}/x"
+    with caplog.at_level("WARNING"):
+        assert archive_run(ArchiveSettings(dead, tmp_path / "q"), rec) == "queued"
+    assert "queued" in caplog.text and "s3cret" not in caplog.text
+    assert "bench:***@127.0.0.1" in caplog.text
+    off = ArchiveSettings(f"sqlite:///{tmp_path / 'off.sqlite'}", tmp_path / "q2", enabled=False)
+    assert archive_run(off, rec) == "disabled"
+    killed = make_recording(tmp_path / "runs", "K", close=None)
+    age(killed, 3600)
+    assert archive_at_start(off, tmp_path / "runs") == {"killed": [], "queued": [],
+                                                         "synced": []}
+    assert not (tmp_path / "off.sqlite").exists() and not (tmp_path / "q2").exists()
+
+
 def test_a_silent_server_delays_the_run_by_the_connect_timeout_only(tmp_path: Path) -> None:
     """A port that takes the connection and never answers (a hung server): the record is
     queued after the ~2 s connect timeout."""
