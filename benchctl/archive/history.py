@@ -89,18 +89,24 @@ def show_text(run: dict[str, Any]) -> str:
     ms = run.get("measurements") or []
     if ms:
         lines.append("measurements")
-        for m in ms:
-            lim = ""
-            if m.get("low") is not None or m.get("high") is not None:
-                lo = "" if m.get("low") is None else f"{m['low']:.4g} ≤ "
-                hi = "" if m.get("high") is None else f" ≤ {m['high']:.4g}"
-                lim = f"{lo}x{hi}"
+        names = [m["name"] + (f" {m['axis']}" if m.get("axis") else "") for m in ms]
+        width = max(len(n) for n in names)
+        for name, m in zip(names, ms, strict=True):
+            lo, hi = m.get("low"), m.get("high")
+            if lo is not None and hi is not None:
+                lim = f"   limit {lo:.4g} … {hi:.4g}"
+            elif hi is not None:
+                lim = f"   limit ≤ {hi:.4g}"
+            elif lo is not None:
+                lim = f"   limit ≥ {lo:.4g}"
+            else:
+                lim = ""
             ci = m.get("ci95")
             ci_text = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
             val = "—" if m.get("value") is None else f"{m['value']:.4g}"
-            name = m["name"] + (f" {m['axis']}" if m.get("axis") else "")
-            lines.append(f"  {name:<28} {val}{ci_text} {m.get('unit') or ''}".rstrip()
-                         + (f"   {lim}" if lim else "") + f"   {m.get('outcome') or ''}")
+            unit = f" {m['unit']}" if m.get("unit") else ""
+            lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   {m.get('outcome') or ''}"
+                         .rstrip())
     return "\n".join(lines)
 
 
