@@ -231,6 +231,16 @@ def test_rebuild_from_recordings(url: str, tmp_path: Path) -> None:
         assert a.count()[0] == 4
 
 
+def test_nan_in_an_old_report_is_stored_as_null(url: str, tmp_path: Path) -> None:
+    rec = make_recording(tmp_path, "N", report={"verdict": "PASS", "axes": {"roll": {
+        "sigma": 0.2, "sigma_ci95": [float("nan"), 0.3], "limit": 0.4, "verdict": "PASS"}}})
+    with Archive(url) as a:
+        assert rebuild(a, rec).stored == ["N"]
+        run = a.show("N")
+    assert run is not None and run["measurements"][0]["ci95"] is None
+    assert run["record"]["measurements"][0]["ci95"] == [None, 0.3]
+
+
 def test_record_of_prefers_record_json_and_falls_back(tmp_path: Path) -> None:
     good = make_recording(tmp_path, "G", record=make_record("G", outcome="FAIL"))
     rec, source = record_of(good)

@@ -168,6 +168,9 @@ def _store_or_queue(settings: ArchiveSettings, entries: list[dict[str, Any]],
                 continue
             except ArchiveError as err:
                 log.warning("%s", err)
+            except Exception as err:  # whatever it is, the record must not be lost: queued
+                log.warning("archive: run %s not stored (%s: %s)", run_id,
+                            type(err).__name__, err, exc_info=err)
         enqueue(settings.queue_dir, e)
         queued_ids.append(run_id)
     return stored, queued_ids

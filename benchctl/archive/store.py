@@ -28,6 +28,7 @@ from sqlalchemy.pool import NullPool
 
 from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
 from benchctl.errors import ArchiveError
+from benchctl.jsonout import dumps
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +167,7 @@ def run_row(record: Mapping[str, Any], *, recording_sha256: str | None = None,
         "report_path": _text(report.get("path"), 10000),
         "report_sha256": _text(report.get("sha256"), 64),
         "source": source if source in SOURCES else "record.json",
-        "record_json": json.dumps(record, sort_keys=True, allow_nan=False, default=str),
+        "record_json": dumps(record, sort_keys=True),  # strict JSON: NaN → null
         "archived_utc": datetime.now(UTC).replace(tzinfo=None),
     }
 
