@@ -9,13 +9,22 @@ import numpy as np
 from benchctl.analysis.result import AnalysisResult
 
 
-def plot_result(result: AnalysisResult, dest: str | Path) -> Path:
+def plot_result(result: AnalysisResult, dest: str | Path, *, serial: str | None = None,
+                date: str | None = None, limit_deg: float | None = None) -> Path:
     """Draw the four panels into a PNG file ``dest``. matplotlib's object API (a ``Figure``
     with its own canvas): no global backend switch, no pyplot state, safe beside a host
-    application's own figures and in threads."""
+    application's own figures and in threads.
+
+    Every panel has its frequency axis labelled; the gain panel its gain = 1 reference; the
+    gain table's periods are marked (dotted, in the legend); with ``limit_deg`` the PSD panel
+    shows σ accumulated over frequency against the limit; ``serial`` and ``date`` go into the
+    figure's title."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(8, 11), constrained_layout=True)
+    head = " — ".join(p for p in (f"serial {serial}" if serial else "", date or "") if p)
+    if head:
+        fig.suptitle(head)
     axes = fig.subplots(4, 1)
     f = result.psd_freq
     pos = f > 0
@@ -34,24 +43,44 @@ def plot_result(result: AnalysisResult, dest: str | Path) -> Path:
     title = f"error PSD: σ = {result.sigma:.4g}° (95 %: {lo_s:.4g} … {hi_s:.4g}°)"
     if result.axis:
         title = f"{result.axis}: {title}"
+    if limit_deg is not None:
+        title += f", limit {limit_deg:g}°"
     ax.set_title(title)
     ax.set_ylabel("deg²/Hz")
-    ax.legend(loc="best", fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
+    handles, labels = ax.get_legend_handles_labels()
+    if limit_deg is not None:  # σ accumulated over frequency, against the limit
+        s = np.where(np.isfinite(result.psd_error), result.psd_error, 0.0)
+        cum = np.sqrt(np.maximum(np.cumsum(s * np.gradient(f)), 0.0))
+        ax2 = ax.twinx()
+        ax2.plot(f[pos], cum[pos], color="tab:red", lw=1.0, label="cumulative σ")
+        ax2.axhline(limit_deg, color="tab:red", ls="--", lw=1.0, label=f"limit {limit_deg:g}°")
+        ax2.set_ylim(0, 1.15 * max(limit_deg, float(np.max(cum)) if cum.size else 0.0))
+        ax2.set_ylabel("cumulative σ, deg")
+        h2, l2 = ax2.get_legend_handles_labels()
+        handles, labels = handles + h2, labels + l2
+    ax.legend(handles, labels, loc="best", fontsize=8)
     ff = result.frf_freq
-    axes[1].plot(ff, result.frf_gain, ".-")
+    axes[1].axhline(1.0, color="black", lw=0.8, label="gain = 1")
+    axes[1].plot(ff, result.frf_gain, ".-", label="gain")
     axes[1].set_ylabel("gain")
     axes[2].plot(ff, result.frf_phase_deg, ".-")
     axes[2].set_ylabel("phase, deg")
     axes[3].plot(ff, result.frf_coherence, ".-")
     axes[3].set_ylabel("coherence γ²")
     axes[3].set_ylim(0, 1.05)
-    axes[3].set_xlabel("frequency, Hz")
-    for p in result.periods:
+    for i, p in enumerate(result.periods):
         for a in axes[1:]:
-            a.axvline(p["freq"], color="grey", lw=0.5, ls=":")
+            a.axvline(p["freq"], color="grey", lw=0.7, ls=":",
+                      label="gain-table periods (" + ", ".join(
+                          f"{q['period_s']:g}" for q in result.periods) + " s)"
+                      if i == 0 else None)
+    for a in axes:
+        a.set_xlabel("frequency, Hz")
     for a in axes[1:]:
         a.grid(True, alpha=0.3)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(loc="best", fontsize=8)
     out = Path(dest)
     fig.savefig(out, dpi=100)
     return out

@@ -194,6 +194,15 @@ def build_record(
     return out
 
 
+def with_file(record: Mapping[str, Any], key: str, path: Path | None) -> dict[str, Any]:
+    """A copy of ``record`` whose ``files[key]`` is ``{path, sha256}`` of ``path`` (None when
+    there is no such readable file): e.g. ``report_html``, written after the record was built
+    (the report shows the record's content, the record names the report's hash)."""
+    out = dict(record)
+    out["files"] = {**dict(record.get("files") or {}), key: _file(path)}
+    return out
+
+
 def write_record(folder: Path, record: Mapping[str, Any]) -> Path:
     """Validate ``record`` and write it as ``<folder>/record.json`` (strict JSON; a temporary
     file renamed over it, so a reader never sees half a record)."""
@@ -241,5 +250,6 @@ __all__ = [
     "schema_text",
     "sha256_file",
     "validate_record",
+    "with_file",
     "write_record",
 ]

@@ -306,12 +306,16 @@ def _steps_lines(steps: list[dict[str, Any]], lin: dict[str, Any]) -> list[str]:
     return out
 
 
-def _plot(result: Any, dest: Path) -> bool:
-    """Draw the analysis plot (error PSD, gain, phase, coherence) beside the report."""
+def _plot(result: Any, dest: Path, meta: dict[str, Any] | None = None,
+          limit_deg: float | None = None) -> bool:
+    """Draw the analysis plot (error PSD, gain, phase, coherence) beside the report: serial
+    and date in its title, the σ limit on its PSD panel."""
+    m = meta or {}
     try:
         from benchctl.analysis.plot import plot_result
 
-        plot_result(result, dest)
+        plot_result(result, dest, serial=None if m.get("serial") is None else str(m["serial"]),
+                    date=str(m.get("start_utc") or "")[:10] or None, limit_deg=limit_deg)
     except Exception as e:  # a plot is a convenience; the verdict stands without it
         log.warning("analysis plot %s not drawn: %s", dest, e)
         return False
@@ -326,7 +330,8 @@ def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Pat
     out[1].write_text(format_report(rep) + "\n", encoding="utf-8")
     for axis, res in (results or {}).items():
         dest = folder / f"analysis_{axis}.png"
-        if _plot(res, dest):
+        v = rep.axes.get(axis)
+        if _plot(res, dest, rep.meta, None if v is None else v.limit_deg):
             out.append(dest)
     return out
 

@@ -67,7 +67,13 @@ from benchctl.results.measurements import (
     reported_serial,
     serial_measurement,
 )
-from benchctl.results.record import abort_kind, build_record, sha256_file, write_record
+from benchctl.results.record import (
+    abort_kind,
+    build_record,
+    sha256_file,
+    with_file,
+    write_record,
+)
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
@@ -974,6 +980,9 @@ class Session:
                 report_txt=rt if rt.exists() else None, log=self.log_path,
                 exit_code=exit_code,
             )
+            html = _write_html(self.path, report, rec)
+            if html is not None:
+                rec = with_file(rec, "report_html", html)
             return write_record(self.path, rec)
         except Exception as e:
             log.warning("record.json not written: %s", describe(e), exc_info=e)
@@ -1083,6 +1092,8 @@ class Session:
                 record = self._write_record(report.verdict, report.exit_code, report=report)
                 if record is not None:
                     files.append(record)
+                if (self.path / "report.html").exists():
+                    files.append(self.path / "report.html")
                 archive(self.out_dir, report)
                 self.writer.event("verdict", **report.to_dict(full=False))
                 self.machine.to(RunState.DONE)
@@ -1178,6 +1189,20 @@ _REPORT_META = (
     "scale",
     "equalisation",
 )
+
+
+def _write_html(folder: Path, report: Report | None, record: dict[str, Any]) -> Path | None:
+    """``report.html`` into the recording (``benchctl.report.html``), from the run's report and
+    record (an aborted run: what is known); never raises: a report that cannot be drawn is a
+    warning, the verdict and the record stand without it."""
+    try:
+        from benchctl.report.html import write_html
+
+        return write_html(folder, report=None if report is None else report.to_dict(full=True),
+                          record=record)
+    except Exception as e:
+        log.warning("report.html not written: %s", describe(e), exc_info=e)
+        return None
 
 
 def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
