@@ -363,6 +363,46 @@ def test_sync_leaves_an_unreadable_entry_and_fails_on_a_dead_archive(tmp_path: P
     assert res.sent == ["ok"] and res.failed == ["broken.json"] and res.left == 1
 
 
+def test_a_second_bench_on_a_shared_postgresql_archive(
+        pg: PgServer, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The README's worked example: bench 1 fills the shared database from its recordings,
+    bench 2 (its own config, station and output folder, the same archive.url) adds its run;
+    history from bench 1's config shows both stations."""
+    import yaml
+    from run_fakes import bench_config
+
+    shared = pg.create_database(f"t_{uuid.uuid4().hex[:12]}")
+    configs = []
+    for n in (1, 2):
+        base = bench_config(tmp_path / f"b{n}").model_dump(mode="json", exclude={"source"})
+        base["station"] = f"bench-{n}"
+        base["run"]["output_dir"] = str(tmp_path / f"b{n}" / "runs")
+        base["archive"] = {"url": shared}
+        path = tmp_path / f"bench{n}.yaml"
+        path.write_text(yaml.safe_dump(base))
+        configs.append(path)
+    runs1 = tmp_path / "b1" / "runs"
+    r1 = make_recording(runs1, "20261120T080000Z_INC-1", serial="INC-1", station="bench-1",
+                        record=make_record("20261120T080000Z_INC-1", serial="INC-1"))
+    assert main(["archive", "rebuild", str(runs1), "--config", str(configs[0])]) == 0
+    capsys.readouterr()
+    from benchctl.config import load_config
+
+    cfg2 = load_config(configs[1])
+    r2 = make_recording(cfg2.run.output_dir, "20261121T080000Z_INC-1", serial="INC-1",
+                        station="bench-2", record=make_record(
+                            "20261121T080000Z_INC-1", serial="INC-1", station="bench-2",
+                            start="2026-11-21T08:00:00Z", outcome="FAIL"))
+    assert archive_run(settings_for(cfg2), r2) == "stored"
+    assert main(["history", "INC-1", "--config", str(configs[0]), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [(r["run_id"], r["station"]) for r in out["runs"]] == [
+        (r1.name, "bench-1"), (r2.name, "bench-2")]
+    assert {(d["station"], d["yield"]) for d in out["yield_per_day"]} == {
+        ("bench-1", 1.0), ("bench-2", 0.0)}
+    assert not (runs1 / "archive.sqlite").exists()  # nothing went to a local file
+
+
 # --- two writers --------------------------------------------------------------------------------
 
 def test_two_processes_writing_at_once_lose_nothing(url: str) -> None:
