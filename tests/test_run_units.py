@@ -352,7 +352,9 @@ def test_displays_tty_redraws_in_place_and_log_prints_lines() -> None:
     d.update(snap)
     d.update(snap)
     out = tty.getvalue()
-    assert "\x1b[5F\x1b[J" in out  # the second frame overwrote the first (5 lines up)
+    # the second frame overwrote the first (7 lines up: state, stand, instrument, tracking,
+    # σ, health and the line a health warning takes)
+    assert "\x1b[7F\x1b[J" in out
     assert "elapsed 01:05  remaining 13:55" in out and "roll   +1.23°" in out
     d.message("state → fade-out")
     assert "state → fade-out" in tty.getvalue()

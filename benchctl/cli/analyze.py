@@ -128,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
                         "--reference and --device")
     results: dict[str, AnalysisResult] = {}
     single_axis = True
+    status: dict[str, Any] | None = None  # a recording's state, and a note when unfinished
     if pair:
         s = load_csv_pair(args.reference, args.device, time_col=args.time_col,
                           reference_col=args.reference_col, device_col=args.device_col,
@@ -136,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
                              source=s.source, **opts)
     elif is_recording(args.source):
         rec = load_recording(args.source)
+        status = recording_status(rec)
         axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
         for ax in axes:
@@ -177,11 +179,33 @@ def run(args: argparse.Namespace) -> int:
             doc = next(iter(results.values())).to_dict()
         else:
             doc = {"axes": {ax: r.to_dict() for ax, r in results.items()}}
+        if status is not None:
+            doc["recording"] = status
         sys.stdout.write(json.dumps(doc, allow_nan=False) + "\n")  # dumps: the C encoder
     else:
+        if status is not None and status["note"]:
+            print(f"benchctl analyze: NOTE: {status['note']}")
         for r in results.values():
             print(summary(r))
     return 0
+
+
+def recording_status(rec: Any) -> dict[str, Any]:
+    """A recording's state (done, aborted, incomplete), the reason it ended and, unless it is
+    a finished run's, a note that says so: an aborted run's or a killed one's (no end.json)
+    record is analysed as it is, which is not the run's verdict."""
+    state = rec.state
+    reason = str((rec.end or {}).get("reason") or "")
+    note = ""
+    if state == "aborted":
+        note = (f"the run was ABORTED ({reason or 'no reason recorded'}): this analysis covers "
+                "what was recorded and is not a verdict")
+    elif state == "incomplete":
+        note = ("the recording is INCOMPLETE (no end.json: the run was killed or is still "
+                "running): this analysis covers what was recorded and is not a verdict")
+    elif state != "done":
+        note = f"the recording ended in state {state!r}: this analysis is not a verdict"
+    return {"state": state, "reason": reason or None, "note": note or None}
 
 
 def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:

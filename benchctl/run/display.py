@@ -1,9 +1,13 @@
 """Live progress for the person at the stand.
 
-On a terminal: a small block of lines redrawn in place with plain ANSI escapes (state, elapsed
-and remaining time, stand and instrument angles, tracking error, running σ). Without one:
-plain log lines, one every ``period_s`` and one at each state change. ``NullDisplay`` for
-``--json`` scripts that want silence.
+On a terminal: a small block of lines redrawn in place with plain ANSI escapes, never wider
+than 80 columns (nor than the terminal), so nothing wraps or scrolls: the unit's serial and the
+operator, state, elapsed and remaining time, stand and instrument angles, tracking error, the
+running σ beside its limit, and the stand's health (missed control cycles, rejoins,
+instrument samples) with a warning once it climbs (``health_warning``); at the end a banner
+with the verdict. Without a terminal: plain log lines, one every ``period_s`` and one at each
+state change, and the verdict as one more line. ``NullDisplay`` for ``--json`` scripts that
+want silence.
 """
 
 from __future__ import annotations
@@ -27,13 +31,43 @@ class Snapshot:
     sigma_deg: dict[str, float] = field(default_factory=dict)
     missed_cycles: int = 0
     instrument_samples: int = 0
+    serial: str = ""
+    operator: str = ""
+    limit_deg: float | None = None  # the σ limit (run.limit_sigma_deg)
+    cycles: int = 0  # control cycles so far (the missed ones' share)
+    rejoins: int = 0  # the stand re-joined the profile after a lost link or a breach
+
+
+WIDTH = 80  # the live block's widest line (columns)
+MISSED_WARN_SHARE = 0.01  # missed cycles above this share of the cycles: a warning
+MISSED_WARN_STEP = 10  # … or this many more since the last drawing
 
 
 class Display(Protocol):
     def state(self, state: str, reason: str = "") -> None: ...
     def update(self, snap: Snapshot) -> None: ...
     def message(self, text: str) -> None: ...
+    def verdict(self, verdict: str, detail: str = "") -> None: ...
     def close(self) -> None: ...
+
+
+def health_warning(snap: Snapshot, previous_missed: int = 0) -> str:
+    """A warning about the stand's health, or "": any rejoin; missed cycles above
+    ``MISSED_WARN_SHARE`` of the cycles, or climbing by ``MISSED_WARN_STEP`` or more since the
+    last look (``previous_missed``)."""
+    parts = []
+    if snap.cycles and snap.missed_cycles / snap.cycles > MISSED_WARN_SHARE:
+        parts.append(f"missed {100 * snap.missed_cycles / snap.cycles:.1f} % of cycles")
+    elif snap.missed_cycles - previous_missed >= MISSED_WARN_STEP:
+        parts.append(f"+{snap.missed_cycles - previous_missed} missed cycles")
+    if snap.rejoins:
+        parts.append(f"{snap.rejoins} rejoin(s)")
+    return ("WARNING stand health: " + ", ".join(parts)) if parts else ""
+
+
+def fit(text: str, width: int = WIDTH) -> str:
+    """``text`` cut to ``width`` columns (an ellipsis marks the cut)."""
+    return text if len(text) <= width else text[: width - 1] + "…"
 
 
 def _mmss(s: float | None) -> str:
@@ -50,16 +84,37 @@ def _angles(d: dict[str, float], fmt: str = "+7.2f") -> str:
 
 
 def format_lines(snap: Snapshot) -> list[str]:
-    """The progress block as text lines (shared by both displays)."""
+    """The progress block as text lines (the log line joins them)."""
+    limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
+    who = " ".join(p for p in (f"serial {snap.serial}" if snap.serial else "",
+                               f"operator {snap.operator}" if snap.operator else "") if p)
     return [
+        *([who] if who else []),
         f"state {snap.state:<10} elapsed {_mmss(snap.elapsed_s)}"
-        f"  remaining {_mmss(snap.remaining_s)}"
-        f"  missed cycles {snap.missed_cycles}  instrument samples {snap.instrument_samples}",
+        f"  remaining {_mmss(snap.remaining_s)}",
         f"  stand       {_angles(snap.stand_deg)}",
         f"  instrument  {_angles(snap.instrument_deg)}",
         f"  tracking    {_angles(snap.tracking_error_deg, '+7.3f')}",
-        f"  σ (running) {_angles(snap.sigma_deg, '7.3f')}",
+        f"  σ (running) {_angles(snap.sigma_deg, '7.3f')}{limit}",
+        f"  health      missed cycles {snap.missed_cycles}  rejoins {snap.rejoins}"
+        f"  instrument samples {snap.instrument_samples}",
     ]
+
+
+def format_block(snap: Snapshot, width: int = WIDTH, previous_missed: int = 0) -> list[str]:
+    """The live block for a terminal: every line within ``width`` columns, a warning line
+    when the stand's health climbs (always the same number of lines: nothing scrolls)."""
+    warn = health_warning(snap, previous_missed)
+    lines = [fit(ln, width) for ln in format_lines(snap)]
+    return [*lines, fit(("  " + warn) if warn else "", width)]
+
+
+def banner(verdict: str, detail: str = "", width: int = WIDTH) -> list[str]:
+    """The final banner: the verdict framed, its detail lines below, all within ``width``."""
+    bar = "=" * width
+    head = f" {verdict} ".center(width, "=")
+    body = [fit(ln, width) for ln in detail.splitlines() if ln.strip()]
+    return [bar, head, *body, bar]
 
 
 class NullDisplay:
@@ -70,6 +125,9 @@ class NullDisplay:
         pass
 
     def message(self, text: str) -> None:
+        pass
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
         pass
 
     def close(self) -> None:
@@ -101,6 +159,10 @@ class LogDisplay:
     def message(self, text: str) -> None:
         self._print(text)
 
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        self._print(f"verdict {verdict}" + "".join(f" | {ln.strip()}" for ln in
+                                                   detail.splitlines() if ln.strip()))
+
     def close(self) -> None:
         pass
 
@@ -108,12 +170,21 @@ class LogDisplay:
 class TtyDisplay:
     """The progress block redrawn in place (cursor up + clear line), at most ``fps`` a second."""
 
-    def __init__(self, stream: TextIO, fps: float = 5.0) -> None:
+    def __init__(self, stream: TextIO, fps: float = 5.0, width: int | None = None) -> None:
         self.stream = stream
         self.min_dt = 1.0 / fps
         self._drawn = 0
         self._last = -math.inf
         self._snap: Snapshot | None = None
+        self._missed_seen = 0  # missed cycles at the last drawing (the warning as it climbs)
+        self._warn_until = -math.inf
+        self._warning = ""
+        self._done = False
+        if width is None:
+            import shutil
+
+            width = shutil.get_terminal_size((WIDTH, 24)).columns - 1
+        self.width = max(20, min(WIDTH, width))
 
     def _erase(self) -> None:
         if self._drawn:
@@ -122,7 +193,13 @@ class TtyDisplay:
 
     def _draw(self, snap: Snapshot) -> None:
         self._erase()
-        lines = format_lines(snap)
+        now = time.monotonic()
+        lines = format_block(snap, self.width, self._missed_seen)
+        if lines[-1]:  # a warning stays up a few seconds after the climb
+            self._warn_until, self._warning = now + 5.0, lines[-1]
+        elif now < self._warn_until:
+            lines[-1] = self._warning
+        self._missed_seen = snap.missed_cycles
         self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()
         self._drawn = len(lines)
@@ -139,14 +216,21 @@ class TtyDisplay:
 
     def message(self, text: str) -> None:
         self._erase()
-        self.stream.write(f"[{time.strftime('%H:%M:%S')}] {text}\n")
-        if self._snap is not None:
+        self.stream.write(fit(f"[{time.strftime('%H:%M:%S')}] {text}", self.width) + "\n")
+        if self._snap is not None and not self._done:
             self._draw(self._snap)
         else:
             self.stream.flush()
 
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        """The final banner below everything; the live block is not drawn again."""
+        self._erase()
+        self._done = True
+        self.stream.write("\n".join(banner(verdict, detail, self.width)) + "\n")
+        self.stream.flush()
+
     def close(self) -> None:
-        if self._snap is not None:
+        if self._snap is not None and not self._done:
             self._draw(self._snap)
         self.stream.flush()
 
@@ -191,6 +275,14 @@ class SafeDisplay:
 
     def message(self, text: str) -> None:
         self._call("message", text)
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        """The final banner; a display without one (an older or a host's own) gets the
+        verdict as a message."""
+        if hasattr(self.inner, "verdict"):
+            self._call("verdict", verdict, detail)
+        else:
+            self._call("message", f"{verdict}: {detail}" if detail else verdict)
 
     def close(self) -> None:
         self._call("close")

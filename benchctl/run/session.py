@@ -474,6 +474,11 @@ class Session:
             sigma_deg=self.recorder.sigma.sigma(),
             missed_cycles=self.loop.missed_cycles,
             instrument_samples=self.recorder.n_instrument,
+            serial=self.opts.serial,
+            operator=self.opts.operator,
+            limit_deg=self.cfg.run.limit_sigma_deg,
+            cycles=self.loop.cycles,
+            rejoins=self.loop.rejoins,
         )
 
     def _base_meta(self) -> dict[str, Any]:
@@ -1105,6 +1110,7 @@ class Session:
                     report=[f.name for f in files],
                 )
                 self.display.message(f"{report.verdict}: recording closed")
+                self.display.verdict(report.verdict, _banner_detail(report, self.path))
                 _archive(self.cfg, self.out_dir, self.path)  # after the verdict; never fails
                 return RunResult(
                     "done",
@@ -1163,6 +1169,7 @@ class Session:
         for s in rep.steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
         record = self._write_record("ABORTED", EXIT_ABORT, abort=abort)
+        self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\nrecording {self.path}")
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
         except Exception as e:  # a full disk: the recording's end.json still says it all
@@ -1189,6 +1196,17 @@ _REPORT_META = (
     "scale",
     "equalisation",
 )
+
+
+def _banner_detail(report: Report, path: Path) -> str:
+    """The verdict banner's lines: σ per axis against its limit, where the report is."""
+    lines = [f"{v.axis} σ {v.sigma_deg:.4f}° (95 % {v.sigma_ci95_deg[0]:.4f} … "
+             f"{v.sigma_ci95_deg[1]:.4f}°)  limit {v.limit_deg:g}°  {v.outcome}"
+             for v in report.axes.values()]
+    lines.extend(f"DEVIATION: {d}" for d in report.deviations)
+    html = path / "report.html"
+    lines.append(f"report {html}" if html.exists() else f"recording {path}")
+    return "\n".join(lines)
 
 
 def _write_html(folder: Path, report: Report | None, record: dict[str, Any]) -> Path | None:

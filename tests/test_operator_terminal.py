@@ -1,0 +1,186 @@
+"""The operator's terminal (issue 11 item 7): the live block fits 80 columns and never scrolls,
+shows serial and operator, the limit beside the running σ, the stand's health with a warning as
+it climbs, and a final banner with the verdict; log lines without a terminal as before;
+``benchctl analyze`` says when a recording is aborted or incomplete (text and JSON)."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
+
+from benchctl.cli import main
+from benchctl.run.display import (
+    WIDTH,
+    LogDisplay,
+    SafeDisplay,
+    Snapshot,
+    TtyDisplay,
+    format_block,
+    health_warning,
+)
+from benchctl.run.session import RunOptions, Session
+
+ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+LONG_SERIAL = "SN-" + "9" * 60
+LONG_OPERATOR = "Operator With A Very Long Name Indeed"
+
+
+def _screen(text: str) -> list[str]:
+    """What a terminal shows line by line (escapes removed)."""
+    return [ANSI.sub("", ln) for ln in text.split("\n")]
+
+
+def _snap(**kw: object) -> Snapshot:
+    base: dict[str, object] = dict(
+        state="running", elapsed_s=65.0, remaining_s=1200.0,
+        stand_deg={"roll": -12.345, "pitch": 3.21}, instrument_deg={"roll": -12.3, "pitch": 3.2},
+        tracking_error_deg={"roll": 0.012, "pitch": -0.004},
+        sigma_deg={"roll": 0.2831, "pitch": 0.101}, missed_cycles=3, instrument_samples=123456,
+        serial=LONG_SERIAL, operator=LONG_OPERATOR, limit_deg=0.4, cycles=6500, rejoins=0)
+    base.update(kw)
+    return Snapshot(**base)  # type: ignore[arg-type]
+
+
+def test_live_block_fits_80_columns_and_shows_who_limit_health() -> None:
+    buf = io.StringIO()
+    d = TtyDisplay(buf, fps=1e9, width=80)
+    d.update(_snap())
+    d.message("precheck stand at zero: ok — " + "x" * 120)
+    d.update(_snap(missed_cycles=4))
+    lines = [ln for ln in _screen(buf.getvalue()) if ln]
+    assert max(len(ln) for ln in lines) <= 80
+    text = "\n".join(lines)
+    assert "serial SN-999" in text and "operator" in text  # cut to fit, still there
+    sigma = next(ln for ln in lines if "σ (running)" in ln)
+    assert "0.283°" in sigma and "limit 0.4°" in sigma
+    health = next(ln for ln in lines if "health" in ln)
+    assert "missed cycles 3" in health and "rejoins 0" in health
+    assert "WARNING" not in text
+    # the block is redrawn in place: the cursor goes up by the lines it drew, every time
+    block = format_block(_snap())
+    ups = re.findall(r"\x1b\[(\d+)F", buf.getvalue())
+    assert ups and {int(n) for n in ups} == {len(block)}
+
+
+def test_health_warning_as_it_climbs() -> None:
+    assert health_warning(_snap()) == ""
+    assert "missed 1.5 % of cycles" in health_warning(_snap(missed_cycles=100, cycles=6500))
+    assert "+12 missed cycles" in health_warning(_snap(missed_cycles=15), previous_missed=3)
+    assert health_warning(_snap(missed_cycles=15), previous_missed=10) == ""
+    assert "2 rejoin(s)" in health_warning(_snap(rejoins=2))
+    buf = io.StringIO()
+    d = TtyDisplay(buf, fps=1e9, width=80)
+    d.update(_snap(missed_cycles=3))
+    d.update(_snap(missed_cycles=40))  # +37 since the last drawing
+    last = _screen(buf.getvalue())[-2]
+    assert last.strip().startswith("WARNING stand health: +37 missed cycles"), last
+    d.update(_snap(missed_cycles=41))  # the climb stopped: the warning stays up a while
+    assert "WARNING" in _screen(buf.getvalue())[-2]
+    assert all(len(ln) <= 80 for ln in _screen(buf.getvalue()))
+
+
+def test_final_banner_and_log_lines() -> None:
+    buf = io.StringIO()
+    d = TtyDisplay(buf, fps=1e9, width=80)
+    d.update(_snap())
+    d.verdict("FAIL", "roll σ 0.5012° limit 0.4° FAIL\nreport /runs/x/report.html")
+    d.close()  # the block is not drawn again below the banner
+    lines = _screen(buf.getvalue())
+    banner_at = next(i for i, ln in enumerate(lines) if "FAIL" in ln and "=" in ln)
+    assert lines[banner_at - 1] == "=" * WIDTH and len(lines[banner_at]) == WIDTH
+    assert "σ (running)" not in "\n".join(lines[banner_at:])
+    assert "report /runs/x/report.html" in lines[banner_at + 2]
+    # without a terminal: one line per state change and per period, the verdict one more
+    log = io.StringIO()
+    ld = LogDisplay(log, period_s=3600)
+    ld.state("running", "")
+    ld.update(_snap())
+    ld.update(_snap())  # within the period: nothing
+    ld.verdict("PASS", "roll σ 0.2°\nreport r.html")
+    out = log.getvalue().splitlines()
+    assert len(out) == 3 and out[0].endswith("state → running")
+    assert "limit 0.4°" in out[1] and "serial " + LONG_SERIAL in out[1]
+    assert out[2].endswith("verdict PASS | roll σ 0.2° | report r.html")
+
+
+def test_safe_display_without_a_verdict_method() -> None:
+    class Old:
+        def __init__(self) -> None:
+            self.said: list[str] = []
+
+        def state(self, state: str, reason: str = "") -> None: ...
+        def update(self, snap: Snapshot) -> None: ...
+        def message(self, text: str) -> None:
+            self.said.append(text)
+
+        def close(self) -> None: ...
+
+    old = Old()
+    s = SafeDisplay(old)  # type: ignore[arg-type]
+    s.verdict("PASS", "σ ok")
+    assert old.said == ["PASS: σ ok"] and not s.failed
+
+
+@pytest.fixture(scope="module")
+def run_on_a_terminal(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A real session (fake devices) drawing on an 80-column terminal."""
+    tmp = tmp_path_factory.mktemp("tty")
+    stand = FakeStand()
+    buf = io.StringIO()
+    prep = sine_motion(stand.axes, duration_s=5.0, mode="stream", fade_s=0.5)
+    sess = Session(bench_config(tmp), prep, RunOptions("SN-TTY-1", "dana"),
+                   display=TtyDisplay(buf, fps=20, width=80),
+                   device_factory=lambda c, p: (stand, FakeSensor(stand)))
+    res = sess.run()
+    assert res.state == "done" and res.recording is not None, res.reason
+    return res.recording, buf.getvalue()
+
+
+def test_a_run_on_an_80_column_terminal(run_on_a_terminal: tuple[Path, str]) -> None:
+    folder, out = run_on_a_terminal
+    lines = _screen(out)
+    assert max(len(ln) for ln in lines) <= 80
+    text = "\n".join(lines)
+    assert "serial SN-TTY-1 operator dana" in text
+    assert re.search(r"σ \(running\) roll +\d+\.\d{3}°.*limit 0\.4°", text)
+    assert "health      missed cycles" in text
+    head = next(i for i, ln in enumerate(lines) if " PASS " in ln and ln.startswith("="))
+    assert "limit 0.4°  PASS" in lines[head + 1]
+    assert f"report {folder / 'report.html'}"[:80] in lines[head + 2]
+
+
+def test_analyze_says_aborted_or_incomplete(run_on_a_terminal: tuple[Path, str], tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    done, _ = run_on_a_terminal
+    assert main(["analyze", str(done), "--axis", "roll"]) == 0
+    assert "NOTE" not in capsys.readouterr().out
+    assert main(["analyze", str(done), "--axis", "roll", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["recording"] == {"state": "done", "reason": "PASS", "note": None}
+
+    aborted = tmp_path / "aborted"
+    shutil.copytree(done, aborted)
+    end = json.loads((aborted / "end.json").read_text())
+    end.update(state="aborted", reason="stand fault: E-stop")
+    (aborted / "end.json").write_text(json.dumps(end))
+    assert main(["analyze", str(aborted)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("benchctl analyze: NOTE: the run was ABORTED (stand fault: E-stop)")
+    assert main(["analyze", str(aborted), "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)["recording"]
+    assert rec["state"] == "aborted" and "ABORTED" in rec["note"]
+
+    killed = tmp_path / "killed"
+    shutil.copytree(done, killed)
+    (killed / "end.json").unlink()
+    assert main(["analyze", str(killed), "--axis", "roll"]) == 0
+    assert "NOTE: the recording is INCOMPLETE" in capsys.readouterr().out
+    assert main(["analyze", str(killed), "--axis", "roll", "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)["recording"]
+    assert rec["state"] == "incomplete" and "INCOMPLETE" in rec["note"]
