@@ -40,7 +40,7 @@ from benchctl.archive.service import (
 )
 from benchctl.archive.store import Archive, parse_url, utc_naive
 from benchctl.cli import main
-from benchctl.errors import ArchiveError
+from benchctl.errors import ArchiveError, DataError
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +122,7 @@ def test_store_aborted_with_reason_and_seed_range(url: str) -> None:
         assert run is not None
         assert run["abort"] == {"kind": "operator", "reason": "interrupted by SIGINT"}
         assert run["profile"]["seed"] == 2**63 - 1
-        with pytest.raises(ArchiveError, match="run_id"):
+        with pytest.raises(DataError, match="run_id"):
             a.store({"outcome": "PASS"})
 
 
@@ -355,12 +355,14 @@ def test_sync_leaves_an_unreadable_entry_and_fails_on_a_dead_archive(tmp_path: P
     q = tmp_path / "q"
     enqueue(q, {"record": make_record("ok"), "recording_sha256": None, "source": "record.json"})
     (q / "broken.json").write_text("{not json")
+    (q / "no-id.json").write_text(json.dumps({"record": {"outcome": "PASS"}}))
     dead = ArchiveSettings(f"postgresql+psycopg://bench@127.0.0.1:{_closed_port()}/x", q)
     with pytest.raises(ArchiveError, match="connection"):
         sync(dead)
-    assert len(queued(q)) == 2  # nothing left the queue
+    assert len(queued(q)) == 3  # nothing left the queue
     res = sync(ArchiveSettings(f"sqlite:///{tmp_path / 'a.sqlite'}", q))
-    assert res.sent == ["ok"] and res.failed == ["broken.json"] and res.left == 1
+    assert res.sent == ["ok"] and sorted(res.failed) == ["broken.json", "no-id.json"]
+    assert res.left == 2
 
 
 def test_a_second_bench_on_a_shared_postgresql_archive(

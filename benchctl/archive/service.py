@@ -137,8 +137,13 @@ def sync(settings: ArchiveSettings, archive: Archive | None = None) -> SyncResul
                 log.warning("%s: not a queued record (%s): left in the queue", p, e)
                 res.failed.append(p.name)
                 continue
-            a.store(record, recording_sha256=entry.get("recording_sha256"),
-                    source=str(entry.get("source") or "record.json"))
+            try:
+                a.store(record, recording_sha256=entry.get("recording_sha256"),
+                        source=str(entry.get("source") or "record.json"))
+            except DataError as e:  # this record is unusable; the others still go
+                log.warning("%s: %s: left in the queue", p, e)
+                res.failed.append(p.name)
+                continue
             p.unlink(missing_ok=True)
             res.sent.append(str(record.get("run_id")))
     finally:

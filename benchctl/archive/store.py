@@ -27,7 +27,7 @@ from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 from sqlalchemy.pool import NullPool
 
 from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
-from benchctl.errors import ArchiveError
+from benchctl.errors import ArchiveError, DataError
 from benchctl.jsonout import dumps
 
 log = logging.getLogger(__name__)
@@ -128,10 +128,10 @@ def _ci(m: Mapping[str, Any]) -> tuple[float | None, float | None]:
 def run_row(record: Mapping[str, Any], *, recording_sha256: str | None = None,
             source: str = "record.json") -> dict[str, Any]:
     """The ``runs`` row of a record (``benchctl-record/1``; read defensively: any field may be
-    missing). ``ArchiveError`` when it has no run_id."""
+    missing). ``DataError`` when it has no run_id."""
     run_id = record.get("run_id")
     if not isinstance(run_id, str) or not run_id:
-        raise ArchiveError(f"record: run_id = {run_id!r}: expected the recording folder's name")
+        raise DataError(f"record: run_id = {run_id!r}: expected the recording folder's name")
     unit = _map(record.get("unit"))
     profile = _map(record.get("profile"))
     abort_v = record.get("abort")
