@@ -263,13 +263,15 @@ class FakeSensor:
                 if not (
                     tm is not None and self.silent_after is not None and tm >= self.silent_after
                 ):
-                    t = time.monotonic()  # the instant sampled: the angle in force then
+                    # a real instrument samples on its own clock: the instant n·period, the
+                    # angle in force then, received now (a busy host only makes it late)
+                    t = t0 + n * period
                     x = self.stand.true_angle(t)
                     y = {
                         a: self.gain * v + self.bias + self.noise * rng.standard_normal()
                         for a, v in x.items()
                     }
-                    on_sample(InstrumentSample(t, y, counter=n))
+                    on_sample(InstrumentSample(time.monotonic(), y, counter=n))
                 n += 1
 
         self._thread = threading.Thread(target=run, name="fake instrument", daemon=True)
