@@ -586,4 +586,7 @@ def test_cli_archive_rebuild_and_sync(tmp_path: Path, capsys: pytest.CaptureFixt
     assert sorted(ids) == sorted([rec.name, "queued-1"])
     assert main(["archive", "sync", "--url", "mysql://x/y"]) == 2
     assert "--url" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    assert main(["history", "--out", str(empty)]) == 2
+    assert "no such file" in capsys.readouterr().err and not empty.exists()
 

@@ -34,10 +34,18 @@ def settings(args: argparse.Namespace) -> Any:
     return s
 
 
-def open_archive(args: argparse.Namespace) -> Any:
-    from benchctl.archive.store import Archive
+def open_archive(args: argparse.Namespace, *, create: bool = False) -> Any:
+    """The archive the options name; a SQLite file that does not exist is an error unless
+    ``create`` (reading commands do not leave an empty database behind)."""
+    from benchctl.archive.store import Archive, parse_url
 
     s = settings(args)
+    u = parse_url(s.url)
+    if not create and u.drivername == "sqlite" and not Path(str(u.database)).is_file():
+        raise InputError(
+            f"archive {s.url}: no such file (no run archived there yet; "
+            "expected --config, --url or --out naming an archive)"
+        )
     return Archive(s.url, connect_timeout_s=s.connect_timeout_s)
 
 
@@ -79,7 +87,7 @@ def handle_rebuild(args: argparse.Namespace) -> int:
 
     if not args.dir.is_dir():
         raise InputError(f"{args.dir}: not a folder (expected a recording or a folder of them)")
-    with open_archive(args) as a:
+    with open_archive(args, create=True) as a:
         res = rebuild(a, args.dir)
         name = a.name
     if args.json:
