@@ -1169,7 +1169,9 @@ class Session:
         for s in rep.steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
         record = self._write_record("ABORTED", EXIT_ABORT, abort=abort)
-        self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\nrecording {self.path}")
+        html = self.path / "report.html"
+        self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
+                             + (f"report {html}" if html.exists() else f"recording {self.path}"))
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
         except Exception as e:  # a full disk: the recording's end.json still says it all
