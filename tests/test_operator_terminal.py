@@ -184,3 +184,37 @@ def test_analyze_says_aborted_or_incomplete(run_on_a_terminal: tuple[Path, str],
     assert main(["analyze", str(killed), "--axis", "roll", "--json"]) == 0
     rec = json.loads(capsys.readouterr().out)["recording"]
     assert rec["state"] == "incomplete" and "INCOMPLETE" in rec["note"]
+
+
+def test_log_records_go_above_the_block_not_through_it() -> None:
+    """A warning logged while the block is up (from any thread) is shown above it by the display;
+    the console handler writing to the same terminal is held meanwhile, and released at the
+    end."""
+    import logging
+    import threading
+
+    buf = io.StringIO()
+    console = logging.StreamHandler(buf)
+    console.setLevel(logging.WARNING)
+    root = logging.getLogger()
+    root.addHandler(console)
+    try:
+        d = TtyDisplay(buf, fps=1e9, width=80)
+        d.update(_snap())
+        t = threading.Thread(target=logging.getLogger("benchctl.test").warning,
+                             args=("serial mismatch: typed %r, instrument reports %r",
+                                   "x" * 70, "1"))
+        t.start()
+        t.join()
+        d.update(_snap())
+        # the record came once, through the display: wrapped within 80 columns, above a block
+        text = "\n".join(_screen(buf.getvalue()))
+        assert text.count("WARNING: serial mismatch") == 1
+        assert "benchctl.test:" not in text  # not the console handler's format
+        assert all(len(ln) <= 80 for ln in _screen(buf.getvalue()))
+        d.close()
+        assert console.filters == [] and len(root.handlers) >= 1
+        logging.getLogger("benchctl.test").warning("after the run")
+        assert "after the run" in buf.getvalue()  # the console handler prints again
+    finally:
+        root.removeHandler(console)

@@ -15,6 +15,8 @@ from __future__ import annotations
 import logging
 import math
 import sys
+import textwrap
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Protocol, TextIO
@@ -167,8 +169,34 @@ class LogDisplay:
         pass
 
 
+class _ToDisplay(logging.Handler):
+    """Log records shown as the display's messages (above its block, wrapped to its width)."""
+
+    def __init__(self, display: TtyDisplay, level: int) -> None:
+        super().__init__(level)
+        self.display = display
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.display.message(f"{record.levelname}: {record.getMessage()}")
+        except Exception:  # the terminal is gone: the console handlers take over again
+            self.display._release_logging()
+            self.handleError(record)
+
+
+class _Held(logging.Filter):
+    """Keeps a console handler quiet while the display shows its records instead."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return False
+
+
 class TtyDisplay:
-    """The progress block redrawn in place (cursor up + clear line), at most ``fps`` a second."""
+    """The progress block redrawn in place (cursor up + clear line), at most ``fps`` a second.
+
+    While the block is up, log records that a console handler of the root logger would write to
+    the same terminal go through the display instead (a line written under the block would
+    break its redrawing); the handler gets them again at ``close``."""
 
     def __init__(self, stream: TextIO, fps: float = 5.0, width: int | None = None) -> None:
         self.stream = stream
@@ -180,6 +208,8 @@ class TtyDisplay:
         self._warn_until = -math.inf
         self._warning = ""
         self._done = False
+        self._lock = threading.RLock()  # log records may come from the run's other threads
+        self._logging: tuple[logging.Handler, list[logging.Handler], _Held] | None = None
         if width is None:
             import shutil
 
@@ -191,7 +221,36 @@ class TtyDisplay:
             self.stream.write(f"\x1b[{self._drawn}F\x1b[J")
             self._drawn = 0
 
+    def _capture_logging(self) -> None:
+        """Route the root logger's console records on this display's stream through it."""
+        if self._logging is not None:
+            return
+        root = logging.getLogger()
+        mine: list[logging.Handler] = [
+            h for h in root.handlers
+            if isinstance(h, logging.StreamHandler) and not isinstance(h, logging.FileHandler)
+            and getattr(h, "stream", None) is self.stream
+        ]
+        if not mine:
+            return
+        held = _Held()
+        for h in mine:
+            h.addFilter(held)
+        to_me = _ToDisplay(self, min(h.level for h in mine))
+        root.addHandler(to_me)
+        self._logging = (to_me, mine, held)
+
+    def _release_logging(self) -> None:
+        if self._logging is None:
+            return
+        to_me, mine, held = self._logging
+        self._logging = None
+        logging.getLogger().removeHandler(to_me)
+        for h in mine:
+            h.removeFilter(held)
+
     def _draw(self, snap: Snapshot) -> None:
+        self._capture_logging()
         self._erase()
         now = time.monotonic()
         lines = format_block(snap, self.width, self._missed_seen)
@@ -208,31 +267,40 @@ class TtyDisplay:
         self.message(f"state → {state}" + (f" ({reason})" if reason else ""))
 
     def update(self, snap: Snapshot) -> None:
-        self._snap = snap
-        now = time.monotonic()
-        if now - self._last >= self.min_dt:
-            self._last = now
-            self._draw(snap)
+        with self._lock:
+            self._snap = snap
+            now = time.monotonic()
+            if now - self._last >= self.min_dt:
+                self._last = now
+                self._draw(snap)
 
     def message(self, text: str) -> None:
-        self._erase()
-        self.stream.write(fit(f"[{time.strftime('%H:%M:%S')}] {text}", self.width) + "\n")
-        if self._snap is not None and not self._done:
-            self._draw(self._snap)
-        else:
-            self.stream.flush()
+        """A line above the block, wrapped (not cut) to the display's width."""
+        with self._lock:
+            self._erase()
+            lines = textwrap.wrap(f"[{time.strftime('%H:%M:%S')}] {text}", self.width,
+                                  subsequent_indent=" " * 11, break_on_hyphens=False) or [""]
+            self.stream.write("\n".join(lines) + "\n")
+            if self._snap is not None and not self._done:
+                self._draw(self._snap)
+            else:
+                self.stream.flush()
 
     def verdict(self, verdict: str, detail: str = "") -> None:
         """The final banner below everything; the live block is not drawn again."""
-        self._erase()
-        self._done = True
-        self.stream.write("\n".join(banner(verdict, detail, self.width)) + "\n")
-        self.stream.flush()
+        with self._lock:
+            self._erase()
+            self._done = True
+            self._release_logging()
+            self.stream.write("\n".join(banner(verdict, detail, self.width)) + "\n")
+            self.stream.flush()
 
     def close(self) -> None:
-        if self._snap is not None and not self._done:
-            self._draw(self._snap)
-        self.stream.flush()
+        with self._lock:
+            if self._snap is not None and not self._done:
+                self._draw(self._snap)
+            self._release_logging()
+            self.stream.flush()
 
 
 def make_display(stream: TextIO | None = None, quiet: bool = False) -> Display:
