@@ -626,7 +626,8 @@ class Session:
         self._play(loop)
         t_start = loop.t_motion_start
         assert t_start is not None
-        loop.stop()
+        # the pre-test's loop holds the stand (heartbeat, samples, checks) until the main
+        # motion's loop takes over, however long the correction takes to compute
         if self.recorder is not None:  # the live σ: the profile's motion only
             self.recorder.sigma = RunningSigma(self.axes)
         # the response per axis, from the recording (the same instants the verdict will use)
@@ -663,7 +664,17 @@ class Session:
         self.prep.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
                                    old.fade_in_s, old.fade_out_s, mode=old.mode,
                                    tables=dict(result.motion.tables or {}))
-        summary = {"level": eq.level, "drive_check": result.to_dict(), "axes": report}
+        disturbed = {"missed_cycles": loop.missed_cycles, "rejoins": loop.rejoins,
+                     "underruns": loop.underruns}
+        summary = {"level": eq.level, "drive_check": result.to_dict(), "axes": report,
+                   "pretest_stats": disturbed}
+        if any(disturbed.values()):  # the stand left the pre-test's lines for a moment
+            msg = ("equalisation: the pre-test's motion was disturbed ("
+                   + ", ".join(f"{k} {v}" for k, v in disturbed.items() if v)
+                   + "): the response on its lines may be off by tenths of a dB")
+            summary["warning"] = msg
+            log.warning("%s", msg)
+            self.display.message(msg)
         w.event("equalise_done", **summary)
         w.update_meta(equalisation=summary)
         self.meta["equalisation"] = summary
@@ -673,11 +684,13 @@ class Session:
                 f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
                 f" on {len(r['freq_hz'])} lines; "
                 + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
-        self.loop = self._new_loop(self.prep.plan)
         if self.prep.plan.mode == "table":
             assert self.prep.plan.tables is not None
             stand.upload_table(self.prep.plan.tables)
             w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        self.supervisor.check()  # a fault while the correction was computed
+        loop.stop()
+        self.loop = self._new_loop(self.prep.plan)
         self.loop.start()  # hold until the motion begins
 
     def _play(self, loop: StandLoop) -> None:
