@@ -96,6 +96,8 @@ def _main(argv: Sequence[str] | None) -> int:
         _say(f"{_prefix(name)}: error: {e}")
     except KeyboardInterrupt as e:
         _say(f"{_prefix(name)}: {_interrupted(e)}")
+    except BrokenPipeError:  # the reader went away (`benchctl history | head`): nothing to say
+        _flush_std()  # the closed stream pointed at /dev/null, so the exit cannot fail either
     except SystemExit:
         raise  # argparse: --help, --version, a usage error (exit 2)
     except BaseException as e:  # a bug: one line here, the traceback in a log file
