@@ -404,6 +404,7 @@ class Session:
         display: Display | None = None,
         device_factory: DeviceFactory = open_devices,
         start_simulators: bool = False,  # cfg has a sim: section: run them (after the recording)
+        supervisor: Supervisor | None = None,  # the caller's (a plan asks a run to stop by it)
     ) -> None:
         self.start_simulators = start_simulators
         self.log_path: Path | None = None
@@ -416,7 +417,7 @@ class Session:
         self.path = recording_dir(self.out_dir, opts.serial)
         self.axes = prepared.plan.axes
         self.machine = StateMachine()
-        self.supervisor = Supervisor()
+        self.supervisor = supervisor if supervisor is not None else Supervisor()
         self.writer: RecordingWriter | None = None
         self.stand: Stand | None = None
         self.sensor: AngleSensor | None = None
@@ -1281,6 +1282,7 @@ def run_test(
     opts: RunOptions,
     display: Display | None = None,
     device_factory: DeviceFactory | None = None,
+    supervisor: Supervisor | None = None,
 ) -> RunResult:
     """Run one test. Bad input raises ``BenchError`` before anything opens, and so does a stand
     in use by another run (``StandInUse``, naming it: ``benchctl.run.lock``); after that, every
@@ -1288,16 +1290,23 @@ def run_test(
     exit 2).
 
     With a ``sim:`` section the simulators run on a free port of the run's own (nothing to lock);
-    they start once the recording exists (their output in its ``sim.log``)."""
+    they start once the recording exists (their output in its ``sim.log``).
+
+    ``supervisor``: the run's, given by the caller, who may end the run through it from another
+    thread (``supervisor.fault(SafetyAbort(reason), source)``: the same cleanup path as a signal;
+    a fault reported before the run starts ends it as soon as its recording exists). An
+    acceptance plan's step timeout does this (``benchctl.plan``)."""
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
     _archive_at_start(cfg, Path(out_dir))
     if device_factory is not None:
-        return Session(cfg, prepared, opts, display, device_factory).run()
+        return Session(cfg, prepared, opts, display, device_factory,
+                       supervisor=supervisor).run()
     if cfg.sim is not None:
-        return Session(cfg, prepared, opts, display, start_simulators=True).run()
-    session = Session(cfg, prepared, opts, display)
+        return Session(cfg, prepared, opts, display, start_simulators=True,
+                       supervisor=supervisor).run()
+    session = Session(cfg, prepared, opts, display, supervisor=supervisor)
     holder = {
         "command": "benchctl run",
         "serial": opts.serial,

@@ -1,0 +1,685 @@
+"""Running an acceptance plan: ``run_plan(plan, serial=…) -> PlanResult``.
+
+Order of things:
+
+1. **before anything opens**: the plan is read and validated (``benchctl.plan.schema``), the
+   bench config loaded, and every step prepared as its run will be (the profile loaded,
+   synthesised and checked against the stand limits, the step's limits merged into the
+   config and validated). A plan with operator prompts and no way to answer them (no
+   terminal, no ``yes``) is refused here. Any of these: ``BenchError``, nothing moved.
+2. with a ``sim:`` section in the bench config, the simulators start once for the whole plan
+   (their output in the plan folder's ``sim.log``), so the setup and cleanup checks and every
+   step talk to the same simulated stand;
+3. **setup** actions in order: a prompt answered no ends the plan (ABORTED, operator) before
+   anything moves; a check that fails ends it (ABORTED, equipment);
+4. **steps** in order, each a real run (``benchctl.run.run_test``) on the bench config with the
+   step's limits, its recording and ``record.json`` in the output folder as any run's. A
+   step's ``timeout_s`` and the plan's ``timeout_s`` end a running step through the run's own
+   abort path (its supervisor is faulted: the stand ramps to rest, the recording is closed
+   aborted, the record stored ABORTED). A FAIL or INCONCLUSIVE step with ``on_fail: stop``
+   skips the rest; an aborted step (a fault, a timeout, Ctrl-C) or a step that could not start
+   always does;
+5. **cleanup** actions, always: after a pass, a fail, an abort, a timeout, Ctrl-C. Each action
+   runs whatever the one before did (a failure is noted and the next one runs). A stand check
+   that would move the stand (``ramp_to_zero``) is skipped when the operator declined the setup
+   (the area may not be clear) and nothing moved;
+6. the plan's outcome and exit code, its record ``plan.json`` (in
+   ``<output_dir>/plan_<stamp>_<serial>/``), JUnit XML when asked.
+
+Exit codes: 0 every step PASS; 1 a step FAILed (a measured fail) and nothing aborted;
+2 an abort or an error (a step aborted or could not start, a setup action refused or failed,
+a cleanup action failed, a timeout, Ctrl-C); 3 INCONCLUSIVE (guarded rule) with no FAIL.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from benchctl.config import BenchConfig, RunConfig, load_config
+from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
+from benchctl.jsonout import dumps
+from benchctl.plan.schema import Action, Plan, Step, load_plan
+from benchctl.results.record import load_record, sha256_file
+
+log = logging.getLogger(__name__)
+
+PLAN_SCHEMA_ID = "benchctl-plan/1"
+PLAN_JSON = "plan.json"
+RAMP_TIMEOUT_S = 60.0  # a cleanup/setup ramp_to_zero: at rest at zero within this
+TIMEOUT_SOURCE = "plan timeout"  # the fault source of a step ended by a timeout
+
+# step statuses: a run's outcome, or why it did not give one
+PASS, FAIL, INCONCLUSIVE, ABORTED = "PASS", "FAIL", "INCONCLUSIVE", "ABORTED"
+ERROR, SKIPPED = "ERROR", "SKIPPED"
+EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
+
+Asker = Callable[[str], bool]
+
+
+class PlanTimeout(SafetyAbort):
+    """A step ended because its own or the plan's ``timeout_s`` ran out."""
+
+
+@dataclass
+class ActionResult:
+    phase: str  # setup | cleanup
+    index: int
+    prompt: str | None
+    check: str | None
+    status: str  # ok | declined | failed | skipped
+    detail: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"phase": self.phase, "index": self.index, "prompt": self.prompt,
+                "check": self.check, "status": self.status, "detail": self.detail}
+
+
+@dataclass
+class StepResult:
+    name: str
+    profile: str
+    status: str  # PASS | FAIL | INCONCLUSIVE | ABORTED | ERROR | SKIPPED
+    reason: str = ""
+    on_fail: str = "stop"
+    exit_code: int | None = None
+    timed_out: bool = False
+    duration_s: float = 0.0
+    start_utc: str | None = None
+    recording: Path | None = None
+    record_path: Path | None = None
+    record: dict[str, Any] | None = None  # record.json's content (validated), when written
+    abort: dict[str, Any] | None = None
+
+    @property
+    def measurements(self) -> list[dict[str, Any]]:
+        return list((self.record or {}).get("measurements") or [])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "profile": self.profile,
+            "status": self.status,
+            "reason": self.reason,
+            "on_fail": self.on_fail,
+            "exit_code": self.exit_code,
+            "timed_out": self.timed_out,
+            "duration_s": round(self.duration_s, 3),
+            "start_utc": self.start_utc,
+            "recording": None if self.recording is None else str(self.recording),
+            "record_path": None if self.record_path is None else str(self.record_path),
+            "abort": self.abort,
+            "record": self.record,
+        }
+
+
+@dataclass
+class PlanResult:
+    """What ``run_plan`` returns; ``to_dict()`` is the plan record (``plan.json``)."""
+
+    name: str
+    source: Path | None
+    serial: str
+    operator: str
+    config: Path | None
+    outcome: str = PASS  # PASS | FAIL | INCONCLUSIVE | ABORTED
+    exit_code: int = EXIT_PASS
+    reason: str = ""
+    timed_out: bool = False
+    interrupted: bool = False
+    start_utc: str = ""
+    end_utc: str = ""
+    duration_s: float = 0.0
+    setup: list[ActionResult] = field(default_factory=list)
+    steps: list[StepResult] = field(default_factory=list)
+    cleanup: list[ActionResult] = field(default_factory=list)
+    folder: Path | None = None  # <output_dir>/plan_<stamp>_<serial>: plan.json, sim.log
+    record_path: Path | None = None  # plan.json
+    junit: Path | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        from benchctl import __version__
+
+        return {
+            "schema": PLAN_SCHEMA_ID,
+            "software": {"name": "benchctl", "version": str(__version__)},
+            "plan": {
+                "name": self.name,
+                "path": None if self.source is None else str(self.source),
+                "sha256": sha256_file(self.source),
+            },
+            "serial": self.serial,
+            "operator": self.operator,
+            "config": None if self.config is None else str(self.config),
+            "outcome": self.outcome,
+            "exit_code": self.exit_code,
+            "reason": self.reason,
+            "timed_out": self.timed_out,
+            "interrupted": self.interrupted,
+            "start_utc": self.start_utc,
+            "end_utc": self.end_utc,
+            "duration_s": round(self.duration_s, 3),
+            "setup": [a.to_dict() for a in self.setup],
+            "steps": [s.to_dict() for s in self.steps],
+            "cleanup": [a.to_dict() for a in self.cleanup],
+            "junit": None if self.junit is None else str(self.junit),
+        }
+
+
+# ------------------------------------------------------------------------------- prompts
+def terminal_asker(stdin: Any = None, stderr: Any = None) -> Asker | None:
+    """A y/N question on the terminal, or None when stdin or stderr is not a terminal."""
+    i = stdin if stdin is not None else sys.stdin
+    o = stderr if stderr is not None else sys.stderr
+    try:
+        if not (i.isatty() and o.isatty()):
+            return None
+    except (AttributeError, ValueError):
+        return None
+
+    def ask(text: str) -> bool:
+        o.write(f"{text} [y/N]: ")
+        o.flush()
+        line = i.readline()
+        return line.strip().lower() in ("y", "yes")
+
+    return ask
+
+
+def _yes(text: str) -> bool:
+    log.info("plan prompt answered yes (--yes): %s", text)
+    return True
+
+
+# ------------------------------------------------------------------------------- config
+def step_config(cfg: BenchConfig, step: Step, where: str = "") -> BenchConfig:
+    """The bench config with the step's limits in its ``run`` section (validated as the
+    config's own: a gain_min of the step at or over the config's gain_max is refused)."""
+    lim = step.limits
+    run = cfg.run
+    data = run.model_dump()
+    extra = {k: getattr(lim, k) for k in ("gain_min", "gain_max", "phase_deg", "delay_s",
+                                          "mean_error_deg") if getattr(lim, k) is not None}
+    data["limits"] = {**data["limits"], **extra}
+    if lim.sigma_deg is not None:
+        data["limit_sigma_deg"] = lim.sigma_deg
+    if lim.linearity_spread is not None:
+        data["linearity_spread_limit"] = lim.linearity_spread
+    if lim.excitation_db is not None:
+        data["excitation"] = {**data["excitation"], "alarm_db": lim.excitation_db}
+    try:
+        new_run = RunConfig.model_validate(data)
+    except ValidationError as e:
+        msgs = "; ".join(f"{'.'.join(str(p) for p in x['loc'])}: {x['msg']}" for x in e.errors())
+        raise ConfigError(
+            f"{where}step {step.name!r}: its limits do not fit the bench config's run section: "
+            f"{msgs}"
+        ) from None
+    return cfg.model_copy(update={"run": new_run})
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+def _safe(s: str) -> str:
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", s).strip("_") or "unnamed"
+
+
+def _plan_folder(out_dir: Path, serial: str) -> Path:
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    base = out_dir / f"plan_{stamp}_{_safe(serial)}"
+    p, i = base, 1
+    while p.exists():
+        i += 1
+        p = base.with_name(f"{base.name}_{i}")
+    return p
+
+
+# ------------------------------------------------------------------------------- the stand
+def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
+    """One stand check of a setup or cleanup (the stand's lock held, the real driver): returns
+    its detail, raises ``BenchError`` when it fails.
+
+    - ``stand_at_rest``: the stand ready (no fault, no E-stop, no limit switch), not moving,
+      every axis at zero within ``stand.zero_tolerance_deg`` (the run's own prechecks);
+    - ``ramp_to_zero``: from wherever it is, a ramp to zero within the limits, at rest, then
+      disabled."""
+    from benchctl.devices.modbus import open_stand
+    from benchctl.run import prechecks as pc
+    from benchctl.run.lock import stand_lock
+
+    with stand_lock(cfg, holder):
+        stand = open_stand(cfg.stand)
+        try:
+            stand.connect()
+            if check == "ramp_to_zero":
+                try:
+                    stand.ramp_to_zero(RAMP_TIMEOUT_S)
+                finally:
+                    with contextlib.suppress(BenchError, OSError):
+                        stand.disable()
+            status = stand.read_status()
+            sample = stand.read_sample()
+            ready = pc.check_stand_ready(status, sample, list(sample.angle_deg))
+            zero = pc.check_stand_at_zero(sample, cfg.stand.zero_tolerance_deg)
+            detail = f"{ready.detail}; {zero.detail}"
+            if not (ready.ok and zero.ok):
+                raise SafetyAbort(f"stand not at rest at zero: {detail}")
+            return detail
+        finally:
+            with contextlib.suppress(BenchError, OSError):
+                stand.close()
+
+
+# ------------------------------------------------------------------------------- runner
+class _Timers:
+    """The step's and the plan's timeouts: each ends the running step through its supervisor."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.supervisor: Any = None  # the running step's
+        self.plan_expired = False
+        self.step_expired = False
+        self._plan_timer: threading.Timer | None = None
+        self.plan_timeout_s: float | None = None
+
+    def start_plan(self, seconds: float | None) -> None:
+        self.plan_timeout_s = seconds
+        if seconds is not None:
+            self._plan_timer = threading.Timer(seconds, self._plan_fired)
+            self._plan_timer.daemon = True
+            self._plan_timer.name = "plan-timeout"
+            self._plan_timer.start()
+
+    def _plan_fired(self) -> None:
+        with self._lock:
+            self.plan_expired = True
+            sup = self.supervisor
+        log.error("plan timeout: %g s", self.plan_timeout_s or 0)
+        if sup is not None:
+            sup.fault(PlanTimeout(f"the plan's timeout_s ({self.plan_timeout_s:g} s) ran out"),
+                      TIMEOUT_SOURCE)
+
+    @contextlib.contextmanager
+    def step(self, supervisor: Any, name: str, seconds: float | None) -> Iterator[None]:
+        self.step_expired = False
+
+        def fired() -> None:
+            self.step_expired = True
+            log.error("step %r timeout: %g s", name, seconds or 0)
+            supervisor.fault(PlanTimeout(f"step {name!r}: its timeout_s ({seconds:g} s) ran out"),
+                             TIMEOUT_SOURCE)
+
+        timer: threading.Timer | None = None
+        with self._lock:
+            self.supervisor = supervisor
+            expired = self.plan_expired
+        if expired:
+            supervisor.fault(PlanTimeout(
+                f"the plan's timeout_s ({self.plan_timeout_s:g} s) ran out"), TIMEOUT_SOURCE)
+        if seconds is not None:
+            timer = threading.Timer(seconds, fired)
+            timer.daemon = True
+            timer.name = "step-timeout"
+            timer.start()
+        try:
+            yield
+        finally:
+            if timer is not None:
+                timer.cancel()
+                timer.join()
+            with self._lock:
+                self.supervisor = None
+
+    def stop(self) -> None:
+        if self._plan_timer is not None:
+            self._plan_timer.cancel()
+            self._plan_timer.join()
+
+
+def _prepare(plan: Plan, cfg: BenchConfig, serial: str, operator: str,
+             out_dir: Path | None) -> list[BenchConfig]:
+    """Every step's config and motion checked before anything opens (bad input never moves
+    the stand): ``ConfigError`` naming the plan, the step and the problem."""
+    from benchctl.run import RunOptions
+    from benchctl.run.session import prepare_motion
+
+    where = f"{plan.source}: " if plan.source is not None else ""
+    cfgs = []
+    for step in plan.steps:
+        scfg = step_config(cfg, step, where)
+        opts = RunOptions(serial=serial, operator=operator, duration_s=step.duration_s,
+                          out_dir=out_dir, decision_rule=step.decision_rule)
+        try:
+            prepare_motion(scfg, step.profile, opts)
+        except BenchError as e:
+            raise type(e)(f"{where}step {step.name!r}: {e}") from None
+        cfgs.append(scfg)
+    return cfgs
+
+
+def run_plan(
+    plan: Plan | str | Path,
+    *,
+    serial: str,
+    config: BenchConfig | str | Path | None = None,
+    operator: str | None = None,
+    yes: bool = False,
+    ask: Asker | None = None,
+    out_dir: str | Path | None = None,
+    junit: str | Path | None = None,
+    display: Callable[[], Any] | None = None,
+    say: Callable[[str], None] | None = None,
+) -> PlanResult:
+    """Run an acceptance plan on the bench and return its ``PlanResult`` (``exit_code``: 0 all
+    PASS, 1 a measured FAIL, 2 an abort or error, 3 INCONCLUSIVE).
+
+    ``plan``: a ``Plan`` or a plan YAML file. ``serial``: the unit under test. ``config``: the
+    bench config (a ``BenchConfig`` or a file), else the plan's ``config``. ``operator``: else
+    the plan's. ``yes``: answer every operator prompt yes (unattended); else ``ask`` answers
+    them (text → bool), else the terminal (y/N); with prompts and none of these the plan is
+    refused (``InputError``) before anything opens. ``out_dir``: where the recordings and the
+    plan folder go (default ``run.output_dir``). ``junit``: write JUnit XML there.
+    ``display``: a factory of each step's run display (default none). ``say``: a line of
+    progress (default: logged).
+
+    Raises ``BenchError`` only for bad input found before anything opens (the plan, the
+    config, a step's profile or limits, prompts that cannot be answered); every later outcome
+    is in the result."""
+    from benchctl.run import RunOptions, run_test
+    from benchctl.run.session import simulators
+    from benchctl.run.supervisor import Supervisor
+
+    p = plan if isinstance(plan, Plan) else load_plan(plan)
+    where = f"{p.source}: " if p.source is not None else ""
+    if not serial or not serial.strip():
+        raise InputError("a plan needs the serial number of the unit under test (--serial)")
+    if isinstance(config, BenchConfig):
+        cfg = config
+    else:
+        path = Path(config) if config is not None else p.config
+        if path is None:
+            raise ConfigError(f"{where}no bench config: the plan names none (config:) and none "
+                              "was given (--config)")
+        cfg = load_config(path)
+    op = operator or p.operator
+    if not op:
+        raise InputError(f"{where}no operator: the plan names none (operator:) and none was "
+                         "given (--operator)")
+    if yes:
+        asker: Asker | None = _yes
+    else:
+        asker = ask if ask is not None else terminal_asker()
+    if p.prompts and asker is None:
+        raise InputError(
+            f"{where}the plan has {len(p.prompts)} operator prompt(s) and there is no terminal "
+            "to answer them on: answer them with --yes (yes=True) for an unattended run"
+        )
+    out = Path(out_dir) if out_dir is not None else cfg.run.output_dir
+    cfgs = _prepare(p, cfg, serial, op, out)
+    tell = say or (lambda s: log.info("%s", s))
+
+    result = PlanResult(p.name, p.source, serial, op, cfg.source, start_utc=_now())
+    t0 = time.monotonic()
+    folder = _plan_folder(out, serial)
+    try:
+        folder.mkdir(parents=True)
+    except OSError as e:
+        raise ConfigError(f"{folder}: cannot create the plan folder: {e.strerror}") from None
+    result.folder = folder
+    timers = _Timers()
+    holder = {"command": "benchctl plan", "plan": p.name, "serial": serial, "operator": op,
+              "start_utc": result.start_utc}
+    moved = False  # a step started: the stand may have moved
+    declined = False
+    stop_reason = ""
+    try:
+        with contextlib.ExitStack() as stack:
+            live = cfg
+            if cfg.sim is not None:
+                tell("starting the simulators for the plan")
+                live = stack.enter_context(simulators(cfg, folder / "sim.log"))
+                live = live.model_copy(update={"sim": None})
+            live_cfgs = [c.model_copy(update={"stand": live.stand, "instrument": live.instrument,
+                                              "sim": None}) for c in cfgs]
+            timers.start_plan(p.timeout_s)
+            try:
+                # ---- setup
+                for i, a in enumerate(p.setup):
+                    ar = _action("setup", i, a, live, asker, holder, tell, allow_move=True)
+                    result.setup.append(ar)
+                    if ar.status == "declined":
+                        declined = True
+                        stop_reason = f"setup: the operator answered no to {a.prompt!r}"
+                        break
+                    if ar.status != "ok":
+                        stop_reason = f"setup: {ar.detail}"
+                        break
+                    if timers.plan_expired:
+                        stop_reason = "the plan's timeout_s ran out during the setup"
+                        result.timed_out = True
+                        break
+                if stop_reason:
+                    result.outcome, result.reason = ABORTED, stop_reason
+                # ---- steps
+                for step, scfg in zip(p.steps, live_cfgs, strict=True):
+                    if stop_reason:
+                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
+                                                       f"not run: {stop_reason}", step.on_fail))
+                        continue
+                    if timers.plan_expired:
+                        result.timed_out = True
+                        stop_reason = "the plan's timeout_s ran out"
+                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
+                                                       f"not run: {stop_reason}", step.on_fail))
+                        continue
+                    tell(f"step {step.name}: {step.profile.name}")
+                    moved = True
+                    sr = _run_step(step, scfg, serial, op, out, timers, display, run_test,
+                                   RunOptions, Supervisor)
+                    result.steps.append(sr)
+                    tell(f"step {step.name}: {sr.status}" + (f" ({sr.reason})" if sr.reason
+                                                              and sr.status != PASS else ""))
+                    if sr.timed_out and timers.plan_expired:
+                        result.timed_out = True
+                    if sr.status in (ABORTED, ERROR):
+                        stop_reason = f"step {step.name!r} {sr.status.lower()}: {sr.reason}"
+                        if sr.abort is not None and sr.abort.get("source") == "signal":
+                            result.interrupted = True
+                    elif sr.status in (FAIL, INCONCLUSIVE) and step.on_fail == "stop":
+                        stop_reason = f"step {step.name!r} {sr.status} (on_fail: stop)"
+            except KeyboardInterrupt as e:  # a signal between steps or in the setup
+                result.interrupted = True
+                stop_reason = f"interrupted: {e}" if str(e) else "interrupted by SIGINT"
+                tell(f"plan {stop_reason}; cleanup follows")
+                done = {s.name for s in result.steps}
+                for step in p.steps:
+                    if step.name not in done:
+                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
+                                                       f"not run: {stop_reason}", step.on_fail))
+            finally:
+                timers.stop()
+                # ---- cleanup: always
+                for i, a in enumerate(p.cleanup):
+                    ar = _action("cleanup", i, a, live, asker, holder, tell,
+                                 allow_move=moved or not declined)
+                    result.cleanup.append(ar)
+            if result.interrupted and not result.reason:
+                result.reason = stop_reason
+    finally:
+        result.end_utc = _now()
+        result.duration_s = time.monotonic() - t0
+        _conclude(result, stop_reason)
+        _write_outputs(result, folder, junit)
+    return result
+
+
+def _action(phase: str, index: int, a: Action, cfg: BenchConfig, asker: Asker | None,
+            holder: dict[str, Any], tell: Callable[[str], None], *,
+            allow_move: bool) -> ActionResult:
+    """One setup or cleanup action; never raises but for a signal in a setup action (a
+    cleanup action takes even that as its failure)."""
+    ar = ActionResult(phase, index, a.prompt, a.check, "ok")
+    try:
+        if a.prompt is not None:
+            assert asker is not None  # refused before the plan started otherwise
+            if not asker(a.prompt):
+                ar.status, ar.detail = "declined", f"answered no: {a.prompt}"
+                tell(f"{phase}: {ar.detail}")
+                if phase == "setup":
+                    return ar
+        if a.check is not None:
+            if a.check == "ramp_to_zero" and not allow_move:
+                ar.status = "skipped"
+                ar.detail = "ramp_to_zero skipped: the setup was declined and nothing moved"
+            else:
+                detail = stand_action(cfg, a.check, holder)
+                if ar.status == "ok":
+                    ar.detail = f"{a.check}: {detail}"
+        tell(f"{phase} {index + 1}: {ar.status}" + (f" — {ar.detail}" if ar.detail else ""))
+    except BenchError as e:
+        ar.status, ar.detail = "failed", f"{a.check or 'prompt'}: {e}"
+        tell(f"{phase} {index + 1}: FAILED — {ar.detail}")
+    except KeyboardInterrupt as e:
+        if phase == "setup":
+            raise
+        ar.status, ar.detail = "failed", f"interrupted: {e or 'SIGINT'}"
+    except Exception as e:  # a bug in one cleanup action must not skip the next
+        if phase == "setup":
+            raise
+        ar.status, ar.detail = "failed", f"unexpected {type(e).__name__}: {e}"
+        log.error("cleanup action failed", exc_info=e)
+    return ar
+
+
+def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
+              timers: _Timers, display: Callable[[], Any] | None, run_test: Any,
+              RunOptions: Any, Supervisor: Any) -> StepResult:
+    sr = StepResult(step.name, str(step.profile), ERROR, on_fail=step.on_fail,
+                    start_utc=_now())
+    t0 = time.monotonic()
+    sup = Supervisor()
+    opts = RunOptions(serial=serial, operator=operator, duration_s=step.duration_s,
+                      out_dir=out, decision_rule=step.decision_rule)
+    try:
+        with timers.step(sup, step.name, step.timeout_s):
+            res = run_test(cfg, step.profile, opts, display=None if display is None else display(),
+                           supervisor=sup)
+    except BenchError as e:  # could not start: bad input found late, a stand in use
+        sr.reason = f"could not start: {e}"
+        sr.exit_code = EXIT_ERROR
+        sr.duration_s = time.monotonic() - t0
+        return sr
+    sr.duration_s = time.monotonic() - t0
+    sr.exit_code = res.exit_code
+    sr.recording = res.recording
+    sr.record_path = res.record
+    sr.abort = res.abort
+    if res.record is not None:
+        try:
+            sr.record = load_record(res.record)
+        except BenchError as e:
+            log.warning("step %s: record not readable: %s", step.name, e)
+    if res.state == "aborted":
+        sr.status = ABORTED
+        sr.reason = res.reason
+        f = sup.first
+        sr.timed_out = f is not None and isinstance(f.error, PlanTimeout)
+    else:
+        sr.status = str(sr.record["outcome"]) if sr.record is not None else str(res.reason)
+        sr.reason = _fail_reason(sr)
+    return sr
+
+
+def _fail_reason(sr: StepResult) -> str:
+    bad = [m for m in sr.measurements if m.get("decisive") and m.get("outcome") in (FAIL,
+                                                                                  INCONCLUSIVE)]
+    return "; ".join(f"{_mname(m)} {m['outcome']}" for m in bad[:5])
+
+
+def _mname(m: dict[str, Any]) -> str:
+    return f"{m['axis']} {m['name']}" if m.get("axis") else str(m["name"])
+
+
+def _conclude(result: PlanResult, stop_reason: str) -> None:
+    """The plan's outcome and exit code from its steps and actions."""
+    statuses = [s.status for s in result.steps]
+    aborted = (result.interrupted or result.timed_out
+               or any(s in (ABORTED, ERROR) for s in statuses)
+               or any(a.status in ("declined", "failed") for a in result.setup)
+               or any(a.status == "failed" for a in result.cleanup))
+    if aborted:
+        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        reasons = [stop_reason] if stop_reason else []
+        reasons += [f"cleanup: {a.detail}" for a in result.cleanup if a.status == "failed"]
+        if result.timed_out and not any("timeout" in r for r in reasons):
+            reasons.append("the plan's timeout_s ran out")
+        result.reason = "; ".join(reasons) or result.reason or "aborted"
+    elif FAIL in statuses:
+        result.outcome, result.exit_code = FAIL, EXIT_FAIL
+        result.reason = stop_reason or "; ".join(
+            f"{s.name}: {s.reason}" for s in result.steps if s.status == FAIL)
+    elif INCONCLUSIVE in statuses:
+        result.outcome, result.exit_code = INCONCLUSIVE, EXIT_INCONCLUSIVE
+        result.reason = stop_reason
+    elif statuses and all(s == PASS for s in statuses):
+        result.outcome, result.exit_code, result.reason = PASS, EXIT_PASS, ""
+    else:  # nothing ran (cannot happen: a plan has steps and nothing stopped it)
+        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        result.reason = stop_reason or "no step ran"
+
+
+def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -> None:
+    """plan.json (validated) and the JUnit XML; a file that cannot be written is an error
+    line in the log and leaves its path None (the steps' records stand without it)."""
+    from benchctl.plan.junit import write_junit
+    from benchctl.plan.record import validate_plan_record
+
+    if junit is not None:
+        try:
+            result.junit = write_junit(result, Path(junit))
+        except OSError as e:  # asked for and not written: an error of the plan (exit 2)
+            log.error("JUnit XML not written: %s: %s", junit, e.strerror)
+            result.exit_code = EXIT_ERROR
+            result.reason = "; ".join(
+                r for r in (result.reason, f"JUnit XML not written: {junit}: {e.strerror}") if r)
+    rec = result.to_dict()
+    validate_plan_record(rec)
+    path = folder / PLAN_JSON
+    try:
+        path.write_text(dumps(rec, indent=2) + "\n", encoding="utf-8")
+        result.record_path = path
+    except OSError as e:
+        log.error("plan record not written: %s: %s", path, e.strerror)
+
+
+__all__ = [
+    "ABORTED",
+    "ERROR",
+    "FAIL",
+    "INCONCLUSIVE",
+    "PASS",
+    "PLAN_JSON",
+    "PLAN_SCHEMA_ID",
+    "SKIPPED",
+    "ActionResult",
+    "PlanResult",
+    "PlanTimeout",
+    "StepResult",
+    "run_plan",
+    "step_config",
+    "terminal_asker",
+]
