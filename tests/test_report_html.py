@@ -242,3 +242,19 @@ def test_report_in_headless_chromium_loads_and_prints_a4(passed: Path, tmp_path:
     assert 2 <= len(pages) <= 20, len(pages)
     for w, h in pages:  # A4: 595 × 842 pt
         assert abs(w - 595.3) < 2 and abs(h - 841.9) < 2, (w, h)
+
+
+def test_report_of_a_killed_run(aborted: tuple[Path, str], tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
+    """A recording left without end.json or record.json (the process was killed): the report
+    says INCOMPLETE, with what meta.json knows."""
+    folder = tmp_path / "killed"
+    shutil.copytree(aborted[0], folder)
+    for name in ("end.json", "record.json", REPORT_HTML):
+        (folder / name).unlink()
+    assert main(["report", str(folder), "--no-trace"]) == 0
+    capsys.readouterr()
+    html = (folder / REPORT_HTML).read_text(encoding="utf-8")
+    _common_checks(html)
+    assert 'class="verdict INCOMPLETE"' in html and "no end.json" in html
+    assert "PN-42" in html and "2031-05-17" in html  # from meta.json's config
