@@ -708,22 +708,28 @@ class Session:
             if now - t_wake > 0.1 + HOST_STALL_S:
                 resumed = now
             t_wake = now
-            if not loop.alive:
-                raise SafetyAbort("stand loop ended without finishing the pre-test")
-            last = loop.t_last_cycle
-            stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
-            if last is not None and now - max(last, resumed) > stall:
-                raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
-            silent = min(loop.instrument_silence(now), now - resumed)
-            if silent > self.cfg.instrument.silence_timeout_s + 0.5:
-                raise SafetyAbort(
-                    f"instrument silent: no sample for {silent:.2f} s "
-                    f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
-                )
+            self._check_loop(loop, now, resumed, "pre-test")
             if now - t0 > limit:
                 raise SafetyAbort(f"pre-test did not finish within {limit:.0f} s")
             self.display.update(self._snapshot())
         self.supervisor.check()
+
+    def _check_loop(self, loop: StandLoop, now: float, resumed: float, what: str) -> None:
+        """The main thread's watch over a stand loop playing ``what``: the loop alive, cycling,
+        and the instrument talking — counted from ``resumed``, this process's last wake-up
+        after a stall of its own, so a held-up host is never taken for a silent device."""
+        if not loop.alive:
+            raise SafetyAbort(f"stand loop ended without finishing the {what}")
+        last = loop.t_last_cycle
+        stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
+        if last is not None and now - max(last, resumed) > stall:
+            raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
+        silent = min(loop.instrument_silence(now), now - resumed)
+        if silent > self.cfg.instrument.silence_timeout_s + 0.5:
+            raise SafetyAbort(
+                f"instrument silent: no sample for {silent:.2f} s "
+                f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
+            )
 
     def _motion(self) -> None:
         loop = self.loop
@@ -753,18 +759,7 @@ class Session:
             if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
                 resumed = now  # get a moment to catch up before their silence counts
             t_wake = now
-            if not loop.alive:
-                raise SafetyAbort("stand loop ended without finishing the motion")
-            last = loop.t_last_cycle
-            stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
-            if last is not None and now - max(last, resumed) > stall:
-                raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
-            silent = min(loop.instrument_silence(now), now - resumed)
-            if silent > self.cfg.instrument.silence_timeout_s + 0.5:
-                raise SafetyAbort(
-                    f"instrument silent: no sample for {silent:.2f} s "
-                    f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
-                )
+            self._check_loop(loop, now, resumed, "motion")
             if now - t0 > limit:
                 raise SafetyAbort(f"motion did not finish within {limit:.0f} s")
             if self.precision is None and loop.t_motion_start is not None:
