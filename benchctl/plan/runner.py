@@ -365,7 +365,7 @@ def _prepare(plan: Plan, cfg: BenchConfig, serial: str, operator: str,
                           out_dir=out_dir, decision_rule=step.decision_rule)
         try:
             prepare_motion(scfg, step.profile, opts)
-        except BenchError as e:
+        except InputError as e:  # ConfigError, LimitError, DataError: named by the step
             raise type(e)(f"{where}step {step.name!r}: {e}") from None
         cfgs.append(scfg)
     return cfgs
