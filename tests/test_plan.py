@@ -7,6 +7,7 @@ prompt, and the shipped plans."""
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ import yaml
 from junitparser import Error, Failure, JUnitXml, Skipped
 
 from benchctl.cli import main
-from benchctl.errors import ConfigError, InputError, LimitError
+from benchctl.errors import ConfigError, DataError, InputError, LimitError
 from benchctl.plan import load_plan, parse_plan, run_plan
 from benchctl.plan.record import load_plan_record
 from benchctl.plan.runner import terminal_asker
@@ -225,3 +226,19 @@ def test_terminal_prompt_reads_yes_or_no() -> None:
 def test_parse_plan_refuses_a_source_key() -> None:
     with pytest.raises(ConfigError, match="field source: not a plan field"):
         parse_plan(_plan(source="x"))
+
+
+def test_schema_command_prints_the_plan_schema(capsys: pytest.CaptureFixture[str]) -> None:
+    from jsonschema import Draft202012Validator
+
+    from benchctl.plan.record import plan_schema, validate_plan_record
+
+    assert main(["schema", "plan"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    Draft202012Validator.check_schema(schema)
+    assert schema == plan_schema()
+    assert schema["properties"]["schema"]["const"] == "benchctl-plan/1"
+    # a record the schema refuses: named where and what
+    bad = {"schema": "benchctl-plan/1", "steps": [{"status": "GREEN"}]}
+    with pytest.raises(DataError, match="plan record not valid against benchctl-plan/1"):
+        validate_plan_record(bad)

@@ -17,6 +17,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -172,15 +174,15 @@ def _plan(tmp_path: Path, steps: list[dict[str, Any]], **extra: Any) -> Any:
 
 
 @contextlib.contextmanager
-def _when_second_step_moves(out: Path, action: Any) -> Iterator[threading.Event]:
-    """Call ``action`` once the second recording in ``out`` shows 2 s of motion."""
+def _when_step_moves(out: Path, action: Any, nth: int = 2) -> Iterator[threading.Event]:
+    """Call ``action`` once the ``nth`` recording in ``out`` shows 2 s of motion."""
     stop, done = threading.Event(), threading.Event()
 
     def watch() -> None:
         while not stop.is_set():
             recs = sorted(p.parent for p in out.glob("2*/meta.json"))
-            if len(recs) >= 2 and (recs[1] / "events.jsonl").is_file():
-                for line in (recs[1] / "events.jsonl").read_text().splitlines():
+            if len(recs) >= nth and (recs[nth - 1] / "events.jsonl").is_file():
+                for line in (recs[nth - 1] / "events.jsonl").read_text().splitlines():
                     if '"motion_start"' in line and time.monotonic() - json.loads(line)[
                             "t_host"] >= 2.0:
                         action()
@@ -233,7 +235,7 @@ def test_a_fault_mid_plan_aborts_the_step_runs_cleanup_and_exits_2(tmp_path: Pat
             {"name": "faulted", "profile": str(roll), "on_fail": "continue"},
             {"name": "after", "profile": str(roll)},
         ], setup=[{"check": "stand_at_rest"}])
-        with _when_second_step_moves(out, lambda: b.instrument.inject("silent")) as injected:
+        with _when_step_moves(out, lambda: b.instrument.inject("silent")) as injected:
             res: PlanResult = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True,
                                        out_dir=out, junit=tmp_path / "fault.xml")
         assert injected.is_set()
@@ -277,4 +279,40 @@ def test_a_step_timeout_ends_the_step_through_the_abort_path(tmp_path: Path) -> 
     assert rec["outcome"] == "ABORTED" and "timeout_s (12 s)" in rec["abort"]["reason"]
     end = json.loads((Path(step.recording or "") / "end.json").read_text())
     assert end["state"] == "aborted"
+    assert [a.status for a in res.cleanup] == ["ok"] and at_rest
+
+
+def test_the_plan_timeout_ends_the_running_step_and_skips_the_rest(tmp_path: Path) -> None:
+    long_roll = _profile(tmp_path, "roll60", 60)
+    with live_bench(tmp_path) as b:
+        plan = _plan(tmp_path, [{"name": "slow", "profile": str(long_roll)},
+                                {"name": "next", "profile": str(long_roll)}], timeout_s=12)
+        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True)
+        at_rest = b.stand_at_rest()
+    assert (res.outcome, res.exit_code) == ("ABORTED", 2) and res.timed_out
+    assert [s.status for s in res.steps] == ["ABORTED", "SKIPPED"]
+    assert res.steps[0].timed_out
+    assert "the plan's timeout_s (12 s) ran out" in res.steps[0].reason
+    rec = load_record(res.steps[0].record_path or "")
+    assert rec["outcome"] == "ABORTED"
+    assert [a.status for a in res.cleanup] == ["ok"] and at_rest
+
+
+def test_ctrl_c_during_a_step_stops_the_plan_and_cleanup_still_runs(tmp_path: Path) -> None:
+    """SIGINT while the first step moves: the run takes it (the stand brought to rest, the
+    record ABORTED by the operator), the plan stops there and its cleanup runs."""
+    roll = _profile(tmp_path, "roll20", 20)
+    out = tmp_path / "runs"
+    with live_bench(tmp_path) as b:
+        plan = _plan(tmp_path, [{"name": "one", "profile": str(roll), "on_fail": "continue"},
+                                {"name": "two", "profile": str(roll)}])
+        with _when_step_moves(out, lambda: os.kill(os.getpid(), signal.SIGINT), nth=1) as sent:
+            res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True, out_dir=out)
+        assert sent.is_set()
+        at_rest = b.stand_at_rest()
+    assert (res.outcome, res.exit_code) == ("ABORTED", 2) and res.interrupted
+    assert [s.status for s in res.steps] == ["ABORTED", "SKIPPED"]
+    assert res.steps[0].abort is not None and res.steps[0].abort["kind"] == "operator"
+    assert "SIGINT" in res.steps[0].reason
+    assert load_record(res.steps[0].record_path or "")["abort"]["kind"] == "operator"
     assert [a.status for a in res.cleanup] == ["ok"] and at_rest
