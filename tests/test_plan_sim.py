@@ -30,6 +30,7 @@ from junitparser import Error, Failure, JUnitXml, Skipped
 from run_sim import live_bench
 
 from benchctl.cli import main
+from benchctl.cli.plan import summary
 from benchctl.plan import PlanResult, parse_plan, run_plan
 from benchctl.plan.record import load_plan_record
 from benchctl.results.record import load_record
@@ -224,6 +225,14 @@ def test_a_failing_limit_exits_1_stops_the_plan_and_runs_cleanup(tmp_path: Path)
     assert sig.result[0].type == "FAIL"
     assert [type(r) for c in suites["never"] for r in c.result] == [Skipped]
     assert (xml.failures, xml.errors) == (1, 0)
+    # the summary: a line per step, the judged measurements under it, then the outcome
+    text = summary(res).splitlines()
+    assert text[1].split()[:2] == ["FAIL", "tight"]
+    assert any(line.split()[:5] == ["FAIL", "roll", "sigma", "=", f"{sigma['value']:.4g}"]
+               for line in text)
+    assert any(line.split()[:2] == ["SKIPPED", "never"] for line in text)
+    assert text[-3].split()[:3] == ["FAIL", "exit", "1"]
+    assert text[-2:] == [f"plan record {res.record_path}", f"JUnit XML {res.junit}"]
 
 
 def test_a_fault_mid_plan_aborts_the_step_runs_cleanup_and_exits_2(tmp_path: Path) -> None:
