@@ -49,13 +49,13 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
         result.cross_axis, why_cross = recording_cross_axis(rec, axis)
         if why_cross:
             result.warnings.append(why_cross)
-    from benchctl.analysis.steps import steps_for_recording
+    from benchctl.analysis.steps import attach_steps, steps_for_recording
 
     steps, why = steps_for_recording(rec.meta, rec.events, axis, t_ref, x_ref, t_dev, y_dev)
     if why:
         result.warnings.append(why)
     if steps is not None:
-        result.steps = steps
+        attach_steps(result, steps)
         result.warnings.extend(steps.warnings)
     return result
 

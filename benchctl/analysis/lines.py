@@ -72,7 +72,8 @@ REFERENCE_FIT_MIN = 0.99  # the fitted lines must hold this share of the referen
 DETECT_OFF_GRID = 0.01  # detection: at most this share of the reference's power off the grid …
 DETECT_MIN_LINE = 1e-6  # … and a line holds at least this share of the strongest one …
 DETECT_FLOOR = 100.0  # … and this many times the median power of the off-grid bins
-PERIOD_ON_LINE = 1e-6  # a traditional period "on" a line: relative distance in frequency
+PERIOD_ON_LINE = 0.01  # a traditional period "on" a line: within this share of the line
+# spacing (the period refined from the record differs from the profile's by a few ppm)
 PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
 PERIOD_PHASE_TOL = 1e-6  # period refinement: stop when the highest line turns less (rad)
 REFINE_MAX_ITER = 6
@@ -887,14 +888,14 @@ def periods_from_lines(
 ) -> list[dict[str, Any]]:
     """Gain, phase and coherence with 95 % intervals at the given periods, from the lines.
 
-    A period is *excited* when its frequency f is an excited line (within ``PERIOD_ON_LINE``
-    relative), or lies between two excited lines that are consecutive harmonics k, k+1 of
-    ``T_p`` and each within ``PERIOD_NEAR`` (20 %) of f. Between two lines H is interpolated
-    linearly (complex, weight a of the upper line); its noise adds as
-    ``(1−a)² var H_k + a² var H_{k+1}``, and the interpolation error, bounded by
-    ``a(1−a)/2 · |Δ²H|`` (the largest second difference of H over the neighbouring lines; the
-    first difference when there are only the two), is added to the half-widths. Otherwise
-    ``excited`` is false and gain, phase, coherence and intervals are None.
+    A period is *excited* when its frequency f is an excited line (within ``PERIOD_ON_LINE`` of
+    the line spacing 1/T_p), or lies between two excited lines that are consecutive harmonics k,
+    k+1 of ``T_p`` and each within ``PERIOD_NEAR`` (20 %) of f. Between two lines H is
+    interpolated linearly (complex, weight a of the upper line); its noise adds as ``(1−a)² var
+    H_k + a² var H_{k+1}``, and the interpolation error, bounded by ``a(1−a)/2 · |Δ²H|`` (the
+    largest second difference of H over the neighbouring lines; the first difference when there
+    are only the two), is added to the half-widths. Otherwise ``excited`` is false and gain,
+    phase, coherence and intervals are None.
     """
     from benchctl.analysis.frf import not_excited
 
@@ -907,7 +908,7 @@ def periods_from_lines(
         f = 1.0 / period
         kf = f * tp
         kr = round(kf)
-        if abs(kf - kr) <= PERIOD_ON_LINE * kf and kr in index:
+        if abs(kf - kr) <= PERIOD_ON_LINE and kr in index:
             i = index[kr]
             out.append(_period_entry(period, "line", la.h[i], cvar[i], la.noise_dof[i],
                                      la.coherence[i], 0.0))

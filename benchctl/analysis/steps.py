@@ -285,6 +285,36 @@ class StepsAnalysis:
     limit: float
     warnings: list[str] = field(default_factory=list)
 
+    def periods(self, periods_s: tuple[float, ...]) -> list[dict[str, Any]]:
+        """Gain and phase at the traditional periods from the table: a period that was stepped
+        takes its largest-amplitude step's estimate (the least noise), ``source`` ``steps``;
+        one that was not is not excited — never a number from the frequency response of a
+        sequence that never moved at that period."""
+        from benchctl.analysis.frf import not_excited
+
+        out: list[dict[str, Any]] = []
+        for period in periods_s:
+            rows = [s for s in self.steps if s.gain is not None
+                    and abs(s.window.period_s - period) <= 1e-6 * period]
+            if not rows:
+                out.append(not_excited(period))
+                continue
+            best = max(rows, key=lambda s: s.window.amplitude_deg)
+            out.append({
+                "period_s": period,
+                "freq": 1.0 / period,
+                "excited": True,
+                "gain": best.gain,
+                "gain_ci95": None if best.gain_ci95 is None else list(best.gain_ci95),
+                "phase_deg": best.phase_deg,
+                "phase_ci95_deg": (None if best.phase_ci95_deg is None
+                                   else list(best.phase_ci95_deg)),
+                "coherence": None,
+                "source": "steps",
+                "amplitude_deg": best.window.amplitude_deg,
+            })
+        return out
+
     @property
     def gains(self) -> list[float]:
         return [s.gain for s in self.steps if s.gain is not None]
@@ -429,3 +459,12 @@ def format_steps(sa: StepsAnalysis, indent: str = "  ") -> list[str]:
            if sa.amplitude_spread is not None else "")
     )
     return out
+
+
+def attach_steps(result: Any, sa: StepsAnalysis) -> None:
+    """Put the linearity table on an analysis result (``steps``) and take its gain and phase
+    at the traditional periods from it (``periods``): a sine-steps run is measured there."""
+    from benchctl.analysis.frf import TRADITIONAL_PERIODS_S
+
+    result.steps = sa
+    result.periods = sa.periods(TRADITIONAL_PERIODS_S)

@@ -282,13 +282,13 @@ def _recording_excitation(rec: Any, axis: str, res: AnalysisResult, t: Any, x: A
 
 def _recording_steps(rec: Any, axis: str, res: AnalysisResult, *pair: Any) -> None:
     """A sine_steps recording: the linearity table (``res.steps``) on the same samples."""
-    from benchctl.analysis.steps import steps_for_recording
+    from benchctl.analysis.steps import attach_steps, steps_for_recording
 
     sa, why = steps_for_recording(rec.meta, rec.events, axis, *pair)
     if why:
         res.warnings.append(why)
     if sa is not None:
-        res.steps = sa
+        attach_steps(res, sa)
         res.warnings.extend(sa.warnings)
 
 

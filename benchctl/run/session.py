@@ -1034,7 +1034,7 @@ class Session:
     def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
         """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
         whole full-amplitude cycles placed on the motion's start; its verdict joins σ's."""
-        from benchctl.analysis.steps import analyze_steps, step_windows
+        from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 
         motion = self.prep.motion
         if not getattr(motion, "segments", None):
@@ -1044,7 +1044,7 @@ class Session:
         if not wins:
             return
         sa = analyze_steps(*pair, wins, spread_limit=self.cfg.run.linearity_spread_limit)
-        res.steps = sa
+        attach_steps(res, sa)
         res.warnings.extend(sa.warnings)
 
     # ---- the run
