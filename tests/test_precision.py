@@ -283,9 +283,9 @@ def test_report_states_why_the_motion_ended(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------ short vs long profile σ
-# the second instrument model of benchmarks/test_time.py: slower, noisier, drifting
+# the second instrument model of benchmarks/test_time.py: slower and noisier
 SLOW_MODEL = {"gain": 0.98, "lag_s": 0.25, "latency_s": 0.02, "bias_deg": 0.1,
-              "noise_deg": 0.2, "drift_deg_s": 0.0005, "seed": 11}
+              "noise_deg": 0.2, "seed": 11}
 
 
 def _sim_models(extra: dict[str, Any]) -> tuple[ServoModel, InstrumentModel]:
