@@ -22,7 +22,6 @@ import yaml
 
 from benchctl.analysis.excitation import (
     ABORT_CONFIRM,
-    RUNNING_MIN_S,
     FidelityLimits,
     RunningFidelity,
     StandReach,
@@ -301,25 +300,31 @@ def test_running_estimate_confirms_an_abort_level_only_when_meaningful() -> None
     freq, amp, phase = _lines(np.arange(2, 10), period)
     table = HarmonicTable(freq, amp, phase, duration_s=25.0, period_s=period)
     gain = 1.6  # +4.08 dB on every line
-    t, x = _motion(freq, amp, phase, np.full(freq.size, gain, dtype=complex), period,
+    t, x = _motion(freq, amp, phase, np.full(freq.size, gain, dtype=complex), 2 * period,
                    noise=0.001)
-    rf = RunningFidelity(table, _window(period), T0, axis="roll")
+    rf = RunningFidelity(table, _window(2 * period), T0, axis="roll")
     assert len(rf.bands) == 7  # every third-octave band with a line (none weak here)
+    assert rf.resolve_s == pytest.approx(period)  # the lines 1/19 Hz apart
     aborts = _feed(rf, t, x)
     assert aborts, "a +4.1 dB stand never reached the abort level"
-    # not before RUNNING_MIN_S of steady motion and ABORT_CONFIRM updates
-    assert aborts[0] >= T0 + FADE + RUNNING_MIN_S + (ABORT_CONFIRM - 1) * 1.0 - 0.05
+    # not before one whole period of the lines (before it neighbouring bands' lines are not
+    # told apart) and ABORT_CONFIRM updates
+    assert aborts[0] >= T0 + FADE + period + (ABORT_CONFIRM - 1) * 1.0 - 0.05
     why = rf.abort_reason()
     assert why is not None and why.startswith("excitation roll: the stand's motion in the band")
     assert "beyond the abort level ±3 dB" in why
     for b in rf.estimate:
         assert b["error_db"] == pytest.approx(20 * math.log10(gain), abs=0.02)
-    # the lowest bands need 4 cycles of their lowest line: 38 s for 0.105 Hz, never in 19 s
-    assert not rf.estimate[0]["judged"] and rf.estimate[-1]["judged"]
+    assert rf.estimate[-1]["judged"]
+    # before one whole period nothing is judged, however sure each band's own interval looks
+    early = RunningFidelity(table, _window(2 * period), T0, axis="roll")
+    k = t < T0 + FADE + 0.9 * period
+    _feed(early, t[k], x[k])
+    assert early.estimate and not any(b["judged"] for b in early.estimate)
     # +2.3 dB: within the abort level, never an abort
-    t, x = _motion(freq, amp, phase, np.full(freq.size, 1.3, dtype=complex), period,
+    t, x = _motion(freq, amp, phase, np.full(freq.size, 1.3, dtype=complex), 2 * period,
                    noise=0.001)
-    rf = RunningFidelity(table, _window(period), T0, axis="roll")
+    rf = RunningFidelity(table, _window(2 * period), T0, axis="roll")
     assert _feed(rf, t, x) == []
     assert rf.estimate[-1]["error_db"] == pytest.approx(20 * math.log10(1.3), abs=0.02)
 

@@ -532,6 +532,12 @@ class RunningFidelity:
                     self.members.append(idx.astype(np.int64))
         self._omega = 2.0 * np.pi * f
         self._coef = a * np.exp(1j * ph)
+        # the bands' signals are told apart only over a record that resolves their lines: one
+        # whole period of the line grid (1 / the closest spacing); before it, neighbouring
+        # bands' lines are nearly the same column and a band can read dB off without any fault
+        fs = np.sort(np.unique(f))
+        gaps = np.diff(fs)
+        self.resolve_s = float(1.0 / gaps.min()) if gaps.size and gaps.min() > 0 else 0.0
         nb = len(self.bands)
         self._p = 1 + 2 * nb
         self._ata = np.zeros((self._p, self._p))
@@ -601,7 +607,8 @@ class RunningFidelity:
             half = (20.0 * math.log10(1.0 + Z95 * sd / mag) if mag > 0 and
                     Z95 * sd < mag else math.inf)
             f_low = float(np.min(self._omega[idx])) / (2.0 * np.pi)
-            judged = (span >= max(RUNNING_MIN_S, RUNNING_MIN_CYCLES / f_low)
+            judged = (span >= max(RUNNING_MIN_S, RUNNING_MIN_CYCLES / f_low,
+                                  self.resolve_s * (1.0 - 1e-9))
                       and half <= lim.max_ci_db)
             beyond = judged and abs(err) - half > lim.abort_db
             self._streak[b] = self._streak[b] + 1 if beyond else 0
