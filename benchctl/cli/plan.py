@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchctl.errors import ConfigError
+from benchctl.cli.run import ask_value
 
 
 def register(sub: Any) -> None:
@@ -41,21 +41,6 @@ def register(sub: Any) -> None:
                    help="print the plan record (one JSON object, benchctl-plan/1) on stdout")
     p.add_argument("--quiet", action="store_true", help="no live progress of the steps' runs")
     p.set_defaults(handler=handle)
-
-
-def _ask_line(value: str | None, what: str, option: str) -> str:
-    if value:
-        return value
-    if sys.stdin.isatty() and sys.stderr.isatty():
-        while True:
-            sys.stderr.write(f"{what}: ")
-            sys.stderr.flush()
-            line = sys.stdin.readline()
-            if not line:
-                break
-            if line.strip():
-                return line.strip()
-    raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
 
 
 def _say(text: str) -> None:
@@ -111,8 +96,8 @@ def handle(args: argparse.Namespace) -> int:
     # as benchctl run: the stand loop thread gets the interpreter within its period
     sys.setswitchinterval(0.001)
     plan = load_plan(args.plan)
-    serial = _ask_line(args.serial, "Serial number of the instrument", "--serial")
-    operator = args.operator or plan.operator or _ask_line(None, "Operator", "--operator")
+    serial = ask_value(args.serial, "Serial number of the instrument", "--serial")
+    operator = args.operator or plan.operator or ask_value(None, "Operator", "--operator")
     result = run_plan(
         plan,
         serial=serial,

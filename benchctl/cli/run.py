@@ -67,7 +67,8 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=handle)
 
 
-def _ask(value: str | None, what: str, option: str) -> str:
+def ask_value(value: str | None, what: str, option: str) -> str:
+    """``value``, else a line asked for on the terminal; no terminal: ``option`` is required."""
     if value:
         return value
     if sys.stdin.isatty() and sys.stderr.isatty():
@@ -116,8 +117,8 @@ def handle(args: argparse.Namespace) -> int:
                 f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
                 f"{rate:g} Hz (stand rate); expected at most {MAX_PROFILE_SAMPLES}"
             )
-    serial = _ask(args.serial, "Serial number of the instrument", "--serial")
-    operator = _ask(args.operator, "Operator", "--operator")
+    serial = ask_value(args.serial, "Serial number of the instrument", "--serial")
+    operator = ask_value(args.operator, "Operator", "--operator")
     opts = RunOptions(
         serial=serial,
         operator=operator,
