@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -37,6 +38,7 @@ OUTCOMES = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
 SOURCES = ("record.json", "recording", "killed")
 DEFAULT_CONNECT_TIMEOUT_S = 2.0
 DEFAULT_BUSY_TIMEOUT_S = 30.0  # SQLite: how long a writer waits for another one
+MIGRATE_KEY = 0x62656E6368  # PostgreSQL advisory lock of the migrations ("bench")
 
 
 def parse_url(url: str, field: str = "archive.url") -> URL:
@@ -200,6 +202,13 @@ def measurement_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
 _MIGRATE_LOCK = threading.Lock()
 
 
+def _revision(conn: Connection) -> str | None:
+    if not inspect(conn).has_table(VERSION_TABLE):
+        return None
+    row = conn.execute(text(f"SELECT version_num FROM {VERSION_TABLE}")).first()
+    return None if row is None else str(row[0])
+
+
 class Archive:
     """An open archive. ``Archive(url)`` connects and migrates (``ArchiveError`` when it
     cannot); use as a context manager or call ``close()``."""
@@ -280,32 +289,62 @@ class Archive:
 
     def migrate(self) -> None:
         """Bring the schema to the newest migration (Alembic ``upgrade head``; Alembic is
-        loaded only when the schema is not at ``HEAD`` already)."""
-        with _MIGRATE_LOCK:
-            if self.revision() == HEAD:
-                return
-            from alembic import command
-            from alembic.config import Config
-
-            cfg = Config()
-            cfg.set_main_option("script_location", str(MIGRATIONS))
+        loaded only when the schema is not at ``HEAD`` already). Processes opening the same
+        new archive at once take turns: SQLite through a lock file beside the database,
+        PostgreSQL through an advisory lock, each checking the version again once it holds
+        the lock (a second migrator finds the schema made, never a half-made one)."""
+        with _MIGRATE_LOCK, self._sqlite_lock():
             try:
                 with self.engine.connect() as conn:
-                    cfg.attributes["connection"] = conn
-                    command.upgrade(cfg, "head")
-                    conn.commit()
+                    if self.backend == "postgresql":
+                        conn.execute(text("SELECT pg_advisory_lock(:k)"), {"k": MIGRATE_KEY})
+                    try:
+                        if _revision(conn) != HEAD:
+                            self._upgrade(conn)
+                    finally:
+                        if self.backend == "postgresql":
+                            conn.rollback()  # out of any failed transaction, then unlock
+                            conn.execute(text("SELECT pg_advisory_unlock(:k)"),
+                                         {"k": MIGRATE_KEY})
+                            conn.commit()
             except SQLAlchemyError as e:
                 raise ArchiveError(
                     f"archive {self.name}: cannot create or upgrade the schema: {_cause(e)}"
                 ) from e
 
+    @contextmanager
+    def _sqlite_lock(self) -> Iterator[None]:
+        """SQLite: an exclusive lock on ``<database>.migrate.lock`` while held (no-op else)."""
+        if self.backend != "sqlite":
+            yield
+            return
+        import fcntl
+
+        path = Path(str(self.engine.url.database) + ".migrate.lock")
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise ArchiveError(f"archive {self.name}: cannot open {path}: {e.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)  # releases the lock
+
+    def _upgrade(self, conn: Connection) -> None:
+        from alembic import command
+        from alembic.config import Config
+
+        cfg = Config()
+        cfg.set_main_option("script_location", str(MIGRATIONS))
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, "head")
+        conn.commit()
+
     def revision(self) -> str | None:
         """The schema's migration revision (None: an empty database)."""
         with self._read("read the schema version") as conn:
-            if not inspect(conn).has_table(VERSION_TABLE):
-                return None
-            row = conn.execute(text(f"SELECT version_num FROM {VERSION_TABLE}")).first()
-            return None if row is None else str(row[0])
+            return _revision(conn)
 
     def close(self) -> None:
         self.engine.dispose()
