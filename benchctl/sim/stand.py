@@ -798,9 +798,17 @@ class SimStand:
             if not (math.isfinite(period) and 1e-4 <= period <= 1.0):
                 return ExcCodes.ILLEGAL_VALUE
             self._traj.reset(period)
-        if first != self._traj.next_index:
+        nxt = self._traj.next_index
+        if first < nxt <= first + count:
+            # a push sent again (the master's retry after a reply it did not wait for): the
+            # points the queue has are kept as they are, only the new ones appended
+            pts = pts[nxt - first:]
+            first = nxt
+            if not len(pts):
+                return None
+        if first != nxt:
             return ExcCodes.ILLEGAL_VALUE
-        if self._traj.level(self._traj_u(now)) + count > tr.capacity:
+        if self._traj.level(self._traj_u(now)) + len(pts) > tr.capacity:
             return ExcCodes.DEVICE_BUSY
         self._traj.append(pts)
         return None

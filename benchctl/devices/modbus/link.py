@@ -39,6 +39,7 @@ from pymodbus.pdu import ExceptionResponse
 
 from benchctl.errors import ConnectionLost, DeviceTimeout, ModbusException, ProtocolError
 
+log = logging.getLogger(__name__)
 wire_log = logging.getLogger("benchctl.wire")
 
 EXCEPTION_NAMES = {
@@ -138,6 +139,7 @@ class ModbusLink:
     def read_registers(self, address: int, count: int) -> list[int]:
         """Read ``count`` holding registers (function code 3) from PDU ``address``."""
         rsp = self._call(
+            3,
             f"read {count} registers at {address}",
             lambda: self._client.read_holding_registers(
                 address, count=count, device_id=self.device_id
@@ -154,6 +156,7 @@ class ModbusLink:
         """Write holding registers (function code 16) from PDU ``address``."""
         vals = [int(v) for v in values]
         self._call(
+            16,
             f"write {len(vals)} registers at {address}",
             lambda: self._client.write_registers(address, vals, device_id=self.device_id),
         )
@@ -161,6 +164,7 @@ class ModbusLink:
     def write_register(self, address: int, value: int) -> None:
         """Write one holding register (function code 6)."""
         self._call(
+            6,
             f"write register {address}",
             lambda: self._client.write_register(address, int(value), device_id=self.device_id),
         )
@@ -171,6 +175,7 @@ class ModbusLink:
         """One FC23 transaction: write ``values`` at ``write_address``, then read registers."""
         vals = [int(v) for v in values]
         rsp = self._call(
+            23,
             f"write {len(vals)} at {write_address} and read {read_count} at {read_address}",
             lambda: self._client.readwrite_registers(
                 read_address=read_address,
@@ -188,7 +193,39 @@ class ModbusLink:
             )
         return regs
 
-    def _call(self, what: str, fn: Callable[[], Any]) -> Any:
+    def _call(self, fc: int, what: str, fn: Callable[[], Any]) -> Any:
+        """One exchange of function code ``fc``. A reply to another function code is a late
+        reply to an earlier request (its master had timed out and sent again): it is dropped
+        and the request sent once more (every request of this link is safe to repeat — a
+        trajectory push repeating points the stand has queued is acknowledged, not applied
+        twice); twice in a row is a ``ProtocolError``."""
+        with self._lock:
+            rsp = self._exchange(what, fn)
+            if self._reply_fc(rsp) != fc:
+                log.warning("%s: %s: dropped a late reply to function code %d", self.endpoint,
+                            what, self._reply_fc(rsp))
+                rsp = self._exchange(what, fn)
+                if self._reply_fc(rsp) != fc:
+                    raise ProtocolError(
+                        f"{self.endpoint}: {what}: a reply to function code "
+                        f"{self._reply_fc(rsp)} for a request of function code {fc}, twice"
+                    )
+            if isinstance(rsp, ExceptionResponse) or rsp.isError():
+                code = int(getattr(rsp, "exception_code", 0))
+                name = EXCEPTION_NAMES.get(code, "unknown exception")
+                raise ModbusException(
+                    fc,
+                    code,
+                    f"{self.endpoint}: {what}: Modbus exception {code} ({name}) "
+                    f"in reply to function code {fc}",
+                )
+            return rsp
+
+    @staticmethod
+    def _reply_fc(rsp: Any) -> int:
+        return int(getattr(rsp, "function_code", 0)) & 0x7F
+
+    def _exchange(self, what: str, fn: Callable[[], Any]) -> Any:
         with self._lock:
             self._rx = []
             try:
@@ -207,16 +244,6 @@ class ModbusLink:
                 raise self._no_reply(what, e) from None
             except PymodbusError as e:
                 raise ProtocolError(f"{self.endpoint}: {what}: {e}") from None
-            if isinstance(rsp, ExceptionResponse) or rsp.isError():
-                fc = int(getattr(rsp, "function_code", 0)) & 0x7F
-                code = int(getattr(rsp, "exception_code", 0))
-                name = EXCEPTION_NAMES.get(code, "unknown exception")
-                raise ModbusException(
-                    fc,
-                    code,
-                    f"{self.endpoint}: {what}: Modbus exception {code} ({name}) "
-                    f"in reply to function code {fc}",
-                )
             return rsp
 
     def _no_reply(self, what: str, err: Exception) -> Exception:
