@@ -4,37 +4,14 @@ stay text, and it prints to A4 PDF."""
 
 from __future__ import annotations
 
-import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import pytest
 from archive_helpers import make_record
+from browser import browser, page_errors, pdf_pages
 
 from benchctl.archive.store import Archive
 from benchctl.cli import main
-
-
-def _chromium() -> str:
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.fail("Chromium not found (chromium or chromium-browser on PATH): .ci/run installs "
-                "the distribution's package; this test needs it")
-
-
-def _browser(args: list[str], page: Path, tmp: Path) -> subprocess.CompletedProcess[str]:
-    cmd = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-           "--disable-extensions", f"--user-data-dir={tmp / 'profile'}",
-           "--enable-logging=stderr", "--v=0", *args, page.resolve().as_uri()]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
-
-
-def _page_errors(stderr: str) -> list[str]:
-    return [ln for ln in stderr.splitlines()
-            if "CONSOLE" in ln or "Uncaught" in ln or "Failed to load resource" in ln]
 
 
 def test_history_page_in_headless_chromium(tmp_path: Path,
@@ -54,19 +31,19 @@ def test_history_page_in_headless_chromium(tmp_path: Path,
     capsys.readouterr()
     html = page.read_text(encoding="utf-8")
     assert "<script" not in html and "<img" not in html  # escaped, nothing active
-    dom = _browser(["--dump-dom"], page, tmp_path)
+    dom = browser(["--dump-dom"], page, tmp_path)
     assert dom.returncode == 0, dom.stderr[-2000:]
-    assert _page_errors(dom.stderr) == [], dom.stderr[-3000:]
+    assert page_errors(dom.stderr) == [], dom.stderr[-3000:]
     assert dom.stdout.count("<svg") == html.count("<svg") == 3  # σ, yield of two stations
     assert dom.stdout.count("<circle") == 24  # a marker per run and axis
     assert "&lt;img src=x onerror=alert(1)&gt;" in dom.stdout
     pdf = tmp_path / "history.pdf"
-    out = _browser([f"--print-to-pdf={pdf}", "--no-pdf-header-footer"], page, tmp_path)
+    out = browser([f"--print-to-pdf={pdf}", "--no-pdf-header-footer"], page, tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert _page_errors(out.stderr) == [], out.stderr[-3000:]
+    assert page_errors(out.stderr) == [], out.stderr[-3000:]
     data = pdf.read_bytes()
     assert data.startswith(b"%PDF-")
-    boxes = re.findall(rb"/MediaBox\s*\[\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s*\]", data)
+    boxes = pdf_pages(data)
     assert boxes
-    for x0, y0, x1, y1 in boxes:  # A4: 595 × 842 pt
-        assert abs(float(x1) - float(x0) - 595.3) < 2 and abs(float(y1) - float(y0) - 841.9) < 2
+    for w, h in boxes:  # A4: 595 × 842 pt
+        assert abs(w - 595.3) < 2 and abs(h - 841.9) < 2

@@ -12,11 +12,11 @@ import hashlib
 import json
 import re
 import shutil
-import subprocess
 from pathlib import Path
 from typing import Any
 
 import pytest
+from browser import browser, page_errors, pdf_pages
 from run_fakes import FakeSensor, FakeStand, sine_motion
 
 from benchctl.cli import main
@@ -177,67 +177,34 @@ def test_benchctl_report_rerenders(passed: Path, tmp_path: Path,
 
 
 # ------------------------------------------------------------------------- in a real browser
-def _chromium() -> str:
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.fail("Chromium not found (chromium or chromium-browser on PATH): .ci/run installs "
-                "the distribution's package; this test needs it")
-
-
-def _browser(args: list[str], page: Path, tmp: Path) -> subprocess.CompletedProcess[str]:
-    cmd = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-           "--disable-extensions", f"--user-data-dir={tmp / 'profile'}",
-           "--enable-logging=stderr", "--v=0", *args, page.resolve().as_uri()]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=90, check=False)
-
-
-def _page_errors(stderr: str) -> list[str]:
-    """Lines the page itself logged: console messages and uncaught exceptions (Chromium's
-    own messages about D-Bus or the GPU are not the page's)."""
-    return [ln for ln in stderr.splitlines()
-            if "CONSOLE" in ln or "Uncaught" in ln or "Failed to load resource" in ln]
-
-
-def _pdf_pages(pdf: bytes) -> list[tuple[float, float]]:
-    """Each page's MediaBox (width, height) in points."""
-    boxes = re.findall(rb"/Type\s*/Page\b(?!s).*?/MediaBox\s*\[\s*([\d.]+)\s+([\d.]+)\s+"
-                       rb"([\d.]+)\s+([\d.]+)\s*\]", pdf, re.S)
-    if not boxes:  # MediaBox before /Type in the dictionary
-        boxes = re.findall(rb"/MediaBox\s*\[\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s*\]",
-                           pdf)
-    return [(float(c) - float(a), float(d) - float(b)) for a, b, c, d in boxes]
-
-
 def test_page_errors_are_detected(tmp_path: Path) -> None:
     """The detector below sees a page's error (so its silence on the report means something)."""
     page = tmp_path / "bad.html"
     page.write_text("<!DOCTYPE html><html><body><p>x</p>"
                     "<script>undefined_function_of_the_test()</script></body></html>")
-    out = _browser(["--dump-dom"], page, tmp_path)
+    out = browser(["--dump-dom"], page, tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert any("undefined_function_of_the_test" in ln for ln in _page_errors(out.stderr)), \
+    assert any("undefined_function_of_the_test" in ln for ln in page_errors(out.stderr)), \
         out.stderr[-3000:]
 
 
 def test_report_in_headless_chromium_loads_and_prints_a4(passed: Path, tmp_path: Path) -> None:
     page = passed / REPORT_HTML
     html = page.read_text(encoding="utf-8")
-    dom = _browser(["--dump-dom"], page, tmp_path)
+    dom = browser(["--dump-dom"], page, tmp_path)
     assert dom.returncode == 0, dom.stderr[-2000:]
-    assert _page_errors(dom.stderr) == [], dom.stderr[-3000:]
+    assert page_errors(dom.stderr) == [], dom.stderr[-3000:]
     # the browser parsed the page: every figure is an SVG element in its DOM
     n_svg = html.count("<svg")
     assert n_svg >= 3 and dom.stdout.count("<svg") == n_svg
     assert 'class="verdict PASS"' in dom.stdout and "&lt;script&gt;" in dom.stdout
     pdf = tmp_path / "report.pdf"
-    out = _browser([f"--print-to-pdf={pdf}", "--no-pdf-header-footer"], page, tmp_path)
+    out = browser([f"--print-to-pdf={pdf}", "--no-pdf-header-footer"], page, tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert _page_errors(out.stderr) == [], out.stderr[-3000:]
+    assert page_errors(out.stderr) == [], out.stderr[-3000:]
     data = pdf.read_bytes()
     assert data.startswith(b"%PDF-")
-    pages = _pdf_pages(data)
+    pages = pdf_pages(data)
     # the summary, the measurements and each axis on its own page: several A4 pages
     assert 2 <= len(pages) <= 20, len(pages)
     for w, h in pages:  # A4: 595 × 842 pt
