@@ -16,7 +16,7 @@ import enum
 import json
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import PurePath
 from typing import IO, Any
 
@@ -82,4 +82,31 @@ def loads_strict(text: str) -> Any:
     return json.loads(text, parse_constant=refuse)
 
 
-__all__ = ["dump", "dumps", "loads_strict", "plain"]
+def load_object(path: str | PurePath, name: str, what: str,
+                validate: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
+    """A JSON object from ``path`` (or ``path/name`` when it is a folder), parsed strictly and
+    checked by ``validate`` (which raises ``DataError``); every failure is a ``DataError``
+    naming the file and ``what`` it should have held."""
+    from pathlib import Path
+
+    from benchctl.errors import DataError
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / name
+    try:
+        data = loads_strict(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise DataError(f"{p}: cannot read the {what}: {e.strerror}") from None
+    except ValueError as e:
+        raise DataError(f"{p}: not valid JSON: {e}") from None
+    if not isinstance(data, dict):
+        raise DataError(f"{p}: expected a JSON object, found {type(data).__name__}")
+    try:
+        validate(data)
+    except DataError as e:
+        raise DataError(f"{p}: {e}") from None
+    return data
+
+
+__all__ = ["dump", "dumps", "load_object", "loads_strict", "plain"]

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import DataError
-from benchctl.jsonout import loads_strict, plain
+from benchctl.jsonout import load_object, plain
 from benchctl.results.record import validate_record
 
 PLAN_SCHEMA_FILE = "plan-1.schema.json"
@@ -51,22 +51,7 @@ def validate_plan_record(record: Mapping[str, Any]) -> None:
 
 def load_plan_record(path: Path | str) -> dict[str, Any]:
     """A plan record from ``plan.json`` (or a plan folder holding one), validated."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / "plan.json"
-    try:
-        data = loads_strict(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise DataError(f"{p}: cannot read the plan record: {e.strerror}") from None
-    except ValueError as e:
-        raise DataError(f"{p}: not valid JSON: {e}") from None
-    if not isinstance(data, dict):
-        raise DataError(f"{p}: expected a JSON object, found {type(data).__name__}")
-    try:
-        validate_plan_record(data)
-    except DataError as e:
-        raise DataError(f"{p}: {e}") from None
-    return data
+    return load_object(path, "plan.json", "plan record", validate_plan_record)
 
 
 __all__ = ["load_plan_record", "plan_schema", "plan_schema_text", "validate_plan_record"]

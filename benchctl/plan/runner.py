@@ -232,22 +232,6 @@ def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
-def _safe(s: str) -> str:
-    import re
-
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", s).strip("_") or "unnamed"
-
-
-def _plan_folder(out_dir: Path, serial: str) -> Path:
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    base = out_dir / f"plan_{stamp}_{_safe(serial)}"
-    p, i = base, 1
-    while p.exists():
-        i += 1
-        p = base.with_name(f"{base.name}_{i}")
-    return p
-
-
 # ------------------------------------------------------------------------------- the stand
 def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
     """One stand check of a setup or cleanup (the stand's lock held, the real driver): returns
@@ -400,7 +384,7 @@ def run_plan(
     config, a step's profile or limits, prompts that cannot be answered); every later outcome
     is in the result."""
     from benchctl.run import RunOptions, run_test
-    from benchctl.run.session import simulators
+    from benchctl.run.session import recording_dir, simulators
     from benchctl.run.supervisor import Supervisor
 
     p = plan if isinstance(plan, Plan) else load_plan(plan)
@@ -434,7 +418,7 @@ def run_plan(
 
     result = PlanResult(p.name, p.source, serial, op, cfg.source, start_utc=_now())
     t0 = time.monotonic()
-    folder = _plan_folder(out, serial)
+    folder = recording_dir(out, serial, prefix="plan_")
     try:
         folder.mkdir(parents=True)
     except OSError as e:

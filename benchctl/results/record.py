@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import AnalysisError, BenchError, DataError
-from benchctl.jsonout import dumps, loads_strict, plain
+from benchctl.jsonout import dumps, load_object, plain
 from benchctl.results.measurements import RULE_TEXT, Measurement, reported_serial, serial_match
 
 SCHEMA_ID = "benchctl-record/1"
@@ -219,24 +219,7 @@ def write_record(folder: Path, record: Mapping[str, Any]) -> Path:
 
 def load_record(path: Path | str) -> dict[str, Any]:
     """A record from ``record.json`` (or a recording folder holding one), validated."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / RECORD_JSON
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise DataError(f"{p}: cannot read the record: {e.strerror}") from None
-    try:
-        data = loads_strict(text)
-    except ValueError as e:
-        raise DataError(f"{p}: not valid JSON: {e}") from None
-    if not isinstance(data, dict):
-        raise DataError(f"{p}: expected a JSON object, found {type(data).__name__}")
-    try:
-        validate_record(data)
-    except DataError as e:
-        raise DataError(f"{p}: {e}") from None
-    return data
+    return load_object(path, RECORD_JSON, "record", validate_record)
 
 
 __all__ = [

@@ -371,9 +371,11 @@ def _safe_name(s: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", s).strip("_") or "unnamed"
 
 
-def recording_dir(out_dir: Path, serial: str) -> Path:
+def recording_dir(out_dir: Path, serial: str, prefix: str = "") -> Path:
+    """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
+    taken)."""
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    base = out_dir / f"{stamp}_{_safe_name(serial)}"
+    base = out_dir / f"{prefix}{stamp}_{_safe_name(serial)}"
     p, i = base, 1
     while p.exists():
         i += 1
