@@ -165,24 +165,38 @@ class Response:
 
 
 def estimate_response(
-    t: ArrayLike, x: ArrayLike, design: PretestDesign, t_start: float
+    t: ArrayLike, x: ArrayLike, design: PretestDesign, t_start: float,
+    drive: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> Response:
     """H_s on the pre-test's lines from the stand's measured angle ``x`` at instants ``t`` (the
-    pre-test started at ``t_start`` on the same clock). Raises ``DataError`` when the record
-    does not hold the analysed periods."""
+    pre-test started at ``t_start`` on the same clock), against the pre-test's design — or,
+    given ``drive`` (instants, setpoints: what the stand was actually sent), against that: a
+    streaming host that held or rejoined on a busy machine changed the stand's input, and the
+    stand's response is its output over its input. Raises ``DataError`` when the record does
+    not hold the analysed periods."""
     tab = design.table
     window = (t_start + design.analysis_start_s, t_start + design.analysis_end_s)
-    fid = fidelity_of_table(t, x, tab, window, t_start)
     # fidelity's lines are sorted by frequency; the pre-test's table is too (by construction or
     # as the profile's): map them by frequency all the same
     order = np.argsort(tab.freq_hz)
     f = tab.freq_hz[order]
-    a = tab.amp_deg[order]
-    if fid.freq.size != f.size or not np.allclose(fid.freq, f):
-        raise DataError("equalise: the pre-test's fit did not return its lines")
-    h = (fid.achieved_amp / a) * np.exp(1j * np.radians(fid.phase_deg))
-    return Response(f, np.asarray(h, dtype=np.complex128),
-                    np.asarray(fid.amp_sd / a, dtype=float), fid.n_periods)
+
+    def lines(tt: ArrayLike, v: ArrayLike) -> tuple[ComplexArray, FloatArray, int]:
+        fid = fidelity_of_table(tt, v, tab, window, t_start)
+        if fid.freq.size != f.size or not np.allclose(fid.freq, f):
+            raise DataError("equalise: the pre-test's fit did not return its lines")
+        c = fid.achieved_amp * np.exp(1j * np.radians(fid.phase_deg))
+        return np.asarray(c, dtype=np.complex128), np.asarray(fid.amp_sd, dtype=float), \
+            fid.n_periods
+
+    cx, sx, n_per = lines(t, x)
+    if drive is None:
+        a = tab.amp_deg[order]
+        return Response(f, cx / a, sx / a, n_per)
+    cu, su = lines(*drive)[:2]
+    h = cx / cu
+    rel = np.hypot(sx / np.abs(cx), su / np.abs(cu))
+    return Response(f, np.asarray(h, dtype=np.complex128), np.abs(h) * rel, n_per)
 
 
 def response_at(resp: Response, freq_hz: ArrayLike) -> tuple[ComplexArray, FloatArray]:

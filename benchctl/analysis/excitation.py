@@ -102,6 +102,13 @@ class StandReach:
     rate_deg_s: float
     accel_deg_s2: float
 
+    def unreachable(self, freq_hz: NDArray[np.float64], amp_deg: NDArray[np.float64]
+                    ) -> NDArray[np.bool_]:
+        """Lines whose angle, rate or acceleration alone is beyond these limits."""
+        w = 2.0 * np.pi * freq_hz
+        return np.asarray((amp_deg > self.angle_deg) | (amp_deg * w > self.rate_deg_s)
+                          | (amp_deg * w * w > self.accel_deg_s2))
+
 
 @dataclass
 class Fidelity:
@@ -336,9 +343,7 @@ def excitation_fidelity(
     weak = amp < amp.max() * 10.0 ** (lim.weak_line_db / 20.0)
     unreach = np.zeros(len(freq), dtype=bool)
     if reach is not None:
-        w = 2.0 * np.pi * freq
-        unreach = (amp > reach.angle_deg) | (amp * w > reach.rate_deg_s) | (
-            amp * w * w > reach.accel_deg_s2)
+        unreach = reach.unreachable(freq, amp)
     for i in range(len(freq)):
         if unreach[i]:
             status[i] = "unreachable"
@@ -515,9 +520,7 @@ class RunningFidelity:
         use = a > 0
         f, a, ph = f[use], a[use], ph[use]
         if reach is not None:
-            w = 2.0 * np.pi * f
-            ok = (a <= reach.angle_deg) & (a * w <= reach.rate_deg_s) & (
-                a * w * w <= reach.accel_deg_s2)
+            ok = ~reach.unreachable(f, a)
             f, a, ph = f[ok], a[ok], ph[ok]
         self.bands: list[tuple[float, float, float]] = []
         self.members: list[NDArray[np.int64]] = []

@@ -155,6 +155,16 @@ def sync(settings: ArchiveSettings, archive: Archive | None = None) -> SyncResul
 
 # --- a run's own archive ---------------------------------------------------------------------
 
+def _open_or_none(settings: ArchiveSettings) -> Archive | None:
+    """The archive for a run's bookkeeping, or None (said in the log) when it cannot be had:
+    the run goes on, its record queued."""
+    try:
+        return _open_for_run(settings)
+    except ArchiveError as e:
+        log.warning("%s", e)
+        return None
+
+
 def _open_for_run(settings: ArchiveSettings) -> Archive:
     return Archive(settings.url, connect_timeout_s=settings.connect_timeout_s,
                    busy_timeout_s=RUN_BUSY_TIMEOUT_S)
@@ -195,11 +205,7 @@ def archive_run(settings: ArchiveSettings, recording: Path) -> str:
     except (BenchError, OSError) as e:
         log.warning("archive: %s: cannot read the run's record: %s", recording, e)
         return "failed"
-    try:
-        archive: Archive | None = _open_for_run(settings)
-    except ArchiveError as e:
-        log.warning("%s", e)
-        archive = None
+    archive = _open_or_none(settings)
     try:
         stored, _ = _store_or_queue(settings, [entry], archive)
         if stored and queued(settings.queue_dir) and archive is not None:
@@ -237,11 +243,7 @@ def archive_at_start(settings: ArchiveSettings, out_dir: Path,
         pending = queued(settings.queue_dir)
         if not killed and not pending:
             return done
-        try:
-            archive: Archive | None = _open_for_run(settings)
-        except ArchiveError as e:
-            log.warning("%s", e)
-            archive = None
+        archive = _open_or_none(settings)
         try:
             known = archive.run_ids(d.name for d in killed) if archive is not None else set()
             entries = []

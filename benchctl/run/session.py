@@ -640,8 +640,11 @@ class Session:
         drives, report = {}, {}
         for axis, design in pre.designs.items():
             tr, xr, _, _ = rec.pair(axis, window=False)
+            drive = None
+            if cfg.stand.mode == "stream":  # the stand's input: the setpoints as they went out
+                drive = (rec.column("setpoints", "t_send"), rec.column("setpoints", f"{axis}_deg"))
             try:
-                resp = estimate_response(tr, xr, design, t_start)
+                resp = estimate_response(tr, xr, design, t_start, drive)
             except DataError as e:
                 raise DataError(f"{self.path}: equalisation pre-test on {axis}: {e}") from None
             tab = target.tables[axis]
