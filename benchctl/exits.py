@@ -69,7 +69,14 @@ def current_log() -> Path | None:
 
 
 def ignored(sig: signal.Signals) -> bool:
-    """True when the process was started with ``sig`` ignored (e.g. SIGHUP under ``nohup``)."""
+    """True when ``sig`` is to stay ignored: SIGHUP the process was started with ignored (under
+    ``nohup``, a closed terminal must not stop a run: the operator asked for that).
+
+    SIGINT, SIGTERM and SIGQUIT are always handled, even when inherited ignored: a shell without
+    job control starts its background commands with SIGINT and SIGQUIT ignored, nobody asked for
+    it, and a ``kill -INT`` from a supervising script must still stop the stand safely."""
+    if sig != signal.SIGHUP:
+        return False
     try:
         return signal.getsignal(sig) is signal.SIG_IGN
     except (OSError, ValueError):

@@ -8,9 +8,12 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from benchctl.jsonout import dumps
+
+if TYPE_CHECKING:
+    from benchctl.config import BenchConfig
 
 
 def register(sub: Any) -> None:
@@ -39,7 +42,6 @@ def register(sub: Any) -> None:
 
 def handle(args: argparse.Namespace) -> int:
     from benchctl.config import load_config
-    from benchctl.sim.bench import SimBench
 
     cfg = load_config(args.config)
     done = threading.Event()
@@ -47,8 +49,17 @@ def handle(args: argparse.Namespace) -> int:
     def on_signal(signum: int, frame: object) -> None:
         done.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return _serve(args, cfg, done)
+    finally:  # called in-process (tests, scripts): the caller's handlers come back
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _serve(args: argparse.Namespace, cfg: BenchConfig, done: threading.Event) -> int:
+    from benchctl.sim.bench import SimBench
+
     if not args.private:  # refuse to serve a stand endpoint a run holds (benchctl.run.lock)
         from benchctl.run.lock import check_free
 

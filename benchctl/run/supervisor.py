@@ -113,7 +113,7 @@ class Supervisor:
     def signals(self) -> Iterator[None]:
         """Turn SIGINT, SIGTERM, SIGHUP and SIGQUIT into faults while the run lasts (main thread
         only); the handlers there before (``benchctl.exits``: a clean exit 2) come back after. A
-        signal the process was started with ignored stays ignored (SIGHUP under ``nohup``)."""
+        SIGHUP the process was started with ignored stays ignored (``nohup``; ``exits.ignored``)."""
         if threading.current_thread() is not threading.main_thread():
             yield
             return
