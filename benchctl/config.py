@@ -220,6 +220,9 @@ class SimInstrumentConfig(Strict):
     cross_axis: CrossAxisConfig = CrossAxisConfig()
     cubic_per_deg2: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
     saturation_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)] | None = None
+    # the serial number it reports where its protocol carries one (CANopen 1018h sub 4, an
+    # UNSIGNED32); None: the EDS's default
+    serial_number: int | None = Field(default=None, ge=0, lt=2**32)
 
 
 class SimFault(Strict):

@@ -273,6 +273,15 @@ def test_canopen_connect_fails_cleanly_when_silent_or_wrong_bitrate() -> None:
             sim.stop()
 
 
+@pytest.mark.parametrize(("serial_number", "reported"), [(None, "1"), (20260001, "20260001")])
+def test_canopen_serial_number_read_over_sdo(serial_number: int | None, reported: str) -> None:
+    """The driver reads 1018h sub 4 over SDO: the EDS's default, or the configured number."""
+    model = SimInstrumentConfig(serial_number=serial_number)
+    with back_to_back("canopen", model, Static()) as (_, dev, col):
+        col.wait(lambda: len(col.samples) >= 5)
+        assert dev.identity is not None and dev.identity.serial == reported
+
+
 def test_raw_can_log_blf_readable(tmp_path: Path) -> None:
     log = tmp_path / "can.blf"
     model = SimInstrumentConfig(rate_hz=200.0)

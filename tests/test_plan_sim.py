@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from junitparser import Error, Failure, JUnitXml, Skipped
 from run_sim import live_bench
 
@@ -40,7 +41,10 @@ from benchctl.results.record import load_record
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 ROOT = Path(__file__).resolve().parent.parent
-SERIAL = "0001"  # the simulated instrument reports serial 1: the serial match passes
+SERIAL = "0001"  # the tests' simulated instrument reports serial 1: the serial match passes
+# plans/ci_short.yaml runs on config/sim.yaml, whose simulated instrument reports its own
+PLAN_SERIAL = str(yaml.safe_load((ROOT / "config/sim.yaml").read_text())
+                  ["sim"]["instrument"]["serial_number"])
 
 SHORT_ROLL = """
 name: plan_short_roll
@@ -65,7 +69,7 @@ def ci_plan(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     stdout = io.StringIO()
     t0 = time.monotonic()
     with contextlib.redirect_stdout(stdout):
-        code = main(["plan", str(ROOT / "plans/ci_short.yaml"), "--serial", SERIAL, "--yes",
+        code = main(["plan", str(ROOT / "plans/ci_short.yaml"), "--serial", PLAN_SERIAL, "--yes",
                      "--junit", str(junit), "--out", str(out / "runs"), "--json", "--quiet"])
     return {"code": code, "json": json.loads(stdout.getvalue()), "junit": junit,
             "out": out / "runs", "seconds": time.monotonic() - t0}
@@ -139,7 +143,8 @@ def test_ci_plan_step_records_are_valid_and_judged_by_the_step_limits(
     for step in steps.values():
         rec = load_record(step["record_path"])  # valid against benchctl-record/1
         assert rec == step["record"]
-        assert rec["outcome"] == "PASS" and rec["unit"]["serial"] == SERIAL
+        assert rec["outcome"] == "PASS" and rec["unit"]["serial"] == PLAN_SERIAL
+        assert rec["unit"]["serial_match"] is True  # the simulated instrument's 1018h sub 4
         assert Path(step["recording"]).is_dir()
     lin = {(m["axis"], m["name"]): m for m in steps["linearity"]["record"]["measurements"]}
     assert (lin["roll", "gain at 3 s"]["low"], lin["roll", "gain at 3 s"]["high"]) == (0.95, 1.01)
@@ -154,7 +159,7 @@ def test_ci_plan_runs_are_in_the_archive(
     ci_plan: dict[str, Any], capsys: pytest.CaptureFixture[str]
 ) -> None:
     capsys.readouterr()
-    assert main(["history", SERIAL, "--out", str(ci_plan["out"]), "--json"]) == 0
+    assert main(["history", PLAN_SERIAL, "--out", str(ci_plan["out"]), "--json"]) == 0
     hist = json.loads(capsys.readouterr().out)
     ids = {Path(s["recording"]).name for s in ci_plan["json"]["steps"]}
     assert {r["run_id"] for r in hist["runs"]} == ids

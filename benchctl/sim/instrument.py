@@ -268,6 +268,8 @@ class SimInstrument:
         except (OSError, KeyError, ValueError) as e:
             raise ConfigError(f"{self.cfg.eds}: cannot load EDS: {e}") from e
         self._res_mdeg = int(self._node.sdo[0x6000].raw)
+        if self.model_cfg.serial_number is not None:
+            self._node.sdo[0x1018][4].raw = self.model_cfg.serial_number
         self._node.add_write_callback(self._on_sdo_write)
 
     def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
