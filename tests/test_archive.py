@@ -30,6 +30,7 @@ from benchctl.archive.ingest import KILLED_REASON, record_of, recording_sha256
 from benchctl.archive.schema import HEAD, metadata
 from benchctl.archive.service import (
     ArchiveSettings,
+    RunArchive,
     archive_at_start,
     archive_run,
     enqueue,
@@ -349,6 +350,57 @@ def test_a_silent_server_delays_the_run_by_the_connect_timeout_only(tmp_path: Pa
         took = time.monotonic() - t0
     assert 1.5 < took < 8.0, took
     assert len(queued(tmp_path / "q")) == 1
+
+
+def test_a_run_does_not_wait_for_a_hung_archive_at_its_start_or_its_end(tmp_path: Path) -> None:
+    """``RunArchive``: the start's database work (a killed run to store, the queue to send)
+    goes to the background — begin() has returned while its connection to a server that never
+    answers is still pending — and at the end, the database known out of reach, the run's
+    record is queued at once: no second connection is tried."""
+    runs = tmp_path / "runs"
+    killed = make_recording(runs, "20261120T090000Z_SN-2", close=None, serial="SN-2")
+    age(killed, 600)
+    rec = make_recording(runs, "20261120T100000Z_SN-3", record=make_record(
+        "20261120T100000Z_SN-3", serial="SN-3"))
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(8)
+        srv.settimeout(30.0)  # generous: a loaded machine
+        port = srv.getsockname()[1]
+        s = ArchiveSettings(f"postgresql+psycopg://bench@127.0.0.1:{port}/db", tmp_path / "q",
+                            connect_timeout_s=2.0)
+        ra = RunArchive(s, runs)
+        ra.begin()
+        conn, _ = srv.accept()  # the background thread's connection, waiting for a reply
+        with conn:
+            assert ra.reachable is None  # begin() did not wait for it
+            assert ra.end(rec) == "queued"
+        assert ra.reachable is False
+        assert ra.start_result["queued"] == [killed.name]  # the killed run, queued too
+        srv.settimeout(0.0)
+        with pytest.raises(BlockingIOError):  # the end tried no second connection
+            srv.accept()
+    assert sorted(p.name for p in queued(tmp_path / "q")) == [
+        f"{killed.name}.json", f"{rec.name}.json"]
+
+
+def test_a_run_archive_stores_at_its_end_what_it_found_reachable(url: str, tmp_path: Path
+                                                                 ) -> None:
+    runs = tmp_path / "runs"
+    killed = make_recording(runs, "20261120T090000Z_SN-2", close=None, serial="SN-2")
+    age(killed, 600)
+    enqueue(tmp_path / "q", {"record": make_record("20261119T080000Z_SN-1"),
+                             "recording_sha256": None, "source": "record.json"})
+    ra = RunArchive(ArchiveSettings(url, tmp_path / "q"), runs)
+    ra.begin()
+    rec = make_recording(runs, "20261120T100000Z_SN-3", record=make_record(
+        "20261120T100000Z_SN-3", serial="SN-3"))  # the run's own, made after begin()
+    assert ra.end(rec) == "stored" and ra.reachable is True
+    assert ra.start_result == {"killed": [killed.name], "queued": [],
+                               "synced": ["20261119T080000Z_SN-1"]}
+    with Archive(url) as a:
+        assert a.run_ids() == {killed.name, rec.name, "20261119T080000Z_SN-1"}
+    assert queued(tmp_path / "q") == []
 
 
 def test_sync_leaves_an_unreadable_entry_and_fails_on_a_dead_archive(tmp_path: Path) -> None:

@@ -7,6 +7,8 @@ finished run without ever failing or holding it up, the local queue, sync and re
 - ``archive_at_start``: at the start of a run, recordings left without ``end.json`` (a killed
   run) are stored ABORTED ("killed (no end.json)") and the queue is sent, when there is
   anything to do;
+- ``RunArchive``: both for one run, the start's database work in the background and the
+  run's record queued at once when the database was out of reach at the start;
 - ``sync``: sends the queue (``benchctl archive sync``); a file leaves the queue only once its
   run is in the database;
 - ``rebuild``: stores every recording under a folder (``benchctl archive rebuild DIR``) — the
@@ -20,6 +22,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -191,12 +194,14 @@ def _store_or_queue(settings: ArchiveSettings, entries: list[dict[str, Any]],
     return stored, queued_ids
 
 
-def archive_run(settings: ArchiveSettings, recording: Path) -> str:
+def archive_run(settings: ArchiveSettings, recording: Path, *, try_database: bool = True
+                ) -> str:
     """Store the run in ``recording`` (its record.json, or one built from its files); never
     raises. Returns what happened: ``stored``, ``queued`` (the database unreachable: the
     record waits in the queue for ``benchctl archive sync``), ``disabled`` or ``failed`` (not
     even the queue could be written: a warning; ``benchctl archive rebuild`` recovers it from
-    the recording)."""
+    the recording). ``try_database=False``: queued at once (the database is known to be out
+    of reach)."""
     if not settings.enabled:
         return "disabled"
     try:
@@ -205,7 +210,7 @@ def archive_run(settings: ArchiveSettings, recording: Path) -> str:
     except (BenchError, OSError) as e:
         log.warning("archive: %s: cannot read the run's record: %s", recording, e)
         return "failed"
-    archive = _open_or_none(settings)
+    archive = _open_or_none(settings) if try_database else None
     try:
         stored, _ = _store_or_queue(settings, [entry], archive)
         if stored and queued(settings.queue_dir) and archive is not None:
@@ -235,15 +240,39 @@ def archive_at_start(settings: ArchiveSettings, out_dir: Path,
     """At the start of a run: recordings in ``out_dir`` left without end.json (a killed run)
     and not yet archived are stored ABORTED, and the queue is sent. Does nothing (opens no
     database) when there is neither; never raises."""
-    done: dict[str, list[str]] = {"killed": [], "queued": [], "synced": []}
+    done = _empty_start()
     if not settings.enabled:
         return done
+    work = _start_work(settings, out_dir, exclude)
+    return _do_start_work(settings, *work) if work is not None else done
+
+
+def _empty_start() -> dict[str, list[str]]:
+    return {"killed": [], "queued": [], "synced": []}
+
+
+def _start_work(settings: ArchiveSettings, out_dir: Path,
+                exclude: Path | None) -> tuple[list[Path], list[Path]] | None:
+    """The killed recordings and the queued records found at the start (a scan of folders);
+    None when they cannot be read (said in the log)."""
     try:
-        killed = incomplete_recordings(out_dir, exclude=exclude)
-        pending = queued(settings.queue_dir)
-        if not killed and not pending:
-            return done
+        return incomplete_recordings(out_dir, exclude=exclude), queued(settings.queue_dir)
+    except (BenchError, OSError) as e:
+        log.warning("archive: not updated at the start of the run: %s", e)
+        return None
+
+
+def _do_start_work(settings: ArchiveSettings, killed: list[Path], pending: list[Path],
+                   probe: list[bool] | None = None) -> dict[str, list[str]]:
+    """Store ``killed`` ABORTED and send the queue; never raises. ``probe``: the database is
+    opened even with nothing to do, and whether it could be is appended to it."""
+    done = _empty_start()
+    if not killed and not pending and probe is None:
+        return done
+    try:
         archive = _open_or_none(settings)
+        if probe is not None:
+            probe.append(archive is not None)
         try:
             known = archive.run_ids(d.name for d in killed) if archive is not None else set()
             entries = []
@@ -267,7 +296,55 @@ def archive_at_start(settings: ArchiveSettings, out_dir: Path,
             log.warning("archive: run %s was killed (no end.json): archived ABORTED", run_id)
     except (BenchError, OSError) as e:
         log.warning("archive: not updated at the start of the run: %s", e)
+    except Exception as e:  # a background thread's: said, never raised into the run
+        log.warning("archive: not updated at the start of the run (%s: %s)",
+                    type(e).__name__, e, exc_info=e)
     return done
+
+
+class RunArchive:
+    """One run's archive bookkeeping, kept out of the run's way: a database out of reach (or
+    hung) never holds the run up, before or after its motion.
+
+    ``begin()``, before the run: the folders are scanned at once for killed runs and queued
+    records (the scan must not see this run's own recording, made next); the database work —
+    those stored, the queue sent — and a probe of the database go to a background thread,
+    which the run's prechecks outlast. ``end(recording)``, after the verdict: waits for that
+    thread (it is normally long done; at most its connect timeout more), then stores the run;
+    when the database was out of reach at the start, the record goes straight into the queue
+    (``benchctl archive sync``, or the next run's start, sends it) without a second wait."""
+
+    def __init__(self, settings: ArchiveSettings, out_dir: Path) -> None:
+        self.settings = settings
+        self.out_dir = out_dir
+        self.start_result: dict[str, list[str]] = _empty_start()
+        self._probe: list[bool] = []
+        self._thread: threading.Thread | None = None
+
+    @property
+    def reachable(self) -> bool | None:
+        """Whether the database could be opened at the start (None: not known yet)."""
+        return self._probe[0] if self._probe else None
+
+    def begin(self) -> None:
+        if not self.settings.enabled:
+            return
+        work = _start_work(self.settings, self.out_dir, None)
+        if work is None:
+            return
+
+        def run() -> None:
+            self.start_result = _do_start_work(self.settings, *work, probe=self._probe)
+
+        self._thread = threading.Thread(target=run, name="archive-at-start", daemon=True)
+        self._thread.start()
+
+    def end(self, recording: Path) -> str:
+        """Store the run (``archive_run``); never raises."""
+        if self._thread is not None:
+            self._thread.join(self.settings.connect_timeout_s + RUN_BUSY_TIMEOUT_S)
+        try_db = self.reachable is True or (self._thread is None and self.reachable is None)
+        return archive_run(self.settings, recording, try_database=try_db)
 
 
 # --- rebuild -------------------------------------------------------------------------------
@@ -309,6 +386,7 @@ def rebuild(archive: Archive, root: Path,
 __all__ = [
     "ArchiveSettings",
     "RebuildResult",
+    "RunArchive",
     "SyncResult",
     "archive_at_start",
     "archive_run",

@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -107,6 +107,9 @@ from benchctl.run.stand_loop import (
 )
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, shutdown
+
+if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
+    from benchctl.archive.service import RunArchive
 
 log = logging.getLogger(__name__)
 
@@ -407,8 +410,10 @@ class Session:
         device_factory: DeviceFactory = open_devices,
         start_simulators: bool = False,  # cfg has a sim: section: run them (after the recording)
         supervisor: Supervisor | None = None,  # the caller's (a plan asks a run to stop by it)
+        run_archive: RunArchive | None = None,  # begun by run_test: the start's archive work
     ) -> None:
         self.start_simulators = start_simulators
+        self.run_archive = run_archive
         self.log_path: Path | None = None
         self.cfg = cfg
         self.prep = prepared
@@ -1125,7 +1130,7 @@ class Session:
                 )
                 self.display.message(f"{report.verdict}: recording closed")
                 self.display.verdict(report.verdict, _banner_detail(report, self.path))
-                _archive(self.cfg, self.out_dir, self.path)  # after the verdict; never fails
+                _archive(self.cfg, self.out_dir, self.path, self.run_archive)  # never fails
                 return RunResult(
                     "done",
                     report.verdict,
@@ -1190,7 +1195,7 @@ class Session:
             archive_abort(self.out_dir, self.meta, self.path, reason)
         except Exception as e:  # a full disk: the recording's end.json still says it all
             log.warning("archive not updated: %s", describe(e))
-        _archive(self.cfg, self.out_dir, self.path)
+        _archive(self.cfg, self.out_dir, self.path, self.run_archive)
         return RunResult(
             "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path,
             abort=abort, record=record,
@@ -1239,10 +1244,15 @@ def _write_html(folder: Path, report: Report | None, record: dict[str, Any]) -> 
         return None
 
 
-def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
+def _archive(cfg: BenchConfig, out_dir: Path, recording: Path,
+             run_archive: RunArchive | None) -> None:
     """The run into the results archive (``benchctl.archive``) once its recording is closed:
-    never raises and never waits long (a database out of reach: the record is queued)."""
+    never raises and never waits long (a database out of reach: the record is queued; out of
+    reach at the run's start: queued at once)."""
     try:
+        if run_archive is not None:
+            run_archive.end(recording)
+            return
         from benchctl.archive.service import archive_run, settings_for
 
         archive_run(settings_for(cfg, out_dir), recording)
@@ -1250,14 +1260,18 @@ def _archive(cfg: BenchConfig, out_dir: Path, recording: Path) -> None:
         log.warning("archive not updated: %s", describe(e), exc_info=e)
 
 
-def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> None:
-    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent."""
+def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> RunArchive | None:
+    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent —
+    in the background (``benchctl.archive.service.RunArchive``): the run does not wait."""
     try:
-        from benchctl.archive.service import archive_at_start, settings_for
+        from benchctl.archive.service import RunArchive, settings_for
 
-        archive_at_start(settings_for(cfg, out_dir), out_dir)
+        run_archive = RunArchive(settings_for(cfg, out_dir), out_dir)
+        run_archive.begin()
+        return run_archive
     except Exception as e:
         log.warning("archive not updated: %s", describe(e), exc_info=e)
+        return None
 
 
 def _id_text(d: dict[str, Any]) -> str:
@@ -1299,14 +1313,15 @@ def run_test(
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
-    _archive_at_start(cfg, Path(out_dir))
+    run_archive = _archive_at_start(cfg, Path(out_dir))
     if device_factory is not None:
         return Session(cfg, prepared, opts, display, device_factory,
-                       supervisor=supervisor).run()
+                       supervisor=supervisor, run_archive=run_archive).run()
     if cfg.sim is not None:
         return Session(cfg, prepared, opts, display, start_simulators=True,
-                       supervisor=supervisor).run()
-    session = Session(cfg, prepared, opts, display, supervisor=supervisor)
+                       supervisor=supervisor, run_archive=run_archive).run()
+    session = Session(cfg, prepared, opts, display, supervisor=supervisor,
+                      run_archive=run_archive)
     holder = {
         "command": "benchctl run",
         "serial": opts.serial,
