@@ -1313,15 +1313,14 @@ def run_test(
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
-    run_archive = _archive_at_start(cfg, Path(out_dir))
     if device_factory is not None:
-        return Session(cfg, prepared, opts, display, device_factory,
-                       supervisor=supervisor, run_archive=run_archive).run()
+        return Session(cfg, prepared, opts, display, device_factory, supervisor=supervisor,
+                       run_archive=_archive_at_start(cfg, Path(out_dir))).run()
     if cfg.sim is not None:
         return Session(cfg, prepared, opts, display, start_simulators=True,
-                       supervisor=supervisor, run_archive=run_archive).run()
-    session = Session(cfg, prepared, opts, display, supervisor=supervisor,
-                      run_archive=run_archive)
+                       supervisor=supervisor,
+                       run_archive=_archive_at_start(cfg, Path(out_dir))).run()
+    session = Session(cfg, prepared, opts, display, supervisor=supervisor)
     holder = {
         "command": "benchctl run",
         "serial": opts.serial,
@@ -1330,7 +1329,9 @@ def run_test(
         "config": str(cfg.source) if cfg.source else None,
         "recording": str(session.path),
     }
-    with stand_lock(cfg, holder):  # refused here, before anything connects, if in use
+    # refused here, if in use, before anything connects (the archive's database too)
+    with stand_lock(cfg, holder):
+        session.run_archive = _archive_at_start(cfg, Path(out_dir))
         return session.run()
 
 
