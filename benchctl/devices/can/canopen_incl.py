@@ -70,7 +70,9 @@ class CanopenInclinometer(CanInstrument):
             self._node = self._net.add_node(cfg.node_id, str(cfg.eds))
         except (OSError, KeyError, ValueError) as e:
             raise ConfigError(f"{cfg.eds}: cannot load EDS: {e}") from e
-        self._node.sdo.RESPONSE_TIMEOUT = min(1.0, cfg.connect_timeout_s)
+        # each SDO answer within connect_timeout_s, as the config says (it was capped at 1 s:
+        # a segmented upload of 1008h then failed a plan's step on a loaded host)
+        self._node.sdo.RESPONSE_TIMEOUT = cfg.connect_timeout_s
         self._tpdo = self._node.tpdo[1]
         try:
             self._node.tpdo.read(from_od=True)
