@@ -244,7 +244,7 @@ def archive_at_start(settings: ArchiveSettings, out_dir: Path,
     if not settings.enabled:
         return done
     work = _start_work(settings, out_dir, exclude)
-    return _do_start_work(settings, *work) if work is not None else done
+    return _do_start_work(settings, *work)[0] if work is not None else done
 
 
 def _empty_start() -> dict[str, list[str]]:
@@ -263,16 +263,17 @@ def _start_work(settings: ArchiveSettings, out_dir: Path,
 
 
 def _do_start_work(settings: ArchiveSettings, killed: list[Path], pending: list[Path],
-                   probe: list[bool] | None = None) -> dict[str, list[str]]:
-    """Store ``killed`` ABORTED and send the queue; never raises. ``probe``: the database is
-    opened even with nothing to do, and whether it could be is appended to it."""
+                   probe: bool = False) -> tuple[dict[str, list[str]], bool | None]:
+    """Store ``killed`` ABORTED and send the queue; never raises. Returns what was done and
+    whether the database could be opened (None: not tried). ``probe``: it is opened even with
+    nothing to do."""
     done = _empty_start()
-    if not killed and not pending and probe is None:
-        return done
+    reachable: bool | None = None
+    if not killed and not pending and not probe:
+        return done, reachable
     try:
         archive = _open_or_none(settings)
-        if probe is not None:
-            probe.append(archive is not None)
+        reachable = archive is not None
         try:
             known = archive.run_ids(d.name for d in killed) if archive is not None else set()
             entries = []
@@ -299,7 +300,7 @@ def _do_start_work(settings: ArchiveSettings, killed: list[Path], pending: list[
     except Exception as e:  # a background thread's: said, never raised into the run
         log.warning("archive: not updated at the start of the run (%s: %s)",
                     type(e).__name__, e, exc_info=e)
-    return done
+    return done, reachable
 
 
 class RunArchive:
@@ -318,13 +319,9 @@ class RunArchive:
         self.settings = settings
         self.out_dir = out_dir
         self.start_result: dict[str, list[str]] = _empty_start()
-        self._probe: list[bool] = []
+        #: whether the database could be opened at the start (None: not known yet)
+        self.reachable: bool | None = None
         self._thread: threading.Thread | None = None
-
-    @property
-    def reachable(self) -> bool | None:
-        """Whether the database could be opened at the start (None: not known yet)."""
-        return self._probe[0] if self._probe else None
 
     def begin(self) -> None:
         if not self.settings.enabled:
@@ -334,17 +331,18 @@ class RunArchive:
             return
 
         def run() -> None:
-            self.start_result = _do_start_work(self.settings, *work, probe=self._probe)
+            self.start_result, self.reachable = _do_start_work(self.settings, *work, probe=True)
 
         self._thread = threading.Thread(target=run, name="archive-at-start", daemon=True)
         self._thread.start()
 
     def end(self, recording: Path) -> str:
         """Store the run (``archive_run``); never raises."""
-        if self._thread is not None:
-            self._thread.join(self.settings.connect_timeout_s + RUN_BUSY_TIMEOUT_S)
-        try_db = self.reachable is True or (self._thread is None and self.reachable is None)
-        return archive_run(self.settings, recording, try_database=try_db)
+        if self._thread is None:  # nothing begun in the background: try it now
+            return archive_run(self.settings, recording)
+        self._thread.join(self.settings.connect_timeout_s + RUN_BUSY_TIMEOUT_S)
+        # out of reach at the start, or still not answering: queued at once
+        return archive_run(self.settings, recording, try_database=self.reachable is True)
 
 
 # --- rebuild -------------------------------------------------------------------------------
