@@ -27,6 +27,8 @@ from pydantic import (
 
 from benchctl.errors import ConfigError, InputError
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
+from benchctl.text import PART_NUMBER_MAX, STATION_MAX
+from benchctl.text import problem as text_problem
 from benchctl.textfile import decode_utf8
 
 # Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
@@ -417,10 +419,44 @@ class ArchiveConfig(Strict):
         return v
 
 
+def _plain_text(v: str | None, max_chars: int, what: str) -> str | None:
+    """A name or number for people to read (``benchctl.text``): printable, at most
+    ``max_chars`` characters, the whitespace around it removed; else a ``ValueError`` saying
+    what is wrong."""
+    if v is None:
+        return None
+    s = v.strip()
+    bad = text_problem(s, max_chars, what)
+    if bad is not None:
+        raise ValueError(bad)
+    return s
+
+
+MAX_SERIAL_PATTERN = 200  # characters of unit.serial_pattern
+
+
 class UnitConfig(Strict):
-    """The unit under test's part number (the serial is given per run: --serial)."""
+    """The unit under test: its part number (the serial is given per run: --serial) and the
+    form every serial typed for it must have, ``serial_pattern``: a Python regular expression
+    the whole serial must match (e.g. ``SN-[0-9]{6}``), checked before anything opens."""
 
     part_number: str | None = None
+    serial_pattern: str | None = Field(default=None, min_length=1, max_length=MAX_SERIAL_PATTERN)
+
+    @field_validator("part_number")
+    @classmethod
+    def _part_number(cls, v: str | None) -> str | None:
+        return _plain_text(v, PART_NUMBER_MAX, "part number")
+
+    @field_validator("serial_pattern")
+    @classmethod
+    def _serial_pattern(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                re.compile(v)
+            except re.error as e:
+                raise ValueError(f"expected a regular expression: {e}") from None
+        return v
 
 
 class BenchConfig(Strict):
@@ -433,6 +469,11 @@ class BenchConfig(Strict):
     archive: ArchiveConfig = ArchiveConfig()  # the results archive (benchctl.archive)
 
     source: Path | None = Field(default=None, exclude=True)  # the file it came from
+
+    @field_validator("station")
+    @classmethod
+    def _station(cls, v: str) -> str:
+        return _plain_text(v, STATION_MAX, "station name") or ""
 
 
 _PATH_FIELDS = {

@@ -32,6 +32,7 @@ from types import FrameType
 from typing import Any
 
 from benchctl.errors import Interrupted
+from benchctl.text import visible
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +113,9 @@ def exit_signals() -> Iterator[None]:
 
 # ------------------------------------------------------------------------------ logging
 class _ConsoleFormatter(logging.Formatter):
-    """One line per record: the traceback is left out (the log file has it) and named."""
+    """One line per record: the traceback is left out (the log file has it) and named; a
+    control character in the message (a serial's ESC, a device's CR/LF) shown as an escape
+    (``benchctl.text.visible``), never sent to the terminal."""
 
     def format(self, record: logging.LogRecord) -> str:
         saved = record.exc_info, record.exc_text, record.stack_info
@@ -123,7 +126,7 @@ class _ConsoleFormatter(logging.Formatter):
             record.exc_info, record.exc_text, record.stack_info = saved
         if saved[0] and _state.active_log is not None:
             text += f" (traceback in {_state.active_log})"
-        return text
+        return visible(text)
 
 
 class _QuietStreamHandler(logging.StreamHandler):

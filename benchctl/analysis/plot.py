@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from benchctl.analysis.result import AnalysisResult
+from benchctl.text import visible
 
 
 def plot_result(result: AnalysisResult, dest: str | Path, *, serial: str | None = None,
@@ -23,8 +24,8 @@ def plot_result(result: AnalysisResult, dest: str | Path, *, serial: str | None 
 
     fig = Figure(figsize=(8, 11), constrained_layout=True)
     head = " — ".join(p for p in (f"serial {serial}" if serial else "", date or "") if p)
-    if head:
-        fig.suptitle(head)
+    if head:  # as typed: no mathtext ($…$ in a serial), control characters shown as escapes
+        fig.suptitle(visible(head), parse_math=False)
     axes = fig.subplots(4, 1)
     f = result.psd_freq
     pos = f > 0

@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
+from benchctl.text import csv_cell, terminal_lines, visible
+
 HISTORY_COLUMNS = ("run_id", "start_utc", "serial", "part_number", "station", "operator",
                    "outcome", "sigma", "sigma_limit", "profile", "seed", "abort_reason")
 PAGE_COLUMNS = ("start_utc", "serial", "station", "operator", "outcome", "sigma", "sigma_limit",
@@ -43,19 +45,24 @@ def flat(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def to_csv(rows: Sequence[dict[str, Any]]) -> str:
+    """The runs as CSV, every cell through ``benchctl.text.csv_cell``: control characters
+    shown as escapes, a cell a spreadsheet would take for a formula (``=HYPERLINK(…)``, ``+``,
+    ``-``, ``@``) prefixed with ``'``."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(HISTORY_COLUMNS), lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow(flat(r))
+        w.writerow({k: csv_cell(v) for k, v in flat(r).items()})
     return buf.getvalue()
 
 
 def to_text(rows: Sequence[dict[str, Any]]) -> str:
+    """The runs as a text table for the terminal (each cell made safe:
+    ``benchctl.text.visible``)."""
     if not rows:
         return "no runs"
     cols = ("start_utc", "serial", "station", "operator", "outcome", "sigma", "run_id")
-    table = [[flat(r)[c] for c in cols] for r in rows]
+    table = [[visible(flat(r)[c]) for c in cols] for r in rows]
     for t in table:
         t[0] = t[0][:19].replace("T", " ")
     widths = [max(len(c), *(len(t[i]) for t in table)) for i, c in enumerate(cols)]
@@ -66,7 +73,7 @@ def to_text(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def show_text(run: dict[str, Any]) -> str:
-    """One run, for the terminal."""
+    """One run, for the terminal (every line made safe: ``benchctl.text.visible``)."""
     p = run.get("profile") or {}
     abort = run.get("abort") or {}
     lines = [
@@ -107,7 +114,7 @@ def show_text(run: dict[str, Any]) -> str:
             unit = f" {m['unit']}" if m.get("unit") else ""
             lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   {m.get('outcome') or ''}"
                          .rstrip())
-    return "\n".join(lines)
+    return terminal_lines(lines)
 
 
 # --- the HTML page ----------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
+from benchctl.text import terminal_lines
 
 # subcommand modules, in the order --help lists them
 SUBCOMMANDS = (
@@ -123,9 +124,11 @@ def _interrupted(e: KeyboardInterrupt) -> str:
 
 
 def _say(text: str) -> None:
-    """One line on stderr; a console gone away (SIGHUP, a closed pipe) is not an error."""
+    """A message on stderr, made safe (``benchctl.text.terminal_lines``: its own line breaks
+    kept, any other control character shown as an escape); a console gone away (SIGHUP, a
+    closed pipe) is not an error."""
     with contextlib.suppress(OSError, ValueError):
-        print(text, file=sys.stderr, flush=True)
+        print(terminal_lines(text.split("\n")), file=sys.stderr, flush=True)
 
 
 def _flush_std() -> None:

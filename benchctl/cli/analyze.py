@@ -184,7 +184,9 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(json.dumps(doc, allow_nan=False) + "\n")  # dumps: the C encoder
     else:
         if status is not None and status["note"]:
-            print(f"benchctl analyze: NOTE: {status['note']}")
+            from benchctl.text import visible  # the recording's reason: shown, not sent
+
+            print(f"benchctl analyze: NOTE: {visible(status['note'])}")
         for r in results.values():
             print(summary(r))
     return 0

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.cli.run import ask_value
+from benchctl.text import terminal_lines, visible
 
 
 def register(sub: Any) -> None:
@@ -45,11 +46,12 @@ def register(sub: Any) -> None:
 
 def _say(text: str) -> None:
     with contextlib.suppress(OSError, ValueError):
-        print(f"plan: {text}", file=sys.stderr, flush=True)
+        print(f"plan: {visible(text)}", file=sys.stderr, flush=True)
 
 
 def summary(result: Any) -> str:
-    """One line per step and its judged measurements, then the plan's outcome."""
+    """One line per step and its judged measurements, then the plan's outcome; every line
+    made safe for a terminal (``benchctl.text.visible``)."""
     lines = [f"plan {result.name}   serial {result.serial}   operator {result.operator}"]
     for a in result.setup:
         lines.append(f"  setup {a.index + 1}: {a.status}" + (f" — {a.detail}" if a.detail
@@ -85,19 +87,22 @@ def summary(result: Any) -> str:
         lines.append(f"plan record {result.record_path}")
     if result.junit is not None:
         lines.append(f"JUnit XML {result.junit}")
-    return "\n".join(lines)
+    return terminal_lines(lines)  # a serial's or an operator's ESC or CR/LF shown, not sent
 
 
 def handle(args: argparse.Namespace) -> int:
     from benchctl.jsonout import dumps
     from benchctl.plan import load_plan, run_plan
     from benchctl.run.display import make_display
+    from benchctl.text import check_operator, check_serial
 
     # as benchctl run: the stand loop thread gets the interpreter within its period
     sys.setswitchinterval(0.001)
     plan = load_plan(args.plan)
-    serial = ask_value(args.serial, "Serial number of the instrument", "--serial")
-    operator = args.operator or plan.operator or ask_value(None, "Operator", "--operator")
+    # the config's serial_pattern, if any, is checked by run_plan once the config is read
+    serial = ask_value(args.serial, "Serial number of the instrument", "--serial", check_serial)
+    operator = ask_value(args.operator or plan.operator, "Operator", "--operator",
+                         check_operator)
     result = run_plan(
         plan,
         serial=serial,

@@ -8,6 +8,7 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.text import terminal_lines
 
 
 def register(sub: Any) -> None:
@@ -62,16 +63,21 @@ def handle_show(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps(s))
         return 0
-    print(f"recording {s['path']}")
-    print(f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else ""))
-    print(f"  serial     {s['serial']}   operator {s['operator']}   station {s['station']}")
-    print(f"  profile    {s['profile']} (seed {s['seed']}), axes {', '.join(s['axes'])}")
-    print(f"  start/end  {s['start_utc']} → {s['end_utc'] or '(not closed)'}")
+    lines = [
+        f"recording {s['path']}",
+        f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else ""),
+        f"  serial     {s['serial']}   operator {s['operator']}   station {s['station']}",
+        f"  profile    {s['profile']} (seed {s['seed']}), axes {', '.join(s['axes'])}",
+        f"  start/end  {s['start_utc']} → {s['end_utc'] or '(not closed)'}",
+    ]
     for role, d in (s["devices"] or {}).items():
-        print(f"  {role:<10} {d.get('vendor', '')} {d.get('model', '')} {d.get('serial', '')}")
+        lines.append(f"  {role:<10} {d.get('vendor', '')} {d.get('model', '')} "
+                     f"{d.get('serial', '')}")
     for name, st in s["streams"].items():
-        print(f"  {name:<10} {st['rows']} rows over {st['span_s']:.1f} s")
-    print(f"  states     {' → '.join(str(x) for x in s['states'])}")
+        lines.append(f"  {name:<10} {st['rows']} rows over {st['span_s']:.1f} s")
+    lines.append(f"  states     {' → '.join(str(x) for x in s['states'])}")
+    # the serial, the operator, the devices' identities: shown, never sent as escapes
+    print(terminal_lines(lines))
     return 0
 
 

@@ -7,6 +7,7 @@ import argparse
 import contextlib
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -67,10 +68,15 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=handle)
 
 
-def ask_value(value: str | None, what: str, option: str) -> str:
-    """``value``, else a line asked for on the terminal; no terminal: ``option`` is required."""
+def ask_value(value: str | None, what: str, option: str,
+              check: Callable[[str, str], str] | None = None) -> str:
+    """``value``, else a line asked for on the terminal; no terminal: ``option`` is required.
+
+    ``check(text, option)`` returns the value to use or raises ``InputError``
+    (``benchctl.text``: a serial, an operator): a given ``value`` it refuses ends the command
+    (exit 2); a line typed on the terminal it refuses is explained and asked for again."""
     if value:
-        return value
+        return check(value, option) if check is not None else value
     if sys.stdin.isatty() and sys.stderr.isatty():
         while True:
             sys.stderr.write(f"{what}: ")
@@ -78,8 +84,14 @@ def ask_value(value: str | None, what: str, option: str) -> str:
             line = sys.stdin.readline()
             if not line:
                 break
-            if line.strip():
+            if not line.strip():
+                continue
+            if check is None:
                 return line.strip()
+            try:
+                return check(line, option)
+            except InputError as e:
+                sys.stderr.write(f"{e}\n")
     raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
 
 
@@ -95,6 +107,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
     from benchctl.run.report import format_report
+    from benchctl.text import check_operator, check_part_number, check_serial, visible
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -117,8 +130,11 @@ def handle(args: argparse.Namespace) -> int:
                 f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
                 f"{rate:g} Hz (stand rate); expected at most {MAX_PROFILE_SAMPLES}"
             )
-    serial = ask_value(args.serial, "Serial number of the instrument", "--serial")
-    operator = ask_value(args.operator, "Operator", "--operator")
+    pattern, where = cfg.unit.serial_pattern, f"unit.serial_pattern of {cfg.source}"
+    serial = ask_value(args.serial, "Serial number of the instrument", "--serial",
+                       lambda v, o: check_serial(v, o, pattern, where))
+    operator = ask_value(args.operator, "Operator", "--operator", check_operator)
+    part_number = None if args.part_number is None else check_part_number(args.part_number)
     opts = RunOptions(
         serial=serial,
         operator=operator,
@@ -128,7 +144,7 @@ def handle(args: argparse.Namespace) -> int:
         scale_to_fit=args.scale_to_fit,
         precision=args.precision,
         decision_rule=args.decision_rule,
-        part_number=args.part_number,
+        part_number=part_number,
         equalise=args.equalise,
     )
     display = make_display(sys.stderr, quiet=args.quiet)
@@ -140,7 +156,7 @@ def handle(args: argparse.Namespace) -> int:
         elif result.report is not None:
             print(format_report(result.report))
         else:
-            print(f"ABORTED: {result.reason}")
+            print(f"ABORTED: {visible(result.reason)}")
             if result.abort is not None:
                 print(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
             if result.recording is not None:

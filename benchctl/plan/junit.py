@@ -17,6 +17,10 @@
         <testcase name="run"><skipped …/></testcase>                a step not run
       <testsuite name="cleanup" …>    one <testcase> per cleanup action (if any)
 
+Every attribute and text is readable XML 1.0 whatever a serial, an operator or a device
+reported: a character XML forbids (a control character) is written as a visible escape
+(``\x1b``, ``benchctl.text.for_xml``).
+
 An informative measurement (the serial match, the excitation fidelity: ``decisive`` false)
 never fails its test case: its outcome is in the case's ``<system-out>``. A setup or cleanup
 action that failed is an ``<error>``; a prompt answered no in the setup a ``<failure>``; an
@@ -30,6 +34,8 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from benchctl.text import for_xml
 
 if TYPE_CHECKING:
     from benchctl.plan.runner import ActionResult, PlanResult, StepResult
@@ -169,8 +175,21 @@ def junit_tree(result: PlanResult) -> ET.ElementTree[ET.Element]:
         kinds += _step(root, result, s)
     kinds += _actions(root, result.name, "cleanup", result.cleanup)
     _count(root, kinds)
+    _xml_safe(root)
     ET.indent(root)
     return ET.ElementTree(root)
+
+
+def _xml_safe(root: ET.Element) -> None:
+    """Every attribute and text made readable XML 1.0 (``benchctl.text.for_xml``): a serial,
+    an operator, a device's identity or a reason with a control character in it (an ESC, a
+    barcode scanner's GS) is shown as an escape (``\x1d``); xml.etree would write it as it is
+    and no parser could read the file back."""
+    for el in root.iter():
+        for k, v in el.attrib.items():
+            el.set(k, for_xml(v))
+        if el.text is not None:
+            el.text = for_xml(el.text)
 
 
 def write_junit(result: PlanResult, path: Path) -> Path:

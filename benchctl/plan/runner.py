@@ -51,6 +51,7 @@ from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
 from benchctl.plan.schema import Action, Plan, Step, load_plan
 from benchctl.results.record import load_record, sha256_file
+from benchctl.text import check_operator, check_serial
 
 log = logging.getLogger(__name__)
 
@@ -389,8 +390,9 @@ def run_plan(
 
     p = plan if isinstance(plan, Plan) else load_plan(plan)
     where = f"{p.source}: " if p.source is not None else ""
-    if not serial or not serial.strip():
+    if not isinstance(serial, str) or not serial.strip():
         raise InputError("a plan needs the serial number of the unit under test (--serial)")
+    serial = check_serial(serial, "serial")
     if isinstance(config, BenchConfig):
         cfg = config
     else:
@@ -399,10 +401,14 @@ def run_plan(
             raise ConfigError(f"{where}no bench config: the plan names none (config:) and none "
                               "was given (--config)")
         cfg = load_config(path)
+    if cfg.unit.serial_pattern is not None:  # the config's form of a serial
+        check_serial(serial, "serial", cfg.unit.serial_pattern,
+                     f"unit.serial_pattern of {cfg.source or 'the config'}")
     op = operator or p.operator
     if not op:
         raise InputError(f"{where}no operator: the plan names none (operator:) and none was "
                          "given (--operator)")
+    op = check_operator(op, "operator")
     if yes:
         asker: Asker | None = _yes
     else:

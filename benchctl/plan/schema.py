@@ -38,7 +38,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from benchctl.config import (
     MAX_RUN_DURATION_S,
@@ -48,6 +55,8 @@ from benchctl.config import (
     shown_value,
 )
 from benchctl.errors import ConfigError
+from benchctl.text import OPERATOR_MAX
+from benchctl.text import problem as text_problem
 
 MAX_PLAN_S = 7 * 86400.0  # a plan's or a step's timeout: at most a week
 MAX_STEPS = 100
@@ -117,12 +126,22 @@ class Plan(_Strict):
     name: Name
     description: str | None = None
     config: Path | None = None
-    operator: Name | None = None
+    operator: str | None = None  # the rules of --operator (benchctl.text)
     timeout_s: Timeout | None = None
     setup: tuple[Action, ...] = Field(default=(), max_length=MAX_ACTIONS)
     steps: tuple[Step, ...] = Field(min_length=1, max_length=MAX_STEPS)
     cleanup: tuple[Action, ...] = Field(default=(), max_length=MAX_ACTIONS)
     source: Path | None = Field(default=None, exclude=True)  # the file it was read from
+
+    @field_validator("operator")
+    @classmethod
+    def _operator(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        bad = text_problem(v.strip(), OPERATOR_MAX, "operator's name")
+        if bad is not None:
+            raise ValueError(bad)
+        return v.strip()
 
     @model_validator(mode="after")
     def _unique(self) -> Plan:

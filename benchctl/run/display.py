@@ -8,6 +8,11 @@ instrument samples) with a warning once it climbs (``health_warning``); at the e
 with the verdict. Without a terminal: plain log lines, one every ``period_s`` and one at each
 state change, and the verdict as one more line. ``NullDisplay`` for ``--json`` scripts that
 want silence.
+
+Every text a display writes — the serial and the operator, messages (a device's identity, a log
+record), reasons, the verdict's detail — goes through ``benchctl.text.visible``: a control
+character in it is shown as an escape (``\x1b``), never sent to the terminal, and no value
+starts a line of its own.
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 from typing import Protocol, TextIO
+
+from benchctl.text import visible
 
 
 @dataclass
@@ -88,8 +95,9 @@ def _angles(d: dict[str, float], fmt: str = "+7.2f") -> str:
 def format_lines(snap: Snapshot) -> list[str]:
     """The progress block as text lines (the log line joins them)."""
     limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
-    who = " ".join(p for p in (f"serial {snap.serial}" if snap.serial else "",
-                               f"operator {snap.operator}" if snap.operator else "") if p)
+    who = " ".join(p for p in (f"serial {visible(snap.serial)}" if snap.serial else "",
+                               f"operator {visible(snap.operator)}" if snap.operator else "")
+                   if p)
     return [
         *([who] if who else []),
         f"state {snap.state:<10} elapsed {_mmss(snap.elapsed_s)}"
@@ -115,7 +123,7 @@ def banner(verdict: str, detail: str = "", width: int = WIDTH) -> list[str]:
     """The final banner: the verdict framed, its detail lines below, all within ``width``."""
     bar = "=" * width
     head = f" {verdict} ".center(width, "=")
-    body = [fit(ln, width) for ln in detail.splitlines() if ln.strip()]
+    body = [fit(visible(ln), width) for ln in detail.split("\n") if ln.strip()]
     return [bar, head, *body, bar]
 
 
@@ -145,7 +153,7 @@ class LogDisplay:
         self._last = -math.inf
 
     def _print(self, text: str) -> None:
-        self.stream.write(f"[{time.strftime('%H:%M:%S')}] {text}\n")
+        self.stream.write(f"[{time.strftime('%H:%M:%S')}] {visible(text)}\n")
         self.stream.flush()
 
     def state(self, state: str, reason: str = "") -> None:
@@ -163,7 +171,7 @@ class LogDisplay:
 
     def verdict(self, verdict: str, detail: str = "") -> None:
         self._print(f"verdict {verdict}" + "".join(f" | {ln.strip()}" for ln in
-                                                   detail.splitlines() if ln.strip()))
+                                                   detail.split("\n") if ln.strip()))
 
     def close(self) -> None:
         pass
@@ -278,7 +286,7 @@ class TtyDisplay:
         """A line above the block, wrapped (not cut) to the display's width."""
         with self._lock:
             self._erase()
-            lines = textwrap.wrap(f"[{time.strftime('%H:%M:%S')}] {text}", self.width,
+            lines = textwrap.wrap(f"[{time.strftime('%H:%M:%S')}] {visible(text)}", self.width,
                                   subsequent_indent=" " * 11, break_on_hyphens=False) or [""]
             self.stream.write("\n".join(lines) + "\n")
             if self._snap is not None and not self._done:

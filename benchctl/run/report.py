@@ -29,6 +29,7 @@ from benchctl.results.measurements import (
     decide,
     overall,
 )
+from benchctl.text import terminal_lines
 
 log = logging.getLogger(__name__)
 
@@ -195,6 +196,8 @@ def _extra_lines(analysis: dict[str, Any]) -> list[str]:
 
 
 def format_report(rep: Report) -> str:
+    """The report as text (the terminal, report.txt): every line made safe
+    (``benchctl.text.visible``)."""
     m = rep.meta
     lines = [
         f"{rep.verdict}   serial {m.get('serial', '?')}   operator {m.get('operator', '?')}   "
@@ -253,7 +256,7 @@ def format_report(rep: Report) -> str:
         lines.extend(f"    {_measurement_line(x)}" for x in judged)
     lines.extend(f"  warning: {w}" for w in rep.warnings)
     lines.append(f"  recording {rep.recording}")
-    return "\n".join(lines)
+    return terminal_lines(lines)  # a serial's or an operator's ESC or CR/LF shown, not sent
 
 
 def _measurement_line(x: Measurement) -> str:

@@ -34,7 +34,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import re
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -107,6 +106,13 @@ from benchctl.run.stand_loop import (
 )
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, shutdown
+from benchctl.text import (
+    check_operator,
+    check_part_number,
+    check_serial,
+    file_name_part,
+    from_device,
+)
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
@@ -132,6 +138,15 @@ class RunOptions:
     decision_rule: str | None = None  # --decision-rule: overrides run.decision_rule
     part_number: str | None = None  # --part-number: overrides unit.part_number
     equalise: bool | None = None  # --equalise: overrides run.equalise.enabled
+
+    def __post_init__(self) -> None:
+        """The serial, the operator and the part number checked and stripped
+        (``benchctl.text``): a control character or an overlong value is an ``InputError``
+        here, before anything is read or opened."""
+        self.serial = check_serial(self.serial, "serial")
+        self.operator = check_operator(self.operator, "operator")
+        if self.part_number is not None:
+            self.part_number = check_part_number(self.part_number, "part_number")
 
 
 @dataclass
@@ -370,15 +385,12 @@ def simulators(cfg: BenchConfig, log_path: Path | None = None) -> Iterator[Bench
         yield sim.config
 
 
-def _safe_name(s: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", s).strip("_") or "unnamed"
-
-
 def recording_dir(out_dir: Path, serial: str, prefix: str = "") -> Path:
     """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
-    taken)."""
+    taken), the serial as a safe file-name part of at most 64 bytes
+    (``benchctl.text.file_name_part``)."""
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    base = out_dir / f"{prefix}{stamp}_{_safe_name(serial)}"
+    base = out_dir / f"{prefix}{stamp}_{file_name_part(serial)}"
     p, i = base, 1
     while p.exists():
         i += 1
@@ -387,13 +399,15 @@ def recording_dir(out_dir: Path, serial: str, prefix: str = "") -> Path:
 
 
 def _identity(d: DeviceIdentity) -> dict[str, Any]:
+    """A device's identity for the metadata: what it reports, never refused, each string cut
+    to ``benchctl.text.DEVICE_TEXT_MAX`` (shown safe wherever it is printed)."""
     return {
-        "vendor": d.vendor,
-        "model": d.model,
-        "serial": d.serial,
-        "firmware": d.firmware,
-        "protocol": d.protocol,
-        "extra": dict(d.extra),
+        "vendor": from_device(d.vendor),
+        "model": from_device(d.model),
+        "serial": from_device(d.serial),
+        "firmware": from_device(d.firmware),
+        "protocol": from_device(d.protocol),
+        "extra": {from_device(k): from_device(v) for k, v in d.extra.items()},
     }
 
 
@@ -420,6 +434,9 @@ class Session:
         self.opts = opts
         self.display: Display = display or NullDisplay()
         self.device_factory = device_factory
+        if cfg.unit.serial_pattern is not None:  # the config's form of a serial
+            check_serial(opts.serial, "serial", cfg.unit.serial_pattern,
+                         f"unit.serial_pattern of {cfg.source or 'the config'}")
         self.out_dir = opts.out_dir or cfg.run.output_dir
         self.path = recording_dir(self.out_dir, opts.serial)
         self.axes = prepared.plan.axes
