@@ -199,7 +199,7 @@ def check_text(value: object, option: str, max_chars: int, what: str) -> str:
     s = value.strip()
     bad = problem(s, max_chars, what)
     if bad is not None:
-        raise InputError(f"{option} {shown(value)}: {bad}")
+        raise InputError(f"{option} {shown(s or value)}: {bad}")
     return s
 
 
