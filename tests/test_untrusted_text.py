@@ -180,6 +180,31 @@ def test_run_refuses_unsafe_serial_or_operator_before_anything(
     assert not (tmp_path / "runs").exists()  # nothing opened: no recording folder
 
 
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--serial", OSC52], ["--serial '\\x1b]52;c;", "U+001B ESC"]),
+        (["--serial", "S" * 240], ["--serial 'SSS", "expected at most 64"]),
+        (["--serial", "SN-1", "--operator", "x\r\nPASS"], ["--operator 'x\\r\\nPASS'"]),
+        (["--serial", "SN1"], ["serial 'SN1': does not match the serial pattern"]),
+    ],
+)
+def test_plan_refuses_unsafe_serial_or_operator_before_anything(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], words: list[str],
+) -> None:
+    cfg = _cfg(tmp_path, serial_pattern="SN-[0-9]+")
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(yaml.safe_dump({
+        "name": "p", "config": str(cfg), "operator": "ana",
+        "steps": [{"name": "s", "profile": str(ROOT / "profiles/ci_short.yaml")}]}))
+    assert main(["plan", str(plan), "--yes", *extra]) == 2
+    cap = capsys.readouterr()
+    for w in words:
+        assert w in cap.err, (w, cap.err)
+    assert _no_control(cap.err.replace("\n", "")) and not cap.out
+    assert not (tmp_path / "runs").exists()  # no plan folder, no recording
+
+
 def test_part_number_and_config_serial_pattern(tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     assert _run(tmp_path, "--serial", "SN-1", "--operator", "o", "--part-number",
