@@ -400,12 +400,15 @@ class ArchiveConfig(Strict):
     ``url``: ``sqlite:///PATH`` (a relative PATH against this config's folder) or
     ``postgresql+psycopg://USER[:PASSWORD]@HOST[:PORT]/DB`` for a line of benches sharing one;
     None: ``sqlite:///<run.output_dir>/archive.sqlite``. ``queue_dir``: where records wait
-    while the database cannot be reached (None: ``<run.output_dir>/archive-queue``)."""
+    while the database cannot be reached (None: ``<run.output_dir>/archive-queue``).
+    ``write_timeout_s``: how long a statement waits for a lock (a busy SQLite file) before
+    the record is queued; any one statement is given twice this."""
 
     enabled: bool = True
     url: str | None = None
     queue_dir: Path | None = None
     connect_timeout_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] = 2.0
+    write_timeout_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
 
     @field_validator("url")
     @classmethod
