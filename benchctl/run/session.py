@@ -59,6 +59,7 @@ from benchctl.errors import (
 from benchctl.exits import run_log, set_log_dir
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
+from benchctl.redact import redact
 from benchctl.results.measurements import (
     Measurement,
     axis_measurements,
@@ -497,7 +498,7 @@ class Session:
             "station": cfg.station,
             "software_version": __version__,
             "config_path": str(cfg.source) if cfg.source else None,
-            "config": cfg.model_dump(mode="json"),
+            "config": redact(cfg.model_dump(mode="json")),  # no password (archive.url)
             "mode": cfg.stand.mode,
             "limit_sigma_deg": cfg.run.limit_sigma_deg,
             "decision_rule": self.rule,
@@ -1085,7 +1086,7 @@ class Session:
             try:
                 if self.start_simulators:
                     self.cfg = stack.enter_context(simulators(self.cfg, self.path / SIM_LOG))
-                    self.writer.update_meta(config=self.cfg.model_dump(mode="json"))
+                    self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
                 if self.prep.pretest is not None:
