@@ -341,3 +341,36 @@ def test_unreachable_is_still_said_unreachable(tmp_path: Path,
     assert "is unreachable" in caplog.text
     with pytest.raises(Exception, match="unreachable"):
         sync(ArchiveSettings(f"postgresql+psycopg://bench@127.0.0.1:{port}/x", tmp_path / "q"))
+
+
+def test_a_database_that_stops_answering_mid_statement_costs_the_run_its_bound(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    """What no server-side timeout can bound — a server stopped, or the network gone, in
+    the middle of a statement — stands here as a store that never returns: the run's end
+    queues the record after ``end_bound_s`` and returns."""
+    from benchctl.archive.service import RunArchive, end_bound_s
+
+    release = threading.Event()
+
+    def hung(self: Archive, *a: Any, **kw: Any) -> str:
+        release.wait(120.0)
+        raise RuntimeError("released")
+
+    monkeypatch.setattr(Archive, "store", hung)
+    s = ArchiveSettings(f"sqlite:///{tmp_path / 'a.sqlite'}", tmp_path / "q",
+                        connect_timeout_s=1.0, write_timeout_s=0.5)
+    rec = make_recording(tmp_path / "runs", "R-1", record=make_record("R-1"))
+    ra = RunArchive(s, tmp_path / "runs")
+    ra.begin()
+    try:
+        with caplog.at_level(logging.WARNING):
+            t0 = time.monotonic()
+            finished, what = _run_in_thread(lambda: ra.end(rec), 60.0)
+            took = time.monotonic() - t0
+        assert finished and what == "queued", what
+        assert end_bound_s(s) - 0.5 < took < end_bound_s(s) + 20.0, took
+        assert "did not answer within" in caplog.text
+        assert [p.name for p in queued(tmp_path / "q")] == ["R-1.json"]
+    finally:
+        release.set()

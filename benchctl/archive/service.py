@@ -460,15 +460,53 @@ class RunArchive:
         self._thread.start()
 
     def end(self, recording: Path) -> str:
-        """Store the run (``archive_run``); never raises."""
+        """Store the run (``archive_run``, within ``end_bound_s``); never raises."""
         if self._thread is None:  # nothing begun in the background: try it now
-            return archive_run(self.settings, recording)
+            return archive_run_within(self.settings, recording)
         # the start's work is bounded by the connect timeout and, per statement, the
         # statement timeout (twice the write timeout); it is not waited for longer
         self._thread.join(self.settings.connect_timeout_s + 2.0 * self.settings.write_timeout_s)
         # out of reach at the start, or still not answering: queued at once
-        return archive_run(self.settings, recording, try_database=self.reachable is True,
-                           why=self.why if self.reachable is False else "unreachable")
+        return archive_run_within(self.settings, recording, try_database=self.reachable is True,
+                                  why=self.why if self.reachable is False else "unreachable")
+
+
+def end_bound_s(settings: ArchiveSettings) -> float:
+    """How long a run's end waits for the database at most: its connect timeout and two
+    statement timeouts (each twice the write timeout). The server enforces its statement and
+    lock timeouts itself; this bound holds when it cannot (a server stopped, or a network
+    gone, in the middle of a statement)."""
+    return settings.connect_timeout_s + 4.0 * settings.write_timeout_s
+
+
+def archive_run_within(settings: ArchiveSettings, recording: Path, **kw: Any) -> str:
+    """``archive_run`` given ``end_bound_s`` at most: when the database has not answered by
+    then, the record is queued and ``queued`` returned while the attempt goes on in a daemon
+    thread (a run's process ends without it; storing twice is harmless: one run, one row).
+    Never raises."""
+    box: list[str] = []
+
+    def go() -> None:
+        box.append(archive_run(settings, recording, **kw))
+
+    t = threading.Thread(target=go, name="archive-at-end", daemon=True)
+    t.start()
+    bound = end_bound_s(settings)
+    t.join(bound)
+    if box:
+        return box[0]
+    try:
+        record, source = record_of(recording)
+        enqueue(settings.queue_dir, _entry(record, recording_sha256(recording), source))
+    except (BenchError, OSError) as e:
+        log.warning("archive: run %s: the archive %s did not answer within %g s, and the "
+                    "record could not be queued (%s); `benchctl archive rebuild` recovers it "
+                    "from the recording", recording.name, shown(settings.url), bound, e)
+        return "failed"
+    log.warning("archive: run %s queued in %s (the archive %s did not answer within %g s; "
+                "`benchctl archive sync` sends it)", recording.name, settings.queue_dir,
+                shown(settings.url), bound)
+    return "queued"
 
 
 # --- rebuild -------------------------------------------------------------------------------
@@ -525,6 +563,7 @@ __all__ = [
     "SyncResult",
     "archive_at_start",
     "archive_run",
+    "archive_run_within",
     "enqueue",
     "queued",
     "rebuild",

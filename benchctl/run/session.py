@@ -1254,9 +1254,9 @@ def _archive(cfg: BenchConfig, out_dir: Path, recording: Path,
         if run_archive is not None:
             run_archive.end(recording)
             return
-        from benchctl.archive.service import archive_run, settings_for
+        from benchctl.archive.service import archive_run_within, settings_for
 
-        archive_run(settings_for(cfg, out_dir), recording)
+        archive_run_within(settings_for(cfg, out_dir), recording)
     except Exception as e:
         log.warning("archive not updated: %s", describe(e), exc_info=e)
 
