@@ -9,7 +9,9 @@
   write transaction on the file (SQLite): the run's final write gives up within its lock
   timeout, the record is queued, the log says "locked" and the run returns seconds after its
   verdict (bounded generously: 30 s; without a timeout it waited for ever);
-- a read-only SQLite file: "read-only", the record queued.
+- a read-only SQLite file: "read-only", the record queued;
+- a database that stops answering in the middle of a statement (no server-side timeout can
+  bound that): the run's end queues the record after its bound and returns.
 """
 
 from __future__ import annotations
