@@ -13,6 +13,7 @@ import math
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
+from urllib.parse import urlsplit
 
 import yaml
 from pydantic import (
@@ -26,6 +27,7 @@ from pydantic import (
 )
 
 from benchctl.errors import ConfigError, InputError
+from benchctl.redact import redact
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
 from benchctl.text import PART_NUMBER_MAX, STATION_MAX
 from benchctl.text import problem as text_problem
@@ -400,14 +402,19 @@ _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+
 class ArchiveConfig(Strict):
     """The results archive (``benchctl.archive``): every run stored in a database.
     ``url``: ``sqlite:///PATH`` (a relative PATH against this config's folder) or
-    ``postgresql+psycopg://USER[:PASSWORD]@HOST[:PORT]/DB`` for a line of benches sharing one;
+    ``postgresql+psycopg://USER@HOST[:PORT]/DB`` for a line of benches sharing one (its
+    password best from libpq's own sources — ``~/.pgpass``, ``PGPASSFILE``, ``PGPASSWORD``, a
+    service file — not written here; never written anywhere by benchctl either way);
     None: ``sqlite:///<run.output_dir>/archive.sqlite``. ``queue_dir``: where records wait
-    while the database cannot be reached (None: ``<run.output_dir>/archive-queue``)."""
+    while the database cannot be reached (None: ``<run.output_dir>/archive-queue``).
+    ``write_timeout_s``: how long a statement waits for a lock (a busy SQLite file) before
+    the record is queued; any one statement is given twice this."""
 
     enabled: bool = True
     url: str | None = None
     queue_dir: Path | None = None
     connect_timeout_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] = 2.0
+    write_timeout_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
 
     @field_validator("url")
     @classmethod
@@ -416,6 +423,14 @@ class ArchiveConfig(Strict):
             raise ValueError(
                 "expected sqlite:///PATH or postgresql+psycopg://USER@HOST[:PORT]/DB"
             )
+        if v is not None and not v.startswith("sqlite"):
+            try:
+                urlsplit(v).port  # noqa: B018 (a port that is not a number raises)
+            except ValueError:
+                raise ValueError(
+                    "the port is not a number 0-65535: expected "
+                    "postgresql+psycopg://USER@HOST[:PORT]/DB"
+                ) from None
         return v
 
 
@@ -513,7 +528,7 @@ def _format_error(path: Path, err: ValidationError) -> str:
     parts = []
     for e in err.errors():
         loc = field_path(e["loc"]) or "(top level)"
-        value = e.get("input")
+        value = redact(e.get("input"))  # a password in a URL (in a list…) never shown
         shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
         parts.append(f"field {loc}{shown}: {e['msg']}")
     return f"{path}: invalid bench config: " + "; ".join(parts)

@@ -88,7 +88,14 @@ class AnalysisError(BenchError):
 
 
 class ArchiveError(BenchError):
-    """The results archive cannot be reached, migrated or written (or its URL is wrong)."""
+    """The results archive cannot be reached, migrated or written (or its URL is wrong).
+    ``kind`` says which, as it is: ``refused`` (the database will not take this record: it
+    is set aside, the others still go), ``locked``, ``timed out``, ``read-only``, ``denied``
+    (the login), ``unreachable``, ``failed`` (anything else)."""
+
+    def __init__(self, message: str, kind: str = "failed") -> None:
+        super().__init__(message)
+        self.kind = kind
 
 
 class DeviceError(BenchError):

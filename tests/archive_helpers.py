@@ -112,13 +112,26 @@ class PgServer:
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
 
-    def create_database(self, name: str) -> str:
+    def create_database(self, name: str, owner: str = "bench") -> str:
         import psycopg
 
         with psycopg.connect(f"postgresql://bench@127.0.0.1:{self.port}/postgres",
                              autocommit=True, connect_timeout=30) as c:
-            c.execute(f'CREATE DATABASE "{name}"')
+            c.execute(f'CREATE DATABASE "{name}" OWNER "{owner}"')
         return self.url(name)
+
+    def add_login(self, role: str, password: str) -> None:
+        """A role that logs in over TCP with ``password`` only (SCRAM; the other roles keep
+        the server's trust), so a test can tell whether the password reached the server."""
+        import psycopg
+
+        with psycopg.connect(f"postgresql://bench@127.0.0.1:{self.port}/postgres",
+                             autocommit=True, connect_timeout=30) as c:
+            c.execute("SET password_encryption = 'scram-sha-256'")
+            c.execute(f"CREATE ROLE \"{role}\" LOGIN PASSWORD '{password}'")
+        hba = self.data / "pg_hba.conf"
+        hba.write_text(f"host all {role} 127.0.0.1/32 scram-sha-256\n" + hba.read_text())
+        self._run("pg_ctl", "-D", str(self.data), "reload")
 
 
 # --- synthetic recordings ---------------------------------------------------------------------

@@ -36,6 +36,7 @@ from benchctl.archive.service import (
     enqueue,
     queued,
     rebuild,
+    refused,
     settings_for,
     sync,
 )
@@ -403,7 +404,7 @@ def test_a_run_archive_stores_at_its_end_what_it_found_reachable(url: str, tmp_p
     assert queued(tmp_path / "q") == []
 
 
-def test_sync_leaves_an_unreadable_entry_and_fails_on_a_dead_archive(tmp_path: Path) -> None:
+def test_sync_sets_an_unreadable_entry_aside_and_fails_on_a_dead_archive(tmp_path: Path) -> None:
     q = tmp_path / "q"
     enqueue(q, {"record": make_record("ok"), "recording_sha256": None, "source": "record.json"})
     (q / "broken.json").write_text("{not json")
@@ -413,8 +414,10 @@ def test_sync_leaves_an_unreadable_entry_and_fails_on_a_dead_archive(tmp_path: P
         sync(dead)
     assert len(queued(q)) == 3  # nothing left the queue
     res = sync(ArchiveSettings(f"sqlite:///{tmp_path / 'a.sqlite'}", q))
-    assert res.sent == ["ok"] and sorted(res.failed) == ["broken.json", "no-id.json"]
-    assert res.left == 2
+    # files that are not queued records are set aside with their reason, not sent again
+    assert res.sent == ["ok"] and res.left == 0
+    assert sorted(r.split(":")[0] for r in res.refused) == ["broken.json", "no-id.json"]
+    assert sorted(r["file"] for r in refused(q)) == ["broken.json", "no-id.json"]
 
 
 def test_a_second_bench_on_a_shared_postgresql_archive(

@@ -3,10 +3,14 @@ opened with ``Archive(url)``, its schema brought to the newest migration on open
 programmatically: no alembic.ini at the user's site), runs stored idempotently by ``run_id``.
 
 SQLite runs in WAL mode with a busy timeout, every write transaction beginning IMMEDIATE (so
-two writers wait for each other instead of failing); PostgreSQL goes through psycopg 3
-(``postgresql+psycopg://``; a plain ``postgresql://`` means the same) with a short connect
-timeout. Every failure to reach or write the database is an ``ArchiveError`` naming the
-archive (its password hidden) and the cause.
+two writers wait for each other instead of failing, for at most the busy timeout); PostgreSQL
+goes through psycopg 3 (``postgresql+psycopg://``; a plain ``postgresql://`` means the same)
+with a short connect timeout, and every session it opens has a ``lock_timeout`` (the busy
+timeout) and a ``statement_timeout``: no statement waits on the database for ever. Every
+failure to reach or write the database is an ``ArchiveError`` naming the archive (its
+password hidden: ``benchctl.redact``), what it was doing and the cause, its ``kind`` saying
+which it was (``classify``): ``refused`` (this record), ``locked``, ``timed out``,
+``read-only``, ``denied``, ``unreachable`` or ``failed``.
 """
 
 from __future__ import annotations
@@ -15,7 +19,9 @@ import json
 import logging
 import math
 import os
+import sqlite3
 import threading
+import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from datetime import UTC, date, datetime
@@ -30,6 +36,7 @@ from sqlalchemy.pool import NullPool
 from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
 from benchctl.errors import ArchiveError, DataError
 from benchctl.jsonout import dumps
+from benchctl.redact import redact_secret, redact_text
 
 log = logging.getLogger(__name__)
 
@@ -37,8 +44,12 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 OUTCOMES = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
 SOURCES = ("record.json", "recording", "killed")
 DEFAULT_CONNECT_TIMEOUT_S = 2.0
-DEFAULT_BUSY_TIMEOUT_S = 30.0  # SQLite: how long a writer waits for another one
+DEFAULT_BUSY_TIMEOUT_S = 30.0  # how long a statement waits for a lock (SQLite: a busy file)
 MIGRATE_KEY = 0x62656E6368  # PostgreSQL advisory lock of the migrations ("bench")
+# errors raised while a record's values are bound, not by the database (an integer out of
+# SQLite's range, a lone surrogate that cannot be encoded): the record is refused
+_RECORD_ERRORS: tuple[type[Exception], ...] = (UnicodeError, OverflowError, ValueError, TypeError)
+_TX_ERRORS: tuple[type[Exception], ...] = (SQLAlchemyError, *_RECORD_ERRORS)
 
 
 def parse_url(url: str, field: str = "archive.url") -> URL:
@@ -47,13 +58,15 @@ def parse_url(url: str, field: str = "archive.url") -> URL:
     try:
         u = make_url(url)
     except (ArgumentError, ValueError) as e:
-        raise ArchiveError(f"{field} = {url!r}: not a database URL ({e})") from None
+        raise ArchiveError(f"{field} = {redact_text(url)!r}: not a database URL "
+                           f"({redact_text(str(e))})") from None
     backend, _, driver = u.drivername.partition("+")
     if backend == "sqlite":
         if driver not in ("", "pysqlite"):
-            raise ArchiveError(f"{field} = {url!r}: expected sqlite:///PATH (driver {driver}?)")
+            raise ArchiveError(f"{field} = {shown(u)!r}: expected sqlite:///PATH "
+                               f"(driver {driver}?)")
         if not u.database or u.database == ":memory:":
-            raise ArchiveError(f"{field} = {url!r}: expected sqlite:///PATH (a file)")
+            raise ArchiveError(f"{field} = {shown(u)!r}: expected sqlite:///PATH (a file)")
         return u.set(drivername="sqlite")
     if backend in ("postgresql", "postgres"):
         if driver not in ("", "psycopg"):
@@ -68,12 +81,11 @@ def parse_url(url: str, field: str = "archive.url") -> URL:
 
 
 def shown(url: URL | str) -> str:
-    """A URL for messages and logs: its password hidden."""
-    try:
-        u = url if isinstance(url, URL) else make_url(url)
-    except (ArgumentError, ValueError):
-        return repr(str(url))
-    return u.render_as_string(hide_password=True)
+    """A URL for messages and logs: its password hidden, in whatever form it is given
+    (``user:pw@``, ``?password=``; a URL that does not parse too: ``benchctl.redact``)."""
+    if isinstance(url, URL):
+        return redact_text(url.render_as_string(hide_password=True))
+    return redact_text(str(url))
 
 
 def utc_naive(value: Any) -> datetime | None:
@@ -211,13 +223,22 @@ def _revision(conn: Connection) -> str | None:
 
 class Archive:
     """An open archive. ``Archive(url)`` connects and migrates (``ArchiveError`` when it
-    cannot); use as a context manager or call ``close()``."""
+    cannot); use as a context manager or call ``close()``.
+
+    ``busy_timeout_s``: how long a statement waits for a lock another session holds (SQLite:
+    its busy timeout; PostgreSQL: ``lock_timeout``, and the migrations' advisory lock);
+    ``statement_timeout_s`` (default twice that): PostgreSQL's ``statement_timeout``, how long
+    any one statement may take. Both are set on every connection, reads included."""
 
     def __init__(self, url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
-                 busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S, migrate: bool = True) -> None:
+                 busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S,
+                 statement_timeout_s: float | None = None, migrate: bool = True) -> None:
         self.url = parse_url(url)
         self.name = shown(self.url)
         self.backend = "sqlite" if self.url.drivername == "sqlite" else "postgresql"
+        self.busy_timeout_s = busy_timeout_s
+        self.statement_timeout_s = (2.0 * busy_timeout_s if statement_timeout_s is None
+                                    else statement_timeout_s)
         self.engine = self._engine(connect_timeout_s, busy_timeout_s)
         try:
             if migrate:
@@ -261,21 +282,40 @@ class Archive:
 
             return engine
         timeout = max(1, math.ceil(connect_timeout_s))
+        # every session: no lock waited for longer than busy_timeout_s, no statement longer
+        # than statement_timeout_s (the server cancels it: lock_not_available, query_canceled)
+        options = (f"-c lock_timeout={max(1, round(busy_timeout_s * 1000))} "
+                   f"-c statement_timeout={max(1, round(self.statement_timeout_s * 1000))}")
+        given = self.url.query.get("options")
+        if isinstance(given, str) and given.strip():
+            options = f"{given} {options}"  # the URL's own options kept, ours last (they win)
         return create_engine(
             self.url,
-            connect_args={"connect_timeout": timeout, "application_name": "benchctl"},
+            connect_args={"connect_timeout": timeout, "application_name": "benchctl",
+                          "options": options},
             pool_pre_ping=True,
             pool_size=2,
             max_overflow=2,
         )
+
+    def _error(self, what: str, e: BaseException) -> ArchiveError:
+        """The ``ArchiveError`` for a failure while doing ``what``: its kind (``classify``)
+        and the driver's first line, passwords hidden."""
+        kind = classify(e)
+        cause = redact_secret(_cause(e), self.url.password)
+        if kind == "locked":
+            cause += f"; waited {self.busy_timeout_s:g} s"
+        elif kind == "timed out":
+            cause += f"; statement timeout {self.statement_timeout_s:g} s"
+        return ArchiveError(f"archive {self.name}: cannot {what}: {kind} ({cause})", kind)
 
     @contextmanager
     def _tx(self, what: str) -> Iterator[Connection]:
         try:
             with self.engine.begin() as conn:
                 yield conn
-        except SQLAlchemyError as e:
-            raise ArchiveError(f"archive {self.name}: cannot {what}: {_cause(e)}") from e
+        except _TX_ERRORS as e:
+            raise self._error(what, e) from e
 
     def _read(self, what: str) -> Any:
         @contextmanager
@@ -284,7 +324,7 @@ class Archive:
                 with self.engine.connect() as conn:
                     yield conn
             except SQLAlchemyError as e:
-                raise ArchiveError(f"archive {self.name}: cannot {what}: {_cause(e)}") from e
+                raise self._error(what, e) from e
         return cm()
 
     def migrate(self) -> None:
@@ -293,40 +333,67 @@ class Archive:
         new archive at once take turns: SQLite through a lock file beside the database,
         PostgreSQL through an advisory lock, each checking the version again once it holds
         the lock (a second migrator finds the schema made, never a half-made one)."""
-        with _MIGRATE_LOCK, self._sqlite_lock():
-            try:
-                with self.engine.connect() as conn:
+        if not _MIGRATE_LOCK.acquire(timeout=self.statement_timeout_s):
+            raise ArchiveError(f"archive {self.name}: cannot bring its schema up to date: "
+                               "locked (another thread of this process is migrating)", "locked")
+        try:
+            with self._sqlite_lock():
+                self._migrate()
+        finally:
+            _MIGRATE_LOCK.release()
+
+    def _migrate(self) -> None:
+        try:
+            with self.engine.connect() as conn:
+                if self.backend == "postgresql":
+                    conn.execute(text("SELECT pg_advisory_lock(:k)"), {"k": MIGRATE_KEY})
+                try:
+                    if _revision(conn) != HEAD:
+                        self._upgrade(conn)
+                finally:
                     if self.backend == "postgresql":
-                        conn.execute(text("SELECT pg_advisory_lock(:k)"), {"k": MIGRATE_KEY})
-                    try:
-                        if _revision(conn) != HEAD:
-                            self._upgrade(conn)
-                    finally:
-                        if self.backend == "postgresql":
-                            conn.rollback()  # out of any failed transaction, then unlock
-                            conn.execute(text("SELECT pg_advisory_unlock(:k)"),
-                                         {"k": MIGRATE_KEY})
-                            conn.commit()
-            except SQLAlchemyError as e:
-                raise ArchiveError(
-                    f"archive {self.name}: cannot create or upgrade the schema: {_cause(e)}"
-                ) from e
+                        conn.rollback()  # out of any failed transaction, then unlock
+                        conn.execute(text("SELECT pg_advisory_unlock(:k)"),
+                                     {"k": MIGRATE_KEY})
+                        conn.commit()
+        except SQLAlchemyError as e:
+            raise self._error("open it or bring its schema up to date", e) from e
 
     @contextmanager
     def _sqlite_lock(self) -> Iterator[None]:
-        """SQLite: an exclusive lock on ``<database>.migrate.lock`` while held (no-op else)."""
+        """SQLite: an exclusive lock on ``<database>.migrate.lock`` while held (no-op else),
+        waited for at most the busy timeout (``locked`` then)."""
         if self.backend != "sqlite":
             yield
             return
+        import errno
         import fcntl
 
         path = Path(str(self.engine.url.database) + ".migrate.lock")
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         except OSError as e:
-            raise ArchiveError(f"archive {self.name}: cannot open {path}: {e.strerror}") from None
+            if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS) or not path.is_file():
+                kind = "read-only" if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS) \
+                    else "failed"
+                raise ArchiveError(f"archive {self.name}: cannot open {path}: {kind} "
+                                   f"({e.strerror})", kind) from None
+            # a read-only folder or file: the lock still works on a descriptor opened to read
+            # (the database itself will say whether it can be written)
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            deadline = time.monotonic() + self.busy_timeout_s
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() >= deadline:
+                        raise ArchiveError(
+                            f"archive {self.name}: cannot bring its schema up to date: locked "
+                            f"(another process holds {path}; waited {self.busy_timeout_s:g} s)",
+                            "locked") from None
+                    time.sleep(0.05)
             yield
         finally:
             os.close(fd)  # releases the lock
@@ -536,11 +603,63 @@ def _summary(r: dict[str, Any], sigmas: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _cause(e: SQLAlchemyError) -> str:
+
+_PG_KINDS = {"55P03": "locked", "40P01": "locked", "57014": "timed out",
+             "25006": "read-only", "42501": "read-only"}
+_PG_CLASSES = {"22": "refused", "23": "refused", "54": "refused", "28": "denied",
+               "08": "unreachable", "57": "unreachable", "3D": "unreachable"}
+
+
+def classify(e: BaseException) -> str:
+    """What a database failure is, as it is: ``refused`` (the database will not take this
+    record: a value it cannot store — a NUL character, a number out of range — or a broken
+    constraint; storing it again fails again), ``locked`` (another session holds what the
+    statement needs: lock timeout, deadlock, a busy SQLite file), ``timed out`` (the statement
+    timeout), ``read-only`` (a read-only database, file or transaction, or no right to write),
+    ``denied`` (the login: password, role), ``unreachable`` (no connection, or it was lost)
+    or ``failed`` (anything else). From PostgreSQL's SQLSTATE where there is one, else
+    the driver's exception class and message."""
+    from sqlalchemy import exc as sa
+
+    orig = getattr(e, "orig", None) if isinstance(e, sa.DBAPIError) else None
+    inner = orig if orig is not None else e
+    if isinstance(inner, _RECORD_ERRORS) and not isinstance(inner, sa.SQLAlchemyError):
+        return "refused"
+    state = getattr(inner, "sqlstate", None)
+    if isinstance(state, str) and len(state) == 5:
+        if state in _PG_KINDS:
+            return _PG_KINDS[state]
+        if state[:2] in _PG_CLASSES:
+            return _PG_CLASSES[state[:2]]
+    msg = str(inner).lower()
+    if isinstance(inner, sqlite3.Error):
+        if isinstance(inner, sqlite3.IntegrityError | sqlite3.DataError):
+            return "refused"
+        if "locked" in msg or "busy" in msg:
+            return "locked"
+        if "readonly" in msg or "read-only" in msg:
+            return "read-only"
+        if "unable to open" in msg:
+            return "unreachable"
+        if "too big" in msg:
+            return "refused"
+        return "failed"
+    if isinstance(e, sa.DataError | sa.IntegrityError):
+        return "refused"
+    if "authentication failed" in msg or "no password supplied" in msg:
+        return "denied"
+    if isinstance(e, sa.StatementError) and not isinstance(e, sa.DBAPIError):
+        return "refused"  # a value SQLAlchemy could not bind
+    if isinstance(e, sa.OperationalError | sa.InterfaceError) or "connection" in msg:
+        return "unreachable"
+    return "failed"
+
+
+def _cause(e: BaseException) -> str:
     orig = getattr(e, "orig", None)
     text_ = str(orig if orig is not None else e).strip().splitlines()
-    return text_[0] if text_ else type(e).__name__
+    return redact_text(text_[0]) if text_ else type(e).__name__
 
 
-__all__ = ["OUTCOMES", "Archive", "iso", "measurement_rows", "parse_url", "run_row", "shown",
-           "utc_naive"]
+__all__ = ["OUTCOMES", "Archive", "classify", "iso", "measurement_rows", "parse_url",
+           "run_row", "shown", "utc_naive"]

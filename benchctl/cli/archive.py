@@ -1,4 +1,5 @@
-"""``benchctl archive sync|rebuild DIR``: the results archive's queue and its rebuild from
+"""``benchctl archive status|sync|rebuild DIR``: the results archive's queue (and the records
+the database refused, set aside with their reasons), sending it, and the rebuild from
 recordings. Which archive: ``--url``, else the config's ``archive:`` section (``--config``),
 else the default SQLite file in the output folder (``--out``, else the config's
 ``run.output_dir``, else ./runs)."""
@@ -11,6 +12,8 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+
+CLI_WRITE_TIMEOUT_S = 10.0  # history, show, rebuild: a lock waited for at least this long
 
 
 def add_archive_options(p: argparse.ArgumentParser) -> None:
@@ -37,22 +40,28 @@ def settings(args: argparse.Namespace) -> Any:
 def open_archive(args: argparse.Namespace, *, create: bool = False) -> Any:
     """The archive the options name; a SQLite file that does not exist is an error unless
     ``create`` (reading commands do not leave an empty database behind)."""
-    from benchctl.archive.store import Archive, parse_url
+    from benchctl.archive.store import Archive, parse_url, shown
 
     s = settings(args)
     u = parse_url(s.url)
     if not create and u.drivername == "sqlite" and not Path(str(u.database)).is_file():
         raise InputError(
-            f"archive {s.url}: no such file (no run archived there yet; "
+            f"archive {shown(s.url)}: no such file (no run archived there yet; "
             "expected --config, --url or --out naming an archive)"
         )
-    return Archive(s.url, connect_timeout_s=s.connect_timeout_s)
+    return Archive(s.url, connect_timeout_s=s.connect_timeout_s,
+                   busy_timeout_s=max(s.write_timeout_s, CLI_WRITE_TIMEOUT_S))
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("archive", help="the results archive: send the queue, rebuild")
     rs = p.add_subparsers(dest="archive_command", metavar="ACTION")
     rs.required = True
+    st = rs.add_parser("status", help="the queue and the records set aside as refused (opens "
+                       "no database)")
+    add_archive_options(st)
+    st.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    st.set_defaults(handler=handle_status)
     sy = rs.add_parser("sync", help="send the records queued while the archive was unreachable")
     add_archive_options(sy)
     sy.add_argument("--json", action="store_true", help="one JSON object on stdout")
@@ -64,8 +73,32 @@ def register(sub: Any) -> None:
     rb.set_defaults(handler=handle_rebuild)
 
 
+def handle_status(args: argparse.Namespace) -> int:
+    from benchctl.archive.service import queued, refused
+    from benchctl.archive.store import shown
+
+    s = settings(args)
+    pending = [p.name for p in queued(s.queue_dir)]
+    aside = refused(s.queue_dir)
+    if args.json:
+        print(dumps({"archive": shown(s.url), "queue_dir": str(s.queue_dir),
+                     "queued": pending, "refused": aside}))
+        return 0
+    print(f"archive {shown(s.url)}")
+    print(f"queue {s.queue_dir}: {len(pending)} record(s) waiting"
+          + ("" if not pending else " (`benchctl archive sync` sends them)"))
+    for name in pending:
+        print(f"  queued   {name}")
+    for r in aside:
+        print(f"  refused  {r['file']} ({r['refused_utc']}): {r['reason']}")
+    if aside:
+        print(f"refused records are kept in {s.queue_dir / 'refused'}: once the cause is "
+              "fixed, move one back into the queue folder to send it again")
+    return 0
+
+
 def handle_sync(args: argparse.Namespace) -> int:
-    from benchctl.archive.service import queued, sync
+    from benchctl.archive.service import REFUSED, queued, sync
     from benchctl.archive.store import shown
 
     s = settings(args)
@@ -77,9 +110,11 @@ def handle_sync(args: argparse.Namespace) -> int:
         print(f"queue {s.queue_dir}: empty, nothing to send")
     else:
         print(f"sent {len(res.sent)} run(s) to {shown(s.url)}; {res.left} left in {s.queue_dir}")
-        for name in res.failed:
-            print(f"  not a queued record, left in place: {name}")
-    return 0 if not res.failed else 2
+        for why in res.refused:
+            print(f"  refused, set aside in {s.queue_dir / REFUSED}: {why}")
+        if res.stopped is not None:
+            print(f"  stopped: {res.stopped}")
+    return 0 if not res.refused and res.stopped is None else 2
 
 
 def handle_rebuild(args: argparse.Namespace) -> int:
@@ -96,4 +131,6 @@ def handle_rebuild(args: argparse.Namespace) -> int:
         print(f"stored {len(res.stored)} run(s) from {args.dir} in {name}")
         for why in res.skipped:
             print(f"  skipped {why}")
-    return 0
+        for why in res.refused:
+            print(f"  refused {why}")
+    return 0 if not res.refused else 2

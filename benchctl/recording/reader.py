@@ -273,9 +273,11 @@ class Recording:
         """All streams and metadata into one MATLAB .mat file (struct per stream)."""
         from scipy.io import savemat
 
+        from benchctl.redact import redact
+
         d = Path(dest)
         payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}
-        payload["meta_json"] = dumps(self.meta)
+        payload["meta_json"] = dumps(redact(self.meta))  # an older recording's password too
         payload["end_json"] = dumps(self.end)
         savemat(d, payload, do_compression=True)
         return d

@@ -58,6 +58,7 @@ from benchctl.errors import (
 from benchctl.exits import run_log, set_log_dir
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
+from benchctl.redact import redact
 from benchctl.results.measurements import (
     Measurement,
     axis_measurements,
@@ -514,7 +515,7 @@ class Session:
             "station": cfg.station,
             "software_version": __version__,
             "config_path": str(cfg.source) if cfg.source else None,
-            "config": cfg.model_dump(mode="json"),
+            "config": redact(cfg.model_dump(mode="json")),  # no password (archive.url)
             "mode": cfg.stand.mode,
             "limit_sigma_deg": cfg.run.limit_sigma_deg,
             "decision_rule": self.rule,
@@ -1102,7 +1103,7 @@ class Session:
             try:
                 if self.start_simulators:
                     self.cfg = stack.enter_context(simulators(self.cfg, self.path / SIM_LOG))
-                    self.writer.update_meta(config=self.cfg.model_dump(mode="json"))
+                    self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
                 if self.prep.pretest is not None:
@@ -1270,9 +1271,9 @@ def _archive(cfg: BenchConfig, out_dir: Path, recording: Path,
         if run_archive is not None:
             run_archive.end(recording)
             return
-        from benchctl.archive.service import archive_run, settings_for
+        from benchctl.archive.service import archive_run_within, settings_for
 
-        archive_run(settings_for(cfg, out_dir), recording)
+        archive_run_within(settings_for(cfg, out_dir), recording)
     except Exception as e:
         log.warning("archive not updated: %s", describe(e), exc_info=e)
 
