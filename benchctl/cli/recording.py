@@ -40,6 +40,7 @@ def summary(path: Path) -> dict[str, Any]:
     return {
         "path": str(rec.path),
         "state": rec.state,
+        "integrity": rec.integrity.to_dict(),
         "reason": (rec.end or {}).get("reason", ""),
         "serial": m.get("serial"),
         "operator": m.get("operator"),
@@ -63,7 +64,11 @@ def handle_show(args: argparse.Namespace) -> int:
         print(dumps(s))
         return 0
     print(f"recording {s['path']}")
-    print(f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else ""))
+    integrity = s["integrity"]
+    failed = integrity["status"] == "FAILED"
+    print(f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else "")
+          + (" — INTEGRITY FAILED" if failed else ""))
+    print(f"  integrity  {_integrity_text(integrity)}")
     print(f"  serial     {s['serial']}   operator {s['operator']}   station {s['station']}")
     print(f"  profile    {s['profile']} (seed {s['seed']}), axes {', '.join(s['axes'])}")
     print(f"  start/end  {s['start_utc']} → {s['end_utc'] or '(not closed)'}")
@@ -73,6 +78,16 @@ def handle_show(args: argparse.Namespace) -> int:
         print(f"  {name:<10} {st['rows']} rows over {st['span_s']:.1f} s")
     print(f"  states     {' → '.join(str(x) for x in s['states'])}")
     return 0
+
+
+def _integrity_text(d: dict[str, Any]) -> str:
+    """The integrity line of ``recording show`` (``Integrity.to_dict``)."""
+    if d["status"] == "verified":
+        return f"verified: rows and SHA-256 as end.json states ({', '.join(d['files'])})"
+    if d["status"] == "FAILED":
+        return "INTEGRITY FAILED, altered after the run closed it:\n" + "\n".join(
+            f"               {p}" for p in d["problems"])
+    return f"unknown, not verifiable: {d['note']}"
 
 
 def handle_export(args: argparse.Namespace) -> int:
