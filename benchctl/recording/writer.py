@@ -7,9 +7,11 @@ errno, and reports it to ``on_error``; from then on rows and events are dropped 
 ``RecordingError`` only when it cannot.
 
 Room for ``end.json``: the writer keeps a reserve file (``RESERVE_FILE``, ``RESERVE_BYTES``
-allocated on the disk) in the recording from its start; ``close`` deletes it just before
-writing ``end.json``, so a disk that filled up during the run still has room for the closing
-record (and the run's ``record.json`` after it).
+allocated on the disk; a quarter or a sixteenth of it when a file size limit or a nearly full
+disk refuses that, none when even that is refused) in the recording from its start; ``close``
+(or ``release_reserve``, on a full disk) deletes it just before writing ``end.json``, so a disk
+that filled up during the run still has room for the closing record (and the run's
+``record.json`` after it).
 
 Integrity: every byte written to a data file (the three streams, ``events.jsonl``,
 ``meta.json``) goes through a SHA-256 and its rows are counted; ``close`` writes them into
@@ -172,7 +174,16 @@ class RecordingWriter:
         self._tally = {fname: _Tally() for fname in (*STREAM_FILES.values(), EVENTS_FILE)}
         self._suspect: set[str] = set()
         self.reserve: Path | None = self.path / RESERVE_FILE
-        make_reserve(self.reserve)
+        self.reserve_bytes = 0
+        for size in (RESERVE_BYTES, RESERVE_BYTES // 4, RESERVE_BYTES // 16):
+            try:  # best effort: a file size limit (EFBIG) or a nearly full disk takes less
+                make_reserve(self.reserve, size)
+            except OSError:
+                continue
+            self.reserve_bytes = size
+            break
+        else:
+            self.reserve = None  # no room kept (the prechecks' free-space check says more)
         self._files: dict[str, IO[str]] = {}
         for name, fname in STREAM_FILES.items():
             f = (self.path / fname).open("w", encoding="utf-8", buffering=1, newline="\n")
