@@ -236,3 +236,26 @@ def test_written_rows_are_counted_and_hashed(
     meta = (folder / "meta.json").read_bytes()
     assert files["meta.json"]["sha256"] == hashlib.sha256(meta).hexdigest()
     assert load_recording(folder).integrity.status == "verified"
+
+
+def test_show_states_an_integrity_failure(tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """``benchctl show RUN`` checks the run's recording folder when it is here."""
+    from archive_helpers import make_record
+    from archive_helpers import make_recording as archived_recording
+
+    runs = tmp_path / "runs"
+    name = "20261120T080000Z_SN-1"
+    rec = archived_recording(runs, name, record=make_record(name))
+    assert main(["archive", "rebuild", str(runs), "--out", str(runs)]) == 0
+    capsys.readouterr()
+    assert main(["show", name, "--out", str(runs)]) == 0
+    assert "integrity  verified" in capsys.readouterr().out
+    inst = rec / "instrument.csv"
+    inst.write_bytes(inst.read_bytes().replace(b"0.1", b"0.2", 1))
+    assert main(["show", name, "--out", str(runs), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["integrity"]["status"] == "FAILED"
+    assert f"{inst}: SHA-256" in doc["integrity"]["problems"][0]
+    assert main(["show", name, "--out", str(runs)]) == 0
+    assert "INTEGRITY FAILED" in capsys.readouterr().out
