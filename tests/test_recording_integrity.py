@@ -259,3 +259,21 @@ def test_show_states_an_integrity_failure(tmp_path: Path,
     assert f"{inst}: SHA-256" in doc["integrity"]["problems"][0]
     assert main(["show", name, "--out", str(runs)]) == 0
     assert "INTEGRITY FAILED" in capsys.readouterr().out
+
+
+def test_room_given_back_on_a_full_disk_is_not_taken_by_rows(tmp_path: Path) -> None:
+    """release_reserve (the abort on a full disk): the reserve is gone, stream rows are dropped
+    and counted, events still go in, and the files still verify."""
+    w = RecordingWriter(tmp_path / "rec", ("roll",), {})
+    assert (tmp_path / "rec" / "end.json.reserve").stat().st_size == w.reserve_bytes > 0
+    w.write_instrument(InstrumentSample(0.0, {"roll": 0.5}, counter=0))
+    w.release_reserve()
+    assert not (tmp_path / "rec" / "end.json.reserve").exists()
+    for k in range(1, 4):
+        w.write_instrument(InstrumentSample(float(k), {"roll": 0.5}, counter=k))
+    w.event("shutdown", state="aborted")
+    w.close("aborted", "recording: disk full")
+    end = json.loads((tmp_path / "rec" / "end.json").read_text())
+    assert end["dropped_rows"] == 3 and end["counts"]["instrument"] == 1
+    assert end["integrity"]["files"]["events.jsonl"]["rows"] == 1
+    assert load_recording(tmp_path / "rec").integrity.status == "verified"

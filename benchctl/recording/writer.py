@@ -155,6 +155,7 @@ class RecordingWriter:
         self.counts = {name: 0 for name in STREAM_FILES}
         self.dropped_rows = 0  # stream rows not written after a write failure
         self.dropped_events = 0
+        self._rows_off = False  # release_reserve: a full disk, rows dropped from now on
         self.error: RecordingError | None = None  # the first write failure
         self._on_error = on_error
         self.t0_monotonic = time.monotonic()
@@ -214,7 +215,7 @@ class RecordingWriter:
         with self._lock:
             if self._closed:
                 return
-            if self.error is not None:
+            if self.error is not None or self._rows_off:
                 self.dropped_rows += 1
                 return
             try:
@@ -328,8 +329,9 @@ class RecordingWriter:
             **extra,
             "integrity": self.integrity(),
         }
-        if self.error is not None:
-            end["recording_error"] = str(self.error)
+        if self.error is not None or self.dropped_rows:
+            if self.error is not None:
+                end["recording_error"] = str(self.error)
             end["dropped_rows"] = self.dropped_rows
             end["dropped_events"] = self.dropped_events
         try:
@@ -339,8 +341,12 @@ class RecordingWriter:
         self._end_written = True
 
     def release_reserve(self) -> None:
-        """Give the room kept for ``end.json`` back now (a full disk: the abort's last events
-        and ``end.json`` go into it); ``close`` does it anyway. Idempotent."""
+        """The disk is full: give the room kept for ``end.json`` back now, for the abort's last
+        events and ``end.json``; stream rows from now on are dropped and counted
+        (``dropped_rows``), so the stand's samples during the cleanup cannot take that room.
+        ``close`` gives the room back anyway. Idempotent."""
+        with self._lock:
+            self._rows_off = True
         self._release_reserve()
 
     def _release_reserve(self) -> None:
