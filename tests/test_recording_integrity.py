@@ -277,3 +277,34 @@ def test_room_given_back_on_a_full_disk_is_not_taken_by_rows(tmp_path: Path) -> 
     assert end["dropped_rows"] == 3 and end["counts"]["instrument"] == 1
     assert end["integrity"]["files"]["events.jsonl"]["rows"] == 1
     assert load_recording(tmp_path / "rec").integrity.status == "verified"
+
+
+@settings(max_examples=50, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(which=st.sampled_from([*DATA_FILES, "meta.json"]), where=st.floats(0.0, 1.0),
+       delta=st.integers(1, 255), cut=st.booleans())
+def test_any_change_to_a_covered_file_is_found(
+    tmp_path_factory: pytest.TempPathFactory, which: str, where: float, delta: int, cut: bool,
+) -> None:
+    """One byte changed, or the file cut anywhere: the check fails naming that file only."""
+    folder = tmp_path_factory.mktemp("alter") / "rec"
+    w = RecordingWriter(folder, ("roll",), {"serial": "A"})
+    for k in range(20):
+        w.write_instrument(InstrumentSample(float(k), {"roll": 0.25 * k}, counter=k))
+        w.write_setpoint(float(k), {"roll": 0.25 * k}, float(k))
+        w.write_stand(StandSample(t_host=float(k), rtt_s=0.001, angle_deg={"roll": 0.1 * k},
+                                  rate_deg_s={"roll": 0.0}, setpoint_deg={"roll": 0.0},
+                                  status=STATUS))
+    w.event("note", text="x")
+    w.close("done", "PASS")
+    f = folder / which
+    raw = bytearray(f.read_bytes())
+    i = min(int(where * len(raw)), len(raw) - 1)
+    if cut:
+        raw = raw[:i]
+    else:
+        raw[i] = (raw[i] + delta) % 256
+    f.write_bytes(bytes(raw))
+    found = verify_recording(folder)
+    assert found.status == "FAILED"
+    assert len(found.problems) == 1 and found.problems[0].startswith(f"{f}: ")
