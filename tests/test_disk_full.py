@@ -46,8 +46,11 @@ def disk(tmp_path: Path) -> Iterator[Path]:
     _need_root()
     d = tmp_path / "disk"
     d.mkdir()
-    subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={DISK_SIZE}", "tmpfs", str(d)],
-                   check=True, capture_output=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={DISK_SIZE}", "tmpfs", str(d)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.fail(f"cannot mount a tmpfs of {DISK_SIZE} at {d} (needed to fill a disk): "
+                    f"{r.stderr.strip() or r.returncode}")
     try:
         yield d
     finally:
