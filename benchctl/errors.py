@@ -57,6 +57,17 @@ class DataError(InputError):
     """A recording or CSV cannot be analysed as it is."""
 
 
+#: the errors that mean "no room to write": a full disk, a user's quota, a file size limit
+DISK_FULL_ERRNOS = frozenset(
+    e for e in (_errno.ENOSPC, getattr(_errno, "EDQUOT", None), _errno.EFBIG) if e is not None
+)
+
+
+def is_disk_full(e: BaseException) -> bool:
+    """True for an ``OSError`` that says there is no room to write (``DISK_FULL_ERRNOS``)."""
+    return isinstance(e, OSError) and e.errno in DISK_FULL_ERRNOS
+
+
 class RecordingError(DataError):
     """A recording could not be written (disk full, I/O error). Names the file and the errno."""
 
@@ -77,6 +88,16 @@ class RecordingError(DataError):
         else:
             head = "write error"
         return cls(f"{head}: cannot {what} {path} ({name}, errno {code}: {text})", path, code)
+
+    @classmethod
+    def disk_full(cls, e: BaseException, path: Path | None = None) -> RecordingError | None:
+        """``e`` as a ``RecordingError`` when it is a disk-full ``OSError`` (``is_disk_full``),
+        naming ``e.filename`` or else ``path``; None for anything else."""
+        if isinstance(e, RecordingError) or not is_disk_full(e):
+            return e if isinstance(e, RecordingError) else None
+        assert isinstance(e, OSError)
+        where = Path(e.filename) if e.filename else path
+        return cls.from_oserror(where if where is not None else Path("?"), e)
 
 
 class LimitError(InputError):

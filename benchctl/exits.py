@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -137,6 +138,10 @@ class _QuietStreamHandler(logging.StreamHandler):
 class _QuietFileHandler(logging.FileHandler):
     def handleError(self, record: logging.LogRecord) -> None:
         pass  # a full disk: the run's own recording reports it; logging stays silent
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):  # a full disk: the last flush fails, the file closes
+            super().close()
 
 
 def console_handler(level: int) -> logging.Handler:

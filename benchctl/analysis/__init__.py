@@ -31,6 +31,7 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
     from benchctl.recording import load_recording
 
     rec = load_recording(path)
+    rec.require_intact()  # IntegrityError: the recording was altered after its run closed it
     t_ref, x_ref, t_dev, y_dev = rec.pair(axis)
     options.setdefault("source", str(path))
     note = ""

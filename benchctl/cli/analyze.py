@@ -137,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
                              source=s.source, **opts)
     elif is_recording(args.source):
         rec = load_recording(args.source)
+        rec.require_intact()  # an altered recording: exit 2 naming the file, never a σ
         status = recording_status(rec)
         axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
@@ -207,7 +208,11 @@ def recording_status(rec: Any) -> dict[str, Any]:
                 "running): this analysis covers what was recorded and is not a verdict")
     elif state != "done":
         note = f"the recording ended in state {state!r}: this analysis is not a verdict"
-    return {"state": state, "reason": reason or None, "note": note or None}
+    integrity = rec.integrity
+    if integrity.status != "verified" and state != "incomplete":
+        note = (note + "; " if note else "") + f"integrity {integrity.text()}"
+    return {"state": state, "reason": reason or None, "note": note or None,
+            "integrity": integrity.to_dict()}
 
 
 def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:

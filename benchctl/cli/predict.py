@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"{src}: {what}")
     profile, tables = _tables(args.profile, args.duration)
     rec = load_recording(src)
+    rec.require_intact()  # an altered recording: exit 2 naming the file
     wanted = list(rec.axes) if args.axis == "all" else [args.axis]
     if args.axis != "all" and args.axis not in rec.axes:
         raise DataError(f"{src}: --axis {args.axis}: the recording holds {', '.join(rec.axes)}")

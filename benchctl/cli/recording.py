@@ -41,6 +41,7 @@ def summary(path: Path) -> dict[str, Any]:
     return {
         "path": str(rec.path),
         "state": rec.state,
+        "integrity": rec.integrity.to_dict(),
         "reason": (rec.end or {}).get("reason", ""),
         "serial": m.get("serial"),
         "operator": m.get("operator"),
@@ -63,9 +64,13 @@ def handle_show(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps(s))
         return 0
+    integrity = s["integrity"]
+    failed = integrity["status"] == "FAILED"
     lines = [
         f"recording {s['path']}",
-        f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else ""),
+        f"  state      {s['state']}" + (f" ({s['reason']})" if s["reason"] else "")
+        + (" — INTEGRITY FAILED" if failed else ""),
+        *f"  integrity  {_integrity_text(integrity)}".split("\n"),
         f"  serial     {s['serial']}   operator {s['operator']}   station {s['station']}",
         f"  profile    {s['profile']} (seed {s['seed']}), axes {', '.join(s['axes'])}",
         f"  start/end  {s['start_utc']} → {s['end_utc'] or '(not closed)'}",
@@ -79,6 +84,16 @@ def handle_show(args: argparse.Namespace) -> int:
     # the serial, the operator, the devices' identities: shown, never sent as escapes
     print(terminal_lines(lines))
     return 0
+
+
+def _integrity_text(d: dict[str, Any]) -> str:
+    """The integrity line of ``recording show`` (``Integrity.to_dict``)."""
+    if d["status"] == "verified":
+        return f"verified: rows and SHA-256 as end.json states ({', '.join(d['files'])})"
+    if d["status"] == "FAILED":
+        return "INTEGRITY FAILED, altered after the run closed it:\n" + "\n".join(
+            f"               {p}" for p in d["problems"])
+    return f"unknown, not verifiable: {d['note']}"
 
 
 def handle_export(args: argparse.Namespace) -> int:

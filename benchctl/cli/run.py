@@ -159,6 +159,15 @@ def handle(args: argparse.Namespace) -> int:
             print(f"ABORTED: {visible(result.reason)}")
             if result.abort is not None:
                 print(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
+            if result.measured is not None:
+                print(f"  {_measured_text(result.measured)}")
+            if result.shutdown:
+                print("  cleanup:")
+                for step in result.shutdown:
+                    ok = "ok" if step["ok"] else f"FAILED {step['detail']}"
+                    print(f"    {step['step']}: {ok}"
+                          + (f" ({step['detail']})" if step["ok"] and step["detail"] else "")
+                          + (f" (at the {step['when']})" if step.get("when") else ""))
             if result.recording is not None:
                 closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
                 how = "closed, marked aborted" if closed else "NOT closed: no end.json"
@@ -169,3 +178,10 @@ def handle(args: argparse.Namespace) -> int:
                 print(f"  record {result.record}")
     return result.exit_code
 
+
+def _measured_text(m: dict[str, Any]) -> str:
+    """The verdict an aborted run measured before its outputs failed (a full disk)."""
+    axes = "; ".join(f"{a} σ {v['sigma']:.4f}° limit {v['limit']:g}° {v['verdict']}"
+                     for a, v in m.get("axes", {}).items())
+    return (f"measured before the abort: {m['verdict']} ({axes}); not the run's result: its "
+            "report, record or archive could not all be written (the reason above), exit 2")

@@ -30,8 +30,22 @@ def handle(args: argparse.Namespace) -> int:
         name = a.name
     if run is None:
         raise InputError(f"run {run_id!r}: not in the archive {name}")
+    integrity = _integrity(run)
     if args.json:
-        print(dumps(run))
+        print(dumps({**run, "integrity": integrity.to_dict()}))
     else:
         print(show_text(run))
+        print(f"integrity  {integrity.text()}")
     return 0
+
+
+def _integrity(run: dict[str, Any]) -> Any:
+    """The integrity of the run's recording folder, checked now (``recording.reader``):
+    unknown when the folder is not on this computer."""
+    from benchctl.recording import verify_recording
+    from benchctl.recording.reader import UNKNOWN, Integrity
+
+    path = (run.get("recording") or {}).get("path")
+    if not path or not Path(path).is_dir():
+        return Integrity(UNKNOWN, note=f"recording folder {path} not found here")
+    return verify_recording(path)

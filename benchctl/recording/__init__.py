@@ -9,15 +9,24 @@ from benchctl.recording.format import (
     STREAM_COLUMNS,
     is_recording,
 )
-from benchctl.recording.reader import Recording, load_recording
+from benchctl.recording.reader import (
+    Integrity,
+    IntegrityError,
+    Recording,
+    load_recording,
+    verify_recording,
+)
 from benchctl.recording.writer import RecordingWriter
 
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "STREAM_COLUMNS",
+    "Integrity",
+    "IntegrityError",
     "Recording",
     "RecordingWriter",
     "is_recording",
     "load_recording",
+    "verify_recording",
 ]

@@ -17,7 +17,10 @@
       setpoints.csv     t_send, t_slot, <axis>_deg…                    (commanded motion: the
                         profile's value at its slot time t_slot, sent at t_send)
       events.jsonl      one JSON object a line: state changes, faults, notes
-      end.json          written at close: state (done|aborted), reason, end time, counters
+      end.json          written at close: state (done|aborted), reason, end time, counters,
+                        integrity (rows, bytes and SHA-256 of each data file)
+      end.json.reserve  room kept on the disk for end.json while the run goes (deleted at
+                        close; a killed run leaves it)
       can.blf|can.asc   raw CAN frames (python-can logger), when the instrument is on CAN
       benchctl.log      the run's log (INFO and up; the traceback of an unexpected exception)
       sim.log           the simulators' output, when the run started them (config with sim:)
@@ -34,6 +37,14 @@ with no ``end.json`` was not closed (the process died) and reads as state ``inco
 that fails (disk full) aborts the run; later rows are dropped, and ``end.json`` (when it can still
 be written) gives ``recording_error``, ``dropped_rows`` and ``dropped_events``.
 Floats are written with ``repr`` (shortest exact round trip).
+
+``end.json``'s ``integrity`` (``{"algorithm": "sha256", "files": {name: {rows, bytes,
+sha256}}}``) covers the files final at close: ``stand.csv``, ``instrument.csv``,
+``setpoints.csv`` (rows: data lines after the header), ``events.jsonl`` (rows: lines) and
+``meta.json`` (bytes and hash only). The reader checks them; a file changed after the run closed
+it (truncated, edited) is an integrity failure. ``can.blf``, ``sim.log``, ``benchctl.log`` and
+the reports are written after or beside the close and are not covered (``record.json`` names
+the reports' hashes).
 """
 
 from __future__ import annotations
@@ -45,6 +56,9 @@ FORMAT_VERSION = 1
 
 META_FILE = "meta.json"
 END_FILE = "end.json"
+RESERVE_FILE = "end.json.reserve"
+RESERVE_BYTES = 256 * 1024  # end.json, record.json and an aborted run's report.html fit in it
+INTEGRITY_ALGORITHM = "sha256"
 EVENTS_FILE = "events.jsonl"
 STREAM_FILES = {"stand": "stand.csv", "instrument": "instrument.csv", "setpoints": "setpoints.csv"}
 

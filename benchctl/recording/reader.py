@@ -1,10 +1,19 @@
-"""Read a recording back, whatever state the process that wrote it ended in."""
+"""Read a recording back, whatever state the process that wrote it ended in.
+
+Reading checks the recording's integrity (``Recording.integrity``): each data file against the
+rows and SHA-256 its ``end.json`` states (``benchctl.recording.writer``). ``verified`` when every
+one matches, ``FAILED`` naming each file that does not (expected and found), ``unknown`` when
+``end.json`` holds no such record (a recording of an older benchctl, or a run killed before it
+closed): read as it is, but not verifiable. ``Recording.require_intact()`` raises
+``IntegrityError`` on a failure; what reports a σ from a recording calls it.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -13,18 +22,130 @@ from numpy.typing import NDArray
 
 from benchctl.errors import DataError
 from benchctl.jsonout import dumps
-from benchctl.recording.format import END_FILE, EVENTS_FILE, FORMAT_NAME, META_FILE, STREAM_FILES
+from benchctl.recording.format import (
+    END_FILE,
+    EVENTS_FILE,
+    FORMAT_NAME,
+    INTEGRITY_ALGORITHM,
+    META_FILE,
+    STREAM_FILES,
+)
 
 if TYPE_CHECKING:
     from benchctl.analysis.timebase import Instants
 
 
-def _read_stream(path: Path) -> tuple[list[str], NDArray[np.float64]]:
-    """Columns and a float array; a torn (unterminated) last line is dropped."""
+class IntegrityError(DataError):
+    """A recording's data files are not as its run closed them (rows or SHA-256 differ from
+    what ``end.json`` states): each file named with the expected and found values."""
+
+
+VERIFIED, FAILED, UNKNOWN = "verified", "FAILED", "unknown"
+
+
+@dataclass
+class Integrity:
+    """The integrity check of a recording: ``status`` verified | FAILED | unknown, the
+    ``problems`` (one line per file that does not match), the files checked, and for unknown
+    why (``note``)."""
+
+    status: str
+    problems: list[str] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)
+    note: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status == VERIFIED
+
+    def text(self) -> str:
+        """One line for the operator."""
+        if self.status == VERIFIED:
+            return (f"verified ({len(self.files)} files: rows and SHA-256 as end.json states: "
+                    + ", ".join(self.files) + ")")
+        if self.status == FAILED:
+            return ("INTEGRITY FAILED: the data are not as the run closed them: "
+                    + "; ".join(self.problems))
+        return f"unknown, not verifiable ({self.note})"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "problems": list(self.problems),
+                "files": list(self.files), "note": self.note or None}
+
+
+def _count_rows(raw: bytes, header_lines: int) -> int:
+    return max(0, raw.count(b"\n") - header_lines)
+
+
+def check_integrity(folder: Path, end: dict[str, Any] | None,
+                    raw: dict[str, bytes | None]) -> Integrity:
+    """Check the files ``end.json``'s ``integrity`` names against their bytes (``raw``: file
+    name → bytes read, None when missing; a file not in ``raw`` is read here)."""
+    if end is None:
+        return Integrity(UNKNOWN, note="no end.json: the run did not close its recording")
+    rec = end.get("integrity")
+    files = rec.get("files") if isinstance(rec, dict) else None
+    if not isinstance(rec, dict) or not isinstance(files, dict):
+        return Integrity(UNKNOWN, note="end.json has no integrity record (written by a "
+                                       "benchctl before it kept one)")
+    if rec.get("algorithm") != INTEGRITY_ALGORITHM:
+        return Integrity(UNKNOWN, note=f"end.json's integrity algorithm "
+                                       f"{rec.get('algorithm')!r} is not {INTEGRITY_ALGORITHM!r}")
+    problems: list[str] = []
+    for name, want in files.items():
+        path = folder / name
+        if not isinstance(want, dict):
+            problems.append(f"{path}: end.json's entry is not an object: {want!r}")
+            continue
+        data = raw[name] if name in raw else _read_or_none(path)
+        if data is None:
+            problems.append(f"{path}: missing (end.json states {want.get('rows', '?')} rows, "
+                            f"SHA-256 {want.get('sha256')})")
+            continue
+        found_rows = _count_rows(data, 0 if name in (EVENTS_FILE, META_FILE) else 1)
+        digest = hashlib.sha256(data).hexdigest()
+        diff = []
+        if "rows" in want and want["rows"] != found_rows:
+            diff.append(f"{found_rows} rows found, end.json states {want['rows']}")
+        if "bytes" in want and want["bytes"] != len(data):
+            diff.append(f"{len(data)} bytes found, end.json states {want['bytes']}")
+        if want.get("sha256") != digest:
+            diff.append(f"SHA-256 {digest} found, end.json states {want.get('sha256')}")
+        if diff:
+            problems.append(f"{path}: " + ", ".join(diff))
+    return Integrity(FAILED if problems else VERIFIED, problems, list(files))
+
+
+def verify_recording(path: str | Path) -> Integrity:
+    """The integrity of the recording in ``path`` alone (its streams not parsed): see
+    ``check_integrity``; unknown when it is no recording or its end.json is unreadable."""
+    p = Path(path)
+    if not (p / META_FILE).is_file():
+        return Integrity(UNKNOWN, note=f"{p}: no recording here (no {META_FILE})")
+    end = None
+    raw_end = _read_or_none(p / END_FILE)
+    if raw_end is not None:
+        try:
+            end = json.loads(raw_end.decode("utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            return Integrity(UNKNOWN, note=f"{p / END_FILE}: not valid JSON")
+    return check_integrity(p, end if isinstance(end, dict) else None, {})
+
+
+def _read_or_none(path: Path) -> bytes | None:
     try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read recording stream: {e.strerror}") from None
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def _read_stream(path: Path, raw: bytes | None = None) -> tuple[list[str], NDArray[np.float64]]:
+    """Columns and a float array; a torn (unterminated) last line is dropped."""
+    if raw is None:
+        try:
+            raw = path.read_bytes()
+        except OSError as e:
+            raise DataError(f"{path}: cannot read recording stream: {e.strerror}") from None
     if not raw:
         raise DataError(f"{path}: empty stream file (no header)")
     text = raw.decode("utf-8", errors="replace")
@@ -109,6 +230,16 @@ class Recording:
     end: dict[str, Any] | None
     streams: dict[str, dict[str, NDArray[np.float64]]]
     events: list[dict[str, Any]]
+    integrity: Integrity = field(default_factory=lambda: Integrity(UNKNOWN, note="not checked"))
+
+    def require_intact(self) -> None:
+        """Raise ``IntegrityError`` when the data files are not as the run closed them (an
+        integrity ``unknown`` passes: nothing to check against)."""
+        if self.integrity.status == FAILED:
+            raise IntegrityError(
+                f"{self.path}: INTEGRITY FAILED, the recording was altered after its run closed "
+                "it: " + "; ".join(self.integrity.problems)
+            )
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -288,7 +419,10 @@ def load_recording(path: str | Path) -> Recording:
     p = Path(path)
     meta_path = p / META_FILE
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        meta_raw = meta_path.read_bytes()
+        meta = json.loads(meta_raw.decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise DataError(f"{meta_path}: corrupt metadata: {e}") from None
     except OSError as e:
         raise DataError(f"{meta_path}: not a benchctl recording ({e.strerror})") from None
     except json.JSONDecodeError as e:
@@ -300,21 +434,33 @@ def load_recording(path: str | Path) -> Recording:
     if end_path.is_file():
         try:
             end = json.loads(end_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, UnicodeDecodeError):
             end = None
+        if not isinstance(end, dict):
+            end = None
+    raw: dict[str, bytes | None] = {META_FILE: meta_raw}
     streams: dict[str, dict[str, NDArray[np.float64]]] = {}
     for name, fname in STREAM_FILES.items():
         f = p / fname
         if not f.exists():
+            raw[fname] = None
             continue
-        header, data = _read_stream(f)
+        try:
+            raw[fname] = f.read_bytes()
+        except OSError as e:
+            raise DataError(f"{f}: cannot read recording stream: {e.strerror}") from None
+        header, data = _read_stream(f, raw[fname])
         streams[name] = {c: data[:, i].copy() for i, c in enumerate(header)}
     events: list[dict[str, Any]] = []
     ev = p / EVENTS_FILE
-    if ev.is_file():
-        for line in ev.read_text(encoding="utf-8").splitlines():
+    raw[EVENTS_FILE] = _read_or_none(ev) if ev.is_file() else None
+    ev_raw = raw[EVENTS_FILE]
+    if ev_raw is not None:
+        for line in ev_raw.decode("utf-8", errors="replace").splitlines():
             try:
                 events.append(json.loads(line))
             except json.JSONDecodeError:
                 break  # torn last line after a crash
-    return Recording(path=p, meta=meta, end=end, streams=streams, events=events)
+    integrity = check_integrity(p, end, raw)
+    return Recording(path=p, meta=meta, end=end, streams=streams, events=events,
+                     integrity=integrity)

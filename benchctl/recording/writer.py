@@ -5,11 +5,24 @@ errno, and reports it to ``on_error``; from then on rows and events are dropped 
 (``dropped_rows``, ``dropped_events``) instead of raising again, so the run's cleanup goes on.
 ``close`` still writes ``end.json`` (with the error and the counts) and raises
 ``RecordingError`` only when it cannot.
+
+Room for ``end.json``: the writer keeps a reserve file (``RESERVE_FILE``, ``RESERVE_BYTES``
+allocated on the disk; a quarter or a sixteenth of it when a file size limit or a nearly full
+disk refuses that, none when even that is refused) in the recording from its start; ``close``
+(or ``release_reserve``, on a full disk) deletes it just before writing ``end.json``, so a disk
+that filled up during the run still has room for the closing record (and the run's
+``record.json`` after it).
+
+Integrity: every byte written to a data file (the three streams, ``events.jsonl``,
+``meta.json``) goes through a SHA-256 and its rows are counted; ``close`` writes them into
+``end.json`` (``integrity``), which the reader checks (``benchctl.recording.reader``). A file
+whose write failed is hashed and counted as found on the disk at close.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import numbers
 import os
@@ -22,14 +35,18 @@ from typing import IO, Any
 
 from benchctl import __version__
 from benchctl.devices.base import InstrumentSample, StandSample
-from benchctl.errors import InputError, RecordingError
+from benchctl.errors import InputError, RecordingError, is_disk_full
+from benchctl.fileout import atomic_write_bytes
 from benchctl.jsonout import dumps
 from benchctl.recording.format import (
     END_FILE,
     EVENTS_FILE,
     FORMAT_NAME,
     FORMAT_VERSION,
+    INTEGRITY_ALGORITHM,
     META_FILE,
+    RESERVE_BYTES,
+    RESERVE_FILE,
     STREAM_COLUMNS,
     STREAM_FILES,
 )
@@ -44,18 +61,66 @@ def _num(x: float | int | None) -> str:
     return repr(f) if math.isfinite(f) else "nan"
 
 
-def _atomic_json(path: Path, obj: Mapping[str, Any]) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
+def _json_bytes(obj: Mapping[str, Any]) -> bytes:
+    return (dumps(obj, indent=2) + "\n").encode("utf-8")
+
+
+def _atomic_json(path: Path, obj: Mapping[str, Any]) -> bytes:
+    """Write ``obj`` as ``path`` atomically (no ``.tmp`` left when it fails); its bytes."""
+    data = _json_bytes(obj)
+    atomic_write_bytes(path, data)
+    return data
+
+
+def make_reserve(path: Path, size: int = RESERVE_BYTES) -> None:
+    """A new file of ``size`` bytes really allocated on the disk (``posix_fallocate``; where
+    the file system cannot, random bytes are written, which no compression can shrink)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     try:
-        with tmp.open("w", encoding="utf-8") as f:
-            f.write(dumps(obj, indent=2))
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        try:
+            os.posix_fallocate(fd, 0, size)
+        except OSError as e:
+            if is_disk_full(e):
+                raise
+            left = size
+            while left > 0:
+                left -= os.write(fd, os.urandom(min(left, 1 << 16)))
     except BaseException:
-        tmp.unlink(missing_ok=True)  # a full disk leaves no half-written .tmp behind
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            path.unlink()
         raise
+    os.close(fd)
+
+
+def file_integrity(path: Path, header_lines: int) -> dict[str, Any]:
+    """``{rows, bytes, sha256}`` of a data file as it is on the disk: ``rows`` its complete
+    lines after ``header_lines`` (a torn last line is not a row: the reader drops it)."""
+    h = hashlib.sha256()
+    size = lines = 0
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+            size += len(chunk)
+            lines += chunk.count(b"\n")
+    return {"rows": max(0, lines - header_lines), "bytes": size, "sha256": h.hexdigest()}
+
+
+class _Tally:
+    """SHA-256, bytes and rows of what was written to one file."""
+
+    def __init__(self) -> None:
+        self.sha = hashlib.sha256()
+        self.bytes = 0
+        self.rows = 0
+
+    def add(self, data: bytes, row: bool = True) -> None:
+        self.sha.update(data)
+        self.bytes += len(data)
+        self.rows += int(row)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": self.rows, "bytes": self.bytes, "sha256": self.sha.hexdigest()}
 
 
 def utc_now() -> str:
@@ -90,6 +155,7 @@ class RecordingWriter:
         self.counts = {name: 0 for name in STREAM_FILES}
         self.dropped_rows = 0  # stream rows not written after a write failure
         self.dropped_events = 0
+        self._rows_off = False  # release_reserve: a full disk, rows dropped from now on
         self.error: RecordingError | None = None  # the first write failure
         self._on_error = on_error
         self.t0_monotonic = time.monotonic()
@@ -103,16 +169,36 @@ class RecordingWriter:
             **meta,
         }
         self._meta: dict[str, Any] = full_meta
-        _atomic_json(self.path / META_FILE, full_meta)
+        self._meta_bytes = _atomic_json(self.path / META_FILE, full_meta)
+        # what was written to each data file (end.json's integrity), and the files whose
+        # write failed (counted from the disk at close)
+        self._tally = {fname: _Tally() for fname in (*STREAM_FILES.values(), EVENTS_FILE)}
+        self._suspect: set[str] = set()
+        self.reserve: Path | None = self.path / RESERVE_FILE
+        self.reserve_bytes = 0
+        for size in (RESERVE_BYTES, RESERVE_BYTES // 4, RESERVE_BYTES // 16):
+            try:  # best effort: a file size limit (EFBIG) or a nearly full disk takes less
+                make_reserve(self.reserve, size)
+            except OSError:
+                continue
+            self.reserve_bytes = size
+            break
+        else:
+            self.reserve = None  # no room kept (the prechecks' free-space check says more)
         self._files: dict[str, IO[str]] = {}
         for name, fname in STREAM_FILES.items():
-            f = (self.path / fname).open("w", encoding="utf-8", buffering=1)
-            f.write(",".join(STREAM_COLUMNS[name](self.axes)) + "\n")
+            f = (self.path / fname).open("w", encoding="utf-8", buffering=1, newline="\n")
+            head = ",".join(STREAM_COLUMNS[name](self.axes)) + "\n"
+            f.write(head)
+            self._tally[fname].add(head.encode("utf-8"), row=False)
             self._files[name] = f
-        self._events = (self.path / EVENTS_FILE).open("w", encoding="utf-8", buffering=1)
+        self._events = (self.path / EVENTS_FILE).open(
+            "w", encoding="utf-8", buffering=1, newline="\n"
+        )
 
     def _failed(self, path: Path, e: OSError, what: str = "write") -> RecordingError:
         """Record the first failure (call with the lock held)."""
+        self._suspect.add(path.name)
         err = RecordingError.from_oserror(path, e, what)
         if self.error is None:
             self.error = err
@@ -129,7 +215,7 @@ class RecordingWriter:
         with self._lock:
             if self._closed:
                 return
-            if self.error is not None:
+            if self.error is not None or self._rows_off:
                 self.dropped_rows += 1
                 return
             try:
@@ -139,6 +225,7 @@ class RecordingWriter:
                 err = self._failed(self.path / STREAM_FILES[name], e)
             else:
                 self.counts[name] += 1
+                self._tally[STREAM_FILES[name]].add(line.encode("utf-8"))
                 return
         raise self._report(err)
 
@@ -181,7 +268,7 @@ class RecordingWriter:
         with self._lock:
             self._meta = {**self._meta, **fields}
             try:
-                _atomic_json(self.path / META_FILE, self._meta)
+                self._meta_bytes = _atomic_json(self.path / META_FILE, self._meta)
             except OSError as e:
                 err = self._failed(self.path / META_FILE, e)
             else:
@@ -203,6 +290,7 @@ class RecordingWriter:
                 self.dropped_events += 1
                 err = self._failed(self.path / EVENTS_FILE, e)
             else:
+                self._tally[EVENTS_FILE].add(line.encode("utf-8"))
                 return
         raise self._report(err)
 
@@ -231,6 +319,7 @@ class RecordingWriter:
                 finally:
                     with contextlib.suppress(OSError):
                         f.close()  # closes the descriptor even when its last flush fails
+        self._release_reserve()  # the room kept for end.json (a full disk: it is needed now)
         end: dict[str, Any] = {
             "state": state,
             "reason": reason,
@@ -238,9 +327,11 @@ class RecordingWriter:
             "end_monotonic": time.monotonic(),
             "counts": dict(self.counts),
             **extra,
+            "integrity": self.integrity(),
         }
-        if self.error is not None:
-            end["recording_error"] = str(self.error)
+        if self.error is not None or self.dropped_rows:
+            if self.error is not None:
+                end["recording_error"] = str(self.error)
             end["dropped_rows"] = self.dropped_rows
             end["dropped_events"] = self.dropped_events
         try:
@@ -248,6 +339,41 @@ class RecordingWriter:
         except OSError as e:
             raise RecordingError.from_oserror(self.path / END_FILE, e) from None
         self._end_written = True
+
+    def release_reserve(self) -> None:
+        """The disk is full: give the room kept for ``end.json`` back now, for the abort's last
+        events and ``end.json``; stream rows from now on are dropped and counted
+        (``dropped_rows``), so the stand's samples during the cleanup cannot take that room.
+        ``close`` gives the room back anyway. Idempotent."""
+        with self._lock:
+            self._rows_off = True
+        self._release_reserve()
+
+    def _release_reserve(self) -> None:
+        if self.reserve is None:
+            return
+        with contextlib.suppress(FileNotFoundError):
+            self.reserve.unlink()
+        self.reserve = None
+
+    def integrity(self) -> dict[str, Any]:
+        """``end.json``'s ``integrity``: per data file its rows (CSV: after the header), bytes
+        and SHA-256 — as written, or, for a file whose write failed, as found on the disk."""
+        files: dict[str, Any] = {}
+        for fname, tally in self._tally.items():
+            if fname in self._suspect:
+                try:
+                    files[fname] = {**file_integrity(self.path / fname,
+                                                     0 if fname == EVENTS_FILE else 1),
+                                    "after_write_error": True}
+                except OSError:
+                    continue  # unreadable: not vouched for
+            else:
+                files[fname] = tally.to_dict()
+        # meta.json is replaced whole (a failed rewrite leaves the last one): as last written
+        files[META_FILE] = {"bytes": len(self._meta_bytes),
+                            "sha256": hashlib.sha256(self._meta_bytes).hexdigest()}
+        return {"algorithm": INTEGRITY_ALGORITHM, "files": files}
 
     @property
     def meta(self) -> dict[str, Any]:

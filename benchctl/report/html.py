@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from collections.abc import Mapping, Sequence
 from datetime import date
 from functools import cache
@@ -29,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import DataError
+from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import loads_strict
 
 log = logging.getLogger(__name__)
@@ -381,12 +381,7 @@ def write_html(
     folder = Path(folder)
     html = render_html(build_context(folder, report=report, record=record, trace=trace))
     dest = folder / REPORT_HTML
-    tmp = folder / (REPORT_HTML + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(html)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, dest)
+    atomic_write_text(dest, html)  # no .tmp left behind when it fails (a full disk)
     return dest
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from functools import cache
@@ -35,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import AnalysisError, BenchError, DataError
+from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, load_object, plain
 from benchctl.results.measurements import RULE_TEXT, Measurement, reported_serial, serial_match
 
@@ -208,12 +208,7 @@ def write_record(folder: Path, record: Mapping[str, Any]) -> Path:
     file renamed over it, so a reader never sees half a record)."""
     validate_record(record)
     dest = folder / RECORD_JSON
-    tmp = folder / (RECORD_JSON + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(dumps(record, indent=2) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, dest)
+    atomic_write_text(dest, dumps(record, indent=2) + "\n")  # no .tmp left when it fails
     return dest
 
 

@@ -12,12 +12,16 @@ per run to ``<output_dir>/index.jsonl``: the results archive of a bench.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchctl.errors import RecordingError
+from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
 from benchctl.results.measurements import (
     FAIL,
@@ -320,17 +324,33 @@ def _plot(result: Any, dest: Path, meta: dict[str, Any] | None = None,
         plot_result(result, dest, serial=None if m.get("serial") is None else str(m["serial"]),
                     date=str(m.get("start_utc") or "")[:10] or None, limit_deg=limit_deg)
     except Exception as e:  # a plot is a convenience; the verdict stands without it
+        with contextlib.suppress(OSError):
+            dest.unlink(missing_ok=True)  # no half-drawn file
+        full = RecordingError.disk_full(e, dest)
+        if full is not None:  # … but a full disk is the run's abort, as anywhere
+            raise full from None
         log.warning("analysis plot %s not drawn: %s", dest, e)
         return False
     return True
 
 
+def _write(path: Path, text: str) -> None:
+    """``text`` as ``path``, atomically; a failure is a ``RecordingError`` naming the file."""
+    try:
+        atomic_write_text(path, text)
+    except OSError as e:
+        raise RecordingError.from_oserror(path, e) from None
+
+
 def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Path]:
-    """report.json, report.txt (and plots) into the recording folder; returns the files."""
+    """report.json, report.txt (and plots) into the recording folder; returns the files.
+    A file that cannot be written (a full disk) raises ``RecordingError`` naming it, and
+    leaves no half-written file behind; a plot that cannot be drawn for another reason is a
+    warning."""
     folder = rep.recording
     out = [folder / REPORT_JSON, folder / REPORT_TXT]
-    out[0].write_text(dumps(rep.to_dict(), indent=2) + "\n", encoding="utf-8")
-    out[1].write_text(format_report(rep) + "\n", encoding="utf-8")
+    _write(out[0], dumps(rep.to_dict(), indent=2) + "\n")
+    _write(out[1], format_report(rep) + "\n")
     for axis, res in (results or {}).items():
         dest = folder / f"analysis_{axis}.png"
         v = rep.axes.get(axis)
@@ -354,9 +374,31 @@ def archive(output_dir: Path, rep: Report) -> Path:
             "recording": str(rep.recording),
         }
     )
-    with index.open("a", encoding="utf-8") as f:
-        f.write(line + "\n")
+    append_line(index, line)
     return index
+
+
+def append_line(path: Path, line: str) -> None:
+    """Append ``line`` and a newline to ``path`` in one write; when it cannot be written
+    whole (a full disk) the file is cut back to where it was (no torn line) and
+    ``RecordingError`` names it."""
+    data = (line + "\n").encode("utf-8")
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise RecordingError.from_oserror(path, e) from None
+    try:
+        size = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, size)
+            raise RecordingError.from_oserror(path, e) from None
+    finally:
+        os.close(fd)
 
 
 def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reason: str) -> Path:
@@ -373,8 +415,7 @@ def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reaso
             "recording": str(recording),
         }
     )
-    with index.open("a", encoding="utf-8") as f:
-        f.write(line + "\n")
+    append_line(index, line)
     return index
 
 

@@ -27,6 +27,14 @@ equipment failed or the software did.
 Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
 that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
 ends the run ``aborted`` with the first fault's reason.
+
+A full disk (ENOSPC, EDQUOT, EFBIG) anywhere — the recording's streams, the report, the record,
+the archive's index — is such a fault (``recording: disk full: cannot write <file> …``): the
+stand is brought to rest and disabled, ``end.json`` is written in the room the recording kept
+for it (``benchctl.recording.writer``), and the run exits 2. A verdict measured before the
+outputs failed is kept: printed, in ``end.json`` (``measured``) and in the record
+(``abort.measured_verdict``) — but the run is ABORTED, not PASS: its report or record is not
+complete.
 """
 
 from __future__ import annotations
@@ -47,6 +55,7 @@ from benchctl import __version__
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
 from benchctl.errors import (
+    DISK_FULL_ERRNOS,
     AnalysisError,
     BenchError,
     ConfigError,
@@ -54,6 +63,7 @@ from benchctl.errors import (
     LimitError,
     RecordingError,
     SafetyAbort,
+    is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
 from benchctl.recording import RecordingWriter, load_recording
@@ -162,6 +172,8 @@ class RunResult:
     log: Path | None = None  # the run's log file (<recording>/benchctl.log)
     abort: dict[str, Any] | None = None  # aborted: {kind: operator|equipment|software, reason}
     record: Path | None = None  # <recording>/record.json when written
+    # aborted after the analysis (its outputs could not be written): the verdict measured
+    measured: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         if self.report is not None:
@@ -179,6 +191,7 @@ class RunResult:
             "log": None if self.log is None else str(self.log),
             "stats": self.stats,
             "shutdown": self.shutdown,
+            "measured": self.measured,
         }
 
 
@@ -454,6 +467,8 @@ class Session:
         self.precision: PrecisionWatch | None = None  # the precision checks (run.precision)
         self.prechecks: list[dict[str, Any]] = []  # each precheck's result, as recorded
         self.rule = opts.decision_rule or cfg.run.decision_rule
+        self.report: Report | None = None  # the verdict, once the analysis has measured it
+        self._end_steps: list[dict[str, Any]] = []  # the cleanup at the motion's normal end
 
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
@@ -1003,9 +1018,10 @@ class Session:
         return out, warnings
 
     def _write_record(self, outcome: str, exit_code: int, *, report: Report | None = None,
-                      abort: dict[str, Any] | None = None) -> Path | None:
-        """record.json into the recording (never raises: a record that cannot be written is
-        a warning; the recording stays the source of truth)."""
+                      abort: dict[str, Any] | None = None, strict: bool = False) -> Path | None:
+        """record.json into the recording (a record that cannot be written is a warning; the
+        recording stays the source of truth) — except, with ``strict`` (a run that has not
+        ended), a full disk: raised as ``RecordingError``, the run's abort."""
         try:
             if report is not None:
                 measurements: list[Measurement] = report.measurements
@@ -1022,12 +1038,15 @@ class Session:
                 report_txt=rt if rt.exists() else None, log=self.log_path,
                 exit_code=exit_code,
             )
-            html = _write_html(self.path, report, rec)
+            html = _write_html(self.path, report, rec, strict=strict)
             if html is not None:
                 rec = with_file(rec, "report_html", html)
             return write_record(self.path, rec)
         except Exception as e:
-            log.warning("record.json not written: %s", describe(e), exc_info=e)
+            full = RecordingError.disk_full(e, self.path / "record.json")
+            if strict and full is not None:
+                raise full from None
+            log.warning("record.json not written: %s", describe(full or e), exc_info=e)
             return None
 
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
@@ -1093,6 +1112,9 @@ class Session:
                     self.path, self.axes, self.meta, on_error=self._recording_failed
                 )
             except OSError as e:
+                full = RecordingError.disk_full(e, self.path)
+                if full is not None:  # nothing opened, nothing moved
+                    raise full from None
                 raise ConfigError(
                     f"{self.path}: cannot create the recording folder: {e.strerror}"
                 ) from None
@@ -1120,6 +1142,8 @@ class Session:
                     moved=False,
                 )
                 self._final_stats = self._stats()
+                # shown and recorded again should the run abort after this (a full disk)
+                self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
                 self.stand = self.sensor = None  # closed: an abort from here has nothing to move
                 self.moved = False
                 for step in rep.steps:
@@ -1129,9 +1153,11 @@ class Session:
                 self.machine.advance_to(RunState.ANALYSING)
                 window = self._window()
                 report, results = self._analyse(window)
+                self.report = report  # measured: kept (printed, end.json) should an abort follow
                 self.supervisor.check()  # a signal during the analysis still ends the run
                 files = write_report(report, results)
-                record = self._write_record(report.verdict, report.exit_code, report=report)
+                record = self._write_record(report.verdict, report.exit_code, report=report,
+                                            strict=True)
                 if record is not None:
                     files.append(record)
                 if (self.path / "report.html").exists():
@@ -1161,7 +1187,8 @@ class Session:
                 )
             except BaseException as e:  # every way out, the same path
                 if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
-                    self.supervisor.fault(e, _source(e))
+                    self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
+                                          _source(e))
                 return self._abort()
             finally:
                 self.display.close()
@@ -1176,6 +1203,11 @@ class Session:
             "source": f.source if f else None,
             "error": type(f.error).__name__ if f else None,
         }
+        if f is not None and isinstance(f.error, RecordingError) and f.error.errno in \
+                DISK_FULL_ERRNOS and self.writer is not None:
+            # a full disk: the room kept for end.json now takes the abort's events and end.json
+            with contextlib.suppress(OSError):
+                self.writer.release_reserve()
         try:
             self.machine.abort(reason)
         except Exception as e:  # a listener's failure must not skip the cleanup
@@ -1190,6 +1222,13 @@ class Session:
         extra: dict[str, Any] = {"stats": stats}
         if self.supervisor.later:
             extra["later_faults"] = [g.reason for g in self.supervisor.later]
+        if self._end_steps:  # the stand was brought to rest at the motion's end
+            extra["motion_end_shutdown"] = self._end_steps
+        measured = _measured(self.report)
+        if measured is not None:
+            extra["measured"] = measured
+            abort["measured_verdict"] = measured["verdict"]
+            self.display.message(_measured_line(measured))
         rep = shutdown(
             stop_loops=self._stop_loops,
             stand=self.stand,
@@ -1203,11 +1242,14 @@ class Session:
             moved=self.moved,
             extra=extra,
         )
-        for s in rep.steps:
-            self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}")
-        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort)
+        steps = [*self._end_steps, *rep.steps]
+        for s in steps:
+            self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
+                                 + (f" (at the {s['when']})" if s.get("when") else ""))
+        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort, report=self.report)
         html = self.path / "report.html"
         self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
+                             + (_measured_line(measured) + "\n" if measured else "")
                              + (f"report {html}" if html.exists() else f"recording {self.path}"))
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
@@ -1215,8 +1257,8 @@ class Session:
             log.warning("archive not updated: %s", describe(e))
         _archive(self.cfg, self.out_dir, self.path, self.run_archive)
         return RunResult(
-            "aborted", reason, EXIT_ABORT, self.path, None, stats, rep.steps, log=self.log_path,
-            abort=abort, record=record,
+            "aborted", reason, EXIT_ABORT, self.path, None, stats, steps, log=self.log_path,
+            abort=abort, record=record, measured=measured,
         )
 
 
@@ -1248,17 +1290,44 @@ def _banner_detail(report: Report, path: Path) -> str:
     return "\n".join(lines)
 
 
-def _write_html(folder: Path, report: Report | None, record: dict[str, Any]) -> Path | None:
+def _measured(report: Report | None) -> dict[str, Any] | None:
+    """An aborted run's verdict measured before the abort (end.json's ``measured``)."""
+    if report is None:
+        return None
+    return {
+        "verdict": report.verdict,
+        "axes": {a: {"sigma": v.sigma_deg, "sigma_ci95": list(v.sigma_ci95_deg),
+                     "limit": v.limit_deg, "verdict": v.outcome}
+                 for a, v in report.axes.items()},
+        "note": "measured before the run was aborted; its report, record or archive could not "
+                "all be written",
+    }
+
+
+def _measured_line(m: dict[str, Any]) -> str:
+    axes = "; ".join(f"{a} σ {v['sigma']:.4f}° (95 % {v['sigma_ci95'][0]:.4f} … "
+                     f"{v['sigma_ci95'][1]:.4f}°) limit {v['limit']:g}° {v['verdict']}"
+                     for a, v in m["axes"].items())
+    return (f"measured before the abort: {m['verdict']} ({axes}); its report, record or "
+            "archive could not all be written, so the run is ABORTED")
+
+
+def _write_html(folder: Path, report: Report | None, record: dict[str, Any],
+                strict: bool = False) -> Path | None:
     """``report.html`` into the recording (``benchctl.report.html``), from the run's report and
-    record (an aborted run: what is known); never raises: a report that cannot be drawn is a
-    warning, the verdict and the record stand without it."""
+    record (an aborted run: what is known); a report that cannot be drawn is a warning, the
+    verdict and the record stand without it — except, with ``strict``, a full disk, raised as
+    ``RecordingError`` (the run's abort)."""
     try:
         from benchctl.report.html import write_html
 
         return write_html(folder, report=None if report is None else report.to_dict(full=True),
                           record=record)
     except Exception as e:
-        log.warning("report.html not written: %s", describe(e), exc_info=e)
+        full = RecordingError.disk_full(e, folder / "report.html")
+        if strict and full is not None:
+            raise full from None
+        log.warning("report.html not written: %s", describe(full or e), exc_info=e)
         return None
 
 
@@ -1301,6 +1370,8 @@ def _id_text(d: dict[str, Any]) -> str:
 def _source(e: BaseException) -> str:
     if isinstance(e, KeyboardInterrupt):
         return "signal"
+    if isinstance(e, RecordingError) or is_disk_full(e):
+        return "recording"
     if isinstance(e, AnalysisError | DataError):
         return "analysis"
     if isinstance(e, BenchError):

@@ -67,7 +67,10 @@ class Supervisor:
         return self.first is not None
 
     def fault(self, error: BaseException, source: str) -> None:
-        """Report a fault; thread-safe, never raises. The first one wins."""
+        """Report a fault; thread-safe, never raises. The first one wins. A disk-full
+        ``OSError`` (ENOSPC, EDQUOT, EFBIG), from whichever thread or library, is kept as the
+        ``RecordingError`` it is ("disk full: cannot write …"), not as an unexpected error."""
+        error = RecordingError.disk_full(error) or error
         f = Fault(error, source, time.monotonic())
         with self._lock:
             if self.first is None:
