@@ -12,10 +12,11 @@ from pathlib import Path
 TMP_SUFFIX = ".tmp"
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` as ``path`` atomically (see the module notes); raises the ``OSError``."""
+def atomic_write_bytes(path: Path, data: bytes, *, tmp_name: str | None = None) -> None:
+    """Write ``data`` as ``path`` atomically (see the module notes); raises the ``OSError``.
+    ``tmp_name``: the temporary file's name in the same folder (default ``<name>.tmp``)."""
     path = Path(path)
-    tmp = path.with_name(path.name + TMP_SUFFIX)
+    tmp = path.with_name(tmp_name or path.name + TMP_SUFFIX)
     try:
         with open(tmp, "wb") as f:
             f.write(data)

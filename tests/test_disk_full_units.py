@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 
 from benchctl import exits, fileout
+from benchctl.archive.service import enqueue
 from benchctl.errors import RecordingError
 from benchctl.results.record import abort_kind
 from benchctl.run.report import append_line
@@ -41,10 +42,8 @@ def test_another_oserror_stays_unexpected() -> None:
     assert sup.first is not None and "unexpected OSError" in sup.first.reason
 
 
-def test_a_failed_whole_file_write_leaves_no_tmp(tmp_path: Path,
-                                                 monkeypatch: pytest.MonkeyPatch) -> None:
-    dest = tmp_path / "record.json"
-    dest.write_text("old")
+def _fill_on_write(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every whole-file write of benchctl.fileout writes 10 bytes, then finds the disk full."""
     real_open = open
 
     class Full:
@@ -66,11 +65,29 @@ def test_a_failed_whole_file_write_leaves_no_tmp(tmp_path: Path,
 
     monkeypatch.setattr(fileout, "open", lambda *a, **k: Full(real_open(*a, **k)),
                         raising=False)
+
+
+def test_a_failed_whole_file_write_leaves_no_tmp(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    dest = tmp_path / "record.json"
+    dest.write_text("old")
+    _fill_on_write(monkeypatch)
     with pytest.raises(OSError) as e:
         fileout.atomic_write_text(dest, "new content, long enough to be cut")
     assert e.value.errno == errno.ENOSPC
     assert sorted(p.name for p in tmp_path.iterdir()) == ["record.json"]
     assert dest.read_text() == "old"  # the old one stays whole
+
+
+def test_a_queued_record_that_cannot_be_written_leaves_no_tmp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    queue = tmp_path / "archive-queue"
+    _fill_on_write(monkeypatch)
+    with pytest.raises(OSError) as e:
+        enqueue(queue, {"record": {"run_id": "r1"}})
+    assert e.value.errno == errno.ENOSPC
+    assert list(queue.iterdir()) == []  # no hidden 0-byte or partial .tmp left in the queue
 
 
 def test_an_index_line_is_appended_whole_or_not_at_all(

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 from benchctl.archive.ingest import incomplete_recordings, record_of, recording_sha256
 from benchctl.archive.store import DEFAULT_CONNECT_TIMEOUT_S, Archive, shown
 from benchctl.errors import ArchiveError, BenchError, DataError
+from benchctl.fileout import atomic_write_bytes
 from benchctl.jsonout import dumps
 from benchctl.redact import redact_text
 
@@ -111,12 +112,10 @@ def enqueue(queue_dir: Path, entry: dict[str, Any]) -> Path:
     run_id = str(entry["record"]["run_id"])
     queue_dir.mkdir(parents=True, exist_ok=True)
     dest = queue_dir / f"{run_id}{QUEUE_SUFFIX}"
-    tmp = queue_dir / f".{run_id}.{os.getpid()}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(dumps(entry, sort_keys=True))  # strict JSON (benchctl.jsonout)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, dest)
+    # strict JSON (benchctl.jsonout); a hidden temporary name the queue's listing skips, removed
+    # when the write fails (a full disk leaves no 0-byte file behind)
+    atomic_write_bytes(dest, dumps(entry, sort_keys=True).encode("utf-8"),
+                       tmp_name=f".{run_id}.{os.getpid()}.tmp")
     return dest
 
 
