@@ -441,3 +441,22 @@ def test_junit_with_control_characters_parses(tmp_path: Path) -> None:
     assert props["serial"] == "SN\\x1d42\\x1b[2J" and props["operator"] == "ana\\x00\\x0b"
     raw = path.read_text(encoding="utf-8")
     assert "\x1b" not in raw and "\x1d" not in raw and "\ufffe" not in raw
+
+
+def test_archive_status_shows_refused_records_without_escapes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A refused record's reason (the database's own text) and its file name reach the terminal
+    made safe: no escape sequence, no forged line."""
+    from benchctl.archive.service import REASON_SUFFIX, REFUSED, settings_for
+
+    folder = settings_for(None, tmp_path, url=None).queue_dir / REFUSED
+    folder.mkdir(parents=True)
+    name = "r\x1b]0;x\x07.json"
+    (folder / name).write_text("{}", encoding="utf-8")
+    (folder / f"{name}{REASON_SUFFIX}").write_text(
+        f"2026-01-01T00:00:00Z refused: {OSC52}\r\nPASS", encoding="utf-8")
+    assert main(["archive", "status", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "refused" in out and _no_control(out.replace("\n", ""))
+    assert not any(ln.startswith("PASS") for ln in out.split("\n"))

@@ -12,6 +12,7 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.text import terminal_lines
 
 CLI_WRITE_TIMEOUT_S = 10.0  # history, show, rebuild: a lock waited for at least this long
 
@@ -84,16 +85,16 @@ def handle_status(args: argparse.Namespace) -> int:
         print(dumps({"archive": shown(s.url), "queue_dir": str(s.queue_dir),
                      "queued": pending, "refused": aside}))
         return 0
-    print(f"archive {shown(s.url)}")
-    print(f"queue {s.queue_dir}: {len(pending)} record(s) waiting"
-          + ("" if not pending else " (`benchctl archive sync` sends them)"))
-    for name in pending:
-        print(f"  queued   {name}")
-    for r in aside:
-        print(f"  refused  {r['file']} ({r['refused_utc']}): {r['reason']}")
+    lines = [f"archive {shown(s.url)}",
+             f"queue {s.queue_dir}: {len(pending)} record(s) waiting"
+             + ("" if not pending else " (`benchctl archive sync` sends them)")]
+    lines += [f"  queued   {name}" for name in pending]
+    # file names and reasons carry run ids (serials) and database text: shown, never as escapes
+    lines += [f"  refused  {r['file']} ({r['refused_utc']}): {r['reason']}" for r in aside]
     if aside:
-        print(f"refused records are kept in {s.queue_dir / 'refused'}: once the cause is "
-              "fixed, move one back into the queue folder to send it again")
+        lines.append(f"refused records are kept in {s.queue_dir / 'refused'}: once the cause is "
+                     "fixed, move one back into the queue folder to send it again")
+    print(terminal_lines(lines))
     return 0
 
 
@@ -109,11 +110,12 @@ def handle_sync(args: argparse.Namespace) -> int:
     elif n == 0:
         print(f"queue {s.queue_dir}: empty, nothing to send")
     else:
-        print(f"sent {len(res.sent)} run(s) to {shown(s.url)}; {res.left} left in {s.queue_dir}")
-        for why in res.refused:
-            print(f"  refused, set aside in {s.queue_dir / REFUSED}: {why}")
+        lines = [f"sent {len(res.sent)} run(s) to {shown(s.url)}; {res.left} left in "
+                 f"{s.queue_dir}"]
+        lines += [f"  refused, set aside in {s.queue_dir / REFUSED}: {why}" for why in res.refused]
         if res.stopped is not None:
-            print(f"  stopped: {res.stopped}")
+            lines.append(f"  stopped: {res.stopped}")
+        print(terminal_lines(lines))
     return 0 if not res.refused and res.stopped is None else 2
 
 
