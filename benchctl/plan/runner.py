@@ -294,6 +294,10 @@ def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
         stand = open_stand(cfg.stand)
         try:
             stand.connect()
+            status = stand.read_status()
+            if status.fault or status.estop:  # latched: nothing moves; say how to clear it
+                ready = pc.check_stand_ready(status, None, cfg.stand.axes, cfg.source)
+                raise SafetyAbort(f"stand not ready: {ready.detail}")
             if check == "ramp_to_zero":
                 try:
                     stand.ramp_to_zero(RAMP_TIMEOUT_S)
