@@ -24,6 +24,7 @@ import select
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -33,6 +34,8 @@ from typing import Any
 
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from junitparser import JUnitXml
 
 from benchctl import exits
@@ -320,3 +323,100 @@ def test_a_signal_at_the_prompt_of_a_benchctl_plan_process(
     assert [a["status"] for a in rec["cleanup"]] == ["skipped", "skipped"]
     xml = JUnitXml.fromfile(str(junit))
     assert xml.errors >= 1
+
+
+# ------------------------------------------------------------------ the rule, over any plan
+OUTCOMES = ("yes", "no", "eof", "timeout", "sigint", "sigterm")
+
+
+def _raise_or_answer(outcome: str) -> bool:
+    if outcome == "eof":
+        raise EOFError("end of input")
+    if outcome == "timeout":
+        raise TimeoutError("no answer within 1 s")
+    if outcome in ("sigint", "sigterm"):
+        raise exits.Interrupted(signal.SIGINT if outcome == "sigint" else signal.SIGTERM)
+    return outcome == "yes"
+
+
+_action_st = st.builds(
+    lambda p, c: {k: v for k, v in (("prompt", p), ("check", c)) if v is not None},
+    st.sampled_from([None, "Q"]), st.sampled_from([None, "ramp_to_zero", "stand_at_rest"]),
+).filter(bool)
+
+
+@settings(max_examples=150, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(setup=st.lists(_action_st, max_size=4), cleanup=st.lists(_action_st, max_size=4),
+       answers=st.lists(st.sampled_from(OUTCOMES), min_size=8, max_size=8))
+def test_the_consent_rule_holds_for_any_plan_and_any_answers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, setup: list[dict[str, str]],
+    cleanup: list[dict[str, str]], answers: list[str],
+) -> None:
+    """Whatever the actions and the answers: a ramp_to_zero runs only when its own prompt (if
+    any) was just answered yes and either the plan had moved the stand already or every prompt
+    so far was answered yes; no prompt is asked after a signal or an unanswered prompt; a
+    refused setup prompt runs no step; plan.json is always written."""
+    events: list[tuple[str, str]] = []
+    numbered = iter(range(100))
+    setup = [{**a, "prompt": f"S{next(numbered)}"} if "prompt" in a else a for a in setup]
+    cleanup = [{**a, "prompt": f"C{next(numbered)}"} if "prompt" in a else a for a in cleanup]
+    queue = iter(answers)
+
+    def ask(text: str) -> bool:
+        outcome = next(queue, "yes")
+        events.append(("ask", outcome))
+        return _raise_or_answer(outcome)
+
+    def stand_action(cfg: Any, check: str, holder: Any) -> str:
+        events.append(("check", check))
+        return "at rest at zero"
+
+    def run_test(*a: Any, **kw: Any) -> Any:
+        events.append(("step", ""))
+        return SimpleNamespace(state="done", reason="PASS", exit_code=0, recording=None,
+                               record=None, abort=None)
+
+    monkeypatch.setattr("benchctl.plan.runner.stand_action", stand_action)
+    monkeypatch.setattr("benchctl.run.run_test", run_test)
+    out = Path(tempfile.mkdtemp(dir=tmp_path))
+    bench = tmp_path / "bench.yaml"
+    if not bench.exists():
+        bench.write_text(yaml.safe_dump({
+            "station": "rule",
+            "stand": {"driver": "modbus-tcp", "host": "127.0.0.1", "port": 9,
+                      "register_map": str(ROOT / "drivers/stand_generic.yaml"),
+                      "limits": LIMITS},
+            "instrument": {"driver": "canopen", "interface": "slcan", "channel": "/x",
+                           "eds": str(ROOT / "drivers/cia410_inclinometer.eds")},
+            "run": {"limit_sigma_deg": 0.4}}))
+    plan = parse_plan({"name": "rule", "config": str(bench), "operator": "t", "setup": setup,
+                       "steps": [{"name": "one",
+                                  "profile": str(ROOT / "profiles/ci_short.yaml")}],
+                       "cleanup": cleanup}, tmp_path / "plan.yaml")
+    res = run_plan(plan, serial="SN1", ask=ask, out_dir=out)
+
+    refused = moved = stopped = False
+    for kind, what in events:
+        if kind == "ask":
+            assert not stopped, events  # nothing asked after a signal or no answer
+            refused = refused or what != "yes"
+            stopped = what in ("eof", "timeout", "sigint", "sigterm")
+        elif kind == "check" and what == "ramp_to_zero":
+            assert moved or not refused, events
+            moved = True
+        elif kind == "step":
+            assert not refused, events
+            moved = True
+    setup_refused = any(a.status in ("declined", "unanswered", "interrupted")
+                        for a in res.setup)
+    assert not (setup_refused and any(k == "step" for k, _ in events))
+    # the checks that ran are the actions that say so, and none whose prompt was not a yes
+    ran = [a for a in res.setup + res.cleanup
+           if a.check is not None and a.detail.startswith(f"{a.check}:")]
+    assert len(ran) == sum(k == "check" for k, _ in events)
+    assert all(a.status == "ok" for a in ran if a.prompt is not None)
+    assert res.interrupted == any(w in ("sigint", "sigterm") for k, w in events if k == "ask")
+    if setup_refused or res.interrupted:
+        assert res.exit_code == 2
+    assert load_plan_record(res.record_path or "")["exit_code"] == res.exit_code
