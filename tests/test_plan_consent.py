@@ -123,8 +123,9 @@ class Operator(threading.Thread):
     def _reply(self, answer: str) -> None:
         if answer in ("yes", "no", "eof"):
             os.write(self.master, {"yes": b"y\n", "no": b"n\n", "eof": b"\x04"}[answer])
-        elif answer in ("ctrl-c", "sigterm"):
-            os.kill(self.pid, signal.SIGINT if answer == "ctrl-c" else signal.SIGTERM)
+        elif answer in ("ctrl-c", "sigterm", "sighup"):
+            sig = {"ctrl-c": signal.SIGINT, "sigterm": signal.SIGTERM, "sighup": signal.SIGHUP}
+            os.kill(self.pid, sig[answer])
         # timeout: no answer at all
 
 
@@ -241,7 +242,7 @@ def test_every_prompt_every_answer(
         assert "no answer within 10 s" in actions[target]["detail"]
 
 
-@pytest.mark.parametrize("answer", ["ctrl-c", "sigterm", "no", "eof", "timeout"])
+@pytest.mark.parametrize("answer", ["ctrl-c", "sigterm", "sighup", "no", "eof", "timeout"])
 def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
     tmp_path: Path, stand: SimStand, monkeypatch: pytest.MonkeyPatch, answer: str
 ) -> None:
@@ -249,6 +250,9 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
     ``ramp_to_zero`` in the cleanup. Before, Ctrl-C here enabled the stand and moved it to 0°."""
     stand.place(REST)
     enables = stand.enables
+    # a SIGHUP this process was started with ignored (nohup) stays ignored: then no answer
+    signalled = answer in ("ctrl-c", "sigterm") or (
+        answer == "sighup" and not exits.ignored(signal.SIGHUP))
     bench = _bench(tmp_path, stand)
     ran = _no_step(monkeypatch)
     plan = parse_plan({
@@ -270,6 +274,7 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
     assert _untouched(stand, enables)
     assert ran == []
     assert (res.outcome, res.exit_code) == ("ABORTED", 2)
+    assert res.interrupted == signalled
     assert [a.status for a in res.cleanup] == ["skipped"]
     assert "this plan has not moved the stand" in res.cleanup[0].detail
     assert load_plan_record(res.record_path or "")["cleanup"][0]["status"] == "skipped"
