@@ -32,6 +32,7 @@ answered yes, and either this plan has already moved the stand itself (a step st
 earlier ramp) or no prompt so far was refused — answered no, unanswered or interrupted — and
 no signal came. So a declined, unanswered or interrupted setup prompt ends the plan with the
 stand untouched (not enabled, not moved), wherever it rests.
+
 Exit codes: 0 every step PASS; 1 a step FAILed (a measured fail) and nothing aborted;
 2 an abort or an error (a step aborted or could not start, a setup action refused or failed,
 a cleanup action failed, a timeout, a signal — at a prompt too); 3 INCONCLUSIVE (guarded rule)
