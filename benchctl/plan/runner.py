@@ -206,8 +206,11 @@ def terminal_asker(stdin: Any = None, stderr: Any = None,
         return None
 
     def ask(text: str) -> bool:
-        o.write(f"{text} [y/N]: ")
-        o.flush()
+        try:
+            o.write(f"{text} [y/N]: ")
+            o.flush()
+        except OSError as e:  # a terminal hung up: nobody can answer
+            raise EOFError(f"the terminal cannot be written: {e.strerror}") from None
         line = _read_line(i, timeout_s)
         return line.strip().lower() in ("y", "yes")
 
@@ -232,10 +235,13 @@ def _read_line(stream: Any, timeout_s: float | None) -> str:
         left = None if deadline is None else deadline - time.monotonic()
         if left is not None and left <= 0:
             raise TimeoutError(f"no answer within {timeout_s:g} s")
-        ready, _, _ = select.select([fd], [], [], left)
-        if not ready:
+        try:
+            ready, _, _ = select.select([fd], [], [], left)
+            chunk = os.read(fd, 1024) if ready else None
+        except OSError as e:  # a terminal hung up (EIO): its input has ended
+            raise EOFError(f"the terminal cannot be read: {e.strerror}") from None
+        if chunk is None:
             continue
-        chunk = os.read(fd, 1024)
         if not chunk:
             raise EOFError("end of input")
         buf += chunk
