@@ -242,3 +242,37 @@ def test_schema_command_prints_the_plan_schema(capsys: pytest.CaptureFixture[str
     bad = {"schema": "benchctl-plan/1", "steps": [{"status": "GREEN"}]}
     with pytest.raises(DataError, match="plan record not valid against benchctl-plan/1"):
         validate_plan_record(bad)
+
+
+def test_terminal_prompt_times_out_and_ends_at_eof_or_a_hung_up_terminal() -> None:
+    import contextlib
+    import os
+    import pty
+    import time
+
+    master, slave = pty.openpty()
+    tin = open(slave, encoding="utf-8", closefd=False)  # noqa: SIM115
+    tout = open(slave, "w", encoding="utf-8", closefd=False)  # noqa: SIM115
+    try:
+        ask = terminal_asker(tin, tout, timeout_s=0.3)
+        assert ask is not None
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match=r"no answer within 0.3 s"):
+            ask("Area clear?")
+        assert time.monotonic() - t0 < 30
+        os.write(master, b"yes\n")
+        assert ask("Area clear?") is True
+        os.write(master, b"\x04")  # Ctrl-D
+        with pytest.raises(EOFError, match="end of input"):
+            ask("Area clear?")
+        os.close(master)  # the terminal hangs up
+        master = -1
+        with pytest.raises(EOFError):
+            ask("Area clear?")
+    finally:
+        tin.close()
+        with contextlib.suppress(OSError):  # a hung-up terminal refuses the last flush
+            tout.close()
+        os.close(slave)
+        if master >= 0:
+            os.close(master)

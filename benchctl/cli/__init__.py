@@ -28,8 +28,8 @@ from benchctl.text import terminal_lines
 
 # subcommand modules, in the order --help lists them
 SUBCOMMANDS = (
-    "run", "plan", "analyze", "report", "predict", "profile", "sim", "recording", "schema",
-    "archive", "history", "show",
+    "run", "plan", "analyze", "report", "predict", "profile", "sim", "stand", "recording",
+    "schema", "archive", "history", "show",
 )
 
 EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3

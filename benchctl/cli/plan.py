@@ -23,7 +23,10 @@ def register(sub: Any) -> None:
             "(on_fail: stop|continue) and timeout — and cleanup actions, which always run "
             "(after a fail, an abort, a timeout, Ctrl-C). Prompts are asked on the terminal "
             "(y/N) or answered by --yes; with prompts, no terminal and no --yes the plan is "
-            "refused before anything moves. Prints a summary (or --json: the plan record), "
+            "refused before anything moves. A prompt answered no, not answered within the "
+            "plan's prompt_timeout_s (default 600 s), ended by Ctrl-D or interrupted by a "
+            "signal ends the plan and no cleanup action moves a stand the plan has not moved "
+            "itself. Prints a summary (or --json: the plan record), "
             "writes plan.json in <output_dir>/plan_<time>_<serial>/ and, with --junit, JUnit "
             "XML. Exit 0 all PASS, 1 a measured FAIL, 2 an abort or error, 3 INCONCLUSIVE."
         ),

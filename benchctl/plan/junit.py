@@ -23,8 +23,9 @@ reported: a character XML forbids (a control character) is written as a visible 
 
 An informative measurement (the serial match, the excitation fidelity: ``decisive`` false)
 never fails its test case: its outcome is in the case's ``<system-out>``. A setup or cleanup
-action that failed is an ``<error>``; a prompt answered no in the setup a ``<failure>``; an
-action skipped a ``<skipped>``.
+action that failed is an ``<error>``, as is a prompt interrupted by a signal (type
+INTERRUPTED) or a setup prompt left unanswered (UNANSWERED: its input ended or its time ran
+out); a prompt answered no in the setup a ``<failure>``; an action skipped a ``<skipped>``.
 """
 
 from __future__ import annotations
@@ -127,11 +128,14 @@ def _actions(root: ET.Element, plan: str, phase: str, actions: list[ActionResult
         if a.status == "failed":
             ET.SubElement(case, "error", type="ERROR", message=a.detail)
             kinds.append("error")
-        elif a.status == "declined":
+        elif a.status == "interrupted" or (a.status == "unanswered" and phase == "setup"):
+            ET.SubElement(case, "error", type=a.status.upper(), message=a.detail)
+            kinds.append("error")
+        elif a.status in ("declined", "unanswered"):
             if phase == "setup":
                 ET.SubElement(case, "failure", type="DECLINED", message=a.detail)
                 kinds.append("failure")
-            else:  # a cleanup prompt answered no is the operator's note, not a failure
+            else:  # a cleanup prompt answered no (or not at all) is a note, not a failure
                 ET.SubElement(case, "system-out").text = a.detail
                 kinds.append("pass")
         elif a.status == "skipped":

@@ -10,8 +10,9 @@ Order of things:
 2. with a ``sim:`` section in the bench config, the simulators start once for the whole plan
    (their output in the plan folder's ``sim.log``), so the setup and cleanup checks and every
    step talk to the same simulated stand;
-3. **setup** actions in order: a prompt answered no ends the plan (ABORTED, operator) before
-   anything moves; a check that fails ends it (ABORTED, equipment);
+3. **setup** actions in order: a prompt answered no, not answered (its input ended, or
+   ``prompt_timeout_s`` ran out) or interrupted by a signal (SIGINT, SIGTERM, SIGHUP) ends the
+   plan (ABORTED) before anything moves; a check that fails ends it (ABORTED, equipment);
 4. **steps** in order, each a real run (``benchctl.run.run_test``) on the bench config with the
    step's limits, its recording and ``record.json`` in the output folder as any run's. A
    step's ``timeout_s`` and the plan's ``timeout_s`` end a running step through the run's own
@@ -20,21 +21,31 @@ Order of things:
    skips the rest; an aborted step (a fault, a timeout, Ctrl-C) or a step that could not start
    always does;
 5. **cleanup** actions, always: after a pass, a fail, an abort, a timeout, Ctrl-C. Each action
-   runs whatever the one before did (a failure is noted and the next one runs). A stand check
-   that would move the stand (``ramp_to_zero``) is skipped when the operator declined the setup
-   (the area may not be clear) and nothing moved;
+   runs whatever the one before did (a failure is noted and the next one runs). After a signal
+   or an unanswered prompt no further prompt is asked (the plan ends at once);
 6. the plan's outcome and exit code, its record ``plan.json`` (in
    ``<output_dir>/plan_<stamp>_<serial>/``), JUnit XML when asked.
 
+**Consent before motion.** The only check that moves the stand is ``ramp_to_zero`` (it enables
+the servo, ramps, disables). It runs only when its own prompt, if the action has one, was
+answered yes, and either this plan has already moved the stand itself (a step started, or an
+earlier ramp) or no prompt so far was refused — answered no, unanswered or interrupted — and
+no signal came. So a declined, unanswered or interrupted setup prompt ends the plan with the
+stand untouched (not enabled, not moved), wherever it rests.
+
 Exit codes: 0 every step PASS; 1 a step FAILed (a measured fail) and nothing aborted;
 2 an abort or an error (a step aborted or could not start, a setup action refused or failed,
-a cleanup action failed, a timeout, Ctrl-C); 3 INCONCLUSIVE (guarded rule) with no FAIL.
+a cleanup action failed, a timeout, a signal — at a prompt too); 3 INCONCLUSIVE (guarded rule)
+with no FAIL.
 """
 
 from __future__ import annotations
 
 import contextlib
+import io
 import logging
+import os
+import select
 import sys
 import threading
 import time
@@ -49,7 +60,7 @@ from pydantic import ValidationError
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
-from benchctl.plan.schema import Action, Plan, Step, load_plan
+from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
 from benchctl.results.record import load_record, sha256_file
 from benchctl.text import check_operator, check_serial
 
@@ -65,6 +76,8 @@ PASS, FAIL, INCONCLUSIVE, ABORTED = "PASS", "FAIL", "INCONCLUSIVE", "ABORTED"
 ERROR, SKIPPED = "ERROR", "SKIPPED"
 EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 
+# an operator prompt: the question → yes (True) or no (False); it raises EOFError when its input
+# ended, TimeoutError when no answer came in time, KeyboardInterrupt on a signal
 Asker = Callable[[str], bool]
 
 
@@ -78,7 +91,7 @@ class ActionResult:
     index: int
     prompt: str | None
     check: str | None
-    status: str  # ok | declined | failed | skipped
+    status: str  # ok | declined | unanswered | interrupted | failed | skipped
     detail: str = ""
 
     def to_dict(self) -> dict[str, Any]:
@@ -178,8 +191,13 @@ class PlanResult:
 
 
 # ------------------------------------------------------------------------------- prompts
-def terminal_asker(stdin: Any = None, stderr: Any = None) -> Asker | None:
-    """A y/N question on the terminal, or None when stdin or stderr is not a terminal."""
+def terminal_asker(stdin: Any = None, stderr: Any = None,
+                   timeout_s: float | None = DEFAULT_PROMPT_TIMEOUT_S) -> Asker | None:
+    """A y/N question on the terminal, or None when stdin or stderr is not a terminal.
+
+    The answer is one line: ``y``/``yes`` is yes, anything else no. No line within
+    ``timeout_s`` raises ``TimeoutError``; the end of the input (Ctrl-D, a closed terminal)
+    ``EOFError``; a signal raises where it is (the caller's handler: ``KeyboardInterrupt``)."""
     i = stdin if stdin is not None else sys.stdin
     o = stderr if stderr is not None else sys.stderr
     try:
@@ -189,12 +207,46 @@ def terminal_asker(stdin: Any = None, stderr: Any = None) -> Asker | None:
         return None
 
     def ask(text: str) -> bool:
-        o.write(f"{text} [y/N]: ")
-        o.flush()
-        line = i.readline()
+        try:
+            o.write(f"{text} [y/N]: ")
+            o.flush()
+        except OSError as e:  # a terminal hung up: nobody can answer
+            raise EOFError(f"the terminal cannot be written: {e.strerror}") from None
+        line = _read_line(i, timeout_s)
         return line.strip().lower() in ("y", "yes")
 
     return ask
+
+
+def _read_line(stream: Any, timeout_s: float | None) -> str:
+    """One line from ``stream`` within ``timeout_s`` (``TimeoutError``), ``EOFError`` at its end.
+
+    Read from the file descriptor (``select`` for the timeout); a stream without one (a test's
+    StringIO) is read as it is."""
+    try:
+        fd = stream.fileno()
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        line = str(stream.readline())
+        if not line:
+            raise EOFError("end of input") from None
+        return line
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    buf = b""
+    while b"\n" not in buf:
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            raise TimeoutError(f"no answer within {timeout_s:g} s")
+        try:
+            ready, _, _ = select.select([fd], [], [], left)
+            chunk = os.read(fd, 1024) if ready else None
+        except OSError as e:  # a terminal hung up (EIO): its input has ended
+            raise EOFError(f"the terminal cannot be read: {e.strerror}") from None
+        if chunk is None:
+            continue
+        if not chunk:
+            raise EOFError("end of input")
+        buf += chunk
+    return buf.split(b"\n", 1)[0].decode("utf-8", errors="replace")
 
 
 def _yes(text: str) -> bool:
@@ -250,6 +302,10 @@ def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
         stand = open_stand(cfg.stand)
         try:
             stand.connect()
+            status = stand.read_status()
+            if status.fault or status.estop:  # latched: nothing moves; say how to clear it
+                ready = pc.check_stand_ready(status, None, cfg.stand.axes, cfg.source)
+                raise SafetyAbort(f"stand not ready: {ready.detail}")
             if check == "ramp_to_zero":
                 try:
                     stand.ramp_to_zero(RAMP_TIMEOUT_S)
@@ -267,6 +323,38 @@ def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
         finally:
             with contextlib.suppress(BenchError, OSError):
                 stand.close()
+
+
+# ------------------------------------------------------------------------------- consent
+@dataclass
+class Consent:
+    """What the plan may still do to the stand (see the module notes, *Consent before motion*).
+
+    ``moved``: the plan has moved the stand itself (a step started, a ramp began).
+    ``refused``: why the operator's consent is gone (a prompt answered no, unanswered or
+    interrupted, a signal), "" while it stands. ``stopped``: why no further prompt is asked
+    (a signal, an unanswered prompt), "" while prompts may be asked."""
+
+    moved: bool = False
+    refused: str = ""
+    stopped: str = ""
+    signal: str = ""  # the signal that interrupted the plan ("interrupted by SIGTERM")
+
+    def may_move(self) -> bool:
+        return self.moved or not self.refused
+
+    def refuse(self, why: str, *, stop: bool = False) -> None:
+        self.refused = self.refused or why
+        if stop:
+            self.stopped = self.stopped or why
+
+    def interrupt(self, e: BaseException, where: str) -> str:
+        """A signal (``KeyboardInterrupt``) at ``where``: no prompt, no motion not already ours."""
+        sig = str(e) if str(e) else "interrupted by SIGINT"
+        self.signal = self.signal or sig
+        why = f"{sig} {where}"
+        self.refuse(why, stop=True)
+        return why
 
 
 # ------------------------------------------------------------------------------- runner
@@ -375,9 +463,11 @@ def run_plan(
     ``plan``: a ``Plan`` or a plan YAML file. ``serial``: the unit under test. ``config``: the
     bench config (a ``BenchConfig`` or a file), else the plan's ``config``. ``operator``: else
     the plan's. ``yes``: answer every operator prompt yes (unattended); else ``ask`` answers
-    them (text → bool), else the terminal (y/N); with prompts and none of these the plan is
-    refused (``InputError``) before anything opens. ``out_dir``: where the recordings and the
-    plan folder go (default ``run.output_dir``). ``junit``: write JUnit XML there.
+    them (text → bool; it may raise ``EOFError``, ``TimeoutError`` or ``KeyboardInterrupt``:
+    unanswered, interrupted), else the terminal (y/N, within the plan's ``prompt_timeout_s``);
+    with prompts and none of these the plan is refused (``InputError``) before anything opens.
+    ``out_dir``: where the recordings and the plan folder go (default ``run.output_dir``).
+    ``junit``: write JUnit XML there.
     ``display``: a factory of each step's run display (default none). ``say``: a line of
     progress (default: logged).
 
@@ -412,7 +502,7 @@ def run_plan(
     if yes:
         asker: Asker | None = _yes
     else:
-        asker = ask if ask is not None else terminal_asker()
+        asker = ask if ask is not None else terminal_asker(timeout_s=p.prompt_timeout_s)
     if p.prompts and asker is None:
         raise InputError(
             f"{where}the plan has {len(p.prompts)} operator prompt(s) and there is no terminal "
@@ -433,8 +523,7 @@ def run_plan(
     timers = _Timers()
     holder = {"command": "benchctl plan", "plan": p.name, "serial": serial, "operator": op,
               "start_utc": result.start_utc}
-    moved = False  # a step started: the stand may have moved
-    declined = False
+    consent = Consent()
     stop_reason = ""
     try:
         with contextlib.ExitStack() as stack:
@@ -449,10 +538,9 @@ def run_plan(
             try:
                 # ---- setup
                 for i, a in enumerate(p.setup):
-                    ar = _action("setup", i, a, live, asker, holder, tell, allow_move=True)
+                    ar = _action("setup", i, a, live, asker, holder, tell, consent)
                     result.setup.append(ar)
                     if ar.status == "declined":
-                        declined = True
                         stop_reason = f"setup: the operator answered no to {a.prompt!r}"
                         break
                     if ar.status != "ok":
@@ -477,7 +565,7 @@ def run_plan(
                                                        f"not run: {stop_reason}", step.on_fail))
                         continue
                     tell(f"step {step.name}: {step.profile.name}")
-                    moved = True
+                    consent.moved = True
                     sr = _run_step(step, scfg, serial, op, out, timers, display, run_test,
                                    RunOptions, Supervisor)
                     result.steps.append(sr)
@@ -488,12 +576,13 @@ def run_plan(
                     if sr.status in (ABORTED, ERROR):
                         stop_reason = f"step {step.name!r} {sr.status.lower()}: {sr.reason}"
                         if sr.abort is not None and sr.abort.get("source") == "signal":
-                            result.interrupted = True
+                            # the run took the signal (the stand at rest): no prompt after it
+                            consent.interrupt(KeyboardInterrupt(sr.reason),
+                                              f"during step {step.name!r}")
                     elif sr.status in (FAIL, INCONCLUSIVE) and step.on_fail == "stop":
                         stop_reason = f"step {step.name!r} {sr.status} (on_fail: stop)"
-            except KeyboardInterrupt as e:  # a signal between steps or in the setup
-                result.interrupted = True
-                stop_reason = f"interrupted: {e}" if str(e) else "interrupted by SIGINT"
+            except KeyboardInterrupt as e:  # a signal between the actions or the steps
+                stop_reason = consent.interrupt(e, "between the plan's actions and steps")
                 tell(f"plan {stop_reason}; cleanup follows")
                 done = {s.name for s in result.steps}
                 for step in p.steps:
@@ -504,9 +593,16 @@ def run_plan(
                 timers.stop()
                 # ---- cleanup: always
                 for i, a in enumerate(p.cleanup):
-                    ar = _action("cleanup", i, a, live, asker, holder, tell,
-                                 allow_move=moved or not declined)
+                    try:
+                        ar = _action("cleanup", i, a, live, asker, holder, tell, consent)
+                    except KeyboardInterrupt as e:  # a signal between two actions
+                        ar = ActionResult("cleanup", i, a.prompt, a.check, "skipped",
+                                          f"not run: {consent.interrupt(e, 'in the cleanup')}")
                     result.cleanup.append(ar)
+                if consent.signal:
+                    result.interrupted = True
+                    if not stop_reason:
+                        stop_reason = consent.refused
             if result.interrupted and not result.reason:
                 result.reason = stop_reason
     finally:
@@ -518,41 +614,66 @@ def run_plan(
 
 
 def _action(phase: str, index: int, a: Action, cfg: BenchConfig, asker: Asker | None,
-            holder: dict[str, Any], tell: Callable[[str], None], *,
-            allow_move: bool) -> ActionResult:
-    """One setup or cleanup action; never raises but for a signal in a setup action (a
-    cleanup action takes even that as its failure)."""
+            holder: dict[str, Any], tell: Callable[[str], None], consent: Consent) -> ActionResult:
+    """One setup or cleanup action; never raises for a prompt's answer, a failed check or a
+    signal (each is the action's status, and ``consent`` learns of it)."""
     ar = ActionResult(phase, index, a.prompt, a.check, "ok")
-    try:
-        if a.prompt is not None:
-            assert asker is not None  # refused before the plan started otherwise
-            if not asker(a.prompt):
-                ar.status, ar.detail = "declined", f"answered no: {a.prompt}"
-                tell(f"{phase}: {ar.detail}")
-                if phase == "setup":
-                    return ar
-        if a.check is not None:
-            if a.check == "ramp_to_zero" and not allow_move:
+    if a.prompt is not None:
+        answered = _ask(ar, a.prompt, asker, consent)
+        if not answered:
+            if a.check is not None:
+                ar.detail += f"; {a.check} not run"
+            tell(f"{phase} {index + 1}: {ar.status} — {ar.detail}")
+            return ar
+    if a.check is not None:
+        try:
+            if a.check == "ramp_to_zero" and not consent.may_move():
                 ar.status = "skipped"
-                ar.detail = "ramp_to_zero skipped: the setup was declined and nothing moved"
+                ar.detail = (f"ramp_to_zero skipped: {consent.refused}, and this plan has not "
+                             "moved the stand (it is left untouched)")
             else:
-                detail = stand_action(cfg, a.check, holder)
-                if ar.status == "ok":
-                    ar.detail = f"{a.check}: {detail}"
-        tell(f"{phase} {index + 1}: {ar.status}" + (f" — {ar.detail}" if ar.detail else ""))
-    except BenchError as e:
-        ar.status, ar.detail = "failed", f"{a.check or 'prompt'}: {e}"
-        tell(f"{phase} {index + 1}: FAILED — {ar.detail}")
-    except KeyboardInterrupt as e:
-        if phase == "setup":
-            raise
-        ar.status, ar.detail = "failed", f"interrupted: {e or 'SIGINT'}"
-    except Exception as e:  # a bug in one cleanup action must not skip the next
-        if phase == "setup":
-            raise
-        ar.status, ar.detail = "failed", f"unexpected {type(e).__name__}: {e}"
-        log.error("cleanup action failed", exc_info=e)
+                if a.check == "ramp_to_zero":
+                    consent.moved = True  # from the first enable on, the motion is this plan's
+                ar.detail = f"{a.check}: {stand_action(cfg, a.check, holder)}"
+        except BenchError as e:
+            ar.status, ar.detail = "failed", f"{a.check}: {e}"
+        except KeyboardInterrupt as e:
+            ar.status = "failed"
+            ar.detail = f"{a.check}: {consent.interrupt(e, f'during {a.check}')}"
+        except Exception as e:  # a bug in one action must not skip the cleanup
+            if phase == "setup":
+                raise
+            ar.status, ar.detail = "failed", f"unexpected {type(e).__name__}: {e}"
+            log.error("cleanup action failed", exc_info=e)
+    tell(f"{phase} {index + 1}: {ar.status}" + (f" — {ar.detail}" if ar.detail else ""))
     return ar
+
+
+def _ask(ar: ActionResult, prompt: str, asker: Asker | None, consent: Consent) -> bool:
+    """Ask ``prompt``: True for a yes; otherwise ``ar`` says why not (declined, unanswered,
+    interrupted, or skipped: not asked after a signal or an unanswered prompt)."""
+    if consent.stopped:
+        ar.status, ar.detail = "skipped", f"not asked: {consent.stopped}"
+        return False
+    assert asker is not None  # refused before the plan started otherwise
+    try:
+        yes = asker(prompt)
+    except KeyboardInterrupt as e:
+        ar.status, ar.detail = "interrupted", consent.interrupt(e, f"at the prompt {prompt!r}")
+        return False
+    except EOFError:
+        ar.status, ar.detail = "unanswered", f"no answer to {prompt!r}: the input ended"
+        consent.refuse(ar.detail, stop=True)
+        return False
+    except TimeoutError as e:
+        ar.status, ar.detail = "unanswered", f"no answer to {prompt!r}: {e or 'timed out'}"
+        consent.refuse(ar.detail, stop=True)
+        return False
+    if not yes:
+        ar.status, ar.detail = "declined", f"answered no: {prompt}"
+        consent.refuse(f"the operator answered no to {prompt!r}")
+        return False
+    return True
 
 
 def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
@@ -609,8 +730,9 @@ def _conclude(result: PlanResult, stop_reason: str) -> None:
     statuses = [s.status for s in result.steps]
     aborted = (result.interrupted or result.timed_out
                or any(s in (ABORTED, ERROR) for s in statuses)
-               or any(a.status in ("declined", "failed") for a in result.setup)
-               or any(a.status == "failed" for a in result.cleanup))
+               or any(a.status in ("declined", "unanswered", "interrupted", "failed")
+                      for a in result.setup)
+               or any(a.status in ("interrupted", "failed") for a in result.cleanup))
     if aborted:
         result.outcome, result.exit_code = ABORTED, EXIT_ERROR
         reasons = [stop_reason] if stop_reason else []
@@ -666,6 +788,7 @@ __all__ = [
     "PLAN_SCHEMA_ID",
     "SKIPPED",
     "ActionResult",
+    "Consent",
     "PlanResult",
     "PlanTimeout",
     "StepResult",

@@ -9,6 +9,7 @@ expected — before anything opens or moves.
     config: ../config/sim.yaml            # the bench config (relative to this file); --config
     operator: QA line 2                   # optional (the CLI's --operator overrides it)
     timeout_s: 3600                       # the whole plan (optional)
+    prompt_timeout_s: 600                 # each operator prompt at most (default 600 s)
     setup:                                # actions before the first step, in order
       - prompt: Mount the instrument on the stand   # asked y/N (or --yes)
       - prompt: Area clear of people?
@@ -61,6 +62,7 @@ from benchctl.text import problem as text_problem
 MAX_PLAN_S = 7 * 86400.0  # a plan's or a step's timeout: at most a week
 MAX_STEPS = 100
 MAX_ACTIONS = 50
+DEFAULT_PROMPT_TIMEOUT_S = 600.0  # an operator prompt unanswered this long ends the plan
 
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Timeout = Annotated[float, Field(gt=0, le=MAX_PLAN_S, allow_inf_nan=False)]
@@ -128,6 +130,7 @@ class Plan(_Strict):
     config: Path | None = None
     operator: str | None = None  # the rules of --operator (benchctl.text)
     timeout_s: Timeout | None = None
+    prompt_timeout_s: Timeout = DEFAULT_PROMPT_TIMEOUT_S
     setup: tuple[Action, ...] = Field(default=(), max_length=MAX_ACTIONS)
     steps: tuple[Step, ...] = Field(min_length=1, max_length=MAX_STEPS)
     cleanup: tuple[Action, ...] = Field(default=(), max_length=MAX_ACTIONS)
@@ -200,4 +203,13 @@ def load_plan(path: str | Path) -> Plan:
     return parse_plan(read_yaml(p, "plan"), p)
 
 
-__all__ = ["CHECKS", "Action", "Plan", "Step", "StepLimits", "load_plan", "parse_plan"]
+__all__ = [
+    "CHECKS",
+    "DEFAULT_PROMPT_TIMEOUT_S",
+    "Action",
+    "Plan",
+    "Step",
+    "StepLimits",
+    "load_plan",
+    "parse_plan",
+]

@@ -6,7 +6,8 @@ failed one into ``PrecheckFailed`` (a ``SafetyAbort``: the run aborts, exit code
 - the profile is within the stand's limits (``check_motion``), before any device is opened;
 - there is disk space for the recording;
 - each device answers and identifies itself (done at connect, recorded in meta.json);
-- the stand is ready (no fault, no E-stop) and at rest;
+- the stand is ready (no fault, no E-stop) and at rest; a latched fault or E-stop is named
+  with the command that clears it (``benchctl stand reset``);
 - the instrument streams at its expected rate (± ``run.instrument_rate_tolerance``), reports
   every axis of the profile, and its static reading agrees with the stand's within
   ``instrument.static_tolerance_deg``.
@@ -65,6 +66,14 @@ def check_disk(out_dir: Path, min_free_mb: float) -> CheckResult:
     )
 
 
+def clear_fault_hint(config: Path | str | None = None) -> str:
+    """How an operator clears a latched fault or E-stop (named wherever one is found)."""
+    where = f" --config {config}" if config is not None else ""
+    return (f"a latched fault or E-stop stays until it is reset: once its cause is dealt with, "
+            f"`benchctl stand reset{where}` clears it (`benchctl stand home{where}` then brings "
+            "the stand to zero)")
+
+
 def _status_problems(st: StandStatus) -> list[str]:
     problems = []
     if st.estop:
@@ -78,11 +87,25 @@ def _status_problems(st: StandStatus) -> list[str]:
     return problems
 
 
-def check_stand_ready(status: StandStatus, sample: StandSample, axes: Sequence[str]) -> CheckResult:
-    """The stand is ready, not faulted, not moving, at rest on every axis of the profile."""
+def check_stand_ready(
+    status: StandStatus,
+    sample: StandSample | None,
+    axes: Sequence[str],
+    config: Path | str | None = None,
+) -> CheckResult:
+    """The stand is ready, not faulted, not moving, at rest on every axis of the profile.
+
+    ``sample`` None: a stand whose status reports a fault or an E-stop (its sample cannot be
+    read); the detail then names the command that clears it (``config``: the bench config's
+    file, shown in that command)."""
     problems = _status_problems(status)
     if status.moving:
         problems.append("reports moving")
+    if sample is None:
+        if status.fault or status.estop:
+            problems.append(clear_fault_hint(config))
+        return CheckResult("stand ready and at rest", not problems,
+                           "; ".join(problems) or "ready", {"fault_code": status.fault_code})
     missing = [a for a in axes if a not in sample.angle_deg]
     if missing:
         problems.append(f"has no axis {missing} (stand axes: {sorted(sample.angle_deg)})")
@@ -91,6 +114,8 @@ def check_stand_ready(status: StandStatus, sample: StandSample, axes: Sequence[s
             problems.append(
                 f"{a} moving at {r:+.2f}°/s (at rest means |rate| ≤ {REST_RATE_DEG_S}°/s)"
             )
+    if status.fault or status.estop:
+        problems.append(clear_fault_hint(config))
     angles = ", ".join(f"{a} {v:+.3f}°" for a, v in sample.angle_deg.items())
     return CheckResult(
         "stand ready and at rest",

@@ -562,7 +562,10 @@ class Session:
             )
         )
         w.update_meta(devices=ids)
-        self._precheck(pc.check_stand_ready(stand.read_status(), stand.read_sample(), self.axes))
+        status = stand.read_status()
+        if status.fault or status.estop:  # latched: the check names the command that clears it
+            self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
+        self._precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
         self.loop = self._new_loop(self.prep.plan)
         start_instrument(self.sensor, rec)

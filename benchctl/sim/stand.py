@@ -155,6 +155,7 @@ class SimStand:
             1.0 / sim_cfg.tick_hz,
         )
         self.requests = 0  # requests served (for tests and figures)
+        self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
 
         self._lock = threading.Lock()
         self._state = {a: AxisState() for a in self.axes}
@@ -311,6 +312,22 @@ class SimStand:
                 None if code is None else int(code),
                 None if count is None else int(count),
             )
+
+    def place(self, angle_deg: dict[str, float]) -> None:
+        """Leave the stand at rest at ``angle_deg`` (axes left out: where they are), servo off
+        — a stand an earlier session left off zero. Refused while the servo is on."""
+        unknown = sorted(set(angle_deg) - set(self.axes))
+        if unknown:
+            raise ConfigError(f"SimStand.place: no axis {unknown} (axes: {list(self.axes)})")
+        with self._lock:
+            if self._enabled:
+                raise DeviceError("SimStand.place: the servo is on (disable it first)")
+            self._advance(time.monotonic())
+            for a, v in angle_deg.items():
+                self._state[a] = AxisState(float(v), 0.0)
+                self._target[a] = self._stream_target[a] = float(v)
+            row = [self._state[a].angle_deg for a in self.axes]
+            self._hist[:] = row  # the true angle's recent history too
 
     def clear_faults(self) -> None:
         """End injected communication faults (a latched stand fault needs a Modbus fault reset)."""
@@ -737,6 +754,7 @@ class SimStand:
         if has("enable"):
             if not self._enabled and not (self._fault_code or self._estop):
                 self._enabled = True
+                self.enables += 1
                 self._hb_time = now
                 self._mode = "stream"
                 self._stream_target = {a: s.angle_deg for a, s in self._state.items()}

@@ -174,6 +174,11 @@ class ModbusStand:
         self._raise_fault(sample.status)
         return sample
 
+    def read_state(self) -> StandSample:
+        """As :meth:`read_sample` but never raises on a fault or an E-stop: the state of a
+        faulted stand, for a status display (``benchctl stand status``)."""
+        return self._read_feedback()[1]
+
     def _read_feedback(self) -> tuple[list[int], StandSample]:
         t0 = self._clock()
         regs = self._read(self._fb_addr, self._fb_count)
