@@ -130,3 +130,17 @@ def test_the_run_log_closes_quietly_on_a_full_disk(tmp_path: Path) -> None:
         handler.stream = FullStream()  # type: ignore[assignment]
         logging.getLogger("benchctl.test").warning("a line the disk has no room for")
     # leaving the block closed the handler without raising
+
+
+def test_a_junit_file_that_cannot_be_written_leaves_no_tmp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from benchctl.plan.junit import write_junit
+    from benchctl.plan.runner import PlanResult
+
+    dest = tmp_path / "junit.xml"
+    _fill_on_write(monkeypatch)
+    with pytest.raises(OSError) as e:
+        write_junit(PlanResult(name="p", source=None, serial="S", operator="o", config=None), dest)
+    assert e.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []  # no junit.xml.tmp left behind

@@ -30,12 +30,13 @@ out); a prompt answered no in the setup a ``<failure>``; an action skipped a ``<
 
 from __future__ import annotations
 
+import io
 import math
-import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from benchctl.fileout import atomic_write_bytes
 from benchctl.text import for_xml
 
 if TYPE_CHECKING:
@@ -197,12 +198,13 @@ def _xml_safe(root: ET.Element) -> None:
 
 
 def write_junit(result: PlanResult, path: Path) -> Path:
-    """Write the JUnit XML to ``path`` (UTF-8, a temporary file renamed over it)."""
+    """Write the JUnit XML to ``path`` (UTF-8, written whole: a temporary file renamed over
+    it, removed when the write fails — a full disk leaves no half file behind)."""
     tree = junit_tree(result)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tree.write(tmp, encoding="utf-8", xml_declaration=True)
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    tree.write(buf, encoding="utf-8", xml_declaration=True)
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
