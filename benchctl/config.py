@@ -27,7 +27,7 @@ from pydantic import (
 
 from benchctl.errors import ConfigError, InputError
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
-from benchctl.textfile import decode_utf8
+from benchctl.textfile import MAX_YAML_BYTES, decode_utf8, read_input
 
 # Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
 # that size a buffer or a wait are bounded above (README, "Bench configs").
@@ -693,10 +693,7 @@ def _yaml_message(e: yaml.YAMLError, text: str) -> str:
 def read_yaml(path: Path, what: str) -> Any:
     """Parse a YAML file by ``BenchYamlLoader``'s rules; ``ConfigError`` naming the file (and
     ``what`` it is), the line and the problem on any failure."""
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    raw = read_input(path, what, ConfigError, MAX_YAML_BYTES)  # a regular file, bounded
     text = decode_utf8(raw, path, what, ConfigError)
     loader: BenchYamlLoader | None = None
     try:

@@ -85,7 +85,6 @@ def ask_value(value: str | None, what: str, option: str) -> str:
 
 def handle(args: argparse.Namespace) -> int:
     from benchctl.config import (
-        MAX_PROFILE_SAMPLES,
         MAX_RUN_DURATION_S,
         MAX_SEED,
         check_option,
@@ -94,6 +93,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.jsonout import dumps
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
+    from benchctl.run.plan import check_setpoints
     from benchctl.run.report import format_report
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
@@ -110,13 +110,9 @@ def handle(args: argparse.Namespace) -> int:
             "±5 %)"
         )
     cfg = load_config(args.config)
-    if args.duration is not None:
+    if args.duration is not None:  # before asking anything (the run checks every motion)
         rate = max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz)  # any mode
-        if args.duration * rate > MAX_PROFILE_SAMPLES:
-            raise ConfigError(
-                f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
-                f"{rate:g} Hz (stand rate); expected at most {MAX_PROFILE_SAMPLES}"
-            )
+        check_setpoints(args.duration, rate, f"--duration {args.duration:g}")
     serial = ask_value(args.serial, "Serial number of the instrument", "--serial")
     operator = ask_value(args.operator, "Operator", "--operator")
     opts = RunOptions(
