@@ -383,7 +383,7 @@ class RunConfig(Strict):
     linearity_spread_limit: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.01
     analysis: AnalysisConfig = AnalysisConfig()
     excitation: ExcitationConfig = ExcitationConfig()  # measured excitation fidelity
-    lock_dir: Path | None = None  # one run per stand: its lock files (None: <tmp>/benchctl-locks)
+    lock_dir: Path | None = None  # one run per stand: its lock files (None: /run/benchctl-locks)
     # stop the motion once σ's 95 % interval is within ± this fraction of σ (after at least one
     # whole period of the multisine; benchctl.run.precision); None: the whole profile runs
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None

@@ -1,0 +1,277 @@
+"""The stand's lock cannot be turned into a weapon: a symlink, a hard link or a FIFO at a lock
+file's path is refused and left as it is (its target untouched), lock files are created
+exclusively and never made writable by others, and a lock folder another user owns, or one
+writable by others without the sticky bit, is refused. The old lock followed a planted
+symlink: it truncated the target, wrote JSON into it, chmod'ed it 0666 and removed the link.
+
+Some cases need root (``chown`` to another user, a process of another user): the tests run as
+root in CI, where such a test fails rather than skips if it is not root."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import stat
+import tempfile
+import time
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from benchctl.errors import ConfigError, StandInUse
+from benchctl.run import lock as lockmod
+from benchctl.run.lock import LOCK_FILE_MODE, StandLock, lock_file, open_lock_dir
+
+KEY = "tcp localhost:5020"
+NOBODY = 65534
+needs_root = pytest.mark.skipif(
+    os.geteuid() != 0 and not os.environ.get("CI"),
+    reason="needs root (chown to another user); CI runs it as root",
+)
+
+
+def _snapshot(p: Path) -> tuple[bytes, int, int, int]:
+    st = os.stat(p, follow_symlinks=False)
+    return p.read_bytes(), stat.S_IMODE(st.st_mode), st.st_uid, st.st_nlink
+
+
+@pytest.fixture
+def locks(tmp_path: Path) -> Path:
+    d = tmp_path / "locks"
+    d.mkdir(mode=0o755)
+    return d
+
+
+@pytest.fixture
+def victim(tmp_path: Path) -> Path:
+    """A file the lock must never touch: content, mode, owner and links are compared after."""
+    v = tmp_path / "victim.conf"
+    v.write_bytes(b"precious: do not truncate\n")
+    os.chmod(v, 0o600)
+    return v
+
+
+def _refused(locks: Path, *words: str) -> str:
+    with pytest.raises(ConfigError) as e:
+        StandLock(KEY, locks).acquire({"command": "test"})
+    msg = str(e.value)
+    assert msg.startswith(str(lock_file(locks, KEY))) or msg.startswith(str(locks)), msg
+    for w in words:
+        assert w in msg, msg
+    return msg
+
+
+# -- what is at the lock file's path ----------------------------------------------------------
+
+
+def test_a_symlink_to_a_file_of_ours_is_refused_and_the_file_left_alone(
+    locks: Path, victim: Path
+) -> None:
+    before = _snapshot(victim)
+    link = lock_file(locks, KEY)
+    link.symlink_to(victim)
+    _refused(locks, "a symbolic link", str(victim))
+    assert _snapshot(victim) == before  # not truncated, not written, not chmod'ed
+    assert link.is_symlink()  # not removed: whoever made it can be found
+
+
+@needs_root
+def test_a_symlink_to_another_users_file_is_refused_and_the_file_left_alone(
+    locks: Path, victim: Path
+) -> None:
+    os.chown(victim, NOBODY, NOBODY)
+    before = _snapshot(victim)
+    lock_file(locks, KEY).symlink_to(victim)
+    _refused(locks, "a symbolic link")
+    assert _snapshot(victim) == before
+    assert before[2] == NOBODY
+
+
+def test_a_dangling_symlink_is_refused_and_nothing_created(locks: Path, tmp_path: Path) -> None:
+    target = tmp_path / "would-be-created"
+    lock_file(locks, KEY).symlink_to(target)
+    _refused(locks, "a symbolic link")
+    assert not target.exists()
+
+
+def test_a_hard_link_is_refused_and_the_file_left_alone(locks: Path, victim: Path) -> None:
+    os.link(victim, lock_file(locks, KEY))
+    before = _snapshot(victim)
+    _refused(locks, "2 links", "hard link")
+    assert _snapshot(victim) == before
+    assert lock_file(locks, KEY).exists()
+
+
+@pytest.mark.timeout(60, method="thread")  # a FIFO opened for writing would block
+def test_a_fifo_is_refused_at_once(locks: Path) -> None:
+    os.mkfifo(lock_file(locks, KEY))
+    t0 = time.monotonic()
+    _refused(locks, "a FIFO")
+    assert time.monotonic() - t0 < 20.0
+
+
+def test_the_reader_of_the_holder_never_follows_a_symlink(locks: Path, victim: Path) -> None:
+    victim.write_text(json.dumps({"pid": os.getpid(), "serial": "FAKE"}))
+    lock_file(locks, KEY).symlink_to(victim)
+    assert StandLock(KEY, locks).holder() is None
+
+
+# -- the lock files benchctl makes ------------------------------------------------------------
+
+
+def test_lock_files_are_created_never_writable_by_others_whatever_the_umask(locks: Path) -> None:
+    old = os.umask(0)
+    try:
+        lock = StandLock(KEY, locks)
+        lock.acquire({"command": "test", "serial": "S1"})
+        try:
+            st = os.stat(lock.path)
+            assert stat.S_IMODE(st.st_mode) == LOCK_FILE_MODE == 0o644  # was chmod'ed 0666
+            assert st.st_uid == os.geteuid() and st.st_nlink == 1
+            assert json.loads(lock.path.read_text())["serial"] == "S1"
+        finally:
+            lock.release()
+    finally:
+        os.umask(old)
+    assert not lock.path.exists()
+
+
+def test_a_killed_runs_file_of_ours_is_taken_over(locks: Path) -> None:
+    stale = lock_file(locks, KEY)
+    stale.write_text(json.dumps({"pid": 2**22 + 12345, "serial": "DEAD"}))  # no such pid
+    os.chmod(stale, 0o600)
+    lock = StandLock(KEY, locks)
+    lock.acquire({"command": "test", "serial": "NEW"})
+    try:
+        assert json.loads(stale.read_text())["serial"] == "NEW"
+        assert stat.S_IMODE(os.stat(stale).st_mode) == 0o600  # never chmod'ed
+    finally:
+        lock.release()
+
+
+# -- the lock folder --------------------------------------------------------------------------
+
+
+@needs_root
+def test_a_folder_made_by_another_user_is_refused(locks: Path) -> None:
+    os.chown(locks, NOBODY, NOBODY)
+    msg = _refused(locks, "owned by", f"uid {NOBODY}", "not by you", "run.lock_dir")
+    assert msg.startswith(f"{locks}: ")
+    assert list(locks.iterdir()) == []  # nothing created in it
+
+
+@needs_root
+def test_a_folder_symlink_made_by_another_user_is_refused(tmp_path: Path, locks: Path) -> None:
+    link = tmp_path / "locks-link"
+    link.symlink_to(locks)
+    os.lchown(link, NOBODY, NOBODY)
+    _refused(link, "a symlink owned by", f"uid {NOBODY}")
+
+
+@pytest.mark.parametrize(("mode", "who"), [(0o777, "others"), (0o775, "its group")])
+def test_a_folder_writable_by_others_without_the_sticky_bit_is_refused(
+    locks: Path, mode: int, who: str
+) -> None:
+    os.chmod(locks, mode)
+    _refused(locks, f"writable by {who} without the sticky bit", f"mode {mode:04o}", "1777")
+    assert list(locks.iterdir()) == []
+
+
+def test_a_sticky_shared_folder_like_tmp_is_accepted(locks: Path) -> None:
+    os.chmod(locks, 0o1777)
+    with StandLock(KEY, locks) as lock:
+        lock.acquire({"command": "test"})
+        assert lock.held
+    assert not lock_file(locks, KEY).exists()
+
+
+def test_the_default_folder_is_one_another_user_cannot_create_first() -> None:
+    default = lockmod.DEFAULT_LOCK_DIR
+    assert not str(default).startswith(tempfile.gettempdir())
+    parent = os.stat(default.parent)
+    assert parent.st_uid == 0 and not parent.st_mode & 0o022  # /run: root's alone
+
+
+def test_the_default_folder_is_made_shared_and_sticky_by_its_first_user(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    default = tmp_path / "run-benchctl-locks"
+    monkeypatch.setattr(lockmod, "DEFAULT_LOCK_DIR", default)
+    os.close(open_lock_dir(default))
+    st = os.stat(default)
+    assert stat.S_IMODE(st.st_mode) == 0o1777 and st.st_uid == os.geteuid()
+
+
+# -- another user's lock file -----------------------------------------------------------------
+
+
+@pytest.fixture
+def shared(tmp_path: Path) -> Iterator[Path]:
+    """A root-owned sticky folder like /tmp that another user can reach."""
+    d = Path(tempfile.mkdtemp(prefix="benchctl-locktest-"))
+    os.chmod(d, 0o1777)
+    try:
+        yield d
+    finally:
+        for p in d.iterdir():
+            p.unlink()
+        d.rmdir()
+
+
+def _other_user_holds(path: Path) -> tuple[int, int]:
+    """A child process of user nobody that creates ``path`` (0644), writes its details, locks
+    it and waits until the returned pipe end is closed; (pid, write end)."""
+    ready_r, ready_w = os.pipe()
+    hold_r, hold_w = os.pipe()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # fork with threads: os calls only
+        pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        try:
+            import fcntl
+
+            os.setgid(NOBODY)
+            os.setuid(NOBODY)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+            os.write(fd, json.dumps({"pid": os.getpid(), "serial": "OTHER",
+                                     "user": "nobody"}).encode())
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            os.write(ready_w, b"1")
+            os.read(hold_r, 1)
+        finally:
+            os._exit(0)
+    os.close(ready_w)
+    os.close(hold_r)
+    assert os.read(ready_r, 1) == b"1"
+    os.close(ready_r)
+    return pid, hold_w
+
+
+@needs_root
+def test_another_users_lock_serialises_and_its_stale_file_is_never_written(shared: Path) -> None:
+    path = lock_file(shared, KEY)
+    pid, hold = _other_user_holds(path)
+    try:
+        with pytest.raises(StandInUse, match="serial OTHER"):
+            StandLock(KEY, shared).acquire({"command": "test"})
+    finally:
+        os.close(hold)
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+    assert os.stat(path).st_uid == NOBODY  # left by a killed run of another user
+    keep = os.open(path, os.O_RDONLY)  # the old file, to look at after
+    before = os.pread(keep, 4096, 0)
+    try:
+        lock = StandLock(KEY, shared)
+        lock.acquire({"command": "test", "serial": "ROOT"})
+        try:  # root removed it under the lock and made its own; the old one never written
+            assert os.pread(keep, 4096, 0) == before and os.fstat(keep).st_nlink == 0
+            assert os.stat(path).st_uid == os.geteuid()
+            assert json.loads(path.read_text())["serial"] == "ROOT"
+        finally:
+            lock.release()
+    finally:
+        os.close(keep)
