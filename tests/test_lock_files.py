@@ -20,6 +20,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from benchctl.errors import ConfigError, StandInUse
 from benchctl.run import lock as lockmod
@@ -275,3 +277,25 @@ def test_another_users_lock_serialises_and_its_stale_file_is_never_written(share
             lock.release()
     finally:
         os.close(keep)
+
+
+@settings(max_examples=150, deadline=None)
+@given(mode=st.integers(min_value=0, max_value=0o7777),
+       other_owner=st.booleans() if os.geteuid() == 0 else st.just(False))
+def test_the_folder_check_accepts_exactly_safe_folders(
+    tmp_path_factory: pytest.TempPathFactory, mode: int, other_owner: bool
+) -> None:
+    d = tmp_path_factory.mktemp("lockdir")
+    os.chmod(d, mode | 0o700)  # we can always look in it
+    if other_owner:
+        os.chown(d, NOBODY, NOBODY)
+    st_ = os.stat(d)
+    safe = st_.st_uid in (os.geteuid(), 0) and (
+        not st_.st_mode & 0o022 or bool(st_.st_mode & stat.S_ISVTX))
+    try:
+        os.close(open_lock_dir(d))
+        accepted = True
+    except ConfigError as e:
+        accepted = False
+        assert str(e).startswith(f"{d}: the stand lock folder "), e
+    assert accepted == safe, (oct(st_.st_mode), st_.st_uid)
