@@ -235,6 +235,8 @@ def _other_user_holds(path: Path) -> tuple[int, int]:
         try:
             import fcntl
 
+            os.close(hold_w)
+            os.close(ready_r)
             os.setgid(NOBODY)
             os.setuid(NOBODY)
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
@@ -299,3 +301,49 @@ def test_the_folder_check_accepts_exactly_safe_folders(
         accepted = False
         assert str(e).startswith(f"{d}: the stand lock folder "), e
     assert accepted == safe, (oct(st_.st_mode), st_.st_uid)
+
+
+@needs_root
+def test_a_user_takes_roots_stale_file_without_writing_into_it(shared: Path) -> None:
+    """The other way round: a run of user nobody finds a lock file root's killed run left in
+    the shared folder. It cannot remove it (sticky folder) and must not write into it: it
+    locks it as it is, and keeps a second run out all the same."""
+    path = lock_file(shared, KEY)
+    details = json.dumps({"pid": 2**22 + 54321, "serial": "ROOT-DEAD"}).encode()
+    path.write_bytes(details)
+    os.chmod(path, 0o644)
+    ready_r, ready_w = os.pipe()
+    hold_r, hold_w = os.pipe()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # fork with threads: no locks used
+        pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 1
+        try:
+            os.close(hold_w)  # the parent's end: its close is the signal to let go
+            os.close(ready_r)
+            os.setgid(NOBODY)
+            os.setuid(NOBODY)
+            lock = StandLock(KEY, shared)
+            lock.acquire({"command": "test", "serial": "NOBODY"})
+            os.write(ready_w, b"1" if lock.held else b"0")
+            os.read(hold_r, 1)
+            lock.release()
+            code = 0
+        except BaseException as e:
+            os.write(ready_w, repr(e).encode()[:200])
+        finally:
+            os._exit(code)
+    os.close(ready_w)
+    os.close(hold_r)
+    try:
+        said = os.read(ready_r, 200)
+        assert said == b"1", said
+        with pytest.raises(StandInUse, match="could not write its details"):
+            StandLock(KEY, shared).acquire({"command": "test"})
+    finally:
+        os.close(hold_w)
+        os.close(ready_r)
+        _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+    assert path.read_bytes() == details and os.stat(path).st_uid == 0  # untouched, still there
