@@ -31,7 +31,7 @@ from benchctl.redact import redact
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
 from benchctl.text import PART_NUMBER_MAX, STATION_MAX
 from benchctl.text import problem as text_problem
-from benchctl.textfile import decode_utf8
+from benchctl.textfile import MAX_YAML_BYTES, decode_utf8, read_input
 
 # Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
 # that size a buffer or a wait are bounded above (README, "Bench configs").
@@ -387,7 +387,7 @@ class RunConfig(Strict):
     linearity_spread_limit: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.01
     analysis: AnalysisConfig = AnalysisConfig()
     excitation: ExcitationConfig = ExcitationConfig()  # measured excitation fidelity
-    lock_dir: Path | None = None  # one run per stand: its lock files (None: <tmp>/benchctl-locks)
+    lock_dir: Path | None = None  # one run per stand: its lock files (None: /run/benchctl-locks)
     # stop the motion once σ's 95 % interval is within ± this fraction of σ (after at least one
     # whole period of the multisine; benchctl.run.precision); None: the whole profile runs
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None
@@ -749,10 +749,7 @@ def _yaml_message(e: yaml.YAMLError, text: str) -> str:
 def read_yaml(path: Path, what: str) -> Any:
     """Parse a YAML file by ``BenchYamlLoader``'s rules; ``ConfigError`` naming the file (and
     ``what`` it is), the line and the problem on any failure."""
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    raw = read_input(path, what, ConfigError, MAX_YAML_BYTES)  # a regular file, bounded
     text = decode_utf8(raw, path, what, ConfigError)
     loader: BenchYamlLoader | None = None
     try:

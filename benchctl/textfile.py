@@ -1,10 +1,110 @@
-"""Text files from users (configs, profiles, CSVs): UTF-8, or an error that names the byte."""
+"""Files from users (configs, profiles, plans, register maps, CSVs): read with bounds.
+
+Every input file benchctl reads for a user goes through :func:`read_input`: it must be a regular
+file (a symlink to one is fine) of at most a stated size, else the caller's error names the file,
+what it is and what was expected — before anything is read. A device (``/dev/zero``,
+``/dev/urandom``), a folder, a FIFO or a socket is refused at once: the file is opened with
+``O_NONBLOCK`` (opening a FIFO with no writer never waits) and checked with ``fstat`` on that
+same descriptor, so what is checked is what is read. The size is checked twice: by ``fstat``,
+and while reading (a file that grows, or one whose size the kernel does not know, stops one byte
+past the cap).
+
+Text is UTF-8 (:func:`decode_utf8`), or an error that names the line and the byte.
+"""
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 from benchctl.errors import InputError
+
+MiB = 1024 * 1024
+MAX_YAML_BYTES = 16 * MiB  # a bench config, profile, plan or register map (real ones: < 100 kB)
+MAX_CSV_BYTES = 512 * MiB  # a CSV: 10⁷ rows of time,reference,device (the analysis grid's cap)
+_CHUNK = 4 * MiB
+
+
+def size_text(n: int) -> str:
+    """``16 MiB``, ``512 MiB``, ``1.5 kB``: a byte count as a reader would say it."""
+    if n >= MiB:
+        return f"{n / MiB:g} MiB"
+    if n >= 1024:
+        return f"{n / 1024:g} kB"
+    return f"{n} bytes"
+
+
+def file_kind(mode: int) -> str:
+    """What a file is, from its ``st_mode``: ``a regular file``, ``a character device``…"""
+    kinds = (
+        (stat.S_ISREG, "a regular file"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISLNK, "a symbolic link"),
+    )
+    for test, name in kinds:
+        if test(mode):
+            return name
+    return "not a regular file"  # pragma: no cover - every Linux type is listed
+
+
+def _expected(what: str, max_bytes: int) -> str:
+    return f"expected the {what} as a regular file of at most {size_text(max_bytes)}"
+
+
+def _check(st: os.stat_result, path: Path, what: str, error: type[InputError],
+           max_bytes: int) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: {file_kind(st.st_mode)}; {_expected(what, max_bytes)}")
+    if st.st_size > max_bytes:
+        raise error(
+            f"{path}: {st.st_size} bytes ({size_text(st.st_size)}); "
+            f"{_expected(what, max_bytes)}"
+        )
+
+
+def read_input(path: Path, what: str, error: type[InputError], max_bytes: int) -> bytes:
+    """The bytes of ``path``, a regular file of at most ``max_bytes``; else ``error`` naming
+    the file, what it is (a device, a FIFO, a folder, its size) and ``what`` was expected.
+    Never blocks on a FIFO or a device and never reads more than ``max_bytes + 1`` bytes."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    try:
+        try:
+            _check(os.fstat(fd), path, what, error, max_bytes)
+            chunks: list[bytes] = []
+            total = 0
+            while True:
+                chunk = os.read(fd, min(_CHUNK, max_bytes + 1 - total))
+                if not chunk:
+                    break
+                chunks.append(chunk)
+                total += len(chunk)
+                if total > max_bytes:
+                    raise error(
+                        f"{path}: more than {size_text(max_bytes)}; {_expected(what, max_bytes)}"
+                    )
+        except OSError as e:
+            raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+    return b"".join(chunks)
+
+
+def check_input_file(path: Path, what: str, error: type[InputError], max_bytes: int) -> None:
+    """The checks of :func:`read_input` without reading, for a file a library opens itself
+    (a DBC, an EDS): ``error`` unless ``path`` is a regular file of at most ``max_bytes``."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    _check(st, path, what, error, max_bytes)
 
 
 def decode_utf8(raw: bytes, path: Path, what: str, error: type[InputError]) -> str:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from benchctl.analysis.align import MAX_ABS_ANGLE_DEG, check_grid
 from benchctl.errors import DataError
-from benchctl.textfile import decode_utf8
+from benchctl.textfile import MAX_CSV_BYTES, decode_utf8, read_input
 
 FloatArray = NDArray[np.float64]
 Units = Literal["deg", "rad"]
@@ -38,12 +38,14 @@ class Streams:
     source: str
 
 
-def _header(path: Path) -> list[str]:
-    try:
-        with path.open("rb") as f:
-            raw = f.readline()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
+def _read(path: Path) -> bytes:
+    """The whole file: a regular file of at most ``MAX_CSV_BYTES``, else ``DataError``."""
+    return read_input(path, "CSV file", DataError, MAX_CSV_BYTES)
+
+
+def _header(path: Path, data: bytes) -> list[str]:
+    end = data.find(b"\n")
+    raw = data if end < 0 else data[: end + 1]
     try:
         first = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
@@ -71,10 +73,10 @@ def _find(path: Path, header: list[str], name: str, option: str) -> int:
     return header.index(name)
 
 
-def _text_lines(path: Path) -> list[str]:
+def _text_lines(path: Path, raw: bytes) -> list[str]:
     """The file's lines (universal newlines); ``DataError`` naming the line and byte offset
     of the first byte that is not UTF-8."""
-    text = decode_utf8(path.read_bytes(), path, "CSV file", DataError)
+    text = decode_utf8(raw, path, "CSV file", DataError)
     return io.StringIO(text, newline=None).read().split("\n")
 
 
@@ -88,12 +90,10 @@ def _data_lines(lines: list[str]) -> list[int]:
     ]
 
 
-def _locate_bad(path: Path, header: list[str], cols: Sequence[int]) -> DataError:
+def _locate_bad(path: Path, raw: bytes, header: list[str], cols: Sequence[int]) -> DataError:
     """Scan the file for the first unparsable or non-finite cell (slow path, errors only)."""
     try:
-        lines = _text_lines(path)
-    except OSError as e:
-        return DataError(f"{path}: cannot read: {e.strerror or e}")
+        lines = _text_lines(path, raw)
     except DataError as e:
         return e
     for lineno in _data_lines(lines):
@@ -122,10 +122,10 @@ def _locate_bad(path: Path, header: list[str], cols: Sequence[int]) -> DataError
     return DataError(f"{path}: cannot parse as a comma-separated numeric table")
 
 
-def _check_first_row(path: Path, header: list[str]) -> None:
+def _check_first_row(path: Path, raw: bytes, header: list[str]) -> None:
     """The first data row has as many fields as the header (``numpy.loadtxt`` with
     ``usecols`` ignores extra ones, and refuses only rows unlike the first)."""
-    with path.open("rb") as f:
+    with io.BytesIO(raw) as f:
         f.readline()
         for lineno, raw in enumerate(f, start=2):
             line = raw.decode("utf-8", errors="replace").split("#", 1)[0]
@@ -140,26 +140,26 @@ def _check_first_row(path: Path, header: list[str]) -> None:
             return
 
 
-def _row_label(path: Path) -> Callable[[int], str]:
+def _row_label(path: Path, raw: bytes) -> Callable[[int], str]:
     """``where(i)`` for ``check_grid``: data row i+1 and its line in the file."""
 
     def where(i: int) -> str:
         try:
-            line = _data_lines(_text_lines(path))[i]
-        except (OSError, DataError, IndexError):
+            line = _data_lines(_text_lines(path, raw))[i]
+        except (DataError, IndexError):
             return f"data row {i + 1}"
         return f"data row {i + 1} (line {line})"
 
     return where
 
 
-def _check_angles(p: Path, header: list[str], col: int, v: FloatArray) -> None:
+def _check_angles(p: Path, raw: bytes, header: list[str], col: int, v: FloatArray) -> None:
     bad = np.abs(v) > MAX_ABS_ANGLE_DEG
     if bad.any():
         i = int(np.argmax(bad))
         raise DataError(
-            f"{p}: column {header[col]!r}, {_row_label(p)(i)}: {float(v[i])!r}; expected an angle, "
-            f"|value| ≤ {MAX_ABS_ANGLE_DEG:g}"
+            f"{p}: column {header[col]!r}, {_row_label(p, raw)(i)}: {float(v[i])!r}; "
+            f"expected an angle, |value| ≤ {MAX_ABS_ANGLE_DEG:g}"
         )
 
 
@@ -174,29 +174,33 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
     Parameters
     ----------
     path : str or Path
-        The file: comma-separated, UTF-8, first line the column names, ``#`` lines ignored.
+        The file: comma-separated, UTF-8, first line the column names, ``#`` lines ignored;
+        a regular file of at most ``MAX_CSV_BYTES`` (``benchctl.textfile``), read once.
     names : sequence of (column name, option that sets it)
         The option is quoted in the error message when the column is missing.
     """
     p = Path(path)
-    header = _header(p)
+    return _columns(p, _read(p), names)
+
+
+def _columns(p: Path, raw: bytes, names: Sequence[tuple[str, str]]) -> list[FloatArray]:
+    header = _header(p, raw)
     cols = [_find(p, header, n, opt) for n, opt in names]
     try:
+        text = io.StringIO(raw.decode("utf-8-sig"), newline=None)  # as loadtxt opens a file
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
             data = np.loadtxt(
-                p, delimiter=",", skiprows=1, usecols=cols, ndmin=2, dtype=float,
-                comments="#", encoding="utf-8-sig",
+                text, delimiter=",", skiprows=1, usecols=cols, ndmin=2, dtype=float,
+                comments="#",
             )
-    except OSError as e:
-        raise DataError(f"{p}: cannot read: {e.strerror or e}") from None
     except (ValueError, TypeError, IndexError, OverflowError, csv.Error):
-        raise _locate_bad(p, header, cols) from None
+        raise _locate_bad(p, raw, header, cols) from None
     if data.shape[0] == 0:
         raise DataError(f"{p}: no data rows after the header")
-    _check_first_row(p, header)
+    _check_first_row(p, raw, header)
     if not np.isfinite(data).all():
-        raise _locate_bad(p, header, cols)
+        raise _locate_bad(p, raw, header, cols)
     out = [np.ascontiguousarray(data[:, i]) for i in range(len(cols))]
     t = out[0]
     d = np.diff(t)
@@ -208,9 +212,9 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
             f"after {float(t[i - 1])!r}; expected strictly increasing times"
         )
     if len(t) >= 2:
-        check_grid(t, f"{p}: column {header[cols[0]]!r}", _row_label(p))
+        check_grid(t, f"{p}: column {header[cols[0]]!r}", _row_label(p, raw))
     for c, v in zip(cols[1:], out[1:], strict=True):
-        _check_angles(p, header, c, v)
+        _check_angles(p, raw, header, c, v)
     return out
 
 
@@ -240,10 +244,10 @@ def load_single_csv(
     return Streams(t, _angles(x, units), t, _angles(y, units), str(path))
 
 
-def _angle_column(path: Path, time_col: str, name: str | None, option: str) -> str:
+def _angle_column(path: Path, raw: bytes, time_col: str, name: str | None, option: str) -> str:
     if name is not None:
         return name
-    others = [c for c in _header(path) if c != time_col]
+    others = [c for c in _header(path, raw) if c != time_col]
     if len(others) != 1:
         raise DataError(
             f"{path}: expected one angle column beside {time_col!r}, found {others}; "
@@ -266,8 +270,9 @@ def load_csv_pair(
     The angle column is the one named, or else the only column beside the time.
     """
     rp, dp = Path(reference), Path(device)
-    rc = _angle_column(rp, time_col, reference_col, "--reference-col")
-    dc = _angle_column(dp, time_col, device_col, "--device-col")
-    tr, xr = read_columns(rp, [(time_col, "--time-col"), (rc, "--reference-col")])
-    td, yd = read_columns(dp, [(time_col, "--time-col"), (dc, "--device-col")])
+    rraw, draw = _read(rp), _read(dp)
+    rc = _angle_column(rp, rraw, time_col, reference_col, "--reference-col")
+    dc = _angle_column(dp, draw, time_col, device_col, "--device-col")
+    tr, xr = _columns(rp, rraw, [(time_col, "--time-col"), (rc, "--reference-col")])
+    td, yd = _columns(dp, draw, [(time_col, "--time-col"), (dc, "--device-col")])
     return Streams(tr, _angles(xr, units), td, _angles(yd, units), f"{rp} + {dp}")

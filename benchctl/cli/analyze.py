@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         src = Path(args.source)
         if src.is_dir():
             raise DataError(f"{src}: a folder but not a benchctl recording (no meta.json)")
-        if not src.is_file():
+        if not src.exists():  # a device or a FIFO: the CSV reader says what it is
             raise DataError(f"{src}: no such file or recording folder")
         s = load_single_csv(src, time_col=args.time_col,
                             reference_col=args.reference_col or "reference",

@@ -97,7 +97,6 @@ def ask_value(value: str | None, what: str, option: str,
 
 def handle(args: argparse.Namespace) -> int:
     from benchctl.config import (
-        MAX_PROFILE_SAMPLES,
         MAX_RUN_DURATION_S,
         MAX_SEED,
         check_option,
@@ -106,6 +105,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.jsonout import dumps
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
+    from benchctl.run.plan import check_setpoints
     from benchctl.run.report import format_report
     from benchctl.text import check_operator, check_part_number, check_serial, visible
 
@@ -123,13 +123,9 @@ def handle(args: argparse.Namespace) -> int:
             "±5 %)"
         )
     cfg = load_config(args.config)
-    if args.duration is not None:
+    if args.duration is not None:  # before asking anything (the run checks every motion)
         rate = max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz)  # any mode
-        if args.duration * rate > MAX_PROFILE_SAMPLES:
-            raise ConfigError(
-                f"--duration {args.duration:g}: {args.duration * rate:.4g} setpoints at "
-                f"{rate:g} Hz (stand rate); expected at most {MAX_PROFILE_SAMPLES}"
-            )
+        check_setpoints(args.duration, rate, f"--duration {args.duration:g}")
     pattern, where = cfg.unit.serial_pattern, f"unit.serial_pattern of {cfg.source}"
     serial = ask_value(args.serial, "Serial number of the instrument", "--serial",
                        lambda v, o: check_serial(v, o, pattern, where))

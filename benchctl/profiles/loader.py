@@ -26,7 +26,7 @@ from benchctl.profiles.schema import (
     RecordedProfile,
     SineStepsProfile,
 )
-from benchctl.textfile import decode_utf8
+from benchctl.textfile import MAX_CSV_BYTES, decode_utf8, read_input
 
 _ADAPTER: TypeAdapter[Any] = TypeAdapter(ProfileSpec)
 
@@ -154,11 +154,15 @@ def read_angle_csv(
     path: Path, time_column: str, angle_column: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """Two numeric columns of a CSV (header row; ``#`` lines skipped). ``DataError`` names the
-    file, column and row of any missing column, non-number, NaN or non-increasing time."""
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read: {e.strerror or e}") from None
+    file, column and row of any missing column, non-number, NaN or non-increasing time; and
+    a file that is not a regular file of at most ``MAX_CSV_BYTES`` (``benchctl.textfile``)."""
+    raw = read_input(path, "CSV", DataError, MAX_CSV_BYTES)  # a regular file, bounded
+    return _angle_csv(raw, path, time_column, angle_column)
+
+
+def _angle_csv(
+    raw: bytes, path: Path, time_column: str, angle_column: str
+) -> tuple[np.ndarray, np.ndarray]:
     text = decode_utf8(raw, path, "CSV", DataError)
     numbered = (
         (n, line.removesuffix("\r"))
@@ -214,14 +218,15 @@ def read_angle_csv(
 
 def _load_record(label: str, axis: str, ax: RecordedAxisSpec, base: Path) -> RecordedSpectrum:
     path = ax.csv if ax.csv.is_absolute() else (base / ax.csv)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(
             f"{label}: field axes.{axis}.csv = {str(ax.csv)!r}: file not found ({path})"
         )
-    t, x = read_angle_csv(path, ax.time_column, ax.angle_column)
+    raw = read_input(path, "CSV", DataError, MAX_CSV_BYTES)  # read once: parsed and hashed
+    t, x = _angle_csv(raw, path, ax.time_column, ax.angle_column)
     if ax.angle_unit == "rad":
         x = np.degrees(x)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = hashlib.sha256(raw).hexdigest()
     try:
         return estimate_psd(t, x, ax.segment_s, source=str(path), sha256=digest)
     except ValueError as e:

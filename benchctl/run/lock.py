@@ -2,9 +2,8 @@
 
 The endpoint is the stand's: Modbus TCP ``host:port`` (the host resolved; every loopback or
 wildcard address counts as ``localhost``), Modbus RTU the serial device's real path (symlinks
-followed). The lock files live in ``run.lock_dir`` (default ``<system temp>/benchctl-locks``, one
-folder for every user of the machine), one per endpoint, e.g.
-``/tmp/benchctl-locks/stand-tcp_localhost_5020.lock``. The holder writes who it is into its file
+followed). The lock files live in ``run.lock_dir``, one per endpoint, e.g.
+``/run/benchctl-locks/stand-tcp_localhost_5020.lock``. The holder writes who it is into its file
 as one JSON object (``pid``, ``command``, ``serial``, ``operator``, ``start_utc``, ``user``,
 ``host``, ``config``, ``recording``, ``endpoint``): ``cat`` the file to see it.
 
@@ -14,20 +13,47 @@ however it ends (``kill -9`` included). A holder that ends normally removes its 
 still holds the lock; a taker checks that the file it locked is still the one at the path, so
 removing cannot let two runs in); after a ``kill -9`` the file stays, with the dead holder's
 details, until the next run takes it over.
+
+The lock folder is shared by every user of the machine (one stand, one lock, whoever runs), and
+benchctl often runs as root on a line PC, so nothing in it may be turned against the one who
+runs:
+
+- The folder must belong to this user or to root, and must not be writable by the group or by
+  others unless it has the sticky bit (like ``/tmp``: then only a file's owner, the folder's
+  owner or root may remove or rename a file in it). Else ``ConfigError``: another user could
+  swap the lock files in it. A symlink as the folder must belong to this user or root too.
+- The default folder, ``/run/benchctl-locks``, is one another user cannot create first (``/run``
+  is root's): root creates it on first use, mode 1777 (every user may create lock files, none
+  may remove another's). A user other than root cannot create it: an administrator creates it
+  once (``install -d -m 1777 /run/benchctl-locks``; to keep it over a reboot, a systemd-tmpfiles
+  line ``d /run/benchctl-locks 1777 root root -``), or the config names a folder of the user's
+  own in ``run.lock_dir`` (which then serialises only that user's runs). A folder in ``/tmp``
+  would not do: anyone can create it first, own it, and swap its files.
+- A lock file is created exclusively (``O_CREAT | O_EXCL | O_NOFOLLOW``, mode 0644 under the
+  umask: readable by all, so other users' runs can lock it and name its holder; written only
+  by its owner) and never chmod'ed. An existing one is opened with ``O_NOFOLLOW`` (and
+  ``O_NONBLOCK``) and used only if it is a regular file with one link: a symlink, a hard link,
+  a FIFO or a device at that path is refused with ``ConfigError`` naming it, never opened for
+  writing, never removed.
+- An existing file is written into only if it belongs to this user (a ``kill -9``'d run of this
+  user: taken over, as before). Another user's file left by a killed run is locked as it is;
+  root (or the folder's owner) removes it under the lock and makes its own, anyone else holds
+  the lock on it without writing its details.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import getpass
 import ipaddress
 import json
 import os
+import pwd
 import re
 import socket
 import stat
-import tempfile
 import time
 from collections.abc import Iterator, Mapping
 from datetime import UTC, datetime
@@ -38,8 +64,10 @@ from benchctl.config import BenchConfig, StandConfig
 from benchctl.errors import ConfigError, StandInUse
 from benchctl.jsonout import dumps
 
-DEFAULT_LOCK_DIR = Path(tempfile.gettempdir()) / "benchctl-locks"
+DEFAULT_LOCK_DIR = Path("/run/benchctl-locks")  # only root can create it: see the docstring
 HOLDER_WAIT_S = 1.0  # a holder that has just taken the lock writes its details within this
+LOCK_FILE_MODE = 0o644  # created so (under the umask), never chmod'ed
+_OPEN_FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
 
 
 def endpoint_key(stand: StandConfig) -> str:
@@ -88,6 +116,80 @@ def describe_holder(h: Mapping[str, Any]) -> str:
     return who + (": " + ", ".join(parts) if parts else "")
 
 
+def _owner(uid: int) -> str:
+    try:
+        return f"user {pwd.getpwuid(uid).pw_name} (uid {uid})"
+    except KeyError:
+        return f"uid {uid}"
+
+
+def open_lock_dir(lock_dir: Path) -> int:
+    """A descriptor of the lock folder, checked: it belongs to this user or root and is not
+    writable by the group or others without the sticky bit; ``ConfigError`` naming the folder,
+    what is wrong and what was expected. A missing folder is created (the default one, by root,
+    mode 1777)."""
+    me = os.geteuid()
+    where = "field run.lock_dir"
+    created = False
+    if not os.path.lexists(lock_dir):
+        try:
+            if lock_dir == DEFAULT_LOCK_DIR:
+                os.mkdir(lock_dir, 0o755)  # made shared below, once it is known to be ours
+            else:
+                lock_dir.mkdir(parents=True, mode=0o755)
+            created = True
+        except FileExistsError:
+            pass  # another run made it meanwhile: checked below like any folder
+        except OSError as e:
+            hint = (
+                "only root can create it: create it once as root (install -d -m 1777 "
+                f"{lock_dir}) or set {where} to a folder of yours"
+                if lock_dir == DEFAULT_LOCK_DIR and e.errno in (errno.EACCES, errno.EPERM)
+                else f"expected a folder you can create or write in {where}"
+            )
+            raise ConfigError(
+                f"{lock_dir}: cannot create the stand lock folder: {e.strerror or e}; {hint}"
+            ) from None
+    try:
+        link = os.lstat(lock_dir)
+        fd = os.open(lock_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as e:
+        raise ConfigError(
+            f"{lock_dir}: cannot open the stand lock folder: {e.strerror or e}; expected a "
+            f"folder in {where}"
+        ) from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISLNK(link.st_mode) and link.st_uid not in (me, 0):
+            raise ConfigError(
+                f"{lock_dir}: the stand lock folder is a symlink owned by {_owner(link.st_uid)}, "
+                f"not by you or root; refused (it could point anywhere); expected a folder of "
+                f"yours or root's in {where}"
+            )
+        if st.st_uid not in (me, 0):
+            raise ConfigError(
+                f"{lock_dir}: the stand lock folder is owned by {_owner(st.st_uid)}, not by you "
+                f"({_owner(me)}) or root; refused: its owner could replace the lock files in it; "
+                f"expected a folder of yours or root's in {where} (the default "
+                f"{DEFAULT_LOCK_DIR} is made by root)"
+            )
+        if created and lock_dir == DEFAULT_LOCK_DIR:
+            os.fchmod(fd, 0o1777)  # shared by every user, like /tmp
+            st = os.fstat(fd)
+        if st.st_mode & 0o022 and not st.st_mode & stat.S_ISVTX:
+            raise ConfigError(
+                f"{lock_dir}: the stand lock folder is writable by "
+                f"{'others' if st.st_mode & 0o002 else 'its group'} without the sticky bit "
+                f"(mode {stat.S_IMODE(st.st_mode):04o}); refused: anyone who may write there "
+                f"could replace the lock files; expected mode 1777 like /tmp (chmod +t "
+                f"{lock_dir}), or a folder only you can write ({where})"
+            )
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
 class StandLock:
     """The lock of one stand endpoint; ``acquire(holder)`` or ``StandInUse``."""
 
@@ -96,54 +198,91 @@ class StandLock:
         self.lock_dir = Path(lock_dir)
         self.path = lock_file(self.lock_dir, key)
         self._fd: int | None = None
+        self._dir_fd: int | None = None
+        self._mine = False  # the file is ours: written into, removed on release
 
     @property
     def held(self) -> bool:
         return self._fd is not None
 
-    def _open(self) -> int:
+    def _refuse(self, what: str) -> ConfigError:
+        return ConfigError(
+            f"{self.path}: {what}; refused: a stand's lock file is never followed, written "
+            "through or removed when it is not a plain file of its own; remove it (and find "
+            "out who made it) before running"
+        )
+
+    def _open(self, dfd: int) -> int:
+        """The lock file, created exclusively, or the one there if it is a regular file with
+        one link (``ConfigError`` for anything else); -1 when it changed meanwhile."""
+        name = self.path.name
         try:
-            if not self.lock_dir.is_dir():
-                self.lock_dir.mkdir(parents=True, exist_ok=True)
-                if self.lock_dir == DEFAULT_LOCK_DIR:  # shared by every user, like /tmp
-                    with contextlib.suppress(OSError):
-                        os.chmod(self.lock_dir, 0o1777)
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+            return os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL | _OPEN_FLAGS,
+                           LOCK_FILE_MODE, dir_fd=dfd)
+        except FileExistsError:
+            pass
         except OSError as e:
             raise ConfigError(
-                f"{self.path}: cannot open the stand's lock file: {e.strerror}; "
-                "expected a writable folder in field run.lock_dir"
+                f"{self.path}: cannot create the stand's lock file: {e.strerror or e}; "
+                "expected a folder you can write in field run.lock_dir"
             ) from None
-        with contextlib.suppress(OSError):  # another user's run must be able to lock it too
-            if os.fstat(fd).st_uid == os.getuid():
-                os.fchmod(fd, 0o666)
+        try:
+            seen = os.stat(name, dir_fd=dfd, follow_symlinks=False)
+        except FileNotFoundError:
+            return -1  # its holder removed it meanwhile: again
+        if stat.S_ISLNK(seen.st_mode):
+            try:
+                target = os.readlink(name, dir_fd=dfd)
+            except OSError:
+                target = "?"
+            raise self._refuse(f"a symbolic link (to {target}), not a lock file")
+        if not stat.S_ISREG(seen.st_mode):
+            raise self._refuse(_kind(seen.st_mode))
+        if seen.st_nlink != 1:
+            raise self._refuse(f"a file with {seen.st_nlink} links (a hard link to another file)")
+        fd = -1
+        for flags in (os.O_RDWR, os.O_RDONLY):  # another user's file: read-only is enough
+            try:
+                fd = os.open(name, flags | _OPEN_FLAGS, dir_fd=dfd)
+                break
+            except PermissionError:
+                continue
+            except FileNotFoundError:
+                return -1
+            except OSError as e:
+                if e.errno == errno.ELOOP:  # made a symlink since: looked at again
+                    return -1
+                raise ConfigError(
+                    f"{self.path}: cannot open the stand's lock file: {e.strerror or e}"
+                ) from None
+        if fd < 0:
+            raise ConfigError(
+                f"{self.path}: a lock file of {_owner(seen.st_uid)} that you cannot read (mode "
+                f"{stat.S_IMODE(seen.st_mode):04o}): the stand may be in use by them; refused: "
+                "expected a lock file every user can read (benchctl makes them 0644); ask its "
+                "owner or root to remove it when no run of theirs holds the stand"
+            )
+        st = os.fstat(fd)
+        if (st.st_dev, st.st_ino) != (seen.st_dev, seen.st_ino) or st.st_nlink != 1:
+            os.close(fd)  # replaced between the look and the open: again
+            return -1
         return fd
 
     def acquire(self, holder: Mapping[str, Any]) -> None:
         """Take the lock (never waits) and write ``holder`` into the file; ``StandInUse``
-        naming the current holder when another process has it."""
+        naming the current holder when another process has it; ``ConfigError`` when the lock
+        folder or the file at the lock's path is not safe to use (see the module)."""
         if self._fd is not None:
             return
-        for _ in range(100):
-            fd = self._open()
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                other = _read_holder(fd, wait_s=HOLDER_WAIT_S)
-                os.close(fd)
-                who = describe_holder(other) if other else "another process (no details)"
-                raise StandInUse(
-                    f"stand {self.key} is in use by {who}; lock file {self.path}. Refused before "
-                    "connecting: wait for that run to end, or stop it",
-                    other,
-                ) from None
-            if _same_file(fd, self.path):
-                break
-            os.close(fd)  # its last holder removed it between our open and our lock: again
-        else:  # pragma: no cover - a path replaced 100 times in a row
-            raise ConfigError(
-                f"{self.path}: cannot take the stand's lock (the file keeps changing)"
-            )
+        dfd = open_lock_dir(self.lock_dir)
+        try:
+            fd, mine = self._take(dfd)
+        except BaseException:
+            os.close(dfd)
+            raise
+        self._fd, self._dir_fd, self._mine = fd, dfd, mine
+        if not mine:
+            return  # another user's file: locked, never written
         info = {
             **holder,
             "pid": os.getpid(),
@@ -158,24 +297,61 @@ class StandLock:
             os.pwrite(fd, data, 0)
         except OSError:
             pass  # the lock holds all the same; a refused run then says "no details"
-        self._fd = fd
+
+    def _take(self, dfd: int) -> tuple[int, bool]:
+        """(locked descriptor, ours to write and remove)."""
+        for _ in range(100):
+            fd = self._open(dfd)
+            if fd < 0:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                other = _read_holder(fd, wait_s=HOLDER_WAIT_S)
+                os.close(fd)
+                raise StandInUse(
+                    f"stand {self.key} is in use by {_who(other)}; lock file {self.path}. "
+                    "Refused before connecting: wait for that run to end, or stop it",
+                    other,
+                ) from None
+            if not _same_file(fd, dfd, self.path.name):
+                os.close(fd)  # its last holder removed it between our open and our lock
+                continue
+            if os.fstat(fd).st_uid == os.geteuid() and _writable(fd):
+                return fd, True
+            # another user's file, left by a killed run: removed under the lock if we may
+            # (root, or the folder's owner), then made anew; else held as it is
+            try:
+                os.unlink(self.path.name, dir_fd=dfd)
+            except OSError:
+                return fd, False
+            os.close(fd)
+        raise ConfigError(  # pragma: no cover - a path replaced 100 times in a row
+            f"{self.path}: cannot take the stand's lock (the file keeps changing)"
+        )
 
     def release(self) -> None:
-        """Remove the file (still holding the lock) and let go; idempotent."""
+        """Remove the file (still holding the lock; only a file of ours) and let go;
+        idempotent."""
         fd, self._fd = self._fd, None
+        dfd, self._dir_fd = self._dir_fd, None
         if fd is None:
             return
-        with contextlib.suppress(OSError):
-            if _same_file(fd, self.path):
-                os.unlink(self.path)
+        if self._mine and dfd is not None:
+            with contextlib.suppress(OSError):
+                if _same_file(fd, dfd, self.path.name):
+                    os.unlink(self.path.name, dir_fd=dfd)
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
+        if dfd is not None:
+            os.close(dfd)
 
     def holder(self) -> dict[str, Any] | None:
-        """The details in the lock file: its holder's (or a killed holder's), None when free."""
+        """The details in the lock file: its holder's (or a killed holder's), None when free
+        (or when the path holds no regular file: a symlink is never followed)."""
         try:
-            fd = os.open(self.path, os.O_RDONLY | os.O_CLOEXEC)
+            fd = os.open(self.path, os.O_RDONLY | _OPEN_FLAGS)
         except OSError:
             return None
         try:
@@ -190,9 +366,28 @@ class StandLock:
         self.release()
 
 
-def _same_file(fd: int, path: Path) -> bool:
+def _kind(mode: int) -> str:
+    from benchctl.textfile import file_kind
+
+    return f"{file_kind(mode)}, not a lock file"
+
+
+def _writable(fd: int) -> bool:
+    return fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDWR
+
+
+def _who(other: dict[str, Any] | None) -> str:
+    if not other:
+        return "another process (no details)"
+    if not _alive(other.get("pid")):  # a holder that could not write into another's file
+        return ("another process, which could not write its details (the file holds those "
+                f"of a finished run: {describe_holder(other)})")
+    return describe_holder(other)
+
+
+def _same_file(fd: int, dfd: int, name: str) -> bool:
     try:
-        a, b = os.fstat(fd), os.stat(path)
+        a, b = os.fstat(fd), os.stat(name, dir_fd=dfd, follow_symlinks=False)
     except OSError:
         return False
     return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
@@ -247,6 +442,9 @@ def stand_lock(cfg: BenchConfig, holder: Mapping[str, Any]) -> Iterator[StandLoc
 def check_free(cfg: BenchConfig, holder: Mapping[str, Any]) -> None:
     """``StandInUse`` when a run holds ``cfg``'s stand endpoint (for ``benchctl sim``, which
     serves that endpoint but must not keep a run from locking it)."""
-    lock = StandLock(endpoint_key(cfg.stand), lock_dir_of(cfg))
+    lock_dir = lock_dir_of(cfg)
+    if not os.path.lexists(lock_dir):
+        return  # no lock folder yet: no run holds anything (and a user may not create it)
+    lock = StandLock(endpoint_key(cfg.stand), lock_dir)
     lock.acquire(holder)
     lock.release()

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.config import MAX_PROFILE_SAMPLES
+from benchctl.errors import ConfigError
 from benchctl.harmonics import HarmonicTable
 from benchctl.kinematics import profile_peaks
 from benchctl.run.state import RunState
@@ -74,6 +76,28 @@ class MotionPlan:
         return RunState.FADE_OUT
 
 
+def setpoint_count(duration_s: float, rate_hz: float) -> float:
+    """Setpoints per axis of a motion of ``duration_s`` on the grid ``k / rate_hz`` (k = 0 …
+    duration·rate, as :func:`make_plan` makes them); ``inf`` when that is not a finite number."""
+    product = duration_s * rate_hz
+    if not math.isfinite(product):
+        return math.inf
+    return float(math.floor(product + 1e-9) + 1)
+
+
+def check_setpoints(duration_s: float, rate_hz: float, where: str) -> None:
+    """``ConfigError`` naming ``where`` when a motion of ``duration_s`` at ``rate_hz`` has more
+    than ``MAX_PROFILE_SAMPLES`` setpoints per axis (the plan would not fit in memory: a day at
+    1000 Hz is 7.5 GB of arrays). Cheap: called before anything is synthesised."""
+    n = setpoint_count(duration_s, rate_hz)
+    if not (math.isfinite(rate_hz) and rate_hz > 0 and n <= MAX_PROFILE_SAMPLES):
+        raise ConfigError(
+            f"{where}: {n:.4g} setpoints at {rate_hz:g} Hz (the stand's rate) over "
+            f"{duration_s:g} s, per axis; expected at most {MAX_PROFILE_SAMPLES} (a shorter "
+            "duration or a lower rate)"
+        )
+
+
 def make_plan(
     evaluate: Callable[[NDArray[np.float64]], Mapping[str, NDArray[np.float64]]],
     axes: tuple[str, ...],
@@ -84,7 +108,9 @@ def make_plan(
     mode: str = "stream",
     tables: dict[str, HarmonicTable] | None = None,
 ) -> MotionPlan:
-    """Evaluate the profile once on the loop's grid ``k / rate_hz`` for k = 0 … duration·rate."""
+    """Evaluate the profile once on the loop's grid ``k / rate_hz`` for k = 0 … duration·rate;
+    ``ConfigError`` before anything is evaluated when that is over ``MAX_PROFILE_SAMPLES``."""
+    check_setpoints(duration_s, rate_hz, "motion plan")
     period = 1.0 / rate_hz
     n = math.floor(duration_s * rate_hz + 1e-9) + 1
     t = np.arange(n, dtype=np.float64) * period

@@ -88,7 +88,7 @@ from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
-from benchctl.run.plan import MotionPlan, make_plan
+from benchctl.run.plan import MotionPlan, check_setpoints, make_plan
 from benchctl.run.precision import (
     PrecisionCheck,
     PrecisionWatch,
@@ -277,9 +277,14 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
 
     profile = load_profile(profile_path)
     rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
+    src = cfg.source or Path("<config>")
+    # every motion (the profile's own duration, a plan step's, --duration) capped before any
+    # of it is synthesised, at the stand's faster rate in any mode (as --duration is)
+    duration = profile.duration_s if opts.duration_s is None else opts.duration_s
+    check_setpoints(duration, max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz),
+                    f"{profile_path} on {src}")
     motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
     axes = tuple(motion.axes)
-    src = cfg.source or Path("<config>")
     for section, have in (("stand", cfg.stand.axes), ("instrument", cfg.instrument.axes)):
         missing = [a for a in axes if a not in have]
         if missing:

@@ -39,6 +39,7 @@ from benchctl.devices.can.reader import (
     CanInstrument,
 )
 from benchctl.errors import ConfigError, DeviceTimeout, ProtocolError
+from benchctl.textfile import MAX_YAML_BYTES, check_input_file
 
 #: CiA 410 slope objects by axis: (16-bit, 32-bit)
 SLOPE_OBJECTS = {"pitch": (0x6010, 0x6110), "roll": (0x6020, 0x6120)}
@@ -65,6 +66,7 @@ class CanopenInclinometer(CanInstrument):
     ) -> None:
         if cfg.eds is None:
             raise ConfigError("instrument driver canopen: needs eds (an EDS file in drivers/)")
+        check_input_file(cfg.eds, "EDS file", ConfigError, MAX_YAML_BYTES)  # canopen reads it
         self._net = canopen.Network(bus)  # never .connect(): our reader feeds notify()
         try:
             self._node = self._net.add_node(cfg.node_id, str(cfg.eds))

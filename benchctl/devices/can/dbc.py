@@ -34,6 +34,7 @@ from benchctl.devices.can.reader import (
     CanInstrument,
 )
 from benchctl.errors import ConfigError
+from benchctl.textfile import MAX_YAML_BYTES, check_input_file
 
 #: priority and source address are masked off when matching a frame to a DBC message
 FRAME_ID_MASK = 0x03FFFF00
@@ -58,6 +59,7 @@ class DbcAngleSpec:
 
 def load_dbc(path: Path, message: str) -> tuple[Any, Any]:
     """Load ``path`` with the J1939 frame-id mask and return (database, message ``message``)."""
+    check_input_file(path, "DBC file", ConfigError, MAX_YAML_BYTES)  # cantools reads it
     try:
         db: Any = cantools.database.load_file(str(path), frame_id_mask=FRAME_ID_MASK)
     except (OSError, cantools.database.UnsupportedDatabaseFormatError) as e:
