@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import threading
 import time
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import psutil
 import pytest
+from archive_helpers import PgServer
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -70,3 +72,23 @@ def no_leaks() -> Iterator[None]:
 @pytest.fixture
 def root() -> Path:
     return ROOT
+
+
+# --- the results archive: a PostgreSQL server for a module, an empty archive of each kind ---
+@pytest.fixture(scope="module")
+def pg() -> Iterator[PgServer]:
+    """The distribution's PostgreSQL (initdb, pg_ctl) in a temporary folder, for one module."""
+    srv = PgServer.start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """An empty archive: a SQLite file, then a new database on the module's PostgreSQL."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'archive.sqlite'}"
+    srv: PgServer = request.getfixturevalue("pg")
+    return srv.create_database(f"t_{uuid.uuid4().hex[:12]}")

@@ -18,7 +18,6 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -44,22 +43,8 @@ from benchctl.archive.store import Archive, parse_url, utc_naive
 from benchctl.cli import main
 from benchctl.errors import ArchiveError, DataError
 
-
-@pytest.fixture(scope="module")
-def pg() -> Iterator[PgServer]:
-    srv = PgServer.start()
-    try:
-        yield srv
-    finally:
-        srv.stop()
-
-
-@pytest.fixture(params=["sqlite", "postgresql"])
-def url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return f"sqlite:///{tmp_path / 'archive.sqlite'}"
-    srv: PgServer = request.getfixturevalue("pg")
-    return srv.create_database(f"t_{uuid.uuid4().hex[:12]}")
+# the fixtures pg (a PostgreSQL server for the module) and url (an empty SQLite or PostgreSQL
+# archive) are in conftest.py
 
 
 # --- schema and store ------------------------------------------------------------------------

@@ -27,7 +27,7 @@ import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -61,21 +61,8 @@ axes:
 """
 
 
-@pytest.fixture(scope="module")
-def pg() -> Iterator[PgServer]:
-    srv = PgServer.start()
-    try:
-        yield srv
-    finally:
-        srv.stop()
-
-
-@pytest.fixture(params=["sqlite", "postgresql"])
-def url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    if request.param == "sqlite":
-        return f"sqlite:///{tmp_path / 'archive.sqlite'}"
-    srv: PgServer = request.getfixturevalue("pg")
-    return srv.create_database(f"f_{uuid.uuid4().hex[:12]}")
+# the fixtures pg (a PostgreSQL server for the module) and url (an empty SQLite or PostgreSQL
+# archive) are in conftest.py
 
 
 def _bad(url: str, run_id: str, **kw: Any) -> dict[str, Any]:

@@ -379,7 +379,7 @@ def _writable(fd: int) -> bool:
 def _who(other: dict[str, Any] | None) -> str:
     if not other:
         return "another process (no details)"
-    if not _alive(other.get("pid")):  # a holder that could not write into another's file
+    if not process_alive(other.get("pid")):  # one that could not write into another's file
         return ("another process, which could not write its details (the file holds those "
                 f"of a finished run: {describe_holder(other)})")
     return describe_holder(other)
@@ -400,7 +400,9 @@ def _user() -> str:
         return str(os.getuid())
 
 
-def _alive(pid: Any) -> bool:
+def process_alive(pid: Any) -> bool:
+    """Whether process ``pid`` (a holder's, as its lock file says) still runs; another user's
+    process counts as running."""
     try:
         os.kill(int(pid), 0)
     except PermissionError:
@@ -423,7 +425,8 @@ def _read_holder(fd: int, wait_s: float) -> dict[str, Any] | None:
             found = obj if isinstance(obj, dict) else None
         except (OSError, ValueError):
             found = None
-        if (found is not None and _alive(found.get("pid"))) or time.monotonic() >= deadline:
+        if ((found is not None and process_alive(found.get("pid")))
+                or time.monotonic() >= deadline):
             return found
         time.sleep(0.02)
 

@@ -37,7 +37,14 @@ from benchctl.devices.base import DeviceIdentity, StandSample
 from benchctl.devices.modbus.stand import ModbusStand, open_stand
 from benchctl.errors import BenchError, DeviceError, SafetyAbort, StandFault, StandInUse
 from benchctl.run import prechecks as pc
-from benchctl.run.lock import StandLock, describe_holder, endpoint_key, lock_dir_of, stand_lock
+from benchctl.run.lock import (
+    StandLock,
+    describe_holder,
+    endpoint_key,
+    lock_dir_of,
+    process_alive,
+    stand_lock,
+)
 
 log = logging.getLogger(__name__)
 
@@ -112,16 +119,6 @@ class ActionOutcome:
 
 
 # ----------------------------------------------------------------------------- reading
-def _pid_alive(pid: Any) -> bool:
-    try:
-        os.kill(int(pid), 0)
-    except PermissionError:
-        return True  # another user's process
-    except (OSError, ValueError, TypeError):
-        return False
-    return True
-
-
 @contextlib.contextmanager
 def _connected(cfg: BenchConfig) -> Iterator[ModbusStand]:
     stand = open_stand(cfg.stand)
@@ -149,7 +146,7 @@ def _state(cfg: BenchConfig, stand: ModbusStand) -> StandState:
     text = stand.map.fault_codes.get(code, "unknown fault") if code else ""
     assert stand.identity is not None
     return StandState(endpoint_key(cfg.stand), stand.link.endpoint, stand.identity, sample, text,
-                      holder, holder is not None and _pid_alive(holder.get("pid")), lock.path)
+                      holder, holder is not None and process_alive(holder.get("pid")), lock.path)
 
 
 def read_state(cfg: BenchConfig) -> StandState:
