@@ -17,7 +17,6 @@ prompt.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import pty
 import select
@@ -37,6 +36,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from junitparser import JUnitXml
+from terminal import on_terminal
 
 from benchctl import exits
 from benchctl.config import SimStandConfig, StandLimits
@@ -129,23 +129,6 @@ class Operator(threading.Thread):
         # timeout: no answer at all
 
 
-@contextlib.contextmanager
-def _terminal(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
-    """This process's stdin and stderr on a pseudo-terminal; yields its master end."""
-    master, slave = pty.openpty()
-    tin = open(slave, encoding="utf-8", closefd=False)  # noqa: SIM115
-    tout = open(slave, "w", encoding="utf-8", closefd=False)  # noqa: SIM115
-    monkeypatch.setattr("sys.stdin", tin)
-    monkeypatch.setattr("sys.stderr", tout)
-    try:
-        yield master
-    finally:
-        tin.close()
-        tout.close()
-        os.close(slave)
-        os.close(master)
-
-
 def _no_step(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The plan's step: a stand-in that touches nothing and passes (names what it was given)."""
     ran: list[str] = []
@@ -201,7 +184,7 @@ def test_every_prompt_every_answer(
     plan = _matrix_plan(tmp_path, bench)
     want = _expected(target, answer)
     exits.reset()
-    with _terminal(monkeypatch) as master, exits.exit_signals():
+    with on_terminal(monkeypatch) as master, exits.exit_signals():
         op = Operator(master, target, answer)
         op.start()
         t0 = time.monotonic()
@@ -263,7 +246,7 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
         "cleanup": [{"check": "ramp_to_zero"}],
     }, tmp_path / "plan.yaml")
     exits.reset()
-    with _terminal(monkeypatch) as master, exits.exit_signals():
+    with on_terminal(monkeypatch) as master, exits.exit_signals():
         op = Operator(master, AREA, answer)
         op.start()
         try:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import pty
 import select
 import socket
 import subprocess
@@ -27,6 +26,7 @@ from typing import Any
 
 import pytest
 import yaml
+from terminal import on_terminal
 
 from benchctl.cli import main
 from benchctl.config import BenchConfig, SimStandConfig, StandLimits, load_config
@@ -237,22 +237,12 @@ def test_home_asks_on_the_terminal_and_a_no_moves_nothing(
 ) -> None:
     sim, cfg_path = bench
     sim.place({"roll": AT_DEG})
-    master, slave = pty.openpty()
-    tin = open(slave, encoding="utf-8", closefd=False)  # noqa: SIM115
-    tout = open(slave, "w", encoding="utf-8", closefd=False)  # noqa: SIM115
-    monkeypatch.setattr("sys.stdin", tin)
-    monkeypatch.setattr("sys.stderr", tout)
-    try:
+    with on_terminal(monkeypatch) as master:
         os.write(master, b"n\n")
         code = main(["stand", "home", "--config", str(cfg_path)])
         seen = b""
         while select.select([master], [], [], 0.2)[0]:
             seen += os.read(master, 4096)
-    finally:
-        tin.close()
-        tout.close()
-        os.close(slave)
-        os.close(master)
     assert code == 2
     assert b"Move stand tcp localhost:" in seen and b"clear of people? [y/N]: " in seen
     assert sim.enables == 0
