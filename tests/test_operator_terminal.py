@@ -162,7 +162,9 @@ def test_analyze_says_aborted_or_incomplete(run_on_a_terminal: tuple[Path, str],
     assert "NOTE" not in capsys.readouterr().out
     assert main(["analyze", str(done), "--axis", "roll", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
+    integrity = doc["recording"].pop("integrity")
     assert doc["recording"] == {"state": "done", "reason": "PASS", "note": None}
+    assert integrity["status"] == "verified" and integrity["problems"] == []
 
     aborted = tmp_path / "aborted"
     shutil.copytree(done, aborted)
