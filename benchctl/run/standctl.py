@@ -186,7 +186,7 @@ def describe(state: StandState, config: Path | str | None = None) -> list[str]:
         lines.append(f"  lock     free (left by {describe_holder(state.holder)}, which has "
                      "ended)")
     if state.faulted:
-        lines.append(f"  to clear {pc.clear_fault_hint(config)}")
+        lines.append(f"  note     {pc.clear_fault_hint(config)}")
     return lines
 
 
