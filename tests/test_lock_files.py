@@ -5,7 +5,7 @@ writable by others without the sticky bit, is refused. The old lock followed a p
 symlink: it truncated the target, wrote JSON into it, chmod'ed it 0666 and removed the link.
 
 Some cases need root (``chown`` to another user, a process of another user): the tests run as
-root in CI, where such a test fails rather than skips if it is not root."""
+root in CI; not root, such a test fails rather than skips."""
 
 from __future__ import annotations
 
@@ -29,10 +29,18 @@ from benchctl.run.lock import LOCK_FILE_MODE, StandLock, lock_file, open_lock_di
 
 KEY = "tcp localhost:5020"
 NOBODY = 65534
-needs_root = pytest.mark.skipif(
-    os.geteuid() != 0 and not os.environ.get("CI"),
-    reason="needs root (chown to another user); CI runs it as root",
-)
+
+
+@pytest.fixture
+def as_root() -> None:
+    """A test that makes files of another user needs root (CI runs as root): without it the
+    test fails, never skips."""
+    if os.geteuid() != 0:
+        pytest.fail("needs root (chown to another user, a process of another user); run the "
+                    "tests as root, as CI does")
+
+
+needs_root = pytest.mark.usefixtures("as_root")
 
 
 def _snapshot(p: Path) -> tuple[bytes, int, int, int]:
