@@ -231,3 +231,17 @@ def write_many(url: str, worker: int, n: int, shared: int) -> int:
                                     axes=("roll", "pitch")))
                 done += 1
     return done
+
+
+# a short sine profile for the archive tests that run a session
+SINE = """name: archive_sine
+description: a short sine for the archive tests
+reference: none (a test)
+kind: sine
+duration_s: 4
+fade_in_s: 0.5
+fade_out_s: 0.5
+seed: 0
+axes:
+  roll: {amplitude_deg: 2.0, period_s: 2.0}
+"""

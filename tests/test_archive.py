@@ -22,7 +22,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
-from archive_helpers import PgServer, age, make_record, make_recording
+from archive_helpers import SINE, PgServer, age, make_record, make_recording
 from sqlalchemy import inspect
 
 from benchctl.archive.ingest import KILLED_REASON, record_of, recording_sha256
@@ -471,18 +471,6 @@ def test_two_processes_writing_at_once_lose_nothing(url: str) -> None:
 
 
 # --- a run through the session --------------------------------------------------------------
-
-SINE = """name: archive_sine
-description: a short sine for the archive tests
-reference: none (a test)
-kind: sine
-duration_s: 4
-fade_in_s: 0.5
-fade_out_s: 0.5
-seed: 0
-axes:
-  roll: {amplitude_deg: 2.0, period_s: 2.0}
-"""
 
 
 def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(

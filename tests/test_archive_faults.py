@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from archive_helpers import PgServer, make_record, make_recording
+from archive_helpers import SINE, PgServer, make_record, make_recording
 from sqlalchemy.exc import OperationalError
 
 from benchctl.archive.service import (
@@ -47,19 +47,6 @@ from benchctl.archive.service import (
 from benchctl.archive.store import Archive, classify
 from benchctl.cli import main
 from benchctl.config import ArchiveConfig
-
-SINE = """name: archive_sine
-description: a short sine for the archive tests
-reference: none (a test)
-kind: sine
-duration_s: 4
-fade_in_s: 0.5
-fade_out_s: 0.5
-seed: 0
-axes:
-  roll: {amplitude_deg: 2.0, period_s: 2.0}
-"""
-
 
 # the fixtures pg (a PostgreSQL server for the module) and url (an empty SQLite or PostgreSQL
 # archive) are in conftest.py
