@@ -74,6 +74,12 @@ def test_cross_axis_coupling_found_and_linear_instrument_clean(tmp_path: Path) -
     assert abs(pitch["coefficient"]) < 0.001, pitch  # no coupling into pitch: ≈ 0
     lo, hi = pitch["coefficient_ci95"]
     assert hi - lo < 0.004
-    for axis in ("roll", "pitch"):  # a linear instrument: no distortion flagged
+    # a linear instrument: the unexcited lines hold noise only. The F test flags up to
+    # α = 1 % of a linear instrument's records by design (two axes: up to 2 % of these runs),
+    # so the check is on the levels, from the other side of the cubic test's: within twice
+    # the noise beside them, where a cubic of this size puts them above it
+    for axis in ("roll", "pitch"):
         d = rep[axis]["distortion"]
-        assert d is not None and not d["detected"], (axis, d["odd"], d["even"])
+        assert d is not None and d["n_periods"] == 2
+        assert d["odd_deg"] < 2 * d["noise_deg"] and d["even_deg"] < 2 * d["noise_deg"], (
+            axis, d["odd_deg"], d["even_deg"], d["noise_deg"], d["detected"])
