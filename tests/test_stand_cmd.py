@@ -216,6 +216,32 @@ def test_reset_and_home_are_refused_while_another_process_holds_the_stand(
     assert main(["stand", "reset", "--config", str(cfg_path), "--yes"]) == 0
 
 
+def test_status_leaves_an_rtu_line_a_run_holds_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """On Modbus RTU a second master would collide with the run's frames on the serial line:
+    status names the holder and never opens the line (here a path that does not exist: an
+    attempt to open it would fail with another message)."""
+    path = _config(tmp_path, 5020)
+    data = yaml.safe_load(path.read_text())
+    data["stand"] = {"driver": "modbus-rtu", "serial_port": str(tmp_path / "ttyNONE"),
+                     "timeout_s": 0.5, "register_map": data["stand"]["register_map"],
+                     "limits": LIMITS}
+    path.write_text(yaml.safe_dump(data))
+    holder = _hold_lock(path)
+    try:
+        assert main(["stand", "status", "--config", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert f"is in use by benchctl run (pid {holder.pid}" in err
+        assert "serial line is not opened while a run holds it" in err
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.close()
+        holder.wait(timeout=30)
+    assert main(["stand", "status", "--config", str(path)]) == 2  # free: it tries the line
+    assert "in use" not in capsys.readouterr().err
+
+
 def test_no_terminal_and_no_yes_is_refused_before_anything(
     bench: tuple[SimStand, Path], capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,

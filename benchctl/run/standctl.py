@@ -150,7 +150,19 @@ def _state(cfg: BenchConfig, stand: ModbusStand) -> StandState:
 
 
 def read_state(cfg: BenchConfig) -> StandState:
-    """The stand's state and its lock's holder; takes no lock and writes nothing."""
+    """The stand's state and its lock's holder; takes no lock and writes nothing.
+
+    A Modbus RTU stand held by a running process is not read: a second master on its serial
+    line would collide with the run's frames (``StandInUse`` names the holder). Over TCP each
+    client has its own connection, and the state is read beside the run."""
+    if cfg.stand.driver == "modbus-rtu":
+        key = endpoint_key(cfg.stand)
+        holder = StandLock(key, lock_dir_of(cfg)).holder()
+        if holder is not None and process_alive(holder.get("pid")):
+            raise StandInUse(
+                f"stand {key} is in use by {describe_holder(holder)}: its serial line is not "
+                "opened while a run holds it (a second Modbus master would collide with the "
+                "run's frames); the run's own display shows the stand", holder)
     with _connected(cfg) as stand:
         return _state(cfg, stand)
 
