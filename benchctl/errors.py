@@ -19,8 +19,11 @@
     │   │   └── ModbusException     the device returned a Modbus exception code
     │   ├── StandFault              the stand reports a fault or an E-stop
     │   └── StandInUse              another benchctl process holds the stand (its lock); names it
-    └── SafetyAbort                 the run was stopped for safety (signal, tracking error, silent
-                                    instrument…); carries the reason
+    ├── SafetyAbort                 the run was stopped for safety (signal, tracking error, silent
+    │                               instrument…); carries the reason
+    └── SimulationHang              a run on simulated time cannot go on: a thread waits outside the
+                                    clock, or every thread waits for something nobody will do;
+                                    names the threads and what each waits on
 
 Example scenarios: a profile asking 30°/s from a stand allowing 20°/s raises ``LimitError``
 before anything moves; a stand that stops answering raises ``DeviceTimeout``; Ctrl-C during a
@@ -169,6 +172,10 @@ class SafetyAbort(BenchError):
     def __init__(self, reason: str) -> None:
         self.reason = reason
         super().__init__(reason)
+
+
+class SimulationHang(BenchError):
+    """A run on simulated time cannot go on (a wait outside the clock, or all threads blocked)."""
 
 
 class Interrupted(KeyboardInterrupt):

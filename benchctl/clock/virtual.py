@@ -1,0 +1,642 @@
+"""Simulated time for threads: one runnable thread at a time, time jumping when all wait.
+
+:class:`VirtualClock` is trio's *autojump clock* applied to threads. Every thread of a simulated
+run is started by the clock (:meth:`VirtualClock.thread`) or is the thread that entered it
+(:meth:`VirtualClock.running`). Exactly one of them holds the *baton* and runs; it gives the
+baton up only at one of the clock's waits (``sleep``, ``Event.wait``, ``Lock.acquire``,
+``Condition.wait``, ``Queue.get``, ``Thread.join``). The baton then goes to the thread that was
+made runnable first (FIFO); when no thread is runnable, time jumps to the earliest deadline and
+the thread waiting for it runs. Nothing depends on the host's speed or its scheduler, so a run
+with the same inputs makes the same calls in the same order on the same simulated instants.
+
+Hazards, and what the clock does about them:
+
+- A thread that waits *outside* the clock (``time.sleep``, a socket, a plain ``threading``
+  lock) keeps the baton and everything stops. A real-time watchdog (``hang_s`` of the host's
+  time without one hand-over) names the thread and the line it is on, raises
+  :class:`~benchctl.errors.SimulationHang` in it (delivered as soon as it runs Python code
+  again) and keeps the message in :attr:`VirtualClock.hang`.
+- Every thread waiting with no deadline and nobody left to wake it: the thread that entered the
+  clock gets :class:`~benchctl.errors.SimulationHang` naming each thread and what it waits on.
+- A clock primitive used from a thread the clock did not start raises ``SimulationHang`` at
+  once (it would break the one-at-a-time rule).
+- When the entering thread leaves :meth:`running`, threads still alive are ended: their pending
+  wait raises :class:`ClockClosed` (a ``BaseException``, so ``except Exception`` loops unwind).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import heapq
+import itertools
+import logging
+import queue
+import sys
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from typing import Any
+
+from benchctl.errors import SimulationHang
+
+log = logging.getLogger(__name__)
+
+#: the default epoch of a simulated run's wall time: recordings made on simulated time carry
+#: stamps from here, never the host's date
+DEFAULT_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)
+
+
+class ClockClosed(BaseException):  # noqa: N818 (not an error: the clock ended the thread)
+    """Raised in a thread still waiting when the run that entered the clock has left it."""
+
+
+class _Task:
+    __slots__ = (
+        "blocked",
+        "done",
+        "error",
+        "ident",
+        "joiners",
+        "kill",
+        "name",
+        "sem",
+        "timed_out",
+        "wait_id",
+        "waiting_on",
+    )
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.sem = threading.Lock()
+        self.sem.acquire()  # locked: the thread waits on it until it is handed the baton
+        self.blocked = False
+        self.timed_out = False
+        self.wait_id = 0
+        self.waiting_on = ""
+        self.done = False
+        self.kill = False
+        self.error: BaseException | None = None
+        self.ident: int | None = None
+        self.joiners: list[_Task] = []
+
+
+class VirtualClock:
+    """Simulated time (see the module's text).
+
+    ``start_s``: the value of :meth:`monotonic` at the start. ``epoch``: the UTC wall time at
+    that moment (:meth:`time`, :meth:`now_utc`). ``hang_s``: host seconds without a hand-over
+    after which the watchdog reports the thread holding the baton.
+    """
+
+    virtual = True
+
+    def __init__(
+        self,
+        *,
+        start_s: float = 1000.0,
+        epoch: datetime = DEFAULT_EPOCH,
+        hang_s: float = 120.0,
+    ) -> None:
+        self._t0 = float(start_s)
+        self._now = float(start_s)
+        self._epoch = epoch.timestamp()
+        self.hang_s = hang_s
+        self._mu = threading.Lock()
+        self._ready: deque[_Task] = deque()
+        self._timers: list[tuple[float, int, _Task, int]] = []
+        self._seq = itertools.count()
+        self._tasks: dict[int, _Task] = {}
+        self._alive: list[_Task] = []
+        self._current: _Task | None = None
+        self._root: _Task | None = None
+        self._closing = False
+        #: hand-overs of the baton so far (the watchdog's sign of progress)
+        self.switches = 0
+        #: the watchdog's or the deadlock detector's message, if either fired
+        self.hang: str | None = None
+        self._watchdog: threading.Thread | None = None
+        self._watchdog_stop = threading.Event()
+
+    # -- time -----------------------------------------------------------------------------
+    def monotonic(self) -> float:
+        return self._now
+
+    def time(self) -> float:
+        return self._epoch + (self._now - self._t0)
+
+    def now_utc(self) -> datetime:
+        return datetime.fromtimestamp(self.time(), UTC)
+
+    def sleep(self, seconds: float) -> None:
+        self._block("sleep", self._now + max(0.0, seconds))
+
+    def compute(self, seconds: float) -> None:
+        if seconds > 0:
+            self._block("compute", self._now + seconds)
+
+    # -- primitives -----------------------------------------------------------------------
+    def event(self) -> VEvent:
+        return VEvent(self)
+
+    def lock(self) -> VLock:
+        return VLock(self)
+
+    def rlock(self) -> VRLock:
+        return VRLock(self)
+
+    def condition(self, lock: Any = None) -> VCondition:
+        return VCondition(self, lock if lock is not None else VRLock(self))
+
+    def queue(self, maxsize: int = 0) -> VQueue:
+        return VQueue(self, maxsize)
+
+    def thread(
+        self,
+        target: Callable[..., Any],
+        *,
+        name: str,
+        args: tuple[Any, ...] = (),
+        daemon: bool = True,
+    ) -> VThread:
+        return VThread(self, target, name=name, args=args)
+
+    # -- entering ---------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def running(self) -> Iterator[VirtualClock]:
+        """Make the calling thread the clock's first thread for the ``with`` block."""
+        me = threading.get_ident()
+        with self._mu:
+            if self._root is not None:
+                raise SimulationHang("the virtual clock is already running")
+            task = _Task(threading.current_thread().name)
+            task.ident = me
+            self._tasks[me] = task
+            self._alive.append(task)
+            self._root = task
+            self._current = task
+        self._watchdog_stop.clear()
+        self._watchdog = threading.Thread(
+            target=self._watch, name="virtual-clock-watchdog", daemon=True
+        )
+        self._watchdog.start()
+        try:
+            yield self
+        finally:
+            self._end_others(task)
+            self._watchdog_stop.set()
+            with self._mu:
+                task.done = True
+                self._alive.remove(task)
+                del self._tasks[me]
+                self._root = None
+                self._current = None
+                self._closing = False
+
+    def _end_others(self, root: _Task) -> None:
+        """End every thread still alive: their waits raise ClockClosed, one after another."""
+        with self._mu:
+            self._closing = True
+            for t in self._alive:
+                if t is not root:
+                    t.kill = True
+                    self._wake(t)
+        while True:
+            with self._mu:
+                others = [t for t in self._alive if t is not root]
+            if not others:
+                return
+            try:
+                self._block("ending the clock's threads", None, closing_ok=True)
+            except ClockClosed:  # pragma: no cover - the root is never killed
+                return
+
+    # -- the scheduler ------------------------------------------------------------------------
+    def _me(self) -> _Task:
+        task = self._tasks.get(threading.get_ident())
+        if task is None:
+            raise SimulationHang(
+                f"thread {threading.current_thread().name!r} used the virtual clock but was not "
+                "started by it (start threads of a simulated run with clock.thread())"
+            )
+        return task
+
+    def _wake(self, task: _Task) -> None:
+        """Make a blocked task runnable (with ``_mu`` held)."""
+        if task.blocked:
+            task.blocked = False
+            task.timed_out = False
+            task.wait_id += 1
+            self._ready.append(task)
+
+    def _next(self) -> _Task:
+        """The task to run next (with ``_mu`` held): the first runnable, else time jumps."""
+        if self._ready:
+            return self._ready.popleft()
+        while self._timers:
+            deadline, _, task, wid = heapq.heappop(self._timers)
+            if task.blocked and task.wait_id == wid:
+                if deadline > self._now:
+                    self._now = deadline
+                task.blocked = False
+                task.timed_out = True
+                task.wait_id += 1
+                return task
+        return self._deadlock()
+
+    def _deadlock(self) -> _Task:
+        lines = [f"  {t.name}: waits on {t.waiting_on or '?'}" for t in self._alive if t.blocked]
+        msg = (
+            f"simulated time {self._now - self._t0:.3f} s: every thread waits with no deadline "
+            "and nothing left to wake it:\n" + "\n".join(lines)
+        )
+        self.hang = msg
+        victim = self._root if self._root is not None and self._root.blocked else None
+        if victim is None:
+            victim = next(t for t in self._alive if t.blocked)
+        victim.blocked = False
+        victim.wait_id += 1
+        victim.error = SimulationHang(msg)
+        return victim
+
+    def _block(self, what: str, deadline: float | None, *, closing_ok: bool = False) -> bool:
+        """Give the baton up until woken (True) or ``deadline`` passes (False)."""
+        task = self._me()
+        with self._mu:
+            if task.kill and not closing_ok:
+                raise ClockClosed
+            task.blocked = True
+            task.timed_out = False
+            task.waiting_on = what
+            if deadline is not None:
+                heapq.heappush(self._timers, (deadline, next(self._seq), task, task.wait_id))
+            elif closing_ok:
+                self._ready.append(task)  # the root yields while the others end
+                task.blocked = False
+            nxt = self._next()
+            self._current = nxt
+            self.switches += 1
+            if nxt is not task:
+                nxt.sem.release()
+        if nxt is not task:
+            task.sem.acquire()
+        if task.error is not None:
+            err, task.error = task.error, None
+            raise err
+        if task.kill and not closing_ok:
+            raise ClockClosed
+        return not task.timed_out
+
+    def _leave(self, task: _Task) -> None:
+        """A clock thread ends: wake its joiners and hand the baton on."""
+        with self._mu:
+            task.done = True
+            self._alive.remove(task)
+            self._tasks.pop(task.ident or 0, None)
+            for j in task.joiners:
+                self._wake(j)
+            task.joiners.clear()
+            nxt = self._next()
+            self._current = nxt
+            self.switches += 1
+            nxt.sem.release()
+
+    # -- the watchdog -------------------------------------------------------------------------
+    def _watch(self) -> None:
+        last = self.switches
+        quiet_since = time.monotonic()
+        while not self._watchdog_stop.wait(min(1.0, self.hang_s / 4)):
+            if self.switches != last:
+                last = self.switches
+                quiet_since = time.monotonic()
+                continue
+            if time.monotonic() - quiet_since < self.hang_s:
+                continue
+            cur = self._current
+            if cur is None or cur.ident is None:
+                continue
+            frame = sys._current_frames().get(cur.ident)
+            where = "".join(traceback.format_stack(frame, limit=6)) if frame else "?"
+            self.hang = (
+                f"simulated time {self._now - self._t0:.3f} s: thread {cur.name!r} has held "
+                f"the clock for {self.hang_s:g} s of host time without waiting on it (a wait "
+                f"outside the clock, or a loop that never waits); it is at:\n{where}"
+            )
+            log.error("%s", self.hang)
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(
+                ctypes.c_ulong(cur.ident), ctypes.py_object(SimulationHang)
+            )
+            quiet_since = time.monotonic()
+
+
+class VEvent:
+    """``threading.Event`` on a :class:`VirtualClock`."""
+
+    def __init__(self, clock: VirtualClock) -> None:
+        self._c = clock
+        self._flag = False
+        self._waiters: list[_Task] = []
+
+    def is_set(self) -> bool:
+        return self._flag
+
+    def set(self) -> None:
+        with self._c._mu:
+            self._flag = True
+            for t in self._waiters:
+                self._c._wake(t)
+            self._waiters.clear()
+
+    def clear(self) -> None:
+        self._flag = False
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if self._flag:
+            return True
+        if timeout is not None and timeout <= 0:
+            return False
+        c = self._c
+        task = c._me()
+        self._waiters.append(task)
+        deadline = None if timeout is None else c._now + timeout
+        if not c._block("Event.wait", deadline):
+            with c._mu:
+                if task in self._waiters:
+                    self._waiters.remove(task)
+        return self._flag
+
+
+class VLock:
+    """``threading.Lock`` on a :class:`VirtualClock` (FIFO hand-over on release)."""
+
+    def __init__(self, clock: VirtualClock) -> None:
+        self._c = clock
+        self._owner: _Task | None = None
+        self._waiters: deque[_Task] = deque()
+
+    def locked(self) -> bool:
+        return self._owner is not None
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        c = self._c
+        task = c._me()
+        with c._mu:
+            if self._owner is None:
+                self._owner = task
+                return True
+            if not blocking or timeout == 0:
+                return False
+            self._waiters.append(task)
+        deadline = None if timeout is None or timeout < 0 else c._now + timeout
+        if c._block(f"{type(self).__name__}.acquire", deadline):
+            return True
+        with c._mu:
+            if self._owner is task:  # handed over as the timeout fell
+                return True
+            if task in self._waiters:
+                self._waiters.remove(task)
+        return False
+
+    def release(self) -> None:
+        c = self._c
+        with c._mu:
+            if self._waiters:
+                nxt = self._waiters.popleft()
+                self._owner = nxt
+                c._wake(nxt)
+            else:
+                self._owner = None
+
+    def _release_save(self) -> Any:
+        self.release()
+        return None
+
+    def _acquire_restore(self, saved: Any) -> None:
+        self.acquire()
+
+    def __enter__(self) -> bool:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class VRLock(VLock):
+    """``threading.RLock`` on a :class:`VirtualClock`."""
+
+    def __init__(self, clock: VirtualClock) -> None:
+        super().__init__(clock)
+        self._count = 0
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        task = self._c._me()
+        if self._owner is task:
+            self._count += 1
+            return True
+        if super().acquire(blocking, timeout):
+            self._count = 1
+            return True
+        return False
+
+    def release(self) -> None:
+        if self._owner is not self._c._me():
+            raise RuntimeError("cannot release un-acquired lock")
+        self._count -= 1
+        if self._count == 0:
+            super().release()
+
+    def _release_save(self) -> Any:
+        n = self._count
+        self._count = 1
+        self.release()
+        return n
+
+    def _acquire_restore(self, saved: Any) -> None:
+        self.acquire()
+        self._count = int(saved)
+
+
+class VCondition:
+    """``threading.Condition`` on a :class:`VirtualClock`."""
+
+    def __init__(self, clock: VirtualClock, lock: Any) -> None:
+        self._c = clock
+        self._lock = lock
+        self._waiters: deque[_Task] = deque()
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        return bool(self._lock.acquire(blocking, timeout))
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def __enter__(self) -> bool:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        c = self._c
+        task = c._me()
+        self._waiters.append(task)
+        saved = self._lock._release_save()
+        deadline = None if timeout is None else c._now + max(0.0, timeout)
+        ok = c._block("Condition.wait", deadline)
+        if not ok:
+            with c._mu:
+                if task in self._waiters:
+                    self._waiters.remove(task)
+        self._lock._acquire_restore(saved)
+        return ok
+
+    def wait_for(self, predicate: Callable[[], Any], timeout: float | None = None) -> Any:
+        end = None if timeout is None else self._c._now + timeout
+        result = predicate()
+        while not result:
+            left = None if end is None else end - self._c._now
+            if left is not None and left <= 0:
+                break
+            self.wait(left)
+            result = predicate()
+        return result
+
+    def notify(self, n: int = 1) -> None:
+        with self._c._mu:
+            for _ in range(min(n, len(self._waiters))):
+                self._c._wake(self._waiters.popleft())
+
+    def notify_all(self) -> None:
+        self.notify(len(self._waiters))
+
+
+class VQueue:
+    """``queue.Queue`` on a :class:`VirtualClock` (raises ``queue.Empty``/``queue.Full``)."""
+
+    def __init__(self, clock: VirtualClock, maxsize: int = 0) -> None:
+        self._c = clock
+        self.maxsize = maxsize
+        self._items: deque[Any] = deque()
+        self._getters: deque[_Task] = deque()
+        self._putters: deque[_Task] = deque()
+
+    def qsize(self) -> int:
+        return len(self._items)
+
+    def empty(self) -> bool:
+        return not self._items
+
+    def full(self) -> bool:
+        return 0 < self.maxsize <= len(self._items)
+
+    def _wait(self, waiters: deque[_Task], what: str, end: float | None) -> bool:
+        c = self._c
+        task = c._me()
+        waiters.append(task)
+        if not c._block(what, end):
+            with c._mu:
+                if task in waiters:
+                    waiters.remove(task)
+            return False
+        return True
+
+    def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None:
+        end = None if timeout is None else self._c._now + timeout
+        while self.full():
+            if not block or not self._wait(self._putters, "Queue.put", end):
+                if self.full():
+                    raise queue.Full
+        self._items.append(item)
+        with self._c._mu:
+            if self._getters:
+                self._c._wake(self._getters.popleft())
+
+    def put_nowait(self, item: Any) -> None:
+        self.put(item, block=False)
+
+    def get(self, block: bool = True, timeout: float | None = None) -> Any:
+        end = None if timeout is None else self._c._now + timeout
+        while not self._items:
+            if not block or (end is not None and end <= self._c._now):
+                raise queue.Empty
+            if not self._wait(self._getters, "Queue.get", end) and not self._items:
+                raise queue.Empty
+        item = self._items.popleft()
+        with self._c._mu:
+            if self._putters:
+                self._c._wake(self._putters.popleft())
+        return item
+
+    def get_nowait(self) -> Any:
+        return self.get(block=False)
+
+
+class VThread:
+    """``threading.Thread`` on a :class:`VirtualClock`: runs only while it holds the baton."""
+
+    def __init__(
+        self,
+        clock: VirtualClock,
+        target: Callable[..., Any],
+        *,
+        name: str,
+        args: tuple[Any, ...] = (),
+    ) -> None:
+        self._c = clock
+        self._target = target
+        self._args = args
+        self.name = name
+        self.daemon = True
+        self._task: _Task | None = None
+
+    def start(self) -> None:
+        c = self._c
+        c._me()  # only a clock thread may start one
+        task = _Task(self.name)
+        self._task = task
+        registered = threading.Event()
+
+        def body() -> None:
+            task.ident = threading.get_ident()
+            with c._mu:
+                c._tasks[task.ident] = task
+            registered.set()
+            task.sem.acquire()  # wait for the baton
+            try:
+                if not task.kill:
+                    self._target(*self._args)
+            except ClockClosed:
+                pass
+            except BaseException:
+                exc_type, exc, tb = sys.exc_info()
+                threading.excepthook(
+                    threading.ExceptHookArgs((exc_type, exc, tb, threading.current_thread()))
+                )
+            finally:
+                c._leave(task)
+
+        real = threading.Thread(target=body, name=self.name, daemon=True)
+        with c._mu:
+            c._alive.append(task)
+            c._ready.append(task)
+        real.start()
+        registered.wait()  # a host wait of microseconds: the ident must be known before it runs
+
+    def join(self, timeout: float | None = None) -> None:
+        task = self._task
+        if task is None or task.done:
+            return
+        c = self._c
+        me = c._me()
+        task.joiners.append(me)
+        deadline = None if timeout is None else c._now + timeout
+        if not c._block(f"join {self.name}", deadline):
+            with c._mu:
+                if me in task.joiners:
+                    task.joiners.remove(me)
+
+    def is_alive(self) -> bool:
+        return self._task is not None and not self._task.done
