@@ -151,11 +151,11 @@ def test_join_with_timeout() -> None:
 
 def test_every_thread_waiting_forever_is_a_named_hang() -> None:
     clock = VirtualClock(start_s=0.0)
-    with pytest.raises(SimulationHang, match=r"(?s)every thread waits.*stuck: waits on Event"):
-        with clock.running():
-            never = clock.event()
-            clock.thread(never.wait, name="stuck").start()
-            never.wait()
+    hang = r"(?s)every thread waits.*stuck: waits on Event"
+    with pytest.raises(SimulationHang, match=hang), clock.running():
+        never = clock.event()
+        clock.thread(never.wait, name="stuck").start()
+        never.wait()
 
 
 def test_a_wait_outside_the_clock_is_named_by_the_watchdog() -> None:
@@ -179,7 +179,7 @@ def test_a_thread_not_started_by_the_clock_is_refused() -> None:
             except SimulationHang as e:
                 errors.append(e)
 
-        t = threading.Thread(target=outsider)  # noqa: TID251 (the point of the test)
+        t = threading.Thread(target=outsider)  # the point: a thread the clock did not start
         t.start()
         t.join()
     assert errors and "not started by it" in str(errors[0])

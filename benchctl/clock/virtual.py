@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 DEFAULT_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)
 
 
-class ClockClosed(BaseException):  # noqa: N818 (not an error: the clock ended the thread)
+class ClockClosed(BaseException):
     """Raised in a thread still waiting when the run that entered the clock has left it."""
 
 
@@ -546,9 +546,9 @@ class VQueue:
     def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None:
         end = None if timeout is None else self._c._now + timeout
         while self.full():
-            if not block or not self._wait(self._putters, "Queue.put", end):
-                if self.full():
-                    raise queue.Full
+            waited = block and self._wait(self._putters, "Queue.put", end)
+            if not waited and self.full():
+                raise queue.Full
         self._items.append(item)
         with self._c._mu:
             if self._getters:
