@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
+from types import TracebackType
 from typing import Any, Protocol
 
 __all__ = [
@@ -50,7 +51,9 @@ class LockLike(Protocol):
     def acquire(self, blocking: bool = True, timeout: float = -1) -> bool: ...
     def release(self) -> None: ...
     def __enter__(self) -> Any: ...
-    def __exit__(self, *exc: object) -> Any: ...
+    def __exit__(
+        self, t: type[BaseException] | None, v: BaseException | None, tb: TracebackType | None, /
+    ) -> Any: ...
 
 
 class ConditionLike(LockLike, Protocol):
@@ -149,7 +152,7 @@ class RealClock:
         return threading.RLock()
 
     def condition(self, lock: LockLike | None = None) -> ConditionLike:
-        return threading.Condition(lock)  # type: ignore[arg-type]
+        return threading.Condition(lock)  # type: ignore[arg-type]  # a threading lock here
 
     def queue(self, maxsize: int = 0) -> QueueLike:
         return queue.Queue(maxsize)
