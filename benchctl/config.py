@@ -271,6 +271,25 @@ class SimConfig(Strict):
     instrument: SimInstrumentConfig = SimInstrumentConfig()
     faults: tuple[SimFault, ...] = ()
     motion_threshold_deg: Positive = 0.01  # "the stand first moves": |true angle| beyond this
+    #: ``real``: the simulators run beside the run on the host's time, over a TCP socket and
+    #: pseudo-terminals; ``virtual``: in the run's process on simulated time, over in-process
+    #: links (``benchctl.channels``) — a 15-minute test in about a minute, the same bytes
+    #: every time
+    clock: Literal["real", "virtual"] = "real"
+    #: simulated time: the UTC wall time at its start (every stamp of the run follows from it)
+    epoch_utc: datetime.datetime = datetime.datetime(2026, 1, 1, tzinfo=datetime.UTC)
+    #: simulated time: one way latency of the stand's link (Modbus TCP; RTU adds byte times)
+    link_latency_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0005
+    #: simulated time: the host computation charged to each cycle of the stand loop, so a loop
+    #: too slow for its rate still shows as one
+    host_cost_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0002
+
+    @field_validator("epoch_utc")
+    @classmethod
+    def _aware(cls, t: datetime.datetime) -> datetime.datetime:
+        if t.tzinfo is None:
+            raise ValueError("needs a time zone (e.g. 2026-01-01T00:00:00Z)")
+        return t.astimezone(datetime.UTC)
 
 
 class EqualiseConfig(Strict):

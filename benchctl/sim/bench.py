@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import errno
 import socket
-import threading
-import time
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from benchctl.channels import free_name, register, unregister
+from benchctl.clock import REAL, Clock
 from benchctl.config import BenchConfig, SimConfig
 from benchctl.errors import ConfigError, DeviceError
 from benchctl.sim.instrument import SimInstrument
@@ -33,7 +33,9 @@ from benchctl.sim.stand import SimStand
 class SimBench:
     """Simulated stand + simulated instrument on it, started and stopped together."""
 
-    def __init__(self, cfg: BenchConfig, *, private: bool = False) -> None:
+    def __init__(
+        self, cfg: BenchConfig, *, private: bool = False, clock: Clock = REAL
+    ) -> None:
         if cfg.sim is None:
             raise ConfigError(
                 f"{cfg.source}: field sim: missing; the simulators need a sim: section "
@@ -42,6 +44,9 @@ class SimBench:
         self.cfg = cfg
         self.sim: SimConfig = cfg.sim
         self.private = private
+        self.clock = clock
+        #: in-process links on ``clock`` instead of a socket and ptys (always on simulated time)
+        self.in_process = clock.virtual
         sc = cfg.stand
         rtu = sc.driver == "modbus-rtu"
         stand_link = None if private or not rtu else _link(sc.serial_port)
@@ -49,11 +54,14 @@ class SimBench:
             self.sim.stand,
             limits=sc.limits,
             register_map=sc.register_map,
-            transport="rtu" if rtu else "tcp",
+            transport="channel" if self.in_process else ("rtu" if rtu else "tcp"),
+            framing="rtu" if rtu else "tcp",
             host=sc.host if not private else "127.0.0.1",
             port=0 if private else sc.port,
             link_path=stand_link,
             device_id=sc.device_id,
+            clock=clock,
+            channel_latency_s=self.sim.link_latency_s,
         )
         ic = cfg.instrument
         where = ic.serial_port if ic.driver == "nmea0183" else ic.channel
@@ -61,10 +69,13 @@ class SimBench:
             self.sim.instrument,
             ic,
             self.stand,
-            link_path=None if private else _link(where),
+            link_path=None if private or self.in_process else _link(where),
+            clock=clock,
+            channel=free_name("sim-instrument") if self.in_process else None,
         )
-        self._stop = threading.Event()
-        self._scheduler: threading.Thread | None = None
+        self._stop = clock.event()
+        self._scheduler: Any = None
+        self._stand_url: str | None = None
         self.motion_started_at: float | None = None
         self.injected: list[tuple[float, str, str]] = []  # (time, target, kind)
 
@@ -75,6 +86,8 @@ class SimBench:
         self._check_listen()
         try:
             self.stand.start()
+            if self.stand.client_endpoint is not None:
+                self._stand_url = register(free_name("sim-stand"), self.stand.client_endpoint)
         except (OSError, RuntimeError) as e:  # pymodbus: "Could not start listen" (a race)
             self._check_listen()
             raise DeviceError(f"the simulated stand did not start: {e}") from None
@@ -84,9 +97,7 @@ class SimBench:
             self.stand.stop()
             raise
         if self.sim.faults:
-            self._scheduler = threading.Thread(
-                target=self._run_schedule, name="sim-fault-schedule", daemon=True
-            )
+            self._scheduler = self.clock.thread(self._run_schedule, name="sim-fault-schedule")
             self._scheduler.start()
         return self
 
@@ -128,6 +139,10 @@ class SimBench:
             self._scheduler = None
         self.instrument.stop()
         self.stand.stop()
+        if self._stand_url is not None:
+            unregister(self._stand_url)
+        if self.instrument.channel_name is not None:
+            unregister(self.instrument.channel_name)
 
     def __enter__(self) -> SimBench:
         return self.start()
@@ -140,8 +155,11 @@ class SimBench:
     # -- where they are -------------------------------------------------------------------
     def endpoints(self) -> dict[str, dict[str, Any]]:
         """Where the drivers should connect: {"stand": {...}, "instrument": {...}}."""
-        if self.stand.transport == "tcp":
-            stand: dict[str, Any] = {"host": self.stand.host, "port": self.stand.port}
+        if self.stand.transport == "channel":
+            key = "serial_port" if self.stand.framing == "rtu" else "host"
+            stand: dict[str, Any] = {key: self._stand_url}
+        elif self.stand.transport == "tcp":
+            stand = {"host": self.stand.host, "port": self.stand.port}
         else:
             stand = {"serial_port": self.stand.serial_port}
         if self.instrument.is_can:
@@ -166,23 +184,23 @@ class SimBench:
 
     # -- fault schedule -----------------------------------------------------------------------
     def _moving(self) -> bool:
-        angles = self.stand.true_angles(time.monotonic())
+        angles = self.stand.true_angles(self.clock.monotonic())
         return any(abs(v) > self.sim.motion_threshold_deg for v in angles.values())
 
     def _run_schedule(self) -> None:
         while not self._stop.wait(0.005):
             if self._moving():
-                self.motion_started_at = time.monotonic()
+                self.motion_started_at = self.clock.monotonic()
                 break
         else:
             return
         for fault in sorted(self.sim.faults, key=lambda f: f.after_motion_s):
             due = self.motion_started_at + fault.after_motion_s
-            if self._stop.wait(max(0.0, due - time.monotonic())):
+            if self._stop.wait(max(0.0, due - self.clock.monotonic())):
                 return
             target = self.stand if fault.target == "stand" else self.instrument
             target.inject(fault.kind, **fault.params)
-            self.injected.append((time.monotonic(), fault.target, fault.kind))
+            self.injected.append((self.clock.monotonic(), fault.target, fault.kind))
 
 
 def _link(where: str | None) -> Path | None:

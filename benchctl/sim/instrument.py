@@ -44,8 +44,6 @@ import math
 import random
 import select
 import struct
-import threading
-import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -54,6 +52,9 @@ from typing import Any
 import can
 import canopen
 
+from benchctl.channels import link as channel_link
+from benchctl.channels import register as register_channel
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig, SimInstrumentConfig
 from benchctl.devices.base import AXES
 from benchctl.errors import ConfigError
@@ -144,7 +145,13 @@ class SimInstrument:
         motion: MotionSource,
         *,
         link_path: Path | None = None,
+        clock: Clock = REAL,
+        channel: str | None = None,
     ) -> None:
+        self.clock = clock
+        #: transport "channel": the name of the in-process link (``simchan://NAME``) the driver
+        #: opens instead of a pty; its bytes take the serial byte time of ``instrument_cfg``
+        self.channel_name = channel
         self.cfg = instrument_cfg
         self.model_cfg = model_cfg
         self.model = InstrumentModel(model_cfg, AXES)
@@ -161,18 +168,18 @@ class SimInstrument:
         self.counts = {"samples": 0, "sent": 0, "garbled": 0, "overflow": 0, "skipped": 0,
                        "sdo": 0, "raw": 0}
         self._raw: deque[bytes] = deque()
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
         self._faults: dict[str, dict[str, Any]] = {}
         self._rng = random.Random(model_cfg.seed + 7919)
         self._last_y: dict[str, float] | None = None
-        self._port: PtyPort | None = None
+        self._port: Any = None  # a PtyPort, or a _ChannelPort on an in-process link
         self._adapter: SlcanAdapter | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._ready = threading.Event()
+        self._thread: Any = None
+        self._stop = clock.event()
+        self._ready = clock.event()
         self._start_error: BaseException | None = None
         self._bus_out: list[can.Message] = []
-        self._utc_offset = time.time() - time.monotonic()
+        self._utc_offset = clock.time() - clock.monotonic()
         self._net: _SimNetwork | None = None
         self._node: Any = None
         self._res_mdeg = 10
@@ -184,13 +191,21 @@ class SimInstrument:
         """Open the pty and start publishing; returns when the pty is ready."""
         if self._thread is not None:
             return
-        self._port = PtyPort(self.link_path)
+        run: Any = self._run
+        if self.channel_name is not None:
+            self._port = _ChannelPort(self.clock, self.channel_name, self.cfg.baudrate)
+            run = self._run_channel
+        else:
+            if self.clock.virtual:
+                raise ConfigError("SimInstrument: simulated time needs an in-process channel "
+                                  "(a pty runs on the host's time)")
+            self._port = PtyPort(self.link_path)
         self.serial_port = self.channel = self._port.path
         if self.is_can:
-            self._adapter = SlcanAdapter(self.cfg.bitrate, self._on_host_frame)
+            self._adapter = SlcanAdapter(self.cfg.bitrate, self._on_host_frame,
+                                         clock=self.clock.monotonic)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"sim-instrument-{self.driver}",
-                                        daemon=True)
+        self._thread = self.clock.thread(run, name=f"sim-instrument-{self.driver}")
         self._thread.start()
         self._ready.wait(5.0)
 
@@ -285,7 +300,7 @@ class SimInstrument:
             return
         if msg.arbitration_id == 0x600 + self.cfg.node_id:
             self.counts["sdo"] += 1
-        self._net.notify(msg.arbitration_id, bytearray(msg.data), time.time())
+        self._net.notify(msg.arbitration_id, bytearray(msg.data), self.clock.time())
 
     # ------------------------------------------------------------------ encoding
     def _frames(self, k: int, t: float, y: Mapping[str, float]) -> list[can.Message]:
@@ -399,7 +414,7 @@ class SimInstrument:
         return {ax: float(a.get(ax, 0.0)) for ax in AXES}
 
     # ------------------------------------------------------------------ the loop
-    def _serve_host(self, port: PtyPort) -> None:
+    def _serve_host(self, port: PtyPort | _ChannelPort) -> None:
         data = port.read()
         if not data or self._adapter is None:
             return
@@ -415,7 +430,7 @@ class SimInstrument:
         port = self._port
         assert port is not None
         period = self.model.period_s
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
         k = 1
         self._ready.set()
         try:
@@ -426,7 +441,7 @@ class SimInstrument:
                 fd = port.master_fd
                 assert fd is not None
                 next_t = t0 + k * period
-                wait = min(max(0.0, next_t - time.monotonic()), 0.05)
+                wait = min(max(0.0, next_t - self.clock.monotonic()), 0.05)
                 rlist, wlist, _ = select.select([fd], [fd] if port.has_pending else [], [], wait)
                 if rlist:
                     self._serve_host(port)
@@ -437,7 +452,7 @@ class SimInstrument:
                         self.counts["raw"] += 1
                     else:
                         self.counts["overflow"] += 1
-                now = time.monotonic()
+                now = self.clock.monotonic()
                 if now - next_t > _MAX_CATCH_UP_S:  # stalled: do not burst, skip (counted)
                     k_now = int((now - t0) / period)
                     self.counts["skipped"] += k_now - k
@@ -453,7 +468,71 @@ class SimInstrument:
                 port.close()
             raise
 
+    def _run_channel(self) -> None:
+        """The loop on an in-process link: wait for the host's bytes or the next output
+        instant on the clock; every instant is served (the clock never leaves one behind)."""
+        port = self._port
+        assert isinstance(port, _ChannelPort)
+        clock = self.clock
+        period = self.model.period_s
+        t0 = clock.monotonic()
+        k = 1
+        self._ready.set()
+        try:
+            while not self._stop.is_set():
+                if "drop" in self._faults:
+                    port.close()
+                    return
+                next_t = t0 + k * period
+                port.wait(max(0.0, next_t - clock.monotonic()))
+                self._serve_host(port)
+                while self._raw:
+                    port.write(self._raw.popleft())
+                    self.counts["raw"] += 1
+                now = clock.monotonic()
+                while now >= next_t:
+                    self._tick(k, next_t)
+                    k += 1
+                    next_t = t0 + k * period
+        except Exception as e:  # a simulator bug must not pass for a silent instrument
+            self._start_error = e
+            port.close()
+            raise
+
     @property
     def error(self) -> BaseException | None:
         """The exception that ended the simulator's thread, if any."""
         return self._start_error
+
+
+class _ChannelPort:
+    """The simulator's side of an in-process link, with the calls ``PtyPort`` offers."""
+
+    def __init__(self, clock: Clock, name: str, baudrate: int) -> None:
+        host, self._ep = channel_link(clock, name, byte_time_s=10.0 / baudrate)
+        self.path = register_channel(name, host)
+        self._host = host
+        self.has_pending = False
+        self.master_fd = None
+
+    @property
+    def closed(self) -> bool:
+        return self._ep.closed
+
+    def wait(self, timeout: float) -> None:
+        self._ep.wait_readable(timeout)
+
+    def read(self) -> bytes:
+        return self._ep.read(1 << 16, 0.0) if not self._ep.closed else b""
+
+    def write(self, data: bytes) -> bool:
+        if self._ep.closed:
+            return False
+        self._ep.write(data)
+        return True
+
+    def flush(self) -> None:
+        return None
+
+    def close(self) -> None:
+        self._ep.close()

@@ -52,6 +52,9 @@ from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
+from benchctl.channels import Endpoint
+from benchctl.channels import link as channel_link
+from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map
 from benchctl.errors import ConfigError, DeviceError
@@ -117,8 +120,15 @@ class SimStand:
     register_map
         Path of the register-map YAML shared with the driver.
     transport
-        ``"tcp"`` (``host``, ``port``; port 0 picks a free port) or ``"rtu"`` (a pty pair;
-        ``serial_port`` is the path for the client, also symlinked at ``link_path``).
+        ``"tcp"`` (``host``, ``port``; port 0 picks a free port), ``"rtu"`` (a pty pair;
+        ``serial_port`` is the path for the client, also symlinked at ``link_path``) or
+        ``"channel"``: an in-process link on ``clock`` (:mod:`benchctl.channels`) carrying
+        ``framing`` frames (``"tcp"`` MBAP or ``"rtu"``, whose bytes take their serial byte
+        time), the host end in :attr:`client_endpoint` once started. Every transport hands
+        request bytes to the stand's one entry point, :class:`benchctl.sim.stand_wire.StandWire`
+        (the pymodbus server for tcp/rtu frames them the same way).
+    clock
+        Time for the physics, the watchdog and the channel (default: the real clock).
     device_id
         The Modbus unit id this stand answers.
     """
@@ -129,14 +139,25 @@ class SimStand:
         *,
         limits: StandLimits,
         register_map: Path,
-        transport: Literal["tcp", "rtu"] = "tcp",
+        transport: Literal["tcp", "rtu", "channel"] = "tcp",
         host: str = "127.0.0.1",
         port: int = 0,
         link_path: Path | None = None,
         device_id: int = 1,
+        clock: Clock = REAL,
+        framing: Literal["tcp", "rtu"] | None = None,
+        channel_latency_s: float = 0.0005,
     ) -> None:
-        if transport not in ("tcp", "rtu"):
-            raise ConfigError(f"SimStand: transport {transport!r}: expected tcp or rtu")
+        if transport not in ("tcp", "rtu", "channel"):
+            raise ConfigError(f"SimStand: transport {transport!r}: expected tcp, rtu or channel")
+        self.clock = clock
+        #: the frames on the wire: MBAP (tcp) or RTU; a channel carries either
+        self.framing: Literal["tcp", "rtu"] = (
+            framing if framing is not None else ("rtu" if transport == "rtu" else "tcp")
+        )
+        self.channel_latency_s = channel_latency_s
+        #: the host end of the in-process link (transport "channel"), once started
+        self.client_endpoint: Endpoint | None = None
         self.cfg = sim_cfg
         self.limits = limits
         self.map: RegisterMap = load_register_map(register_map)
@@ -157,7 +178,7 @@ class SimStand:
         self.requests = 0  # requests served (for tests and figures)
         self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
 
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
         self._state = {a: AxisState() for a in self.axes}
         self._target = dict.fromkeys(self.axes, 0.0)  # the servo's active position setpoint
         self._stream_target = dict.fromkeys(self.axes, 0.0)
@@ -191,8 +212,8 @@ class SimStand:
         self._regs_start = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: Any = None
-        self._threads: list[threading.Thread] = []
-        self._stop_evt = threading.Event()
+        self._threads: list[Any] = []
+        self._stop_evt = clock.event()
         self._relay: _PtyRelay | None = None
         self._started = False
         self._stopped = False
@@ -211,18 +232,24 @@ class SimStand:
         return self
 
     def _start(self) -> None:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         self._t0 = now
         self._clock_on = True
         self._hb_time = now
         self._start_time = now
+        if self.transport == "channel":
+            self._start_channel()
+            return
+        if self.clock.virtual:
+            raise ConfigError("SimStand: simulated time needs transport 'channel' (a socket or a "
+                              "pty runs on the host's time)")
         if self.transport == "rtu":
             byte_time = 10.0 / self.cfg.baudrate if self.cfg.rtu_wire_delay else 0.0
             self._relay = _PtyRelay(
-                byte_time, lambda: self._comm.dropped(time.monotonic()), self.link_path
+                byte_time, lambda: self._comm.dropped(self.clock.monotonic()), self.link_path
             )
             self.serial_port = self._relay.client_path
-        physics = threading.Thread(target=self._physics_loop, name="sim-stand-physics", daemon=True)
+        physics = self.clock.thread(self._physics_loop, name="sim-stand-physics")
         self._threads.append(physics)
         physics.start()
         if self._relay is not None:
@@ -236,12 +263,43 @@ class SimStand:
         server_thread.start()
         asyncio.run_coroutine_threadsafe(self._start_server(), loop).result(timeout=10)
 
+    def _start_channel(self) -> None:
+        """Transport "channel": the link, a server thread and a physics thread on the clock."""
+        from benchctl.sim.stand_wire import StandWire, serve_endpoint
+
+        byte_time = 0.0
+        if self.framing == "rtu" and self.cfg.rtu_wire_delay:
+            byte_time = 10.0 / self.cfg.baudrate
+        host, device = channel_link(
+            self.clock, "sim-stand", byte_time_s=byte_time, latency_s=self.channel_latency_s
+        )
+        self.client_endpoint = host
+        self._device_endpoint = device
+        wire = StandWire(self, self.framing)
+        server = self.clock.thread(
+            serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
+        )
+        # on simulated time the physics thread wakes every 50 ticks (each request brings the
+        # state to its own instant first): the same states, far fewer hand-overs
+        physics = self.clock.thread(
+            self._physics_loop, name="sim-stand-physics", args=(50 if self.clock.virtual else 1,)
+        )
+        self._threads += [physics, server]
+        physics.start()
+        server.start()
+
     def stop(self) -> None:
         """Stop the server, physics and relay; closes every port, thread and fd. Idempotent."""
         if self._stopped:
             return
         self._stopped = True
         self._stop_evt.set()
+        if self.transport == "channel":
+            if self.client_endpoint is not None:
+                self.client_endpoint.close()
+            for t in self._threads:
+                t.join(timeout=10)
+            return
         loop = self._loop
         if loop is not None and loop.is_running():
             if self._server is not None:
@@ -268,6 +326,8 @@ class SimStand:
 
     @property
     def endpoint(self) -> str:
+        if self.transport == "channel":
+            return f"modbus-{self.framing} in-process channel (device id {self.device_id})"
         if self.transport == "tcp":
             return f"modbus-tcp {self.host}:{self.port} (device id {self.device_id})"
         return f"modbus-rtu {self.serial_port} (device id {self.device_id})"
@@ -279,7 +339,7 @@ class SimStand:
         The history reaches back about 4 s; earlier or later times are clamped to its ends.
         """
         with self._lock:
-            self._advance(min(t + self._tick_s, time.monotonic()))  # a late physics thread
+            self._advance(min(t + self._tick_s, self.clock.monotonic()))  # a late physics thread
             k_end = self._k
             n = self._hist.shape[0]
             u = (t - self._t0) / self._tick_s
@@ -307,7 +367,7 @@ class SimStand:
         with self._lock:
             self._apply(
                 kind,
-                time.monotonic(),
+                self.clock.monotonic(),
                 None if dur is None else float(dur),
                 None if code is None else int(code),
                 None if count is None else int(count),
@@ -322,7 +382,7 @@ class SimStand:
         with self._lock:
             if self._enabled:
                 raise DeviceError("SimStand.place: the servo is on (disable it first)")
-            self._advance(time.monotonic())
+            self._advance(self.clock.monotonic())
             for a, v in angle_deg.items():
                 self._state[a] = AxisState(float(v), 0.0)
                 self._target[a] = self._stream_target[a] = float(v)
@@ -335,14 +395,17 @@ class SimStand:
             self._comm = _CommFaults()
 
     # -- physics ------------------------------------------------------------------------
-    def _physics_loop(self) -> None:
+    def _physics_loop(self, every: int = 1) -> None:
+        """Tick the physics on time; ``every`` ticks at a time (on simulated time the state is
+        the same whichever way: a request advances it to its own instant first)."""
         tick = self._tick_s
+        clock = self.clock
         while True:
-            next_t = self._t0 + (self._k + 1) * tick
-            if self._stop_evt.wait(max(0.0, next_t - time.monotonic())):
+            next_t = self._t0 + (self._k + every) * tick
+            if self._stop_evt.wait(max(0.0, next_t - clock.monotonic())):
                 return
             with self._lock:
-                self._advance(time.monotonic())
+                self._advance(clock.monotonic())
 
     def _advance(self, now: float) -> None:
         """Run the physics up to ``now`` (lock held): the state is a function of time, whoever
@@ -576,7 +639,7 @@ class SimStand:
         return blocks
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         with self._lock:
             dropped = self._comm.dropped(now)
             silent = dropped or self._comm.stalled(now)
@@ -618,7 +681,7 @@ class SimStand:
         regs: list[int],
         values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         self._regs, self._regs_start = regs, start
         with self._lock:
             self.requests += 1
@@ -677,9 +740,9 @@ class SimStand:
         if tr is not None:
             q = self._traj
             put += [
-                (tr.level, q.level(self._traj_u(time.monotonic()))),
+                (tr.level, q.level(self._traj_u(now))),
                 (tr.next_index, q.next_index),
-                (tr.played, q.played(self._traj_u(time.monotonic()))),
+                (tr.played, q.played(self._traj_u(now))),
                 (tr.underruns, q.underruns & 0xFFFF),
             ]
         for f, v in put:

@@ -22,7 +22,10 @@ SLCAN_DEFAULT_SLEEP_S = 2.0
 
 
 def _is_pty(channel: str) -> bool:
-    """True if ``channel`` (possibly a symlink, possibly ``path@baud``) is a pseudo-terminal."""
+    """True if ``channel`` (possibly a symlink, possibly ``path@baud``) is a pseudo-terminal or
+    an in-process link (``simchan://``): nothing there resets on open."""
+    if channel.startswith("simchan://"):
+        return True
     path = os.path.realpath(channel.split("@", 1)[0])
     return path.startswith("/dev/pts/")
 

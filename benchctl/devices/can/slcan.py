@@ -38,9 +38,10 @@ from collections import deque
 from typing import Any
 
 import can
-import serial
 from can.exceptions import error_check
 from can.interfaces.slcan import slcanBus
+
+from benchctl.clock import REAL, Clock
 
 OK = b"\r"
 BEL = b"\a"
@@ -111,10 +112,11 @@ class AdapterClock:
         return self._total_ms / 1000.0
 
 
-def parse_line(line: bytes) -> can.Message | None:
+def parse_line(line: bytes, received: float | None = None) -> can.Message | None:
     """One adapter line (its CR or BEL stripped) as a frame; None for an adapter answer.
 
-    The frame is a ``SlcanMessage``: ``adapter_ms`` is the line's ``Z1`` timestamp, or None.
+    The frame is a ``SlcanMessage``: ``adapter_ms`` is the line's ``Z1`` timestamp, or None;
+    ``timestamp`` is ``received`` (UTC seconds, the reader's clock; default: the host's).
 
     Raises ``SlcanLineError`` for any other line (see the module docstring).
     """
@@ -146,7 +148,8 @@ def parse_line(line: bytes) -> can.Message | None:
     data = b"" if remote else bytes.fromhex(rest[:n_data].decode("ascii"))
     stamp = int(rest[n_data:], 16) if len(rest) > n_data else None
     return SlcanMessage(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote,
-                        dlc=dlc, data=data, timestamp=time.time(), adapter_ms=stamp)
+                        dlc=dlc, data=data, adapter_ms=stamp,
+                        timestamp=time.time() if received is None else received)
 
 
 class SlcanBus(slcanBus):
@@ -156,7 +159,15 @@ class SlcanBus(slcanBus):
     adapter for its ``Z1`` timestamps (default True) or switch them off (``Z0``).
     """
 
-    def __init__(self, channel: Any, *, adapter_timestamps: bool = True, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        channel: Any,
+        *,
+        adapter_timestamps: bool = True,
+        clock: Clock = REAL,
+        **kwargs: Any,
+    ) -> None:
+        self._clock = clock
         self._rx = bytearray()
         self._lines: deque[tuple[bytes, bytes]] = deque()  # (line, its CR or BEL)
         self.adapter_timestamps = adapter_timestamps
@@ -195,7 +206,8 @@ class SlcanBus(slcanBus):
         return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        deadline = serial.Timeout(timeout)
+        clock = self._clock
+        deadline = None if timeout is None else clock.monotonic() + timeout
         port = self.serialPortOrig
         while True:
             got = self._next_line()
@@ -205,7 +217,7 @@ class SlcanBus(slcanBus):
                     if line:
                         raise SlcanLineError("ends in BEL", line + end)
                     continue  # the adapter refused a command of ours: not a frame
-                msg = parse_line(line)
+                msg = parse_line(line, clock.time())
                 if msg is not None:
                     return msg, False
                 continue
@@ -213,7 +225,7 @@ class SlcanBus(slcanBus):
                 chunk = port.read(max(1, port.in_waiting))
             if chunk:
                 self._rx += chunk
-            elif deadline.expired():
+            elif deadline is not None and clock.monotonic() >= deadline:
                 return None, False
 
     def flush(self) -> None:

@@ -42,6 +42,10 @@ from benchctl.errors import ConnectionLost, DeviceTimeout, ModbusException, Prot
 log = logging.getLogger(__name__)
 wire_log = logging.getLogger("benchctl.wire")
 
+#: a host or serial port starting so names an in-process link (``benchctl.channels``): the same
+#: pymodbus client and framing, the bytes carried in-process on the run's clock
+CHANNEL_SCHEME = "simchan://"
+
 EXCEPTION_NAMES = {
     1: "illegal function",
     2: "illegal data address",
@@ -269,6 +273,13 @@ def tcp_link(
     """A Modbus TCP link (MBAP framing) to ``host:port``; not yet connected."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
+        if host.startswith(CHANNEL_SCHEME):  # an in-process link to a simulated stand
+            from benchctl.channels import lookup
+            from benchctl.devices.modbus.channel_client import ChannelTcpClient
+
+            return ChannelTcpClient(
+                lookup(host), timeout=timeout_s, retries=retries, trace_packet=trace
+            )
         return ModbusTcpClient(
             host, port=port, timeout=timeout_s, retries=retries, trace_packet=trace
         )
@@ -296,6 +307,20 @@ def rtu_link(
     """A Modbus RTU link over a serial device path or pyserial URL; not yet connected."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
+        if port.startswith(CHANNEL_SCHEME):  # an in-process line to a simulated stand
+            from benchctl.channels import lookup
+            from benchctl.devices.modbus.channel_client import ChannelSerialClient
+
+            return ChannelSerialClient(
+                lookup(port),
+                framer=FramerType.RTU,
+                baudrate=baudrate,
+                parity=parity,
+                stopbits=stopbits,
+                timeout=timeout_s,
+                retries=retries,
+                trace_packet=trace,
+            )
         return ModbusSerialClient(
             port,
             framer=FramerType.RTU,
