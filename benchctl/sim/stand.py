@@ -1,17 +1,21 @@
 """Simulated roll/pitch stand: a real Modbus server (TCP, or RTU on a pty) with servo physics.
 
 The register map is the same YAML file the driver reads (``drivers/stand_generic.yaml``), so the
-driver cannot tell this stand from hardware. Three kinds of threads:
+driver cannot tell this stand from hardware. Every request reaches the stand through one entry
+point, ``benchctl.sim.stand_wire.StandWire`` (pymodbus's framing, the stand's own request
+decoder, pymodbus's register model), fed by a TCP socket, a pty or an in-process link
+(``benchctl.sim.stand_servers``, ``transport="channel"``). Threads:
 
-- ``sim-stand-modbus``: an asyncio loop running the pymodbus server. Reads of the feedback block
+- ``sim-stand-modbus``: the server (socket, pty or link). Reads of the feedback block
   are filled from the latest physics state; writes of the control word, heartbeat, setpoints
   and table area act on the physics state at once. Requests outside the map are refused as the
   Modbus specification says (``_MapDecoder``); other unit ids: TCP exception 0x0B, RTU silence.
-- ``sim-stand-physics``: ticks the servo at ``tick_hz`` on absolute times (host monotonic
-  clock), integrating missed ticks when the thread was late, and checks the watchdog, soft
-  limits, table playback and scheduled faults.
-- ``sim-stand-rtu-relay`` (RTU only): relays bytes between two pseudo-terminal pairs, the server
-  on one slave end, the client on the other, delaying each chunk by its serial byte time.
+- ``sim-stand-physics``: ticks the servo at ``tick_hz`` on absolute times (the stand's clock:
+  the host's, or simulated time), integrating missed ticks when the thread was late, and checks
+  the watchdog, soft limits, table playback and scheduled faults.
+
+On RTU each request is taken after its bytes' serial time on the line, and each reply is
+written after its own (10 bits a byte at ``baudrate``), on the pty and the link alike.
 
 Fault injection (:meth:`SimStand.inject`, or ``SimStandConfig.faults`` on a schedule):
 
@@ -30,27 +34,17 @@ estop             the E-stop is pressed: as stand_fault with code 3 and the E-st
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import math
-import os
-import selectors
-import threading
-import time
-import tty
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal
 
 import numpy as np
-from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import DataType, SimData
 
 from benchctl.channels import Endpoint
 from benchctl.channels import link as channel_link
@@ -61,6 +55,7 @@ from benchctl.errors import ConfigError, DeviceError
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise, servo_step
+from benchctl.sim.stand_servers import RtuStandServer, TcpStandServer
 
 FAULT_SOFT_LIMIT = 1
 FAULT_WATCHDOG = 2
@@ -210,11 +205,9 @@ class SimStand:
 
         self._regs: list[int] | None = None
         self._regs_start = 0
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Any = None
+        self._server: TcpStandServer | RtuStandServer | None = None
         self._threads: list[Any] = []
         self._stop_evt = clock.event()
-        self._relay: _PtyRelay | None = None
         self._started = False
         self._stopped = False
 
@@ -245,23 +238,19 @@ class SimStand:
                               "pty runs on the host's time)")
         if self.transport == "rtu":
             byte_time = 10.0 / self.cfg.baudrate if self.cfg.rtu_wire_delay else 0.0
-            self._relay = _PtyRelay(
-                byte_time, lambda: self._comm.dropped(self.clock.monotonic()), self.link_path
+            rtu = RtuStandServer(
+                self, byte_time, lambda: self._comm.dropped(self.clock.monotonic()), self.link_path
             )
-            self.serial_port = self._relay.client_path
+            self._server = rtu
+            self.serial_port = rtu.client_path
+        else:
+            tcp = TcpStandServer(self, self.host, self.port)
+            self._server = tcp
+            self.port = tcp.port
         physics = self.clock.thread(self._physics_loop, name="sim-stand-physics")
         self._threads.append(physics)
         physics.start()
-        if self._relay is not None:
-            self._relay.start()
-        loop = asyncio.new_event_loop()
-        self._loop = loop
-        server_thread = threading.Thread(
-            target=self._serve, args=(loop,), name="sim-stand-modbus", daemon=True
-        )
-        self._threads.append(server_thread)
-        server_thread.start()
-        asyncio.run_coroutine_threadsafe(self._start_server(), loop).result(timeout=10)
+        self._server.start()
 
     def _start_channel(self) -> None:
         """Transport "channel": the link, a server thread and a physics thread on the clock."""
@@ -294,24 +283,12 @@ class SimStand:
             return
         self._stopped = True
         self._stop_evt.set()
-        if self.transport == "channel":
-            if self.client_endpoint is not None:
-                self.client_endpoint.close()
-            for t in self._threads:
-                t.join(timeout=10)
-            return
-        loop = self._loop
-        if loop is not None and loop.is_running():
-            if self._server is not None:
-                with contextlib.suppress(Exception):
-                    asyncio.run_coroutine_threadsafe(self._server.shutdown(), loop).result(
-                        timeout=5
-                    )
-            loop.call_soon_threadsafe(loop.stop)
+        if self.transport == "channel" and self.client_endpoint is not None:
+            self.client_endpoint.close()
+        if self._server is not None:
+            self._server.stop()
         for t in self._threads:
             t.join(timeout=10)
-        if self._relay is not None:
-            self._relay.stop()
 
     def __enter__(self) -> SimStand:
         return self.start()
@@ -554,8 +531,8 @@ class SimStand:
         until = math.inf if duration_s is None else now + duration_s
         if kind == "drop_connection":
             self._comm.drop_until = until
-            if self._loop is not None:
-                self._loop.call_soon_threadsafe(self._close_clients)
+            if isinstance(self._server, TcpStandServer):
+                self._server.drop_all()
         elif kind == "stall":
             self._comm.stall_until = now + (1.0 if duration_s is None else duration_s)
         elif kind == "modbus_exception":
@@ -567,49 +544,11 @@ class SimStand:
         else:
             self._do_estop()
 
-    # -- Modbus server ------------------------------------------------------------------
-    def _serve(self, loop: asyncio.AbstractEventLoop) -> None:
-        asyncio.set_event_loop(loop)
-        try:
-            loop.run_forever()
-        finally:
-            tasks = asyncio.all_tasks(loop)
-            for task in tasks:
-                task.cancel()
-            if tasks:
-                loop.run_until_complete(asyncio.gather(*tasks, return_exceptions=True))
-            loop.run_until_complete(loop.shutdown_asyncgens())
-            loop.close()
-
-    async def _start_server(self) -> None:
-        simdata = self._simdata()
-        device = SimDevice(self.device_id, simdata=simdata, action=self._action)
-        # trace_pdu may return None: pymodbus then drops the request unanswered (RTU silence)
-        trace_pdu: Any = self._trace_pdu
-        if self.transport == "tcp":
-            self._server = ModbusTcpServer(
-                device,
-                address=(self.host, self.port),
-                trace_packet=self._trace,
-                trace_pdu=trace_pdu,
-            )
-        else:
-            assert self._relay is not None
-            self._server = ModbusSerialServer(
-                device,
-                framer=FramerType.RTU,
-                port=self._relay.server_path,
-                baudrate=self.cfg.baudrate,
-                broadcast_enable=True,  # unit id 0: acted on by every device, never answered
-                trace_packet=self._trace,
-                trace_pdu=trace_pdu,
-            )
-        # Spec-conformant refusals (see _MapDecoder): each connection's framer, made when the
-        # server listens, decodes with the server's decoder.
-        self._server.decoder = _MapDecoder(self.map, _register_addresses(simdata))
-        await self._server.serve_forever(background=True)
-        if self.transport == "tcp":
-            self.port = int(self._server.transport.sockets[0].getsockname()[1])
+    # -- Modbus ---------------------------------------------------------------------------
+    def dropped(self) -> bool:
+        """Is the ``drop_connection`` fault on now?"""
+        with self._lock:
+            return self._comm.dropped(self.clock.monotonic())
 
     def _simdata(self) -> list[SimData]:
         m = self.map
@@ -639,13 +578,13 @@ class SimStand:
         return blocks
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
+        """Bytes in or out of the stand: a reply is lost while the stand is dropped or stalled."""
+        if not sending:
+            return data
         now = self.clock.monotonic()
         with self._lock:
-            dropped = self._comm.dropped(now)
-            silent = dropped or self._comm.stalled(now)
-        if not sending and dropped and self.transport == "tcp" and self._loop is not None:
-            self._loop.call_soon(self._close_clients)
-        return b"" if sending and silent else data
+            silent = self._comm.dropped(now) or self._comm.stalled(now)
+        return b"" if silent else data
 
     def _trace_pdu(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU | None:
         """A request for another unit id: TCP exception 0x0B, RTU silence (broadcasts acted on).
@@ -664,13 +603,6 @@ class SimStand:
         if pdu.dev_id == 0 and pdu.function_code in (6, 16):
             return pdu
         return None
-
-    def _close_clients(self) -> None:
-        """TCP: close every client connection (on RTU the relay cuts the line instead)."""
-        if self._server is None or self.transport != "tcp":
-            return
-        for conn in list(getattr(self._server, "active_connections", {}).values()):
-            conn.close()
 
     async def _action(
         self,
@@ -1121,74 +1053,3 @@ class _MapDecoder(DecodePDU):
         )
 
 
-class _PtyRelay:
-    """Two pseudo-terminal pairs joined by a relay thread: an RS-485 line without hardware.
-
-    The server opens ``server_path``, the client ``client_path``. Each chunk is delayed by its
-    serial byte time (10 bits a byte) before it is passed on; while ``dead()`` is true every
-    byte is discarded (a cut line).
-    """
-
-    def __init__(
-        self, byte_time_s: float, dead: Callable[[], bool], link_path: Path | None
-    ) -> None:
-        self.byte_time_s = byte_time_s
-        self._dead = dead
-        self._fds: list[int] = []
-        self._srv_master, srv_slave = self._pair()
-        self._cli_master, cli_slave = self._pair()
-        self.server_path = os.ttyname(srv_slave)
-        self.client_path = os.ttyname(cli_slave)
-        self._wake_r, self._wake_w = os.pipe()
-        self._fds += [self._wake_r, self._wake_w]
-        self.link_path = link_path
-        if link_path is not None:
-            link_path.parent.mkdir(parents=True, exist_ok=True)
-            with contextlib.suppress(FileNotFoundError):
-                link_path.unlink()
-            link_path.symlink_to(self.client_path)
-        self._thread = threading.Thread(target=self._run, name="sim-stand-rtu-relay", daemon=True)
-        self._stopping = False
-
-    def _pair(self) -> tuple[int, int]:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        self._fds += [master, slave]  # the slave stays open here so the master never sees EIO
-        return master, slave
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stopping = True
-        if self._thread.is_alive():
-            os.write(self._wake_w, b"x")
-            self._thread.join(timeout=5)
-        for fd in self._fds:
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self._fds = []
-        if self.link_path is not None and self.link_path.is_symlink():
-            with contextlib.suppress(FileNotFoundError):
-                self.link_path.unlink()
-
-    def _run(self) -> None:
-        other = {self._srv_master: self._cli_master, self._cli_master: self._srv_master}
-        with selectors.DefaultSelector() as sel:
-            for fd in (self._srv_master, self._cli_master, self._wake_r):
-                sel.register(fd, selectors.EVENT_READ)
-            while not self._stopping:
-                for key, _ in sel.select():
-                    fd = int(key.fd)
-                    if fd == self._wake_r:
-                        return
-                    try:
-                        data = os.read(fd, 4096)
-                    except OSError:
-                        continue
-                    if not data or self._dead():
-                        continue
-                    if self.byte_time_s > 0:
-                        time.sleep(len(data) * self.byte_time_s)
-                    with contextlib.suppress(OSError):
-                        os.write(other[fd], data)
