@@ -247,3 +247,33 @@ def test_the_real_clock_is_the_operating_systems() -> None:
     q = REAL.queue()
     q.put(1)
     assert q.get(timeout=0.1) == 1
+
+
+def test_a_host_stall_holds_the_hosts_threads_not_the_devices() -> None:
+    """A stall (the run's process stopped) puts off every host thread due inside it to its
+    end, keeping what its wait gave; a device thread (``sim-…``) runs on through it."""
+    clock = VirtualClock(start_s=0.0)
+    host: list[float] = []
+    device: list[float] = []
+    with clock.running():
+        clock.stall_host(1.05, 0.5)  # [1.05, 1.55)
+        ev = clock.event()
+
+        def dev() -> None:
+            for _ in range(20):
+                clock.sleep(0.1)
+                device.append(round(clock.monotonic(), 9))
+                if len(device) == 12:
+                    ev.set()  # at 1.2, inside the stall
+
+        d = clock.thread(dev, name="sim-device")
+        d.start()
+        for _ in range(4):
+            clock.sleep(0.3)
+            host.append(round(clock.monotonic(), 9))
+        assert ev.wait(5.0) is True  # set at 1.2: seen at the stall's end
+        assert clock.monotonic() == pytest.approx(1.55)
+        assert ev.wait(0.0)
+        d.join()
+    assert host == [0.3, 0.6, 0.9, 1.55]  # due at 1.2: ran at 1.55
+    assert device == [round(0.1 * k, 9) for k in range(1, 21)]  # on time throughout

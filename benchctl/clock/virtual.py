@@ -57,12 +57,14 @@ class ClockClosed(BaseException):
 class _Task:
     __slots__ = (
         "blocked",
+        "device",
         "done",
         "error",
         "ident",
         "joiners",
         "kill",
         "name",
+        "resume_timed_out",
         "sem",
         "timed_out",
         "wait_id",
@@ -71,6 +73,9 @@ class _Task:
 
     def __init__(self, name: str) -> None:
         self.name = name
+        #: a simulated device's thread (name ``sim-…``): host stalls do not stop it
+        self.device = name.startswith("sim-")
+        self.resume_timed_out = False
         self.sem = threading.Lock()
         self.sem.acquire()  # locked: the thread waits on it until it is handed the baton
         self.blocked = False
@@ -107,7 +112,11 @@ class VirtualClock:
         self.hang_s = hang_s
         self._mu = threading.Lock()
         self._ready: deque[_Task] = deque()
-        self._timers: list[tuple[float, int, _Task, int]] = []
+        self._timers: list[tuple[float, int, _Task, int, bool]] = []
+        #: host stalls: (start, end) on simulated time, sorted; the host's threads (every thread
+        #: not named ``sim-…``) do not run inside one — the run's process stopped, as by SIGSTOP
+        self._stalls: list[tuple[float, float]] = []
+        self._stall_i = 0
         self._seq = itertools.count()
         self._tasks: dict[int, _Task] = {}
         self._alive: list[_Task] = []
@@ -137,6 +146,27 @@ class VirtualClock:
     def compute(self, seconds: float) -> None:
         if seconds > 0:
             self._block("compute", self._now + seconds)
+
+    def stall_host(self, start_s: float, duration_s: float) -> None:
+        """Stop the host's threads from simulated time ``start_s`` (``monotonic()``'s scale) for
+        ``duration_s``: a thread due to run inside it runs at its end (its wait's outcome kept)."""
+        if duration_s <= 0:
+            return
+        with self._mu:
+            self._stalls.append((start_s, start_s + duration_s))
+            self._stalls.sort()
+            self._stall_i = 0
+
+    def _stalled_until(self, now: float) -> float | None:
+        """The end of the host stall ``now`` falls in, or None (with ``_mu`` held)."""
+        st = self._stalls
+        i = self._stall_i
+        while i < len(st) and st[i][1] <= now:
+            i += 1
+        self._stall_i = i
+        if i < len(st) and st[i][0] <= now:
+            return st[i][1]
+        return None
 
     # -- primitives -----------------------------------------------------------------------
     def event(self) -> VEvent:
@@ -233,16 +263,30 @@ class VirtualClock:
             self._ready.append(task)
 
     def _next(self) -> _Task:
-        """The task to run next (with ``_mu`` held): the first runnable, else time jumps."""
+        """The task to run next (with ``_mu`` held): the first runnable, else time jumps. A host
+        thread due inside a host stall is put off to the stall's end."""
+        while True:
+            task = self._pick()
+            if task.device or not self._stalls or task.error is not None or task.kill:
+                return task
+            end = self._stalled_until(self._now)
+            if end is None:
+                return task
+            task.resume_timed_out = task.timed_out
+            task.blocked = True
+            task.wait_id += 1
+            heapq.heappush(self._timers, (end, next(self._seq), task, task.wait_id, True))
+
+    def _pick(self) -> _Task:
         if self._ready:
             return self._ready.popleft()
         while self._timers:
-            deadline, _, task, wid = heapq.heappop(self._timers)
+            deadline, _, task, wid, resume = heapq.heappop(self._timers)
             if task.blocked and task.wait_id == wid:
                 if deadline > self._now:
                     self._now = deadline
                 task.blocked = False
-                task.timed_out = True
+                task.timed_out = task.resume_timed_out if resume else True
                 task.wait_id += 1
                 return task
         return self._deadlock()
@@ -272,7 +316,9 @@ class VirtualClock:
             task.timed_out = False
             task.waiting_on = what
             if deadline is not None:
-                heapq.heappush(self._timers, (deadline, next(self._seq), task, task.wait_id))
+                heapq.heappush(
+                    self._timers, (deadline, next(self._seq), task, task.wait_id, False)
+                )
             elif closing_ok:
                 self._ready.append(task)  # the root yields while the others end
                 task.blocked = False
