@@ -264,6 +264,59 @@ class SimFault(Strict):
         return self
 
 
+Probability = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+SimSeconds = Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)]
+
+
+class SimDisturbConfig(Strict):
+    """Seeded host and device behaviour for a run on simulated time (``sim.clock: virtual``).
+
+    Everything is drawn from ``seed`` (one pseudo-random stream per kind), so a seed replays
+    exactly: host stalls (the run's process stopped: a Poisson stream of ``host_stalls_per_min``,
+    durations log-uniform in ``host_stall_s``), jitter on every frame the host sends (uniform in
+    ``[0, send_jitter_s]``), stand replies that are slow (probability ``slow_reply_p``, an extra
+    delay log-uniform in ``slow_reply_s``) or lost (``lost_reply_p``), instrument frames lost
+    (``lost_frame_p``) or garbled (``garbled_frame_p``, one byte changed), ``faults`` stand or
+    instrument faults at random moments of the motion (kinds drawn from ``fault_kinds``), and
+    an operator's Ctrl-C at a random moment with probability ``operator_stop_p``.
+    """
+
+    seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    host_stalls_per_min: Annotated[float, Field(ge=0, le=600, allow_inf_nan=False)] = 0.0
+    host_stall_s: tuple[SimSeconds, SimSeconds] = (0.05, 0.3)
+    send_jitter_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
+    slow_reply_p: Probability = 0.0
+    slow_reply_s: tuple[SimSeconds, SimSeconds] = (0.01, 0.5)
+    lost_reply_p: Probability = 0.0
+    lost_frame_p: Probability = 0.0
+    garbled_frame_p: Probability = 0.0
+    faults: Annotated[int, Field(ge=0, le=100)] = 0
+    fault_kinds: tuple[str, ...] = ("stand:stall", "stand:stand_fault", "instrument:silent")
+    operator_stop_p: Probability = 0.0
+
+    @field_validator("host_stall_s", "slow_reply_s")
+    @classmethod
+    def _range(cls, r: tuple[float, float]) -> tuple[float, float]:
+        if not 0 < r[0] <= r[1]:
+            raise ValueError(f"expected [shortest, longest] with 0 < shortest <= longest, got {r}")
+        return r
+
+    @field_validator("fault_kinds")
+    @classmethod
+    def _kinds(cls, kinds: tuple[str, ...]) -> tuple[str, ...]:
+        for k in kinds:
+            target, _, kind = k.partition(":")
+            if target not in ("stand", "instrument"):
+                raise ValueError(f"{k!r}: expected stand:KIND or instrument:KIND")
+            try:
+                check_kind(target, kind)
+            except FaultSpecError as e:
+                raise ValueError(
+                    f"{k!r}: unknown {target} fault kind; expected {e.expected}"
+                ) from None
+        return kinds
+
+
 class SimConfig(Strict):
     """Present in a config → ``benchctl run`` starts the simulators itself (``benchctl sim``)."""
 
@@ -283,6 +336,8 @@ class SimConfig(Strict):
     #: simulated time: the host computation charged to each cycle of the stand loop, so a loop
     #: too slow for its rate still shows as one
     host_cost_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0002
+    #: simulated time: seeded host stalls, slow/lost/garbled frames, faults, an operator's stop
+    disturb: SimDisturbConfig | None = None
 
     @field_validator("epoch_utc")
     @classmethod

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import serial
@@ -112,6 +113,10 @@ class Endpoint:
         self.bytes_in = 0
         #: while True every byte written from this end is lost (a cut line, a lost frame)
         self.muted = False
+        #: each write's extra delay in seconds, or None: the write is lost (seeded faults)
+        self.delay: Callable[[bytes], float | None] | None = None
+        #: each write as it arrives (changed), or None: lost (seeded faults)
+        self.damage: Callable[[bytes], bytes | None] | None = None
 
     @property
     def closed(self) -> bool:
@@ -123,8 +128,19 @@ class Endpoint:
         n = len(data)
         if n == 0 or self.muted:
             return n
+        extra = 0.0
+        if self.delay is not None:
+            d = self.delay(data)
+            if d is None:
+                return n
+            extra = d
+        if self.damage is not None:
+            got = self.damage(data)
+            if got is None:
+                return n
+            data = got
         now = self.clock.monotonic()
-        start = max(now + self.latency_s, self._tx.busy_until)
+        start = max(now + self.latency_s + extra, self._tx.busy_until)
         bt = self.byte_time_s
         self._tx.busy_until = start + n * bt
         self._tx.chunks.append([start + bt, bt, bytes(data), 0])
