@@ -230,10 +230,10 @@ def _read_line(stream: Any, timeout_s: float | None) -> str:
             raise EOFError("end of input") from None
         return line
     # the operator's terminal: a host wait (select) on the host's time, whatever the run's clock
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s  # noqa: TID251
     buf = b""
     while b"\n" not in buf:
-        left = None if deadline is None else deadline - time.monotonic()
+        left = None if deadline is None else deadline - time.monotonic()  # noqa: TID251
         if left is not None and left <= 0:
             raise TimeoutError(f"no answer within {timeout_s:g} s")
         try:
