@@ -27,11 +27,11 @@ import traceback
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from benchctl.clock import REAL, Clock
 from benchctl.errors import Interrupted
 from benchctl.text import visible
 
@@ -178,9 +178,10 @@ def run_log(folder: Path) -> Iterator[Path | None]:
         root.setLevel(old_level)
 
 
-def crash_log(exc: BaseException, command: str = "") -> Path | None:
-    """Write ``exc``'s traceback to a log file (see the module doc); its path, or None."""
-    stamp = datetime.now(UTC).isoformat(timespec="milliseconds")
+def crash_log(exc: BaseException, command: str = "", *, clock: Clock = REAL) -> Path | None:
+    """Write ``exc``'s traceback to a log file (see the module doc); its path, or None. The
+    stamp is ``clock``'s (the process's own crash: the real one unless a caller says)."""
+    stamp = clock.now_utc().isoformat(timespec="milliseconds")
     head = f"{stamp} ERROR benchctl {command}: unexpected {type(exc).__name__}: {exc}\n"
     text = head + "".join(traceback.format_exception(exc))
     places = [_state.active_log, _state.last_log]

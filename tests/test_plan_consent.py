@@ -357,7 +357,7 @@ def test_the_consent_rule_holds_for_any_plan_and_any_answers(
         events.append(("ask", outcome))
         return _raise_or_answer(outcome)
 
-    def stand_action(cfg: Any, check: str, holder: Any) -> str:
+    def stand_action(cfg: Any, check: str, holder: Any, **kw: Any) -> str:
         events.append(("check", check))
         return "at rest at zero"
 

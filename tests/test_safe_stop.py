@@ -18,6 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchctl.clock import RealClock
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.regmap import RegisterMap, load_register_map
 from benchctl.devices.modbus.stand import ModbusStand, check_table, table_peak
@@ -38,7 +39,7 @@ LIM = Limits(angle_deg=30.0, rate_deg_s=30.0, accel_deg_s2=60.0)
 T = 0.01
 
 
-class FakeClock:
+class FakeClock(RealClock):
     """Monotonic time that moves only when slept on (plus any stall the test injects)."""
 
     def __init__(self, stalls: Sequence[float] = ()) -> None:
@@ -46,6 +47,9 @@ class FakeClock:
         self.stalls = list(stalls)
 
     def __call__(self) -> float:
+        return self.t
+
+    def monotonic(self) -> float:
         return self.t
 
     def sleep(self, dt: float) -> None:
@@ -152,7 +156,6 @@ def _driver(x0: float, v0: float, stalls: Sequence[float] = ()) -> tuple[ModbusS
         setpoint_period_s=T,
         zero_tolerance_deg=0.05,
         clock=clock,
-        sleep=clock.sleep,
     )
     stand.connect()
     return stand, peer

@@ -20,13 +20,14 @@ import select
 import socket
 import time
 import tty
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, cast
 
 import pytest
 from wire import rtu
 
+from benchctl.clock import RealClock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
@@ -392,12 +393,22 @@ class LatchedFaultLink:
         return words
 
 
-def stand_on(link: LatchedFaultLink, clock: Any) -> ModbusStand:
+class _ReadClock(RealClock):
+    """The real clock whose ``monotonic`` is the test's function."""
+
+    def __init__(self, read: Callable[[], float]) -> None:
+        self.read = read
+
+    def monotonic(self) -> float:
+        return self.read()
+
+
+def stand_on(link: LatchedFaultLink, clock: Callable[[], float]) -> ModbusStand:
     return ModbusStand(
         cast(ModbusLink, link),
         link.map,
         limits=StandLimitsView(30.0, 20.0, 100.0),
-        clock=clock,
+        clock=_ReadClock(clock),
     )
 
 

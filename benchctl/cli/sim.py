@@ -6,10 +6,10 @@ import argparse
 import os
 import signal
 import sys
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from benchctl.clock import REAL, EventLike
 from benchctl.jsonout import dumps
 
 if TYPE_CHECKING:
@@ -44,7 +44,8 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.config import load_config
 
     cfg = load_config(args.config)
-    done = threading.Event()
+    # the simulators' own process serves in real time until a signal or stdin's end
+    done = REAL.event()
 
     def on_signal(signum: int, frame: object) -> None:
         done.set()
@@ -57,7 +58,7 @@ def handle(args: argparse.Namespace) -> int:
             signal.signal(s, h)
 
 
-def _serve(args: argparse.Namespace, cfg: BenchConfig, done: threading.Event) -> int:
+def _serve(args: argparse.Namespace, cfg: BenchConfig, done: EventLike) -> int:
     from benchctl.sim.bench import SimBench
 
     if not args.private:  # refuse to serve a stand endpoint a run holds (benchctl.run.lock)
@@ -76,7 +77,7 @@ def _serve(args: argparse.Namespace, cfg: BenchConfig, done: threading.Event) ->
             print(dumps({"ready": True, **bench.endpoints()}), flush=True)
             # the parent reads nothing more there: later output joins stderr (its log file)
             os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
-            watcher = threading.Thread(target=_wait_eof, args=(done,), daemon=True)
+            watcher = REAL.thread(_wait_eof, name="sim-stdin-eof", args=(done,))
             watcher.start()
         else:
             print(f"benchctl sim: {cfg.source}", flush=True)
@@ -89,7 +90,7 @@ def _serve(args: argparse.Namespace, cfg: BenchConfig, done: threading.Event) ->
     return 0
 
 
-def _wait_eof(done: threading.Event) -> None:
+def _wait_eof(done: EventLike) -> None:
     try:
         while os.read(sys.stdin.fileno(), 4096):
             pass

@@ -2,7 +2,8 @@
 
 A driver speaks one protocol over a transport handed to it. The run layer sees only these
 small interfaces (in the spirit of bluesky's ``Movable``/``Readable``): ``Stand`` and
-``AngleSensor``. Every time here is the host's monotonic clock, ``time.monotonic()``, seconds.
+``AngleSensor``. Every time here is the host's monotonic clock, seconds: the ``monotonic()`` of
+the clock the driver was handed (``benchctl.clock``; the operating system's by default).
 """
 
 from __future__ import annotations

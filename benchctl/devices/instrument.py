@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import AngleSensor
 from benchctl.errors import ConfigError, DeviceError
@@ -41,7 +42,9 @@ def _load(driver: str) -> Callable[..., Any]:
         ) from e
 
 
-def open_instrument(cfg: InstrumentConfig, *, can_log_path: Path | None = None) -> AngleSensor:
+def open_instrument(
+    cfg: InstrumentConfig, *, can_log_path: Path | None = None, clock: Clock = REAL
+) -> AngleSensor:
     """Open the transport and build the driver for ``cfg.driver``.
 
     Parameters
@@ -50,6 +53,8 @@ def open_instrument(cfg: InstrumentConfig, *, can_log_path: Path | None = None) 
         The instrument section of the bench config.
     can_log_path : Path, optional
         For CAN drivers, write every received frame there (``.blf``, ``.asc`` …).
+    clock : Clock
+        The run's clock (``benchctl.clock``): receipt times, the reader thread, its waits.
 
     Returns
     -------
@@ -62,15 +67,15 @@ def open_instrument(cfg: InstrumentConfig, *, can_log_path: Path | None = None) 
 
         port = open_serial(cfg)
         try:
-            return cls(port, cfg)
+            return cls(port, cfg, clock=clock)
         except BaseException:
             port.close()
             raise
     from benchctl.devices.can.bus import open_can_bus, shutdown_bus
 
-    bus = open_can_bus(cfg)
+    bus = open_can_bus(cfg, clock=clock)
     try:
-        return cls(bus, cfg, can_log_path=can_log_path)
+        return cls(bus, cfg, can_log_path=can_log_path, clock=clock)
     except BaseException:
         shutdown_bus(bus)
         raise

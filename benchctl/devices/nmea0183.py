@@ -24,13 +24,13 @@ from __future__ import annotations
 
 import logging
 import re
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import pynmea2
 import serial
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import DeviceIdentity, InstrumentSample
 from benchctl.devices.reader import (
@@ -208,8 +208,10 @@ class Nmea0183Instrument(SensorReader):
 
     protocol = "NMEA 0183"
 
-    def __init__(self, port: Any, cfg: InstrumentConfig, *, owns_port: bool = True) -> None:
-        super().__init__(cfg, str(cfg.serial_port))
+    def __init__(
+        self, port: Any, cfg: InstrumentConfig, *, owns_port: bool = True, clock: Clock = REAL
+    ) -> None:
+        super().__init__(cfg, str(cfg.serial_port), clock=clock)
         self._port = port
         self._owns_port = owns_port
         self._buf = bytearray()
@@ -233,7 +235,7 @@ class Nmea0183Instrument(SensorReader):
             raise LinkLost(str(e)) from e
         if not chunk:
             return []
-        t_host = time.monotonic()
+        t_host = self.clock.monotonic()
         self._buf.extend(chunk)
         lines: list[tuple[Any, float]] = []
         while True:

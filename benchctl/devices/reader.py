@@ -2,7 +2,7 @@
 
 A driver fills in ``_identify()`` (called by ``connect``, the reader already running),
 ``_poll()`` (one bounded wait for input, returning the frames/lines that arrived, each with
-its host receipt time on the monotonic clock) and
+its host receipt time on the monotonic clock: ``self.clock.monotonic()``) and
 ``_handle(item, t_host)``, which decodes one frame and either calls ``_emit`` with a sample or
 raises ``BadFrame(reason)``; the reader counts the reason in ``stats`` and goes on.
 
@@ -28,9 +28,9 @@ from __future__ import annotations
 import logging
 import struct
 import threading
-import time
 from typing import Any
 
+from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import (
     DeviceIdentity,
@@ -76,18 +76,20 @@ class SensorReader:
 
     protocol = "instrument"
 
-    def __init__(self, cfg: InstrumentConfig, where: str) -> None:
+    def __init__(self, cfg: InstrumentConfig, where: str, *, clock: Clock = REAL) -> None:
         self.cfg = cfg
+        self.clock = clock
         self.axes: tuple[str, ...] = tuple(cfg.axes)
         self.stats = FrameStats()
         self._where = where
-        self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
-        self._stop_evt = threading.Event()
+        self._lock = clock.lock()
+        self._thread: ThreadLike | None = None
+        self._ident: int | None = None  # the reader thread's, while it runs
+        self._stop_evt = clock.event()
         self._on_sample: SampleCallback | None = None
         self._on_error: ErrorCallback | None = None
         self._fault: BaseException | None = None
-        self._first_good = threading.Event()
+        self._first_good = clock.event()
         self._started_t: float | None = None
         self._last_good_t: float | None = None
         self._silence_reported = False
@@ -114,7 +116,7 @@ class SensorReader:
         with self._lock:
             self._on_sample = on_sample
             self._on_error = on_error
-            self._started_t = time.monotonic()
+            self._started_t = self.clock.monotonic()
             self._last_good_t = None
             self._silence_reported = False
         self._start_reader()
@@ -189,15 +191,15 @@ class SensorReader:
         if isinstance(self._fault, ConnectionLost):
             return
         self._stop_evt.clear()
-        self._thread = threading.Thread(
-            target=self._run, name=f"{self.protocol}-reader-{self._where}", daemon=True
+        self._thread = self.clock.thread(
+            self._run, name=f"{self.protocol}-reader-{self._where}", daemon=True
         )
         self._thread.start()
 
     def _stop_reader(self) -> None:
         self._stop_evt.set()
         t = self._thread
-        if t is not None and t is not threading.current_thread():
+        if t is not None and threading.get_ident() != self._ident:
             t.join(timeout=5.0)
         self._thread = None
 
@@ -224,6 +226,7 @@ class SensorReader:
         ))
 
     def _run(self) -> None:
+        self._ident = threading.get_ident()
         while not self._stop_evt.is_set():
             try:
                 items = self._poll()
@@ -240,4 +243,4 @@ class SensorReader:
                 except Exception as e:  # a bug in a decoder: never silent
                     self.stats.count_bad(BAD_DECODE)
                     self._report(e)
-            self._check_silence(time.monotonic())
+            self._check_silence(self.clock.monotonic())

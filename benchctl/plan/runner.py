@@ -47,16 +47,15 @@ import logging
 import os
 import select
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
+from benchctl.clock import REAL, Clock, EventLike, ThreadLike
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
@@ -230,10 +229,11 @@ def _read_line(stream: Any, timeout_s: float | None) -> str:
         if not line:
             raise EOFError("end of input") from None
         return line
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    # the operator's terminal: a host wait (select) on the host's time, whatever the run's clock
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s  # noqa: TID251
     buf = b""
     while b"\n" not in buf:
-        left = None if deadline is None else deadline - time.monotonic()
+        left = None if deadline is None else deadline - time.monotonic()  # noqa: TID251
         if left is not None and left <= 0:
             raise TimeoutError(f"no answer within {timeout_s:g} s")
         try:
@@ -281,12 +281,14 @@ def step_config(cfg: BenchConfig, step: Step, where: str = "") -> BenchConfig:
     return cfg.model_copy(update={"run": new_run})
 
 
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
+def _now(clock: Clock = REAL) -> str:
+    return clock.now_utc().isoformat(timespec="milliseconds")
 
 
 # ------------------------------------------------------------------------------- the stand
-def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
+def stand_action(
+    cfg: BenchConfig, check: str, holder: dict[str, Any], *, clock: Clock = REAL
+) -> str:
     """One stand check of a setup or cleanup (the stand's lock held, the real driver): returns
     its detail, raises ``BenchError`` when it fails.
 
@@ -299,7 +301,7 @@ def stand_action(cfg: BenchConfig, check: str, holder: dict[str, Any]) -> str:
     from benchctl.run.lock import stand_lock
 
     with stand_lock(cfg, holder):
-        stand = open_stand(cfg.stand)
+        stand = open_stand(cfg.stand, clock=clock)
         try:
             stand.connect()
             status = stand.read_status()
@@ -358,23 +360,45 @@ class Consent:
 
 
 # ------------------------------------------------------------------------------- runner
+class _Timer:
+    """``threading.Timer`` on a clock: ``fn`` runs in its own thread ``seconds`` after
+    ``start`` unless ``cancel`` came first."""
+
+    def __init__(self, clock: Clock, seconds: float, fn: Callable[[], None], name: str) -> None:
+        self.seconds, self.fn = seconds, fn
+        self._cancelled: EventLike = clock.event()
+        self._thread: ThreadLike = clock.thread(self._run, name=name)
+
+    def _run(self) -> None:
+        if not self._cancelled.wait(self.seconds):
+            self.fn()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def cancel(self) -> None:
+        self._cancelled.set()
+
+    def join(self) -> None:
+        self._thread.join()
+
+
 class _Timers:
     """The step's and the plan's timeouts: each ends the running step through its supervisor."""
 
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
+    def __init__(self, clock: Clock = REAL) -> None:
+        self.clock = clock
+        self._lock = clock.lock()
         self.supervisor: Any = None  # the running step's
         self.plan_expired = False
         self.step_expired = False
-        self._plan_timer: threading.Timer | None = None
+        self._plan_timer: _Timer | None = None
         self.plan_timeout_s: float | None = None
 
     def start_plan(self, seconds: float | None) -> None:
         self.plan_timeout_s = seconds
         if seconds is not None:
-            self._plan_timer = threading.Timer(seconds, self._plan_fired)
-            self._plan_timer.daemon = True
-            self._plan_timer.name = "plan-timeout"
+            self._plan_timer = _Timer(self.clock, seconds, self._plan_fired, "plan-timeout")
             self._plan_timer.start()
 
     def _plan_fired(self) -> None:
@@ -396,7 +420,7 @@ class _Timers:
             supervisor.fault(PlanTimeout(f"step {name!r}: its timeout_s ({seconds:g} s) ran out"),
                              TIMEOUT_SOURCE)
 
-        timer: threading.Timer | None = None
+        timer: _Timer | None = None
         with self._lock:
             self.supervisor = supervisor
             expired = self.plan_expired
@@ -404,9 +428,7 @@ class _Timers:
             supervisor.fault(PlanTimeout(
                 f"the plan's timeout_s ({self.plan_timeout_s:g} s) ran out"), TIMEOUT_SOURCE)
         if seconds is not None:
-            timer = threading.Timer(seconds, fired)
-            timer.daemon = True
-            timer.name = "step-timeout"
+            timer = _Timer(self.clock, seconds, fired, "step-timeout")
             timer.start()
         try:
             yield
@@ -456,6 +478,7 @@ def run_plan(
     junit: str | Path | None = None,
     display: Callable[[], Any] | None = None,
     say: Callable[[str], None] | None = None,
+    clock: Clock = REAL,
 ) -> PlanResult:
     """Run an acceptance plan on the bench and return its ``PlanResult`` (``exit_code``: 0 all
     PASS, 1 a measured FAIL, 2 an abort or error, 3 INCONCLUSIVE).
@@ -469,7 +492,8 @@ def run_plan(
     ``out_dir``: where the recordings and the plan folder go (default ``run.output_dir``).
     ``junit``: write JUnit XML there.
     ``display``: a factory of each step's run display (default none). ``say``: a line of
-    progress (default: logged).
+    progress (default: logged). ``clock``: the run's clock (``benchctl.clock``) for every step,
+    stand check, timeout and stamp (default the real one).
 
     Raises ``BenchError`` only for bad input found before anything opens (the plan, the
     config, a step's profile or limits, prompts that cannot be answered); every later outcome
@@ -512,15 +536,15 @@ def run_plan(
     cfgs = _prepare(p, cfg, serial, op, out)
     tell = say or (lambda s: log.info("%s", s))
 
-    result = PlanResult(p.name, p.source, serial, op, cfg.source, start_utc=_now())
-    t0 = time.monotonic()
+    result = PlanResult(p.name, p.source, serial, op, cfg.source, start_utc=_now(clock))
+    t0 = clock.monotonic()
     folder = recording_dir(out, serial, prefix="plan_")
     try:
         folder.mkdir(parents=True)
     except OSError as e:
         raise ConfigError(f"{folder}: cannot create the plan folder: {e.strerror}") from None
     result.folder = folder
-    timers = _Timers()
+    timers = _Timers(clock)
     holder = {"command": "benchctl plan", "plan": p.name, "serial": serial, "operator": op,
               "start_utc": result.start_utc}
     consent = Consent()
@@ -538,7 +562,7 @@ def run_plan(
             try:
                 # ---- setup
                 for i, a in enumerate(p.setup):
-                    ar = _action("setup", i, a, live, asker, holder, tell, consent)
+                    ar = _action("setup", i, a, live, asker, holder, tell, consent, clock)
                     result.setup.append(ar)
                     if ar.status == "declined":
                         stop_reason = f"setup: the operator answered no to {a.prompt!r}"
@@ -567,7 +591,7 @@ def run_plan(
                     tell(f"step {step.name}: {step.profile.name}")
                     consent.moved = True
                     sr = _run_step(step, scfg, serial, op, out, timers, display, run_test,
-                                   RunOptions, Supervisor)
+                                   RunOptions, Supervisor, clock)
                     result.steps.append(sr)
                     tell(f"step {step.name}: {sr.status}" + (f" ({sr.reason})" if sr.reason
                                                               and sr.status != PASS else ""))
@@ -594,7 +618,7 @@ def run_plan(
                 # ---- cleanup: always
                 for i, a in enumerate(p.cleanup):
                     try:
-                        ar = _action("cleanup", i, a, live, asker, holder, tell, consent)
+                        ar = _action("cleanup", i, a, live, asker, holder, tell, consent, clock)
                     except KeyboardInterrupt as e:  # a signal between two actions
                         ar = ActionResult("cleanup", i, a.prompt, a.check, "skipped",
                                           f"not run: {consent.interrupt(e, 'in the cleanup')}")
@@ -606,15 +630,16 @@ def run_plan(
             if result.interrupted and not result.reason:
                 result.reason = stop_reason
     finally:
-        result.end_utc = _now()
-        result.duration_s = time.monotonic() - t0
+        result.end_utc = _now(clock)
+        result.duration_s = clock.monotonic() - t0
         _conclude(result, stop_reason)
         _write_outputs(result, folder, junit)
     return result
 
 
 def _action(phase: str, index: int, a: Action, cfg: BenchConfig, asker: Asker | None,
-            holder: dict[str, Any], tell: Callable[[str], None], consent: Consent) -> ActionResult:
+            holder: dict[str, Any], tell: Callable[[str], None], consent: Consent,
+            clock: Clock = REAL) -> ActionResult:
     """One setup or cleanup action; never raises for a prompt's answer, a failed check or a
     signal (each is the action's status, and ``consent`` learns of it)."""
     ar = ActionResult(phase, index, a.prompt, a.check, "ok")
@@ -634,7 +659,7 @@ def _action(phase: str, index: int, a: Action, cfg: BenchConfig, asker: Asker | 
             else:
                 if a.check == "ramp_to_zero":
                     consent.moved = True  # from the first enable on, the motion is this plan's
-                ar.detail = f"{a.check}: {stand_action(cfg, a.check, holder)}"
+                ar.detail = f"{a.check}: {stand_action(cfg, a.check, holder, clock=clock)}"
         except BenchError as e:
             ar.status, ar.detail = "failed", f"{a.check}: {e}"
         except KeyboardInterrupt as e:
@@ -678,23 +703,23 @@ def _ask(ar: ActionResult, prompt: str, asker: Asker | None, consent: Consent) -
 
 def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
               timers: _Timers, display: Callable[[], Any] | None, run_test: Any,
-              RunOptions: Any, Supervisor: Any) -> StepResult:
+              RunOptions: Any, Supervisor: Any, clock: Clock = REAL) -> StepResult:
     sr = StepResult(step.name, str(step.profile), ERROR, on_fail=step.on_fail,
-                    start_utc=_now())
-    t0 = time.monotonic()
-    sup = Supervisor()
+                    start_utc=_now(clock))
+    t0 = clock.monotonic()
+    sup = Supervisor(clock=clock)
     opts = RunOptions(serial=serial, operator=operator, duration_s=step.duration_s,
                       out_dir=out, decision_rule=step.decision_rule)
     try:
         with timers.step(sup, step.name, step.timeout_s):
             res = run_test(cfg, step.profile, opts, display=None if display is None else display(),
-                           supervisor=sup)
+                           supervisor=sup, clock=clock)
     except BenchError as e:  # could not start: bad input found late, a stand in use
         sr.reason = f"could not start: {e}"
         sr.exit_code = EXIT_ERROR
-        sr.duration_s = time.monotonic() - t0
+        sr.duration_s = clock.monotonic() - t0
         return sr
-    sr.duration_s = time.monotonic() - t0
+    sr.duration_s = clock.monotonic() - t0
     sr.exit_code = res.exit_code
     sr.recording = res.recording
     sr.record_path = res.record

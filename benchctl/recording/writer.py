@@ -26,14 +26,12 @@ import hashlib
 import math
 import numbers
 import os
-import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
 from benchctl import __version__
+from benchctl.clock import REAL, Clock
 from benchctl.devices.base import InstrumentSample, StandSample
 from benchctl.errors import InputError, RecordingError, is_disk_full
 from benchctl.fileout import atomic_write_bytes
@@ -123,8 +121,8 @@ class _Tally:
         return {"rows": self.rows, "bytes": self.bytes, "sha256": self.sha.hexdigest()}
 
 
-def utc_now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
+def utc_now(clock: Clock = REAL) -> str:
+    return clock.now_utc().isoformat(timespec="milliseconds")
 
 
 class RecordingWriter:
@@ -142,29 +140,32 @@ class RecordingWriter:
         axes: Sequence[str],
         meta: Mapping[str, Any],
         on_error: Callable[[RecordingError], None] | None = None,
+        *,
+        clock: Clock = REAL,
     ) -> None:
+        self.clock = clock
         self.path = Path(path)
         if self.path.exists() and any(self.path.iterdir()):
             raise InputError(f"{self.path}: recording folder exists and is not empty")
         self.path.mkdir(parents=True, exist_ok=True)
         self.axes = tuple(axes)
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
         self._closed = False
         self._end_written = False
-        self._close_lock = threading.Lock()
+        self._close_lock = clock.lock()
         self.counts = {name: 0 for name in STREAM_FILES}
         self.dropped_rows = 0  # stream rows not written after a write failure
         self.dropped_events = 0
         self._rows_off = False  # release_reserve: a full disk, rows dropped from now on
         self.error: RecordingError | None = None  # the first write failure
         self._on_error = on_error
-        self.t0_monotonic = time.monotonic()
+        self.t0_monotonic = clock.monotonic()
         full_meta = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
             "software_version": __version__,
             "axes": list(self.axes),
-            "start_utc": utc_now(),
+            "start_utc": utc_now(clock),
             "start_monotonic": self.t0_monotonic,
             **meta,
         }
@@ -276,7 +277,7 @@ class RecordingWriter:
         raise self._report(err)
 
     def event(self, kind: str, **fields: Any) -> None:
-        rec = {"t_host": time.monotonic(), "utc": utc_now(), "kind": kind, **fields}
+        rec = {"t_host": self.clock.monotonic(), "utc": utc_now(self.clock), "kind": kind, **fields}
         line = dumps(rec) + "\n"
         with self._lock:
             if self._closed:
@@ -323,8 +324,8 @@ class RecordingWriter:
         end: dict[str, Any] = {
             "state": state,
             "reason": reason,
-            "end_utc": utc_now(),
-            "end_monotonic": time.monotonic(),
+            "end_utc": utc_now(self.clock),
+            "end_monotonic": self.clock.monotonic(),
             "counts": dict(self.counts),
             **extra,
             "integrity": self.integrity(),

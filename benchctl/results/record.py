@@ -27,12 +27,12 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Iterable, Mapping
-from datetime import UTC, datetime
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from benchctl.clock import REAL, Clock
 from benchctl.errors import AnalysisError, BenchError, DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, load_object, plain
@@ -130,10 +130,12 @@ def build_record(
     log: Path | None = None,
     exit_code: int | None = None,
     end_utc: str | None = None,
+    clock: Clock = REAL,
 ) -> dict[str, Any]:
     """The record of one run from the recording's metadata (``meta.json``: serial, operator,
     station, devices, profile, seed, config, start time, software version, hashes) and its
-    results. ``abort``: {kind, reason, …} for an aborted run (``outcome`` ABORTED)."""
+    results. ``abort``: {kind, reason, …} for an aborted run (``outcome`` ABORTED).
+    ``end_utc``: else now on ``clock`` (the run's)."""
     from benchctl import __version__
 
     devices = meta.get("devices") or {}
@@ -159,7 +161,7 @@ def build_record(
         "deviations": list(deviations),
         "warnings": list(warnings),
         "start_utc": meta.get("start_utc"),
-        "end_utc": end_utc or datetime.now(UTC).isoformat(timespec="milliseconds"),
+        "end_utc": end_utc or clock.now_utc().isoformat(timespec="milliseconds"),
         "unit": {
             "serial": typed,
             "part_number": None if part is None else str(part),

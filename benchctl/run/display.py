@@ -21,12 +21,17 @@ import logging
 import math
 import sys
 import textwrap
-import threading
-import time
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Protocol, TextIO
 
+from benchctl.clock import REAL, Clock
 from benchctl.text import visible
+
+
+def _hms(clock: Clock) -> str:
+    """The clock's wall time as local hours:minutes:seconds (a line's stamp for people)."""
+    return datetime.fromtimestamp(clock.time()).strftime("%H:%M:%S")
 
 
 @dataclass
@@ -147,20 +152,21 @@ class NullDisplay:
 class LogDisplay:
     """Plain lines: one per state change and one every ``period_s``."""
 
-    def __init__(self, stream: TextIO, period_s: float = 5.0) -> None:
+    def __init__(self, stream: TextIO, period_s: float = 5.0, *, clock: Clock = REAL) -> None:
         self.stream = stream
         self.period_s = period_s
+        self.clock = clock
         self._last = -math.inf
 
     def _print(self, text: str) -> None:
-        self.stream.write(f"[{time.strftime('%H:%M:%S')}] {visible(text)}\n")
+        self.stream.write(f"[{_hms(self.clock)}] {visible(text)}\n")
         self.stream.flush()
 
     def state(self, state: str, reason: str = "") -> None:
         self._print(f"state → {state}" + (f" ({reason})" if reason else ""))
 
     def update(self, snap: Snapshot) -> None:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         if now - self._last < self.period_s:
             return
         self._last = now
@@ -206,8 +212,11 @@ class TtyDisplay:
     the same terminal go through the display instead (a line written under the block would
     break its redrawing); the handler gets them again at ``close``."""
 
-    def __init__(self, stream: TextIO, fps: float = 5.0, width: int | None = None) -> None:
+    def __init__(
+        self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL
+    ) -> None:
         self.stream = stream
+        self.clock = clock
         self.min_dt = 1.0 / fps
         self._drawn = 0
         self._last = -math.inf
@@ -216,7 +225,7 @@ class TtyDisplay:
         self._warn_until = -math.inf
         self._warning = ""
         self._done = False
-        self._lock = threading.RLock()  # log records may come from the run's other threads
+        self._lock = clock.rlock()  # log records may come from the run's other threads
         self._logging: tuple[logging.Handler, list[logging.Handler], _Held] | None = None
         if width is None:
             import shutil
@@ -260,7 +269,7 @@ class TtyDisplay:
     def _draw(self, snap: Snapshot) -> None:
         self._capture_logging()
         self._erase()
-        now = time.monotonic()
+        now = self.clock.monotonic()
         lines = format_block(snap, self.width, self._missed_seen)
         if lines[-1]:  # a warning stays up a few seconds after the climb
             self._warn_until, self._warning = now + 5.0, lines[-1]
@@ -277,7 +286,7 @@ class TtyDisplay:
     def update(self, snap: Snapshot) -> None:
         with self._lock:
             self._snap = snap
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if now - self._last >= self.min_dt:
                 self._last = now
                 self._draw(snap)
@@ -286,7 +295,7 @@ class TtyDisplay:
         """A line above the block, wrapped (not cut) to the display's width."""
         with self._lock:
             self._erase()
-            lines = textwrap.wrap(f"[{time.strftime('%H:%M:%S')}] {visible(text)}", self.width,
+            lines = textwrap.wrap(f"[{_hms(self.clock)}] {visible(text)}", self.width,
                                   subsequent_indent=" " * 11, break_on_hyphens=False) or [""]
             self.stream.write("\n".join(lines) + "\n")
             if self._snap is not None and not self._done:
@@ -311,14 +320,16 @@ class TtyDisplay:
             self.stream.flush()
 
 
-def make_display(stream: TextIO | None = None, quiet: bool = False) -> Display:
+def make_display(
+    stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL
+) -> Display:
     """A TTY display when ``stream`` is a terminal, plain log lines otherwise."""
     s = stream if stream is not None else sys.stderr
     if quiet:
         return NullDisplay()
     if s.isatty():
-        return TtyDisplay(s)
-    return LogDisplay(s)
+        return TtyDisplay(s, clock=clock)
+    return LogDisplay(s, clock=clock)
 
 
 class SafeDisplay:

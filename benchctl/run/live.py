@@ -5,13 +5,13 @@ read by the main thread; no I/O."""
 from __future__ import annotations
 
 import math
-import threading
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from benchctl.clock import REAL, Clock
 from benchctl.devices.base import InstrumentSample, StandSample
 
 
@@ -62,9 +62,9 @@ class RunningSigma:
     wait until a stand sample later than them has arrived; memory is bounded.
     """
 
-    def __init__(self, axes: tuple[str, ...]) -> None:
+    def __init__(self, axes: tuple[str, ...], *, clock: Clock = REAL) -> None:
         self.axes = axes
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
         self._stand: deque[tuple[float, dict[str, float]]] = deque(maxlen=512)
         self._pending: deque[InstrumentSample] = deque(maxlen=4096)
         self.active = False

@@ -16,8 +16,6 @@ never held up by an analysis; :func:`check_window` is one check.
 from __future__ import annotations
 
 import math
-import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.errors import BenchError, ConfigError
 
 MIN_PERIODS = 1  # never a stop before this many whole periods (every line excited)
@@ -212,7 +211,8 @@ class PrecisionWatch:
         period_s: float,
         max_periods: int,
         delay_s: float = CHECK_DELAY_S,
-        clock: Callable[[], float] = time.perf_counter,
+        *,
+        clock: Clock = REAL,
     ) -> None:
         self.analyse = analyse
         self.requested = requested
@@ -223,9 +223,9 @@ class PrecisionWatch:
         self.clock = clock
         self.checked = 0  # periods of the last check started
         self.checks: list[PrecisionCheck] = []
-        self._thread: threading.Thread | None = None
+        self._thread: ThreadLike | None = None
         self._done: PrecisionCheck | None = None
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
 
     def periods_at(self, now: float) -> int:
         """Whole periods recorded (and settled) by host time ``now``."""
@@ -248,14 +248,13 @@ class PrecisionWatch:
         n = min(self.periods_at(now), self.max_periods - 1)
         if n >= MIN_PERIODS and n > self.checked:
             self.checked = n
-            self._thread = threading.Thread(target=self._run, args=(n,), name="precision check",
-                                            daemon=True)
+            self._thread = self.clock.thread(self._run, args=(n,), name="precision check")
             self._thread.start()
         return None
 
     def _run(self, n: int) -> None:
         win = self.window(n)
-        t0 = self.clock()
+        t0 = self.clock.monotonic()
         check = PrecisionCheck(n, win)
         try:
             check.axes = self.analyse(win)
@@ -266,7 +265,7 @@ class PrecisionWatch:
         except (BenchError, ValueError, ArithmeticError, OSError) as e:
             check.error = f"no precision check over {n} period(s): {e}"
             check.decision = StopDecision(False, check.error)
-        check.seconds = self.clock() - t0
+        check.seconds = self.clock.monotonic() - t0
         with self._lock:
             self._done = check
             self.checks.append(check)

@@ -21,6 +21,7 @@ import logging
 from collections import deque
 from collections.abc import Callable, Mapping
 
+from benchctl.clock import Clock
 from benchctl.devices.base import InstrumentSample, Stand, StandSample
 from benchctl.errors import BenchError
 from benchctl.recording import RecordingWriter
@@ -34,12 +35,19 @@ class Recorder:
     """Wires the streams into the recording and keeps the counters the run reports."""
 
     def __init__(
-        self, writer: RecordingWriter, supervisor: Supervisor, axes: tuple[str, ...]
+        self,
+        writer: RecordingWriter,
+        supervisor: Supervisor,
+        axes: tuple[str, ...],
+        *,
+        clock: Clock | None = None,
     ) -> None:
         self.writer = writer
         self.supervisor = supervisor
+        #: the run's clock (default: the supervisor's)
+        self.clock = clock if clock is not None else supervisor.clock
         self.live = LiveView()
-        self.sigma = RunningSigma(axes)
+        self.sigma = RunningSigma(axes, clock=self.clock)
         self.rtt = Histogram()
         self.n_instrument = 0
         self.n_stand = 0

@@ -42,16 +42,16 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from benchctl import __version__
+from benchctl.clock import REAL, Clock
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
 from benchctl.errors import (
@@ -374,17 +374,19 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
 DeviceFactory = Callable[[BenchConfig, Path], tuple[Stand, AngleSensor]]
 
 
-def open_devices(cfg: BenchConfig, recording: Path) -> tuple[Stand, AngleSensor]:
-    """The real drivers for this config (also what talks to the simulators)."""
+def open_devices(
+    cfg: BenchConfig, recording: Path, *, clock: Clock = REAL
+) -> tuple[Stand, AngleSensor]:
+    """The real drivers for this config (also what talks to the simulators), on ``clock``."""
     from benchctl.devices.instrument import open_instrument
     from benchctl.devices.modbus import open_stand
 
     can_log = None
     if cfg.instrument.driver != "nmea0183" and cfg.instrument.can_log:
         can_log = recording / cfg.instrument.can_log
-    stand = open_stand(cfg.stand)
+    stand = open_stand(cfg.stand, clock=clock)
     try:
-        sensor = open_instrument(cfg.instrument, can_log_path=can_log)
+        sensor = open_instrument(cfg.instrument, can_log_path=can_log, clock=clock)
     except BaseException:
         stand.close()
         raise
@@ -404,11 +406,11 @@ def simulators(cfg: BenchConfig, log_path: Path | None = None) -> Iterator[Bench
         yield sim.config
 
 
-def recording_dir(out_dir: Path, serial: str, prefix: str = "") -> Path:
+def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock = REAL) -> Path:
     """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
     taken), the serial as a safe file-name part of at most 64 bytes
-    (``benchctl.text.file_name_part``)."""
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    (``benchctl.text.file_name_part``); the time is ``clock``'s."""
+    stamp = clock.now_utc().strftime("%Y%m%dT%H%M%SZ")
     base = out_dir / f"{prefix}{stamp}_{file_name_part(serial)}"
     p, i = base, 1
     while p.exists():
@@ -440,11 +442,17 @@ class Session:
         prepared: PreparedMotion,
         opts: RunOptions,
         display: Display | None = None,
-        device_factory: DeviceFactory = open_devices,
+        device_factory: DeviceFactory | None = None,  # default: open_devices on the clock
         start_simulators: bool = False,  # cfg has a sim: section: run them (after the recording)
         supervisor: Supervisor | None = None,  # the caller's (a plan asks a run to stop by it)
         run_archive: RunArchive | None = None,  # begun by run_test: the start's archive work
+        *,
+        clock: Clock | None = None,  # the run's (default: the supervisor's, else the real one)
     ) -> None:
+        if clock is None:
+            clock = supervisor.clock if supervisor is not None else REAL
+        #: every time read, wait, lock and thread of the run (``benchctl.clock``)
+        self.clock = clock
         self.start_simulators = start_simulators
         self.run_archive = run_archive
         self.log_path: Path | None = None
@@ -452,15 +460,17 @@ class Session:
         self.prep = prepared
         self.opts = opts
         self.display: Display = display or NullDisplay()
-        self.device_factory = device_factory
+        self.device_factory: DeviceFactory = (
+            device_factory if device_factory is not None else partial(open_devices, clock=clock)
+        )
         if cfg.unit.serial_pattern is not None:  # the config's form of a serial
             check_serial(opts.serial, "serial", cfg.unit.serial_pattern,
                          f"unit.serial_pattern of {cfg.source or 'the config'}")
         self.out_dir = opts.out_dir or cfg.run.output_dir
-        self.path = recording_dir(self.out_dir, opts.serial)
+        self.path = recording_dir(self.out_dir, opts.serial, clock=clock)
         self.axes = prepared.plan.axes
-        self.machine = StateMachine()
-        self.supervisor = supervisor if supervisor is not None else Supervisor()
+        self.machine = StateMachine(clock)
+        self.supervisor = supervisor if supervisor is not None else Supervisor(clock=clock)
         self.writer: RecordingWriter | None = None
         self.stand: Stand | None = None
         self.sensor: AngleSensor | None = None
@@ -506,7 +516,7 @@ class Session:
         live = self.recorder.live
         elapsed = remaining = None
         if live.t_motion_start is not None:
-            elapsed = time.monotonic() - live.t_motion_start
+            elapsed = self.clock.monotonic() - live.t_motion_start
             remaining = self.loop.plan.duration_s - elapsed  # shorter after an early stop
         return Snapshot(
             state=str(self.machine.state),
@@ -554,9 +564,9 @@ class Session:
         self._precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
         # from here on every stand sample and setpoint goes into the recording, cleanup included
-        self.recorder = rec = Recorder(w, self.supervisor, self.axes)
+        self.recorder = rec = Recorder(w, self.supervisor, self.axes, clock=self.clock)
         rec.attach(stand_raw)
-        stand = SerializedStand(stand_raw).as_stand()
+        stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
         self.stand = stand
         ids = {"stand": _identity(stand.connect())}
         self._precheck(pc.CheckResult("stand answers", True, _id_text(ids["stand"]), ids["stand"]))
@@ -600,6 +610,7 @@ class Session:
                 accel_deg_s2=cfg.stand.limits.accel_deg_s2,
                 buffer_s=cfg.stand.buffer_s,
             ),
+            clock=self.clock,
         )
 
     def _rate_and_zero(self) -> None:
@@ -610,10 +621,10 @@ class Session:
         # skews one window; an instrument at the wrong rate fails every one)
         for attempt in range(1, RATE_WINDOWS + 1):
             rec.collect(True)
-            t0 = time.monotonic()
+            t0 = self.clock.monotonic()
             self._wait(cfg.run.precheck_window_s)
             samples = rec.collect(False)
-            window = time.monotonic() - t0
+            window = self.clock.monotonic() - t0
             rate = pc.check_instrument_rate(
                 samples,
                 window,
@@ -661,7 +672,7 @@ class Session:
         cfg, eq = self.cfg, self.cfg.run.equalise
         self.machine.to(RunState.EQUALISING, "pre-test")
         self.loop.stop()  # the hold loop: the pre-test's own loop takes the stand over
-        self.loop = loop = self._new_loop(pre.plan, StateMachine())
+        self.loop = loop = self._new_loop(pre.plan, StateMachine(self.clock))
         loop.motion_event = "equalise_motion_start"
         if pre.plan.mode == "table":
             assert pre.plan.tables is not None
@@ -750,12 +761,12 @@ class Session:
         stalls, a silent instrument, a time limit)."""
         loop.begin_motion()
         limit = loop.plan.duration_s + 60.0
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
         t_wake, resumed = t0, -math.inf
         while not loop.motion_done.wait(0.1):
             if self.supervisor.faulted:
                 break
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if now - t_wake > 0.1 + HOST_STALL_S:
                 resumed = now
             t_wake = now
@@ -789,7 +800,7 @@ class Session:
         limit = (
             self.prep.plan.duration_s + 60.0
         )  # settle and slack; a hung loop cannot hang the run
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
         t_wake = t0
         resumed = -math.inf  # this thread's last wake-up after a stall of the process
         watch: list[Any] | None = None  # the running excitation estimates, once moving
@@ -797,7 +808,7 @@ class Session:
         while not loop.motion_done.wait(0.1):
             if self.supervisor.faulted:
                 break
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if watch is None and loop.t_motion_start is not None:
                 watch = self._excitation_watch()
             if watch and now - t_fidelity >= FIDELITY_EVERY_S:
@@ -864,7 +875,7 @@ class Session:
             return check_window(self.path, self.cfg, tables, window, t_start, self.axes)
 
         return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
-                              whole_periods_in(steady, period))
+                              whole_periods_in(steady, period), clock=self.clock)
 
     def _precision_poll(self, now: float) -> None:
         """A finished check: into the recording; when it says stop, the stand loop fades out."""
@@ -1044,7 +1055,7 @@ class Session:
                 decision_rule=self.rule, abort=abort, deviations=deviations,
                 warnings=warnings, report_json=rj if rj.exists() else None,
                 report_txt=rt if rt.exists() else None, log=self.log_path,
-                exit_code=exit_code,
+                exit_code=exit_code, clock=self.clock,
             )
             html = _write_html(self.path, report, rec, strict=strict)
             if html is not None:
@@ -1117,7 +1128,8 @@ class Session:
         with self.supervisor.signals(), contextlib.ExitStack() as stack:
             try:
                 self.writer = RecordingWriter(
-                    self.path, self.axes, self.meta, on_error=self._recording_failed
+                    self.path, self.axes, self.meta, on_error=self._recording_failed,
+                    clock=self.clock,
                 )
             except OSError as e:
                 full = RecordingError.disk_full(e, self.path)
@@ -1394,6 +1406,8 @@ def run_test(
     display: Display | None = None,
     device_factory: DeviceFactory | None = None,
     supervisor: Supervisor | None = None,
+    *,
+    clock: Clock | None = None,
 ) -> RunResult:
     """Run one test. Bad input raises ``BenchError`` before anything opens, and so does a stand
     in use by another run (``StandInUse``, naming it: ``benchctl.run.lock``); after that, every
@@ -1406,23 +1420,29 @@ def run_test(
     ``supervisor``: the run's, given by the caller, who may end the run through it from another
     thread (``supervisor.fault(SafetyAbort(reason), source)``: the same cleanup path as a signal;
     a fault reported before the run starts ends it as soon as its recording exists). An
-    acceptance plan's step timeout does this (``benchctl.plan``)."""
+    acceptance plan's step timeout does this (``benchctl.plan``).
+
+    ``clock``: the run's (``benchctl.clock``), handed to everything the run builds — the
+    supervisor, the recording, the drivers, the loops; default the supervisor's, else the
+    real one."""
+    if clock is None:
+        clock = supervisor.clock if supervisor is not None else REAL
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)
     if device_factory is not None:
         return Session(cfg, prepared, opts, display, device_factory, supervisor=supervisor,
-                       run_archive=_archive_at_start(cfg, Path(out_dir))).run()
+                       run_archive=_archive_at_start(cfg, Path(out_dir)), clock=clock).run()
     if cfg.sim is not None:
         return Session(cfg, prepared, opts, display, start_simulators=True,
                        supervisor=supervisor,
-                       run_archive=_archive_at_start(cfg, Path(out_dir))).run()
-    session = Session(cfg, prepared, opts, display, supervisor=supervisor)
+                       run_archive=_archive_at_start(cfg, Path(out_dir)), clock=clock).run()
+    session = Session(cfg, prepared, opts, display, supervisor=supervisor, clock=clock)
     holder = {
         "command": "benchctl run",
         "serial": opts.serial,
         "operator": opts.operator,
-        "start_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "start_utc": clock.now_utc().isoformat(timespec="seconds"),
         "config": str(cfg.source) if cfg.source else None,
         "recording": str(session.path),
     }

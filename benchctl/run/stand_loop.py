@@ -30,13 +30,13 @@ import bisect
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, cast
 
 import numpy as np
 
+from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.devices.base import AngleSensor, Stand, StandSample
 from benchctl.errors import LimitError, SafetyAbort, StandFault
 from benchctl.kinematics import (
@@ -68,9 +68,9 @@ UNDERRUN_STOP_S = 10.0  # after an underrun the stand must be at rest within thi
 class SerializedStand:
     """The stand with every call serialised by one lock: the loop and the main thread share it."""
 
-    def __init__(self, stand: Stand) -> None:
+    def __init__(self, stand: Stand, *, clock: Clock = REAL) -> None:
         self._stand = stand
-        self._lock = threading.RLock()
+        self._lock = clock.rlock()
         self.axes = stand.axes
         self.limits = stand.limits
 
@@ -171,7 +171,8 @@ class StandLoop:
         machine: StateMachine,
         plan: MotionPlan,
         limits: LoopLimits,
-        clock: Callable[[], float] = time.monotonic,
+        *,
+        clock: Clock = REAL,
     ) -> None:
         self.stand = stand
         self.rec = recorder
@@ -180,9 +181,9 @@ class StandLoop:
         self.plan = plan
         self.lim = limits
         self.clock = clock
-        self._stop = threading.Event()
-        self._go = threading.Event()
-        self.motion_done = threading.Event()
+        self._stop = clock.event()
+        self._go = clock.event()
+        self.motion_done = clock.event()
         self.lateness = Histogram()
         self.cmd = CommandStats(plan.period_s)
         self.rejoins = 0
@@ -200,7 +201,8 @@ class StandLoop:
         # the commanded motion at profile time t, for the departure check (None: the profile)
         self._ref: Callable[[float], dict[str, float]] | None = None
         self._sent: list[tuple[int, dict[str, float]]] = []  # stream: recent (slot, setpoint)
-        self._thread: threading.Thread | None = None
+        self._thread: ThreadLike | None = None
+        self._ident: int | None = None  # the loop thread's, once it runs
         # an early end asked for by the main thread (request_end); applied by this thread at
         # the next slot not yet sent or queued
         self._end_request: dict[str, Any] | None = None
@@ -261,7 +263,7 @@ class StandLoop:
     def stop(self, timeout_s: float = 5.0) -> None:
         self._stop.set()
         t = self._thread
-        if t is not None and t is not threading.current_thread():
+        if t is not None and threading.get_ident() != self._ident:
             t.join(timeout_s)
             if t.is_alive():
                 log.error("stand loop did not stop within %.1f s", timeout_s)
@@ -278,7 +280,7 @@ class StandLoop:
         ``HOST_STALL_S`` late means this process was held up: that moment is noted
         (``t_resumed``), so silence is not counted across the host's own stall."""
         while True:
-            now = self.clock()
+            now = self.clock.monotonic()
             if now >= deadline:
                 if now - deadline > HOST_STALL_S:
                     self.t_resumed = now
@@ -288,6 +290,7 @@ class StandLoop:
 
     # the thread
     def _run(self) -> None:
+        self._ident = threading.get_ident()
         self._hold(until_go=True)
         if self._stopping():
             return
@@ -299,7 +302,7 @@ class StandLoop:
             self._stream()
         if self._stopping():
             return
-        self.t_motion_end = self.clock()
+        self.t_motion_end = self.clock.monotonic()
         self._settle()
         if self._stopping():
             return
@@ -377,14 +380,14 @@ class StandLoop:
 
     def _hold(self, until_go: bool) -> None:
         period = 1.0 / self.lim.sample_rate_hz
-        t0 = self.clock()
+        t0 = self.clock.monotonic()
         k = 0
         while not self._stopping():
             if until_go and self._go.is_set():
                 return
             if not self._wait_until(t0 + k * period):
                 return
-            now = self.clock()
+            now = self.clock.monotonic()
             k = max(k + 1, int((now - t0) / period) + 1)
             self._heartbeat(now)
             self._sample(None)
@@ -407,7 +410,7 @@ class StandLoop:
     def _stream(self) -> None:
         plan = self.plan
         period = plan.period_s
-        t_start = self.clock() + period  # first slot one period ahead
+        t_start = self.clock.monotonic() + period  # first slot one period ahead
         self._start_motion(t_start)
         k = 0
         rejoin: Rejoin | None = None
@@ -418,7 +421,7 @@ class StandLoop:
             deadline = t_start + k * period
             if not self._wait_until(deadline):
                 return
-            now = self.clock()
+            now = self.clock.monotonic()
             late = now - deadline
             if late >= SEND_WINDOW * period:
                 # stalled: no burst. A slot whose moment has passed by more than the send window
@@ -529,9 +532,9 @@ class StandLoop:
                 break
             # an underrun: the stand stopped itself; rejoin the profile from where it rests
             s = self._await_rest_after_underrun()
-            k_now = base + round((self.clock() - t0) / T)
+            k_now = base + round((self.clock.monotonic() - t0) / T)
             held = {a: AxisCommand(s.setpoint_deg[a], 0.0) for a in plan.axes}
-            rejoin = self._plan_rejoin(k_now, held, self.clock())
+            rejoin = self._plan_rejoin(k_now, held, self.clock.monotonic())
             src = PointSource(self.plan, rejoin.first_slot, rejoin)
             base = rejoin.first_slot
 
@@ -567,7 +570,7 @@ class StandLoop:
         self, t0: float, base: int, pts: list[tuple[int, dict[str, float]]]
     ) -> None:
         T = self.plan.period_s
-        now = self.clock()
+        now = self.clock.monotonic()
         self.rec.points(now, [(t0 + (k - base) * T, v) for k, v in pts])
         self.setpoints_sent += len(pts)
 
@@ -635,7 +638,7 @@ class StandLoop:
         deadline = t0 + i * period
         if not self._wait_until(deadline):
             return None
-        now = self.clock()
+        now = self.clock.monotonic()
         late = now - deadline
         if late >= period:
             skip = int(late / period)
@@ -652,9 +655,9 @@ class StandLoop:
 
     def _await_rest_after_underrun(self) -> StandSample:
         period = 1.0 / self.lim.sample_rate_hz
-        t_end = self.clock() + UNDERRUN_STOP_S
+        t_end = self.clock.monotonic() + UNDERRUN_STOP_S
         while True:
-            now = self.clock()
+            now = self.clock.monotonic()
             self._heartbeat(now)
             s = self._sample(None)
             self.t_last_cycle = now
@@ -693,12 +696,12 @@ class StandLoop:
     def _settle(self) -> None:
         """After the profile: keep recording until the stand is at rest near zero."""
         period = 1.0 / self.lim.sample_rate_hz
-        t0 = self.clock()
+        t0 = self.clock.monotonic()
         k = 1
-        while self.clock() - t0 < SETTLE_TIMEOUT_S:
+        while self.clock.monotonic() - t0 < SETTLE_TIMEOUT_S:
             if not self._wait_until(t0 + k * period):
                 return
-            now = self.clock()
+            now = self.clock.monotonic()
             k = max(k + 1, int((now - t0) / period) + 1)
             self._heartbeat(now)
             s = self._sample(None)
@@ -733,5 +736,5 @@ class StandLoop:
 
 def start_instrument(sensor: AngleSensor, recorder: Recorder) -> None:
     """Start the instrument's reader wired straight into the recording and the supervisor."""
-    recorder.t_last_instrument_ref = time.monotonic()
+    recorder.t_last_instrument_ref = recorder.clock.monotonic()
     sensor.start(recorder.on_sample, recorder.on_error)

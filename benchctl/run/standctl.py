@@ -28,10 +28,10 @@ import os
 import socket
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import BenchConfig
 from benchctl.devices.base import DeviceIdentity, StandSample
 from benchctl.devices.modbus.stand import ModbusStand, open_stand
@@ -120,8 +120,8 @@ class ActionOutcome:
 
 # ----------------------------------------------------------------------------- reading
 @contextlib.contextmanager
-def _connected(cfg: BenchConfig) -> Iterator[ModbusStand]:
-    stand = open_stand(cfg.stand)
+def _connected(cfg: BenchConfig, *, clock: Clock = REAL) -> Iterator[ModbusStand]:
+    stand = open_stand(cfg.stand, clock=clock)
     try:
         try:
             stand.connect()
@@ -149,7 +149,7 @@ def _state(cfg: BenchConfig, stand: ModbusStand) -> StandState:
                       holder, holder is not None and process_alive(holder.get("pid")), lock.path)
 
 
-def read_state(cfg: BenchConfig) -> StandState:
+def read_state(cfg: BenchConfig, *, clock: Clock = REAL) -> StandState:
     """The stand's state and its lock's holder; takes no lock and writes nothing.
 
     A Modbus RTU stand held by a running process is not read: a second master on its serial
@@ -163,7 +163,7 @@ def read_state(cfg: BenchConfig) -> StandState:
                 f"stand {key} is in use by {describe_holder(holder)}: its serial line is not "
                 "opened while a run holds it (a second Modbus master would collide with the "
                 "run's frames); the run's own display shows the stand", holder)
-    with _connected(cfg) as stand:
+    with _connected(cfg, clock=clock) as stand:
         return _state(cfg, stand)
 
 
@@ -213,10 +213,10 @@ def _who(who: Mapping[str, Any]) -> str:
 
 
 def stand_log(cfg: BenchConfig, action: str, endpoint: str, who: Mapping[str, Any],
-              outcome: str) -> Path | None:
+              outcome: str, *, clock: Clock = REAL) -> Path | None:
     """Append one line to ``<run.output_dir>/stand.log`` (and log it); the file, or None when
     it cannot be written (a warning: the action itself stands)."""
-    stamp = datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    stamp = clock.now_utc().isoformat(timespec="milliseconds").replace("+00:00", "Z")
     line = f"{stamp} stand {action} {endpoint} by {_who(who)}: {outcome}"
     log.info("%s", line)
     path = Path(cfg.run.output_dir) / STAND_LOG
@@ -231,7 +231,8 @@ def stand_log(cfg: BenchConfig, action: str, endpoint: str, who: Mapping[str, An
 
 
 @contextlib.contextmanager
-def _held(cfg: BenchConfig, action: str, who: Mapping[str, Any]) -> Iterator[None]:
+def _held(cfg: BenchConfig, action: str, who: Mapping[str, Any],
+          clock: Clock = REAL) -> Iterator[None]:
     """The stand's lock for ``action``; a refusal (the stand in use) is logged and raised."""
     holder = {**who, "command": f"benchctl stand {action}",
               "config": None if cfg.source is None else str(cfg.source)}
@@ -239,13 +240,14 @@ def _held(cfg: BenchConfig, action: str, who: Mapping[str, Any]) -> Iterator[Non
         with stand_lock(cfg, holder):
             yield
     except StandInUse as e:
-        stand_log(cfg, action, endpoint_key(cfg.stand), who, f"refused: {e}")
+        stand_log(cfg, action, endpoint_key(cfg.stand), who, f"refused: {e}", clock=clock)
         raise
 
 
-def reset_fault(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any]) -> ActionOutcome:
+def reset_fault(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any], *,
+                clock: Clock = REAL) -> ActionOutcome:
     """Clear the stand's latched fault or E-stop (see the module notes). The servo stays off."""
-    with _held(cfg, "reset", who), _connected(cfg) as stand:
+    with _held(cfg, "reset", who, clock), _connected(cfg, clock=clock) as stand:
         before = _state(cfg, stand)
         st = before.sample.status
         if not before.faulted:
@@ -268,22 +270,23 @@ def reset_fault(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any]) -> A
                 out.after = _state(cfg, stand)
                 out.done, out.detail = True, f"{what} cleared; at {out.after.angles()}"
         except BaseException as e:
-            stand_log(cfg, "reset", before.endpoint, who, f"FAILED: {what}: {_err(e)}")
+            stand_log(cfg, "reset", before.endpoint, who, f"FAILED: {what}: {_err(e)}", clock=clock)
             raise
-        out.log_file = stand_log(cfg, "reset", before.endpoint, who, out.detail)
+        out.log_file = stand_log(cfg, "reset", before.endpoint, who, out.detail, clock=clock)
         return out
 
 
-def home(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any]) -> ActionOutcome:
+def home(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any], *,
+         clock: Clock = REAL) -> ActionOutcome:
     """Bring the stand to zero within its limits: enable, ramp, disable (module notes)."""
-    with _held(cfg, "home", who), _connected(cfg) as stand:
+    with _held(cfg, "home", who, clock), _connected(cfg, clock=clock) as stand:
         before = _state(cfg, stand)
         if before.faulted:
             st = before.sample.status
             what = f"fault {st.fault_code} ({before.fault_text})" if st.fault else "the E-stop"
             msg = f"stand {before.endpoint} reports {what}: it cannot move; " + (
                 pc.clear_fault_hint(cfg.source))
-            stand_log(cfg, "home", before.endpoint, who, f"refused: {msg}")
+            stand_log(cfg, "home", before.endpoint, who, f"refused: {msg}", clock=clock)
             raise SafetyAbort(msg)
         tol = cfg.stand.zero_tolerance_deg
         zero = pc.check_stand_at_zero(before.sample, tol)
@@ -315,9 +318,9 @@ def home(cfg: BenchConfig, confirm: Confirm, who: Mapping[str, Any]) -> ActionOu
                 out.detail = f"from {before.angles()} to {after.angles()}; servo off"
         except BaseException as e:
             stand_log(cfg, "home", before.endpoint, who,
-                      f"FAILED from {before.angles()}: {_err(e)}")
+                      f"FAILED from {before.angles()}: {_err(e)}", clock=clock)
             raise
-        out.log_file = stand_log(cfg, "home", before.endpoint, who, out.detail)
+        out.log_file = stand_log(cfg, "home", before.endpoint, who, out.detail, clock=clock)
         return out
 
 

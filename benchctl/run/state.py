@@ -15,11 +15,10 @@ Every transition is validated against ``TRANSITIONS`` (an illegal one is a bug a
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Callable
 from enum import StrEnum
 
+from benchctl.clock import REAL, Clock
 from benchctl.errors import BenchError
 
 
@@ -72,12 +71,12 @@ class TransitionError(BenchError):
 class StateMachine:
     """Thread-safe holder of the run's state; ``to`` validates and notifies listeners."""
 
-    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
-        self._lock = threading.Lock()
+    def __init__(self, clock: Clock = REAL) -> None:
+        self._lock = clock.lock()
         self._state = RunState.IDLE
         self._clock = clock
         self._listeners: list[Listener] = []
-        self.history: list[tuple[RunState, float]] = [(RunState.IDLE, clock())]
+        self.history: list[tuple[RunState, float]] = [(RunState.IDLE, clock.monotonic())]
 
     @property
     def state(self) -> RunState:
@@ -104,7 +103,7 @@ class StateMachine:
             if new not in TRANSITIONS[old]:
                 raise TransitionError(f"run state {old} cannot move to {new}")
             self._state = new
-            t = self._clock()
+            t = self._clock.monotonic()
             self.history.append((new, t))
         for listener in self._listeners:
             listener(old, new, t, reason)

@@ -15,13 +15,13 @@ from __future__ import annotations
 import logging
 import signal
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any
 
+from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.devices.base import AngleSensor, Stand
 from benchctl.errors import BenchError, RecordingError, SafetyAbort
 from benchctl.exits import EXIT_SIGNALS, ignored
@@ -55,11 +55,14 @@ class Fault:
 class Supervisor:
     """Collects faults from every thread; the first one decides the reason of the abort."""
 
-    def __init__(self, on_fault: Callable[[Fault], None] | None = None) -> None:
-        self._lock = threading.Lock()
+    def __init__(
+        self, on_fault: Callable[[Fault], None] | None = None, *, clock: Clock = REAL
+    ) -> None:
+        self.clock = clock
+        self._lock = clock.lock()
         self.first: Fault | None = None
         self.later: list[Fault] = []
-        self.stop_event = threading.Event()
+        self.stop_event = clock.event()
         self._on_fault = on_fault
 
     @property
@@ -71,7 +74,7 @@ class Supervisor:
         ``OSError`` (ENOSPC, EDQUOT, EFBIG), from whichever thread or library, is kept as the
         ``RecordingError`` it is ("disk full: cannot write …"), not as an unexpected error."""
         error = RecordingError.disk_full(error) or error
-        f = Fault(error, source, time.monotonic())
+        f = Fault(error, source, self.clock.monotonic())
         with self._lock:
             if self.first is None:
                 self.first = f
@@ -109,8 +112,8 @@ class Supervisor:
 
         return run
 
-    def thread(self, name: str, target: Callable[[], None]) -> threading.Thread:
-        return threading.Thread(target=self.guard(name, target), name=name, daemon=True)
+    def thread(self, name: str, target: Callable[[], None]) -> ThreadLike:
+        return self.clock.thread(self.guard(name, target), name=name, daemon=True)
 
     @contextmanager
     def signals(self) -> Iterator[None]:

@@ -13,6 +13,7 @@ from typing import Any
 
 import can
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.can.slcan import SlcanBus
 from benchctl.errors import DeviceError
@@ -52,12 +53,14 @@ def can_bus_kwargs(cfg: InstrumentConfig) -> dict[str, Any]:
     return kwargs
 
 
-def open_can_bus(cfg: InstrumentConfig) -> can.BusABC:
-    """Open the CAN bus ``cfg`` names; a failure raises ``DeviceError`` naming the channel."""
+def open_can_bus(cfg: InstrumentConfig, *, clock: Clock = REAL) -> can.BusABC:
+    """Open the CAN bus ``cfg`` names; a failure raises ``DeviceError`` naming the channel.
+    ``clock`` stamps the frames of our slcan bus (python-can's own buses stamp on the real
+    time)."""
     kwargs = can_bus_kwargs(cfg)
     try:
         if kwargs["interface"] == "slcan":
-            return SlcanBus(**{k: v for k, v in kwargs.items() if k != "interface"})
+            return SlcanBus(clock=clock, **{k: v for k, v in kwargs.items() if k != "interface"})
         return can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as e:
         raise DeviceError(

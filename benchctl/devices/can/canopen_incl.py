@@ -27,6 +27,7 @@ from typing import Any
 import can
 import canopen
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import DeviceIdentity, InstrumentSample
 from benchctl.devices.can.reader import (
@@ -51,6 +52,30 @@ NMT_STATES = frozenset({0x00, 0x04, 0x05, 0x7F})
 SERVICE_DLC = 8
 
 
+def _sdo_on_clock(sdo: Any, clock: Clock) -> None:
+    """Make the library's SDO client wait for its answers on ``clock``.
+
+    canopen 2.4's ``SdoClient`` keeps the answers in ``responses`` (a ``queue.Queue`` the
+    reader thread fills through ``on_response``; ``read_response`` waits on it with
+    ``RESPONSE_TIMEOUT``): it becomes the clock's queue. ``request_response`` replaces a
+    non-empty queue by a new ``queue.Queue``; emptying ours first keeps it the clock's. Its
+    other real-time calls stay: ``PAUSE_BEFORE_SEND`` (0 by default) and ``RETRY_DELAY``
+    (after a failed send only) sleep on ``time``, and a block upload's retransmission
+    (``_retransmit``, not used here: uploads are expedited or segmented) times out on
+    ``time.time``."""
+    responses = clock.queue()
+    sdo.responses = responses
+    original = sdo.request_response
+
+    def request_response(request: Any) -> Any:
+        while not sdo.responses.empty():  # stale answers: dropped, as the library does
+            sdo.responses.get_nowait()
+        sdo.responses = responses
+        return original(request)
+
+    sdo.request_response = request_response
+
+
 class CanopenInclinometer(CanInstrument):
     """A CiA 410 inclinometer on CANopen; implements ``AngleSensor``."""
 
@@ -63,6 +88,7 @@ class CanopenInclinometer(CanInstrument):
         *,
         can_log_path: Path | None = None,
         owns_bus: bool = True,
+        clock: Clock = REAL,
     ) -> None:
         if cfg.eds is None:
             raise ConfigError("instrument driver canopen: needs eds (an EDS file in drivers/)")
@@ -75,6 +101,7 @@ class CanopenInclinometer(CanInstrument):
         # each SDO answer within connect_timeout_s, as the config says (it was capped at 1 s:
         # a segmented upload of 1008h then failed a plan's step on a loaded host)
         self._node.sdo.RESPONSE_TIMEOUT = cfg.connect_timeout_s
+        _sdo_on_clock(self._node.sdo, clock)
         self._tpdo = self._node.tpdo[1]
         try:
             self._node.tpdo.read(from_od=True)
@@ -97,7 +124,7 @@ class CanopenInclinometer(CanInstrument):
         self._rx_t = 0.0
         self._last: InstrumentSample | None = None
         self._tpdo.add_callback(self._on_tpdo)
-        super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus)
+        super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus, clock=clock)
 
     def _od_resolution(self) -> int:
         od = self._node.object_dictionary

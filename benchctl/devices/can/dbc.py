@@ -21,6 +21,7 @@ from typing import Any
 import can
 import cantools
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import DeviceIdentity, InstrumentSample
 from benchctl.devices.can.reader import (
@@ -83,6 +84,7 @@ class DbcAngleInstrument(CanInstrument):
         *,
         can_log_path: Path | None = None,
         owns_bus: bool = True,
+        clock: Clock = REAL,
     ) -> None:
         if cfg.dbc is None:
             raise ConfigError(f"instrument driver {cfg.driver}: needs dbc (a DBC file in drivers/)")
@@ -95,7 +97,7 @@ class DbcAngleInstrument(CanInstrument):
                 raise ConfigError(f"{cfg.dbc}: message {self.spec.message} lacks signal {name!r}")
         self.protocol = self.spec.protocol
         self.source_address: int | None = None
-        super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus)
+        super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus, clock=clock)
 
     def decode(self, frame_id: int, data: bytes, t_host: float) -> InstrumentSample:
         """Decode one frame to a sample; ``BadFrame(reason)`` if it must be counted and skipped."""

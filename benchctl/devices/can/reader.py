@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
 from pathlib import Path
 from typing import Any
 
 import can
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import InstrumentSample
 from benchctl.devices.can.bus import shutdown_bus
@@ -94,6 +94,8 @@ class CanInstrument(SensorReader):
         Write every received frame there (format from the suffix: ``.blf``, ``.asc`` …).
     owns_bus : bool
         Shut the bus down in ``close``.
+    clock : Clock
+        Receipt times and the reader thread (``benchctl.clock``; the real one by default).
     """
 
     protocol = "CAN"
@@ -105,8 +107,9 @@ class CanInstrument(SensorReader):
         *,
         can_log_path: Path | None = None,
         owns_bus: bool = True,
+        clock: Clock = REAL,
     ) -> None:
-        super().__init__(cfg, f"{cfg.interface}:{cfg.channel}")
+        super().__init__(cfg, f"{cfg.interface}:{cfg.channel}", clock=clock)
         self._bus = bus
         self._owns_bus = owns_bus
         self._adapter_clock = AdapterClock()
@@ -131,7 +134,7 @@ class CanInstrument(SensorReader):
             return []
         if msg is None:
             return []
-        t_host = time.monotonic()
+        t_host = self.clock.monotonic()
         ms = getattr(msg, "adapter_ms", None)
         self._adapter_s = None if ms is None else self._adapter_clock.unwrap(ms, t_host)
         self._log_frame(msg)

@@ -33,7 +33,6 @@ reader counts it as a ``decode`` bad frame and reads on. A failing port (``Seria
 from __future__ import annotations
 
 import re
-import time
 from collections import deque
 from typing import Any
 
@@ -112,11 +111,11 @@ class AdapterClock:
         return self._total_ms / 1000.0
 
 
-def parse_line(line: bytes, received: float | None = None) -> can.Message | None:
+def parse_line(line: bytes, clock: Clock = REAL) -> can.Message | None:
     """One adapter line (its CR or BEL stripped) as a frame; None for an adapter answer.
 
     The frame is a ``SlcanMessage``: ``adapter_ms`` is the line's ``Z1`` timestamp, or None;
-    ``timestamp`` is ``received`` (UTC seconds, the reader's clock; default: the host's).
+    ``timestamp`` (python-can's receipt time, UTC seconds) is ``clock.time()``.
 
     Raises ``SlcanLineError`` for any other line (see the module docstring).
     """
@@ -148,15 +147,15 @@ def parse_line(line: bytes, received: float | None = None) -> can.Message | None
     data = b"" if remote else bytes.fromhex(rest[:n_data].decode("ascii"))
     stamp = int(rest[n_data:], 16) if len(rest) > n_data else None
     return SlcanMessage(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote,
-                        dlc=dlc, data=data, adapter_ms=stamp,
-                        timestamp=time.time() if received is None else received)
+                        dlc=dlc, data=data, timestamp=clock.time(), adapter_ms=stamp)
 
 
 class SlcanBus(slcanBus):
     """python-can's slcan bus whose every received line is a frame, an answer or an error.
 
     Same parameters as ``can.interfaces.slcan.slcanBus``, and ``adapter_timestamps``: ask the
-    adapter for its ``Z1`` timestamps (default True) or switch them off (``Z0``).
+    adapter for its ``Z1`` timestamps (default True) or switch them off (``Z0``), and ``clock``
+    for the frames' receipt stamps (the serial port's own waits stay on the real time).
     """
 
     def __init__(
@@ -217,7 +216,7 @@ class SlcanBus(slcanBus):
                     if line:
                         raise SlcanLineError("ends in BEL", line + end)
                     continue  # the adapter refused a command of ours: not a frame
-                msg = parse_line(line, clock.time())
+                msg = parse_line(line, self._clock)
                 if msg is not None:
                     return msg, False
                 continue

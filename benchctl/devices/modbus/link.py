@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -37,6 +36,7 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 from pymodbus.exceptions import ModbusException as PymodbusError
 from pymodbus.pdu import ExceptionResponse
 
+from benchctl.clock import REAL, Clock
 from benchctl.errors import ConnectionLost, DeviceTimeout, ModbusException, ProtocolError
 
 log = logging.getLogger(__name__)
@@ -76,7 +76,9 @@ class ModbusLink:
         wire_trace: bool = False,
         byte_time_s: float | None = None,
         reply_poll_s: float = 0.0,
+        clock: Clock = REAL,
     ) -> None:
+        self.clock = clock
         self.device_id = device_id
         self.endpoint = endpoint
         self.timeout_s = timeout_s
@@ -85,7 +87,7 @@ class ModbusLink:
         self.byte_time_s = byte_time_s
         #: the least time the client takes to see a reply complete after its last byte (RTU)
         self.reply_poll_s = reply_poll_s
-        self._lock = threading.RLock()
+        self._lock = clock.rlock()
         self._rx: list[bytes] = []  # raw receive buffers seen during the current exchange
         self._sent = threading.local()  # per thread: (monotonic time, bytes) of its last send
         self._client = make_client(self._trace)
@@ -93,7 +95,7 @@ class ModbusLink:
     # -- tracing ------------------------------------------------------------------------
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if sending and data:
-            self._sent.last = (time.monotonic(), len(data))
+            self._sent.last = (self.clock.monotonic(), len(data))
         if not sending and data:
             self._rx.append(bytes(data))
         if self.wire_trace and data:
@@ -269,8 +271,10 @@ def tcp_link(
     timeout_s: float = 0.5,
     retries: int = 1,
     wire_trace: bool = False,
+    clock: Clock = REAL,
 ) -> ModbusLink:
-    """A Modbus TCP link (MBAP framing) to ``host:port``; not yet connected."""
+    """A Modbus TCP link (MBAP framing) to ``host:port``; not yet connected. ``clock`` stamps
+    the sends (pymodbus's own waits for the reply stay on the real time)."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
         if host.startswith(CHANNEL_SCHEME):  # an in-process link to a simulated stand
@@ -290,6 +294,7 @@ def tcp_link(
         endpoint=f"modbus-tcp {host}:{port}",
         timeout_s=timeout_s,
         wire_trace=wire_trace,
+        clock=clock,
     )
 
 
@@ -303,8 +308,10 @@ def rtu_link(
     timeout_s: float = 0.5,
     retries: int = 1,
     wire_trace: bool = False,
+    clock: Clock = REAL,
 ) -> ModbusLink:
-    """A Modbus RTU link over a serial device path or pyserial URL; not yet connected."""
+    """A Modbus RTU link over a serial device path or pyserial URL; not yet connected.
+    ``clock`` stamps the sends (pymodbus's own waits for the reply stay on the real time)."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
         if port.startswith(CHANNEL_SCHEME):  # an in-process line to a simulated stand
@@ -344,4 +351,5 @@ def rtu_link(
         # not changed over one poll: every 4 characters' time (a frame bit count of 1 + 8 +
         # stop bits), at least 1 ms — so its read returns at least that long after the last byte
         reply_poll_s=max(4.0 * (1 + 8 + stopbits) / baudrate, 0.001),
+        clock=clock,
     )

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
-import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -23,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize_scalar
 
+from benchctl.clock import REAL, Clock
 from benchctl.config import StandConfig
 from benchctl.devices.base import (
     DeviceIdentity,
@@ -80,7 +79,8 @@ class ModbusStand:
     zero_tolerance_deg
         "At zero" means every axis within this of 0 and at rest.
     clock
-        Host monotonic clock (seconds) and ``sleep``: injectable for tests.
+        The run's clock (``benchctl.clock``): its ``monotonic`` (seconds) stamps the samples
+        and setpoints, its ``sleep`` paces the waits; the real one by default.
     """
 
     def __init__(
@@ -93,8 +93,7 @@ class ModbusStand:
         setpoint_period_s: float = 0.01,
         zero_tolerance_deg: float = 0.05,
         heartbeat_period_s: float = 0.1,
-        clock: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
+        clock: Clock = REAL,
     ) -> None:
         for a in axes:
             if a not in regmap.axes:
@@ -111,9 +110,10 @@ class ModbusStand:
         self.heartbeat_period_s = heartbeat_period_s
         self.identity: DeviceIdentity | None = None
         self.last_sample: StandSample | None = None
-        self._clock = clock
-        self._sleep = sleep
-        self._lock = threading.RLock()
+        self.clock = clock
+        self._clock = clock.monotonic
+        self._sleep = clock.sleep
+        self._lock = clock.rlock()
         self._last: dict[str, AxisCommand] | None = None  # the last commanded point per axis
         self._t_last = -math.inf  # when it was sent
         self.on_setpoint: SetpointListener | None = None  # every setpoint sent (ramps included)
@@ -855,8 +855,9 @@ def table_peak(tab: HarmonicTable, derivative: int) -> float:
     return peak
 
 
-def open_stand(cfg: StandConfig) -> ModbusStand:
-    """Build a (not yet connected) ``ModbusStand`` from the bench config's ``stand`` section."""
+def open_stand(cfg: StandConfig, *, clock: Clock = REAL) -> ModbusStand:
+    """Build a (not yet connected) ``ModbusStand`` from the bench config's ``stand`` section,
+    on ``clock`` (the run's; the real one by default)."""
     regmap = load_register_map(cfg.register_map)
     link: ModbusLink
     if cfg.driver == "modbus-tcp":
@@ -867,6 +868,7 @@ def open_stand(cfg: StandConfig) -> ModbusStand:
             timeout_s=cfg.timeout_s,
             retries=cfg.retries,
             wire_trace=cfg.wire_trace,
+            clock=clock,
         )
     else:
         assert cfg.serial_port is not None
@@ -879,6 +881,7 @@ def open_stand(cfg: StandConfig) -> ModbusStand:
             timeout_s=cfg.timeout_s,
             retries=cfg.retries,
             wire_trace=cfg.wire_trace,
+            clock=clock,
         )
     lim = cfg.limits
     return ModbusStand(
@@ -889,6 +892,7 @@ def open_stand(cfg: StandConfig) -> ModbusStand:
         setpoint_period_s=1.0 / cfg.setpoint_rate_hz,
         zero_tolerance_deg=cfg.zero_tolerance_deg,
         heartbeat_period_s=cfg.heartbeat_period_s,
+        clock=clock,
     )
 
 
