@@ -1,9 +1,11 @@
 """In-process byte links on a clock: the TCP socket and the pseudo-terminals of a simulated run.
 
 A :func:`link` is two :class:`Endpoint` objects joined by two one-way pipes. What one end writes
-the other reads — after the modelled ``latency_s`` and, on a serial line, one ``byte_time_s`` per
-byte (bytes arrive one by one, as on the wire: ``in_waiting`` grows while a frame comes in, which
-is how pymodbus's RTU client finds a frame's end). Waits go through the clock the link was made
+the other reads — after the modelled ``latency_s`` and, on a serial line, ``byte_time_s`` per
+byte: a write arrives whole when its last byte is in (``per_byte=True``: byte by byte, as on the
+wire, ``in_waiting`` growing while a frame comes in — truer, and dearer: a reader then wakes for
+each byte). A line sends one write after another: a write waits for the one before to be on the
+wire. Waits go through the clock the link was made
 on, so on a :class:`~benchctl.clock.virtual.VirtualClock` a read that waits lets simulated time
 run to the next byte's arrival.
 
@@ -37,6 +39,9 @@ if "benchctl.channels" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("benchctl.channels")
 
 _EPS = 1e-12
+#: bytes counted as arrived a millionth of a byte time early: the sum of float times never
+#: leaves a reader waking at a byte's arrival one rounding short of it
+_BYTE_EPS = 1e-6
 
 
 class _Pipe:
@@ -53,7 +58,7 @@ class _Pipe:
         for t0, bt, data, taken in self.chunks:
             if now + _EPS < t0:
                 break
-            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _EPS) + 1)
+            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _BYTE_EPS) + 1)
             n += full - taken
             if full < len(data):
                 break
@@ -64,7 +69,7 @@ class _Pipe:
         for t0, bt, data, taken in self.chunks:
             if now + _EPS < t0:
                 return float(t0)
-            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _EPS) + 1)
+            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _BYTE_EPS) + 1)
             if full < len(data):
                 return float(t0 + full * bt)
             if full > taken:
@@ -78,7 +83,7 @@ class _Pipe:
             t0, bt, data, taken = c
             if now + _EPS < t0:
                 break
-            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _EPS) + 1)
+            full = len(data) if bt <= 0 else min(len(data), int((now - t0) / bt + _BYTE_EPS) + 1)
             k = min(full - taken, size - len(out))
             out += data[taken : taken + k]
             c[3] = taken + k
@@ -101,8 +106,10 @@ class Endpoint:
         *,
         byte_time_s: float = 0.0,
         latency_s: float = 0.0,
+        per_byte: bool = False,
     ) -> None:
         self.clock = clock
+        self.per_byte = per_byte
         self._rx = rx
         self._tx = tx
         self.name = name
@@ -143,7 +150,10 @@ class Endpoint:
         start = max(now + self.latency_s + extra, self._tx.busy_until)
         bt = self.byte_time_s
         self._tx.busy_until = start + n * bt
-        self._tx.chunks.append([start + bt, bt, bytes(data), 0])
+        if self.per_byte:
+            self._tx.chunks.append([start + bt, bt, bytes(data), 0])
+        else:  # the whole write at once, when its last byte is in
+            self._tx.chunks.append([start + n * bt, 0.0, bytes(data), 0])
         self._tx.changed.set()
         self.bytes_out += n
         return n
@@ -229,13 +239,14 @@ def link(
     *,
     byte_time_s: float = 0.0,
     latency_s: float = 0.0,
+    per_byte: bool = False,
 ) -> tuple[Endpoint, Endpoint]:
     """A byte link: (host end, device end), ``latency_s`` and ``byte_time_s`` both ways."""
     a_to_b, b_to_a = _Pipe(clock), _Pipe(clock)
     host = Endpoint(clock, b_to_a, a_to_b, f"{name} (host end)",
-                    byte_time_s=byte_time_s, latency_s=latency_s)
+                    byte_time_s=byte_time_s, latency_s=latency_s, per_byte=per_byte)
     device = Endpoint(clock, a_to_b, b_to_a, f"{name} (device end)",
-                      byte_time_s=byte_time_s, latency_s=latency_s)
+                      byte_time_s=byte_time_s, latency_s=latency_s, per_byte=per_byte)
     return host, device
 
 

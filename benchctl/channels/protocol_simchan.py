@@ -59,6 +59,15 @@ class Serial(serial.SerialBase):
                 break
         return bytes(out)
 
+    def read_within(self, timeout: float | None) -> bytes:
+        """Every byte that has arrived, waiting up to ``timeout`` (None: for ever) for the first:
+        a reader on simulated time wakes once per frame, not once per port timeout."""
+        ep = self._endpoint()
+        got = ep.read(1 << 16, timeout)
+        if not got and ep.closed and not ep.in_waiting:
+            raise serial.SerialException(f"{ep.name}: device disconnected")
+        return got
+
     def write(self, data: Any) -> int:
         ep = self._endpoint()
         try:

@@ -51,6 +51,7 @@ from typing import Any
 
 import can
 import canopen
+import numpy as np
 
 from benchctl.channels import link as channel_link
 from benchctl.channels import register as register_channel
@@ -185,6 +186,11 @@ class SimInstrument:
         self._res_mdeg = 10
         if self.driver == "canopen":
             self._setup_canopen()
+        #: the true motion for the model: one instant at a time, and all of a step's sub-steps
+        #: in one call when the motion source can (the simulated stand can)
+        self._motion_fn: Any = self._true
+        if hasattr(motion, "true_angles_many"):
+            self._motion_fn = _Motion(self._true, self._true_many)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -361,7 +367,7 @@ class SimInstrument:
 
     def _tick(self, k: int, t: float) -> None:
         """Produce the output for instant ``t`` and publish it."""
-        y = self.model.output(t, self._true)
+        y = self.model.output(t, self._motion_fn)
         self.counts["samples"] += 1
         with self._lock:
             faults = dict(self._faults)
@@ -412,6 +418,12 @@ class SimInstrument:
     def _true(self, t: float) -> dict[str, float]:
         a = self.motion.true_angles(t)
         return {ax: float(a.get(ax, 0.0)) for ax in AXES}
+
+    def _true_many(self, ts: Any) -> dict[str, Any]:
+        """``_true`` at each of ``ts`` in one call (a motion with ``true_angles_many``)."""
+        a = self.motion.true_angles_many(ts)  # type: ignore[attr-defined]
+        zero = np.zeros(len(ts))
+        return {ax: a.get(ax, zero) for ax in AXES}
 
     # ------------------------------------------------------------------ the loop
     def _serve_host(self, port: PtyPort | _ChannelPort) -> None:
@@ -503,6 +515,17 @@ class SimInstrument:
     def error(self) -> BaseException | None:
         """The exception that ended the simulator's thread, if any."""
         return self._start_error
+
+
+class _Motion:
+    """A motion function with a ``many`` form (the instrument model's sub-steps at once)."""
+
+    def __init__(self, one: Any, many: Any) -> None:
+        self._one = one
+        self.many = many
+
+    def __call__(self, t: float) -> dict[str, float]:
+        return self._one(t)
 
 
 class _ChannelPort:

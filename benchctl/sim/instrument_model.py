@@ -229,6 +229,21 @@ class InstrumentModel:
                               for a in self.axes])
         return self.static_curve(u) if self._static else u
 
+    def _inputs(self, motion: MotionFn, ts: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``_input`` at each of ``ts`` (rows): through ``motion.many`` in one call when the
+        motion has it (the same numbers, element by element), else one call per instant."""
+        many = getattr(motion, "many", None)
+        if many is None:
+            return np.array([self._input(motion, float(t)) for t in ts]).reshape(len(ts), -1)
+        angles = many(ts)
+        u = np.stack([np.asarray(angles[a], dtype=float) for a in self.axes], axis=1)
+        if self._coupling:
+            zero = np.zeros(len(ts))
+            u = u + np.stack(
+                [self._coupling.get(a, 0.0) * np.asarray(angles.get(_OTHER[a], zero), dtype=float)
+                 for a in self.axes], axis=1)
+        return self.static_curve(u) if self._static else u
+
     def static_curve(self, u: ArrayLike) -> NDArray[np.float64]:
         """The static nonlinearity on an input angle (deg): ``u + c·u³``, then clipped at
         ``±saturation_deg`` (the identity when neither is set)."""
@@ -266,8 +281,9 @@ class InstrumentModel:
             return self.cfg.gain * (self._c @ self._x)[0]
         phi, g0, g1 = self._discrete(h)
         x, u0 = self._x, self._u
-        for i in range(1, steps + 1):
-            u1 = self._input(motion, self._tm + i * h)
+        inputs = self._inputs(motion, self._tm + np.arange(1, steps + 1, dtype=np.float64) * h)
+        for i in range(steps):
+            u1 = inputs[i]
             x = phi @ x + g0 @ u0[None, :] + g1 @ ((u1 - u0)[None, :] / h)
             u0 = u1
         self._x, self._u, self._tm = x, u0, tm

@@ -29,10 +29,11 @@ t_bus=…)`` with the frame's bus time on the host clock, or now.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 import can
+
+from benchctl.clock import REAL
 
 OK = b"\r"
 BEL = b"\a"
@@ -94,8 +95,8 @@ class SlcanAdapter:
     on_transmit : callable
         Called with each frame the host transmits (e.g. SDO requests to a simulated node).
     clock : callable
-        The host clock the adapter's own clock runs from (s); its timestamps count ms from the
-        adapter's creation, ``drift_ppm`` fast.
+        The host's clock (the run's: real or simulated) the adapter's own clock runs from (s);
+        its timestamps count ms from the adapter's creation, ``drift_ppm`` fast.
     """
 
     def __init__(
@@ -103,7 +104,7 @@ class SlcanAdapter:
         bus_bitrate: int,
         on_transmit: Callable[[can.Message], None],
         *,
-        clock: Callable[[], float] = time.monotonic,
+        clock: Callable[[], float] = REAL.monotonic,
         drift_ppm: float = 0.0,
     ) -> None:
         self.bus_bitrate = bus_bitrate

@@ -327,6 +327,21 @@ class SimStand:
             row = (1.0 - w) * self._hist[k0 % n] + w * self._hist[k1 % n]
         return {a: float(row[i]) for i, a in enumerate(self.axes)}
 
+    def true_angles_many(self, ts: np.ndarray) -> dict[str, np.ndarray]:
+        """``true_angles`` at each of ``ts`` (increasing), in one call: the same numbers."""
+        ts = np.asarray(ts, dtype=float)
+        with self._lock:
+            self._advance(min(float(ts[-1]) + self._tick_s, self.clock.monotonic()))
+            k_end = self._k
+            n = self._hist.shape[0]
+            u = (ts - self._t0) / self._tick_s
+            u = np.minimum(np.maximum(u, max(0, k_end - n + 2)), k_end)
+            k0 = np.floor(u).astype(np.int64)
+            k1 = np.minimum(k0 + 1, k_end)
+            w = (u - k0)[:, None]
+            rows = (1.0 - w) * self._hist[k0 % n] + w * self._hist[k1 % n]
+        return {a: rows[:, i].copy() for i, a in enumerate(self.axes)}
+
     def servo_response(self, f_hz: float) -> complex:
         """Small-signal angle/setpoint response at ``f_hz`` (see ``ServoModel.response``)."""
         return complex(self.model.response(f_hz))

@@ -221,7 +221,12 @@ class SlcanBus(slcanBus):
                     return msg, False
                 continue
             with error_check("Could not read from serial device"):
-                chunk = port.read(max(1, port.in_waiting))
+                read_within = getattr(port, "read_within", None)
+                if read_within is not None:  # a port that can wait for the first byte itself
+                    left = None if deadline is None else max(0.0, deadline - clock.monotonic())
+                    chunk = read_within(left)
+                else:
+                    chunk = port.read(max(1, port.in_waiting))
             if chunk:
                 self._rx += chunk
             elif deadline is not None and clock.monotonic() >= deadline:
