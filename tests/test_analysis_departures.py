@@ -24,7 +24,7 @@ import pytest
 from analysis_synthetic import Multisine, orthogonal_noise
 
 from benchctl.analysis import analyze, analyze_recording
-from benchctl.analysis.departures import SETTLE_S, departures_of, find_departures
+from benchctl.analysis.departures import SETTLE_S, departures_of, find_departures, settle_of
 from benchctl.cli import main
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.recording import RecordingWriter, load_recording
@@ -181,6 +181,9 @@ def test_intervals_from_last_point_played_to_settled_back_on_the_profile() -> No
     slot = np.arange(0.0, 11.501, 0.01)
     (d,) = find_departures([{"kind": "underrun", "t_host": 12.0}], slot - 1.0, slot).items
     assert d.start_s == pytest.approx(11.5) and math.isinf(d.end_s)
+    # the settling: the bench config's, as recorded with the run, else 3 s
+    assert settle_of({"config": {"run": {"analysis": {"departure_settle_s": 0.5}}}}) == 0.5
+    assert settle_of({"config": {"run": {}}}) == settle_of(None) == SETTLE_S == 3.0
 
 
 def test_sigma_with_departures_left_out_is_the_profiles() -> None:
