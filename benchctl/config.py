@@ -374,6 +374,10 @@ class AnalysisConfig(Strict):
     compensate_delay: (
         Literal["none", "auto"] | Annotated[float, Field(ge=-3600, le=3600, allow_inf_nan=False)]
     ) = "none"
+    # after an underrun or a rejoin, the stand is back on the profile: its servo and the
+    # instrument settle for this long before the analysis takes its samples again
+    # (benchctl.analysis.departures)
+    departure_settle_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)] = 3.0
 
     @field_validator("band_hz")
     @classmethod

@@ -55,7 +55,9 @@ def _config(tmp: Path) -> Any:
 
 
 def _run(tmp: Path, stand: FakeStand, sensor: FakeSensor) -> RunResult:
-    prep = sine_motion(stand.axes, duration_s=6.0, mode="stream", fade_s=0.5)
+    # table mode: a streaming stand on a busy host holds and rejoins, and a window the
+    # departures spoil is not judged (INCONCLUSIVE); the passing run's report is the subject
+    prep = sine_motion(stand.axes, duration_s=6.0, mode="table", fade_s=0.5)
     sess = Session(_config(tmp), prep, RunOptions(NASTY_SERIAL, NASTY_OPERATOR),
                    device_factory=lambda c, p: (stand, sensor))
     return sess.run()

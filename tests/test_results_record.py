@@ -274,7 +274,9 @@ DURATION, FADE = 5.0, 0.5
 def _run(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, cfg: BenchConfig | None = None,
          **opts: Any) -> RunResult:
     cfg = cfg or bench_config(tmp_path)
-    prep = sine_motion(stand.axes, duration_s=DURATION, mode="stream", fade_s=FADE)
+    # table mode: a streaming stand on a busy host holds and rejoins, and a window the
+    # departures spoil is not judged (INCONCLUSIVE); the record is the subject here
+    prep = sine_motion(stand.axes, duration_s=DURATION, mode="table", fade_s=FADE)
     sess = Session(cfg, prep, RunOptions("SN-1", "tester", **opts),
                    device_factory=lambda c, p: (stand, sensor))
     return sess.run()

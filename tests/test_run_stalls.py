@@ -9,7 +9,10 @@ machine or a swapping host would:
   measured rate and acceleration within the limits, and the run PASSes;
 - stream mode (a stand without a queue): every stall misses slots; the stand holds its last
   setpoint, and the loop rejoins the profile along a path within the limits (recorded and
-  counted) — the commanded sequence never exceeds a limit, and the run PASSes.
+  counted) — the commanded sequence never exceeds a limit. The holds and rejoins are not the
+  profile's motion: the analysis leaves them out (with the stand's settling), and the run is
+  judged on what is left — PASS — or, when less than half of the window is left, not judged:
+  INCONCLUSIVE (exit 3), never a PASS or FAIL on σ of another motion.
 """
 
 from __future__ import annotations
@@ -74,6 +77,21 @@ def _run_with_stalls(
     return proc.returncode, result, rec, peaks
 
 
+def _judged_on_the_profiles_motion(code: int, res: dict) -> None:  # type: ignore[type-arg]
+    """The departures (holds, underruns, rejoins) left out and said so; σ judged on what is
+    left (PASS), or not judged when less than half is left (INCONCLUSIVE, exit 3)."""
+    axis = res["axes"]["roll"]
+    dep = axis["analysis"]["departures"]
+    assert dep is not None and dep["count"] >= 1, res.get("warnings")
+    assert dep["rejoins"] >= 1 and dep["settle_s"] == 3.0
+    assert any("not the profile's" in w for w in res["warnings"])
+    if dep["too_little"]:
+        assert code == 3 and res["verdict"] == "INCONCLUSIVE", res.get("reason")
+        assert axis["sigma_verdict"] == "INCONCLUSIVE" and axis["sigma_inconclusive"]
+    else:
+        assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+
+
 def test_buffered_stand_rides_through_host_stalls(tmp_path: Path) -> None:
     code, res, _rec, peaks = _run_with_stalls(tmp_path, "buffered")
     assert code == 0 and res["verdict"] == "PASS", res.get("reason")
@@ -88,7 +106,7 @@ def test_buffered_stand_rides_through_host_stalls(tmp_path: Path) -> None:
 
 def test_streaming_stand_rejoins_within_limits_after_host_stalls(tmp_path: Path) -> None:
     code, res, rec, _peaks = _run_with_stalls(tmp_path, "stream")
-    assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+    _judged_on_the_profiles_motion(code, res)
     st = res["stats"]
     assert st["missed_cycles"] >= 5 and st["rejoins"] >= 1
     events = [e for e in rec.events if e["kind"] == "rejoin"]  # type: ignore[attr-defined]
@@ -112,10 +130,11 @@ def test_buffered_stand_underrun_stops_then_rejoins(tmp_path: Path) -> None:
     """Stalls longer than the queue (0.7–0.85 s against 0.48 s queued — two pushes at least —,
     below the stand's watchdog): each runs the queue dry;
     the stand stops itself within its limits, the loop counts the underrun, waits for rest and
-    rejoins the profile from there; the run still ends (PASS) and the measured motion stays
-    within the limits."""
+    rejoins the profile from there; the run still ends — judged on what is left of the
+    profile's motion, or INCONCLUSIVE — and the measured motion stays within the limits."""
     code, res, rec, peaks = _run_with_stalls(tmp_path, "buffered", (0.7, 0.85), buffer_s=0.2)
-    assert code == 0 and res["verdict"] == "PASS", res.get("reason")
+    _judged_on_the_profiles_motion(code, res)
+    assert res["axes"]["roll"]["analysis"]["departures"]["underruns"] >= 1
     st = res["stats"]
     assert st["underruns"] >= 1 and st["rejoins"] == st["underruns"]
     kinds = [e["kind"] for e in rec.events]  # type: ignore[attr-defined]

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion, wait_for
 
+from benchctl.analysis.departures import departures_of
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import ConnectionLost, SafetyAbort
 from benchctl.recording import RecordingWriter, load_recording
@@ -262,6 +263,14 @@ def test_stream_loop_rejoins_after_a_stall_without_a_jump(tmp_path: Path) -> Non
     events = [e for e in recd.events if e["kind"] == "rejoin"]
     assert events and events[0]["points"] >= 1
     assert sm.state is RunState.FADE_OUT
+    # what the analysis leaves out (benchctl.analysis.departures), from what the loop wrote:
+    # from the setpoint the stand held over the stall to the end of the rejoin's path
+    rej = next(e for e in events if e["t_slot"] == pytest.approx(sp["t_slot"][big + 1]))
+    dep = next(d for d in departures_of(recd, settle_s=0.5).items
+               if d.start_s <= sp["t_slot"][big + 1] <= d.end_s)
+    assert dep.start_s <= sp["t_slot"][big] + 1e-9
+    assert dep.back_s >= sp["t_slot"][big + 1] + rej["duration_s"] - 1e-9
+    assert dep.end_s == pytest.approx(dep.back_s + 0.5)
 
 
 def test_table_loop_plays_and_polls(tmp_path: Path) -> None:

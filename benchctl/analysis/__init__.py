@@ -3,9 +3,10 @@
 Public API::
 
     analyze(t_ref, x_ref_deg, t_dev, y_dev_deg, *, max_lag_s=None, band_hz=None,
-            compensate_delay="none", timebase="given", lines="auto", period_s=None)
-        -> AnalysisResult
+            compensate_delay="none", timebase="given", lines="auto", period_s=None,
+            departures=None) -> AnalysisResult
     analyze_recording(path, axis, **same options) -> AnalysisResult
+    departures_of(recording) -> Departures  (underruns and rejoins, see ``departures``)
     load_csv_pair(...) / load_single_csv(...)  (see ``inputs``)
 """
 
@@ -26,8 +27,11 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
     its metadata: profile, seed, duration) unless ``lines`` or ``period_s`` is given; when
     they cannot be re-synthesised, a warning says why and the lines are detected as for any
     record. A recording of a ``sine_steps`` profile also gets its linearity table
-    (``result.steps``, :mod:`benchctl.analysis.steps`).
+    (``result.steps``, :mod:`benchctl.analysis.steps`). Where the stand's motion was not
+    the profile's (its underruns and rejoins, :mod:`benchctl.analysis.departures`) is left out
+    unless ``departures`` is given (``None``: nothing left out).
     """
+    from benchctl.analysis.departures import departures_of
     from benchctl.recording import load_recording
 
     rec = load_recording(path)
@@ -41,6 +45,7 @@ def analyze_recording(path: str | Path, axis: str, **options: Any) -> AnalysisRe
             options["lines"] = ls
         else:
             note = f"lines not taken from the profile: {why}"
+    options.setdefault("departures", departures_of(rec))
     result = analyze(t_ref, x_ref, t_dev, y_dev, axis=axis, **options)
     if note:
         result.warnings.append(note)

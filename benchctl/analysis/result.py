@@ -102,6 +102,14 @@ class AnalysisResult:
     cross_axis: dict[str, Any] | None = None
     # the measured stand angle's spectrum against the profile's (benchctl.analysis.excitation)
     excitation: dict[str, Any] | None = None
+    # where the stand's motion was not the profile's, left out (benchctl.analysis.departures;
+    # the keys: AnalysisResult docs in the README); None when no departure touches the record
+    departures: dict[str, Any] | None = None
+
+    @property
+    def judgeable(self) -> bool:
+        """False when departures left too little of the profile's motion to judge σ on."""
+        return not (self.departures or {}).get("too_little", False)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (NaN/inf → null). See README "Analysis" for every key."""
@@ -150,6 +158,7 @@ class AnalysisResult:
                 "dof": _num(self.dof_per_frequency),
             },
             "gaps": _clean(self.gaps),
+            "departures": _clean(self.departures),
             "timing": _clean(self.timing),
             "cross_checks": _clean(self.cross_checks),
             "uncertainty": _clean(self.uncertainty),

@@ -107,6 +107,7 @@ def _named(label: str, fn: Callable[..., AnalysisResult], *a: Any, **kw: Any) ->
 
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis import analyze
+    from benchctl.analysis.departures import departures_of
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
     from benchctl.recording import is_recording, load_recording
 
@@ -141,11 +142,12 @@ def run(args: argparse.Namespace) -> int:
         status = recording_status(rec)
         axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
+        departures = departures_of(rec)  # underruns and rejoins: left out as gaps are
         for ax in axes:
             tr, xr, td, yd = rec.pair(ax, timebase=args.recording_timebase)
             ax_opts, note = _recording_lines(rec, ax, opts)
             res = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
-                         source=str(args.source), axis=ax, **ax_opts)
+                         source=str(args.source), axis=ax, departures=departures, **ax_opts)
             if note:
                 res.warnings.append(note)
             _recording_steps(rec, ax, res, tr, xr, td, yd)
@@ -376,6 +378,20 @@ def _cross_axis_block(r: AnalysisResult) -> list[str]:
             f"{c['quadrature']:+.5f}; {c['n_lines']} lines of {c['input_axis']})"]
 
 
+def _departures_block(r: AnalysisResult) -> list[str]:
+    """Where the stand's motion was not the profile's, and what was left out for it."""
+    from benchctl.analysis.departures import departure_text, sigma_inconclusive
+
+    dep = r.departures
+    if not dep:
+        return []
+    out = [f"  {departure_text(dep)}"]
+    why = sigma_inconclusive(dep)
+    if why is not None:
+        out.append(f"  σ NOT TO BE JUDGED: {why}")
+    return out
+
+
 def summary(r: AnalysisResult) -> str:
     """A readable summary of one result."""
     g = r.gaps
@@ -387,6 +403,7 @@ def summary(r: AnalysisResult) -> str:
         f"  gaps: device {g['device']['count']} ({g['device']['missing_samples']} missing, "
         f"longest {g['device']['longest_s']:.3g} s), reference {g['reference']['count']}, "
         f"excluded samples {g['excluded_samples']}",
+        *_departures_block(r),
         f"  σ (dynamic error, about the mean) = {r.sigma:.5g}°   "
         f"95 % CI {r.sigma_ci95[0]:.5g} … {r.sigma_ci95[1]:.5g}°   (ν = {r.dof:.4g}, "
         + ("line-wise)" if r.lines is not None else "lag window)"),

@@ -27,6 +27,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import loads_strict
@@ -123,7 +124,8 @@ def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
         ("control cycles", _num(cycles, "d"), False),
         ("missed cycles", f"{missed}" + (f" ({100 * missed / cycles:.2g} %)" if cycles else ""),
          bool(missed) and cycles > 0 and missed / cycles > 0.01),
-        ("rejoins (stand reconnected)", _num(stats.get("rejoins", 0), "d"),
+        ("rejoins (the profile rejoined after a hold or a stop)",
+         _num(stats.get("rejoins", 0), "d"),
          bool(stats.get("rejoins"))),
         ("underruns (stand queue empty)", _num(stats.get("underruns", 0), "d"),
          bool(stats.get("underruns"))),
@@ -146,7 +148,7 @@ def _health_warnings(stats: Mapping[str, Any]) -> list[str]:
     if missed:
         share = f" ({100 * missed / cycles:.2g} % of {cycles})" if cycles else ""
         out.append(f"{missed} missed control cycle(s){share}")
-    for key, what in (("rejoins", "stand rejoin(s) (the link was re-established)"),
+    for key, what in (("rejoins", "rejoin(s) of the profile (the stand had held or stopped)"),
                       ("underruns", "stand queue underrun(s)"),
                       ("instrument_lost", "instrument sample(s) lost"),
                       ("instrument_bad_frames", "bad instrument frame(s)")):
@@ -324,6 +326,9 @@ def build_context(
             "steps": a.get("steps"),
             "linearity": a.get("linearity"),
             "excitation": exc,
+            "departures": departure_text(an["departures"])
+            if isinstance(an.get("departures"), Mapping) else None,
+            "sigma_inconclusive": a.get("sigma_inconclusive"),
             "psd_svg": psd_svg(an, lim if isinstance(lim, int | float) else None,
                                f"{name} error PSD — {title}"),
             "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),

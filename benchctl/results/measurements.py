@@ -22,6 +22,9 @@ INCONCLUSIVE → INCONCLUSIVE, else PASS. Decisive: σ, the linearity spread, th
 gain/phase/delay/mean error when ``run.limits`` gives limits for them. Informative (recorded,
 never deciding): the excitation fidelity (its alarm stays a warning) and the serial match (a
 mismatch is a warning and a FAIL of that measurement, the run still judged on what it measured).
+σ is INCONCLUSIVE under either rule when the stand's motion departed from the profile for too
+much of the window (:mod:`benchctl.analysis.departures`): never a PASS or FAIL on σ of another
+motion.
 
 Plans build their own limits (:class:`Limits`) and call :func:`judge` on the report's axes.
 """
@@ -202,9 +205,13 @@ def axis_measurements(
     """The measurements of one axis from its report entry (``AxisVerdict.to_dict(full=True)``
     or ``report.json``'s ``axes[axis]``): σ, mean error, delay, gain and phase at the periods,
     the linearity spread (sine steps) and the excitation fidelity."""
+    sigma = _measure("sigma", axis, verdict.get("sigma"), "deg", (None, limits.sigma_deg),
+                     verdict.get("sigma_ci95"), rule)
+    why = _sigma_inconclusive(verdict)
+    if why is not None and sigma.outcome != NOT_JUDGED:
+        sigma.outcome, sigma.note = INCONCLUSIVE, f"not judged: {why}"
     out = [
-        _measure("sigma", axis, verdict.get("sigma"), "deg", (None, limits.sigma_deg),
-                 verdict.get("sigma_ci95"), rule),
+        sigma,
         _measure("mean error", axis, verdict.get("mean_error"), "deg",
                  _sym(limits.mean_error_deg), None, rule),
         _measure("delay", axis, verdict.get("delay"), "s", _sym(limits.delay_s), None, rule),
@@ -247,6 +254,19 @@ def axis_measurements(
             note=None if not wb else f"band centred at {wb.get('centre_hz', math.nan):.4g} Hz",
         ))
     return out
+
+
+def _sigma_inconclusive(verdict: Mapping[str, Any]) -> str | None:
+    """Why an axis's σ is not to be judged: the stand's motion departed from the profile for
+    too much of the window (``sigma_inconclusive``, or the analysis's ``departures``)."""
+    why = verdict.get("sigma_inconclusive")
+    if isinstance(why, str) and why:
+        return why
+    dep = (verdict.get("analysis") or {}).get("departures")
+    if isinstance(dep, Mapping) and dep.get("too_little"):
+        return str(dep.get("too_little_reason") or "the departures from the profile left too "
+                   "little of its motion")
+    return None
 
 
 def judge(axes: Mapping[str, Mapping[str, Any]], limits: Limits,

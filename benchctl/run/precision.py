@@ -159,6 +159,7 @@ def check_window(
     ``window`` (host time, whole periods): the verdict's analysis (``Session._analyse``: the
     same crop, line set and options), and the excitation judgement over the same window."""
     from benchctl.analysis import analyze
+    from benchctl.analysis.departures import departures_of
     from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
     from benchctl.analysis.lines import line_set_from_tables
     from benchctl.errors import DataError
@@ -167,6 +168,7 @@ def check_window(
 
     a = cfg.run.analysis
     rec = load_recording(path)
+    departures = departures_of(rec, a.departure_settle_s)
     lo, hi = window
     out: dict[str, AxisCheck] = {}
     for axis in axes:
@@ -179,9 +181,11 @@ def check_window(
         ls, _why = line_set_from_tables(tables[axis], hi - lo, others)
         res = analyze(tr[kr], xr[kr], td[kd], yd[kd], max_lag_s=a.max_lag_s, band_hz=a.band_hz,
                       compensate_delay=a.compensate_delay, source=str(path), axis=axis,
-                      lines=ls if ls is not None else "auto")
+                      lines=ls if ls is not None else "auto", departures=departures)
         ci = (float(res.sigma_ci95[0]), float(res.sigma_ci95[1]))
-        check = AxisCheck(float(res.sigma), ci, relative_halfwidth(float(res.sigma), ci))
+        # departures that leave too little to judge σ on: no stop, the motion goes on
+        reached = relative_halfwidth(float(res.sigma), ci) if res.judgeable else math.inf
+        check = AxisCheck(float(res.sigma), ci, reached)
         try:
             fid = fidelity_of_table(tr[kr], xr[kr], tables[axis], window, t_motion_start,
                                     limits=limits_of(cfg.run.excitation),

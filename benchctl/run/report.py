@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchctl.analysis.departures import departure_text, sigma_inconclusive
 from benchctl.errors import RecordingError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
@@ -62,10 +63,15 @@ class AxisVerdict:
     linearity: dict[str, Any] | None = None
     excitation: dict[str, Any] | None = None  # measured excitation fidelity (informative)
     rule: str = "simple"  # the decision rule σ is judged by (simple | guarded)
+    # why σ is not judged (the stand's motion departed from the profile for too much of the
+    # window: benchctl.analysis.departures): σ is then INCONCLUSIVE under either rule
+    sigma_inconclusive: str | None = None
 
     @property
     def sigma_outcome(self) -> str:
-        """PASS, FAIL or (guarded rule) INCONCLUSIVE."""
+        """PASS, FAIL or INCONCLUSIVE (the guarded rule, or σ not to be judged)."""
+        if self.sigma_inconclusive is not None:
+            return INCONCLUSIVE
         return decide(self.sigma_deg, None, self.limit_deg, self.sigma_ci95_deg, self.rule)
 
     @property
@@ -97,6 +103,7 @@ class AxisVerdict:
             "rms_error": self.rms_error_deg,
             "delay": self.delay_s,
             "sigma_verdict": self.sigma_outcome,
+            "sigma_inconclusive": self.sigma_inconclusive,
         }
         if self.linearity is not None:
             d["linearity"] = self.linearity
@@ -109,7 +116,8 @@ class AxisVerdict:
 
 def axis_verdict(axis: str, result: Any, limit_deg: float, rule: str = "simple") -> AxisVerdict:
     """From an ``AnalysisResult`` (sigma, sigma_ci95, dof, mean_error, rms_error, delay),
-    σ judged by ``rule`` (simple | guarded)."""
+    σ judged by ``rule`` (simple | guarded) — INCONCLUSIVE when the departures from the
+    profile left too little to judge it on (``result.departures``)."""
     ci = tuple(float(v) for v in result.sigma_ci95)
     steps = getattr(result, "steps", None)
     table = None if steps is None else steps.to_dict()
@@ -127,6 +135,7 @@ def axis_verdict(axis: str, result: Any, limit_deg: float, rule: str = "simple")
         linearity=None if table is None else table["linearity"],
         excitation=getattr(result, "excitation", None),
         rule=rule,
+        sigma_inconclusive=sigma_inconclusive(getattr(result, "departures", None)),
     )
 
 
@@ -222,6 +231,7 @@ def format_report(rep: Report) -> str:
             f"  → {v.sigma_outcome}   (mean error {v.mean_error_deg:+.4f}°, "
             f"dof {v.dof:.0f})"
         )
+        lines.extend(_departure_lines(v))
         if v.steps is not None and v.linearity is not None:
             lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))
@@ -261,6 +271,14 @@ def format_report(rep: Report) -> str:
     lines.extend(f"  warning: {w}" for w in rep.warnings)
     lines.append(f"  recording {rep.recording}")
     return terminal_lines(lines)  # a serial's or an operator's ESC or CR/LF shown, not sent
+
+
+def _departure_lines(v: AxisVerdict) -> list[str]:
+    dep = v.analysis.get("departures")
+    out = [] if not isinstance(dep, dict) else [f"        {departure_text(dep)}"]
+    if v.sigma_inconclusive is not None:
+        out.append(f"        σ not judged (INCONCLUSIVE): {v.sigma_inconclusive}")
+    return out
 
 
 def _measurement_line(x: Measurement) -> str:

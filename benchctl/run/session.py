@@ -950,10 +950,13 @@ class Session:
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
         from benchctl.analysis import analyze
         from benchctl.analysis.crossaxis import cross_axis_for
+        from benchctl.analysis.departures import departures_of
         from benchctl.analysis.lines import LineSet, line_set_from_tables
 
         a = self.cfg.run.analysis
         rec = load_recording(self.path)
+        # underruns and rejoins: left out as gaps are, with the settling this bench states
+        departures = departures_of(rec, a.departure_settle_s)
         lo, hi = window
         results: dict[str, Any] = {}
         verdicts = {}
@@ -990,6 +993,7 @@ class Session:
                 source=str(self.path),
                 axis=axis,
                 lines=lines,
+                departures=departures,
             )
             self._steps(axis, res, (tr[kr], xr[kr], td[kd], yd[kd]))
             self._excitation(axis, res, tr[kr], xr[kr], window)
@@ -1303,6 +1307,8 @@ def _banner_detail(report: Report, path: Path) -> str:
     """The verdict banner's lines: σ per axis against its limit, where the report is."""
     lines = [f"{v.axis} σ {v.sigma_deg:.4f}° (95 % {v.sigma_ci95_deg[0]:.4f} … "
              f"{v.sigma_ci95_deg[1]:.4f}°)  limit {v.limit_deg:g}°  {v.outcome}"
+             + ("" if v.sigma_inconclusive is None else
+                f"\n  σ not judged: {v.sigma_inconclusive}")
              for v in report.axes.values()]
     lines.extend(f"DEVIATION: {d}" for d in report.deviations)
     html = path / "report.html"
