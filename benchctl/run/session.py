@@ -52,6 +52,7 @@ import numpy as np
 
 from benchctl import __version__
 from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
 from benchctl.errors import (
@@ -394,11 +395,26 @@ def open_devices(
 
 
 @contextlib.contextmanager
-def simulators(cfg: BenchConfig, log_path: Path | None = None) -> Iterator[BenchConfig]:
-    """With a ``sim:`` section, run the simulators (a child process) for the length of the run;
-    its output goes to ``log_path`` (the recording's ``sim.log``)."""
+def simulators(
+    cfg: BenchConfig, log_path: Path | None = None, clock: Clock = REAL
+) -> Iterator[BenchConfig]:
+    """With a ``sim:`` section, run the simulators for the length of the run: a child process
+    (its output to ``log_path``, the recording's ``sim.log``), or, on simulated time
+    (``sim.clock: virtual``, ``clock`` a virtual clock), in this process on ``clock`` over
+    in-process links. Yields the config pointed at them."""
     if cfg.sim is None:
         yield cfg
+        return
+    if cfg.sim.clock == "virtual":
+        if not clock.virtual:
+            raise ConfigError(
+                f"{cfg.source}: field sim.clock = virtual: the run needs a virtual clock "
+                "(benchctl run makes one; a caller of Session passes one)"
+            )
+        from benchctl.sim.bench import SimBench
+
+        with SimBench(cfg, private=True, clock=clock) as bench:
+            yield bench.config()
         return
     from benchctl.sim.launch import start_simulators
 
@@ -611,6 +627,7 @@ class Session:
                 buffer_s=cfg.stand.buffer_s,
             ),
             clock=self.clock,
+            host_cost_s=cfg.sim.host_cost_s if cfg.sim is not None and self.clock.virtual else 0.0,
         )
 
     def _rate_and_zero(self) -> None:
@@ -1148,7 +1165,9 @@ class Session:
             self.display.message(f"recording to {self.path}")
             try:
                 if self.start_simulators:
-                    self.cfg = stack.enter_context(simulators(self.cfg, self.path / SIM_LOG))
+                    self.cfg = stack.enter_context(
+                        simulators(self.cfg, self.path / SIM_LOG, self.clock)
+                    )
                     self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
@@ -1433,6 +1452,15 @@ def run_test(
     real one."""
     if clock is None:
         clock = supervisor.clock if supervisor is not None else REAL
+    if cfg.sim is not None and cfg.sim.clock == "virtual" and not clock.virtual:
+        if supervisor is not None:
+            raise ConfigError(
+                f"{cfg.source}: field sim.clock = virtual: this caller's supervisor runs on the "
+                "host's time; run it on a VirtualClock (benchctl.clock.virtual)"
+            )
+        vclock = VirtualClock(epoch=cfg.sim.epoch_utc)
+        with vclock.running():
+            return run_test(cfg, profile_path, opts, display, device_factory, clock=vclock)
     out_dir = opts.out_dir or cfg.run.output_dir
     set_log_dir(out_dir)  # an unexpected error before the recording exists logs there
     prepared = prepare_motion(cfg, Path(profile_path), opts)

@@ -173,7 +173,11 @@ class StandLoop:
         limits: LoopLimits,
         *,
         clock: Clock = REAL,
+        host_cost_s: float = 0.0,
     ) -> None:
+        #: the host computation each cycle is charged on simulated time (``clock.compute``; the
+        #: real clock charges nothing: the computation itself takes the time)
+        self.host_cost_s = host_cost_s
         self.stand = stand
         self.rec = recorder
         self.sup = supervisor
@@ -652,6 +656,8 @@ class StandLoop:
     def _cycle_done(self, now: float) -> None:
         self.cycles += 1
         self.t_last_cycle = now
+        if self.host_cost_s:
+            self.clock.compute(self.host_cost_s)
 
     def _await_rest_after_underrun(self) -> StandSample:
         period = 1.0 / self.lim.sample_rate_hz

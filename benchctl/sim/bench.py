@@ -152,6 +152,13 @@ class SimBench:
     ) -> None:
         self.stop()
 
+    def config(self) -> BenchConfig:
+        """The bench config pointed at these simulators (``private``: a run's own)."""
+        ep = self.endpoints()
+        stand = self.cfg.stand.model_copy(update=ep["stand"])
+        instrument = self.cfg.instrument.model_copy(update=ep["instrument"])
+        return self.cfg.model_copy(update={"stand": stand, "instrument": instrument})
+
     # -- where they are -------------------------------------------------------------------
     def endpoints(self) -> dict[str, dict[str, Any]]:
         """Where the drivers should connect: {"stand": {...}, "instrument": {...}}."""
