@@ -246,6 +246,9 @@ class VirtualClock:
 
     # -- the scheduler ------------------------------------------------------------------------
     def _me(self) -> _Task:
+        cur = self._current
+        if cur is not None and cur.ident == threading.get_ident():
+            return cur
         task = self._tasks.get(threading.get_ident())
         if task is None:
             raise SimulationHang(
@@ -429,6 +432,9 @@ class VLock:
     def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
         c = self._c
         task = c._me()
+        if self._owner is None:  # uncontended (only the baton holder runs: no race)
+            self._owner = task
+            return True
         with c._mu:
             if self._owner is None:
                 self._owner = task
@@ -447,6 +453,9 @@ class VLock:
         return False
 
     def release(self) -> None:
+        if not self._waiters:
+            self._owner = None
+            return
         c = self._c
         with c._mu:
             if self._waiters:

@@ -576,7 +576,8 @@ class Session:
         cfg, w = self.cfg, self.writer
         assert w is not None
         self.machine.to(RunState.PRECHECKS)
-        self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb))
+        self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb,
+                                     quiet=self.clock.virtual))
         self._precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
         # from here on every stand sample and setpoint goes into the recording, cleanup included

@@ -100,6 +100,9 @@ class InstrumentModel:
         self._a, self._b, self._c = _state_space(cfg)
         self._rng = np.random.default_rng(cfg.seed)
         self._cache: dict[float, tuple[NDArray[np.float64], ...]] = {}
+        self._collapsed_cache: dict[
+            tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
+        ] = {}
         self._x: NDArray[np.float64] | None = None  # states x axes
         self._u: NDArray[np.float64] | None = None  # last input per axis
         self._tm: float | None = None  # last measurement instant
@@ -221,6 +224,31 @@ class InstrumentModel:
         self._cache[key] = got
         return got
 
+    def _collapsed(self, h: float, steps: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``steps`` sub-steps of ``h`` as one linear map: x_N = Pn x_0 + C [u_0 … u_N].
+
+        Each sub-step is x_{i+1} = Φ x_i + B0 u_i + B1 u_{i+1} (B0 = Γ0 − Γ1/h, B1 = Γ1/h,
+        the input linear between samples), so u_j enters x_N through C_0 = Φ^{N−1} B0,
+        C_j = Φ^{N−1−j} B0 + Φ^{N−j} B1 (0 < j < N) and C_N = B1."""
+        key = (round(h, 12), steps)
+        got = self._collapsed_cache.get(key)
+        if got is not None:
+            return got
+        phi, g0, g1 = self._discrete(h)
+        b0, b1 = g0 - g1 / h, g1 / h
+        n = phi.shape[0]
+        powers = [np.eye(n)]
+        for _ in range(steps):
+            powers.append(phi @ powers[-1])
+        cols = [powers[steps - 1] @ b0]
+        cols += [powers[steps - 1 - j] @ b0 + powers[steps - j] @ b1 for j in range(1, steps)]
+        cols.append(b1)
+        got = (powers[steps], np.hstack(cols))
+        if len(self._collapsed_cache) > 32:
+            self._collapsed_cache.clear()
+        self._collapsed_cache[key] = got
+        return got
+
     def _input(self, motion: MotionFn, t: float) -> NDArray[np.float64]:
         angles = motion(t)
         u = np.array([float(angles[a]) for a in self.axes])
@@ -279,13 +307,10 @@ class InstrumentModel:
         h = span / steps
         if h <= 0:
             return self.cfg.gain * (self._c @ self._x)[0]
-        phi, g0, g1 = self._discrete(h)
-        x, u0 = self._x, self._u
+        pn, cm = self._collapsed(h, steps)
         inputs = self._inputs(motion, self._tm + np.arange(1, steps + 1, dtype=np.float64) * h)
-        for i in range(steps):
-            u1 = inputs[i]
-            x = phi @ x + g0 @ u0[None, :] + g1 @ ((u1 - u0)[None, :] / h)
-            u0 = u1
+        x = pn @ self._x + cm @ np.vstack([self._u[None, :], inputs])
+        u0 = inputs[-1]
         self._x, self._u, self._tm = x, u0, tm
         return self.cfg.gain * (self._c @ x)[0]
 

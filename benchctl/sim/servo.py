@@ -12,6 +12,7 @@ with ω_n = 2π · natural_freq_hz. Angles in degrees, rates deg/s, acceleration
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -46,7 +47,7 @@ class ServoModel:
                 f"(natural_freq_hz={self.natural_freq_hz}, tick_s={self.tick_s})"
             )
 
-    @property
+    @functools.cached_property
     def omega_n(self) -> float:
         return 2.0 * math.pi * self.natural_freq_hz
 

@@ -448,7 +448,13 @@ class SimStand:
                     self._target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
                 servo_step(self.model, s, self._target[a])
-                self._track_peaks(a, s.rate_deg_s, (s.rate_deg_s - v_before) / self._tick_s)
+                p = self._peaks[a]  # the largest |rate| and |accel| while following (inline:
+                rate = s.rate_deg_s  # this runs a thousand times a simulated second)
+                accel = (rate - v_before) / self._tick_s
+                if rate > p[0] or -rate > p[0]:
+                    p[0] = abs(rate)
+                if accel > p[1] or -accel > p[1]:
+                    p[1] = abs(accel)
             if abs(s.rate_deg_s) > _MOVING_DEG_S:
                 at_rest = False
             if abs(s.angle_deg) > self.cfg.soft_limit_deg and s.angle_deg * s.rate_deg_s > 0:
@@ -458,12 +464,6 @@ class SimStand:
         if self._mode == "stopping" and at_rest:
             self._mode = "stream"
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
-
-    def _track_peaks(self, axis: str, rate: float, accel: float) -> None:
-        """Largest |rate| and |acceleration| of the servo while it follows a target (lock held)."""
-        p = self._peaks[axis]
-        p[0] = max(p[0], abs(rate))
-        p[1] = max(p[1], abs(accel))
 
     def peaks(self, reset: bool = False) -> dict[str, dict[str, float]]:
         """The largest |rate| (deg/s) and |acceleration| (deg/s²) each axis made while the servo

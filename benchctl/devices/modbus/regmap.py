@@ -12,6 +12,7 @@ first in the high byte, NUL padded.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import struct
@@ -65,7 +66,7 @@ class Field:
     length: int = 0  # strings: characters
     writable: bool = False
 
-    @property
+    @functools.cached_property
     def n_registers(self) -> int:
         return (self.length + 1) // 2 if self.type == "string" else _TYPES[self.type]
 
