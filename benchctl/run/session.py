@@ -128,6 +128,7 @@ from benchctl.text import (
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
+    from benchctl.sim.disturb import Disturbances
 
 log = logging.getLogger(__name__)
 
@@ -396,12 +397,20 @@ def open_devices(
 
 @contextlib.contextmanager
 def simulators(
-    cfg: BenchConfig, log_path: Path | None = None, clock: Clock = REAL
+    cfg: BenchConfig,
+    log_path: Path | None = None,
+    clock: Clock = REAL,
+    disturb: Callable[[Disturbances], None] | None = None,
+    horizon_s: float = 3600.0,
 ) -> Iterator[BenchConfig]:
     """With a ``sim:`` section, run the simulators for the length of the run: a child process
     (its output to ``log_path``, the recording's ``sim.log``), or, on simulated time
     (``sim.clock: virtual``, ``clock`` a virtual clock), in this process on ``clock`` over
-    in-process links. Yields the config pointed at them."""
+    in-process links. Yields the config pointed at them.
+
+    On simulated time with ``sim.disturb``, the seeded disturbances (``benchctl.sim.disturb``)
+    over ``horizon_s`` seconds are applied to the clock, the links and the simulators' fault
+    schedule, and handed to ``disturb`` (the run records them and takes the operator's stop)."""
     if cfg.sim is None:
         yield cfg
         return
@@ -412,8 +421,18 @@ def simulators(
                 "(benchctl run makes one; a caller of Session passes one)"
             )
         from benchctl.sim.bench import SimBench
+        from benchctl.sim.disturb import Disturbances
 
+        plan = None
+        if cfg.sim.disturb is not None:
+            plan = Disturbances(cfg.sim.disturb, horizon_s)
+            with_faults = cfg.sim.model_copy(update={"faults": (*cfg.sim.faults, *plan.faults)})
+            cfg = cfg.model_copy(update={"sim": with_faults})
         with SimBench(cfg, private=True, clock=clock) as bench:
+            if plan is not None:
+                bench.disturb(plan)
+                if disturb is not None:
+                    disturb(plan)
             yield bench.config()
         return
     from benchctl.sim.launch import start_simulators
@@ -603,6 +622,28 @@ class Session:
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._rate_and_zero()
+
+    def _disturbed(self, plan: Disturbances) -> None:
+        """Simulated time with seeded disturbances: record and show the seed and the schedule,
+        and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
+        assert self.writer is not None
+        self.writer.event("disturbances", **plan.describe())
+        self.writer.update_meta(disturbances=plan.describe())
+        self.display.message(
+            f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
+            f"{len(plan.faults)} faults"
+            + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
+            + "); the same seed replays this run exactly"
+        )
+        if plan.operator_stop_s is not None:
+            at = self.clock.monotonic() + plan.operator_stop_s
+            clock, sup = self.clock, self.supervisor
+
+            def operator() -> None:
+                clock.sleep(max(0.0, at - clock.monotonic()))
+                sup.fault(SafetyAbort("interrupted by SIGINT"), "signal")
+
+            clock.thread(operator, name="operator-stop").start()
 
     def _new_loop(self, plan: MotionPlan, machine: StateMachine | None = None) -> StandLoop:
         """A stand loop for ``plan`` (not started); ``machine``: whose states it moves (the
@@ -1166,9 +1207,10 @@ class Session:
             self.display.message(f"recording to {self.path}")
             try:
                 if self.start_simulators:
-                    self.cfg = stack.enter_context(
-                        simulators(self.cfg, self.path / SIM_LOG, self.clock)
-                    )
+                    self.cfg = stack.enter_context(simulators(
+                        self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
+                        horizon_s=self.prep.plan.duration_s + 600.0,
+                    ))
                     self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()

@@ -20,7 +20,7 @@ import errno
 import socket
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from benchctl.channels import free_name, register, unregister
 from benchctl.clock import REAL, Clock
@@ -28,6 +28,9 @@ from benchctl.config import BenchConfig, SimConfig
 from benchctl.errors import ConfigError, DeviceError
 from benchctl.sim.instrument import SimInstrument
 from benchctl.sim.stand import SimStand
+
+if TYPE_CHECKING:
+    from benchctl.sim.disturb import Disturbances
 
 
 class SimBench:
@@ -151,6 +154,26 @@ class SimBench:
         self, t: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.stop()
+
+    def disturb(self, plan: Disturbances) -> None:
+        """Apply seeded disturbances (``benchctl.sim.disturb``) from now: host stalls on the
+        clock, jitter on the host's requests, slow or lost replies, lost or garbled instrument
+        frames (the faults are already in ``sim.faults``). Simulated time only."""
+        if not self.in_process:
+            raise ConfigError(f"{self.cfg.source}: field sim.disturb: needs sim.clock: virtual")
+        t0 = self.clock.monotonic()
+        stall = getattr(self.clock, "stall_host", None)
+        if stall is not None:
+            for t, d in plan.stalls:
+                stall(t0 + t, d)
+        host = self.stand.client_endpoint
+        device = self.stand.device_endpoint
+        if host is not None and device is not None:
+            host.delay = plan.send_delay()
+            device.delay = plan.reply_delay()
+        frames = self.instrument.device_endpoint
+        if frames is not None:
+            frames.damage = plan.frame_damage()
 
     def config(self) -> BenchConfig:
         """The bench config pointed at these simulators (``private``: a run's own)."""

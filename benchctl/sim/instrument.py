@@ -512,6 +512,11 @@ class SimInstrument:
             raise
 
     @property
+    def device_endpoint(self) -> Any:
+        """The simulator's end of its in-process link (transport channel), else None."""
+        return self._port._ep if isinstance(self._port, _ChannelPort) else None
+
+    @property
     def error(self) -> BaseException | None:
         """The exception that ended the simulator's thread, if any."""
         return self._start_error

@@ -151,8 +151,10 @@ class SimStand:
             framing if framing is not None else ("rtu" if transport == "rtu" else "tcp")
         )
         self.channel_latency_s = channel_latency_s
-        #: the host end of the in-process link (transport "channel"), once started
+        #: the host end of the in-process link (transport "channel"), once started, and its
+        #: device end (the stand's)
         self.client_endpoint: Endpoint | None = None
+        self.device_endpoint: Endpoint | None = None
         self.cfg = sim_cfg
         self.limits = limits
         self.map: RegisterMap = load_register_map(register_map)
@@ -263,7 +265,7 @@ class SimStand:
             self.clock, "sim-stand", byte_time_s=byte_time, latency_s=self.channel_latency_s
         )
         self.client_endpoint = host
-        self._device_endpoint = device
+        self.device_endpoint = device
         wire = StandWire(self, self.framing)
         server = self.clock.thread(
             serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
