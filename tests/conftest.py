@@ -12,6 +12,8 @@ import psutil
 import pytest
 from archive_helpers import PgServer
 
+from benchctl.clock.virtual import VirtualClock
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -72,6 +74,16 @@ def no_leaks() -> Iterator[None]:
 @pytest.fixture
 def root() -> Path:
     return ROOT
+
+
+@pytest.fixture
+def vclock() -> Iterator[VirtualClock]:
+    """Simulated time for the test: the test's thread runs on a VirtualClock (threads it starts
+    must be the clock's: ``vclock.thread``), and every simulator, driver and run it builds is
+    handed ``clock=vclock``. Threads still waiting when the test ends are ended."""
+    clock = VirtualClock(hang_s=120.0)
+    with clock.running():
+        yield clock
 
 
 # --- the results archive: a PostgreSQL server for a module, an empty archive of each kind ---

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from benchctl.channels import free_name, register, unregister
+from benchctl.clock import REAL, Clock
 from benchctl.config import (
     BenchConfig,
     InstrumentConfig,
@@ -58,9 +60,7 @@ class LiveBench:
     instrument: SimInstrument
 
     def stand_at_rest(self, tol_deg: float = 0.05) -> bool:
-        import time
-
-        a0 = self.stand.true_angles(time.monotonic())
+        a0 = self.stand.true_angles(self.stand.clock.monotonic())
         return all(abs(v) <= tol_deg for v in a0.values())
 
 
@@ -87,20 +87,33 @@ def live_bench(
     run: dict[str, Any] | None = None,
     stand: dict[str, Any] | None = None,
     sim_stand: dict[str, Any] | None = None,
+    clock: Clock = REAL,
 ) -> Iterator[LiveBench]:
+    """The simulators in this process and a bench config pointed at them. On a virtual
+    ``clock`` (the test inside ``clock.running()``, e.g. the ``vclock`` fixture) they run on
+    simulated time over in-process links, and the run must be given the same clock."""
     model = model or SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0)
     limits = StandLimits(**LIMITS)
+    framing: Any = "rtu" if transport == "rtu" else "tcp"
     sim_stand = SimStand(
         SimStandConfig(**{"watchdog_s": 3.0, **(sim_stand or {})}),
         limits=limits,
         register_map=ROOT / "drivers/stand_generic.yaml",
-        transport="rtu" if transport == "rtu" else "tcp",
+        transport="channel" if clock.virtual else framing,
+        framing=framing,
         port=0,
+        clock=clock,
     )
     sim_stand.start()
+    stand_url = None
+    if sim_stand.client_endpoint is not None:
+        stand_url = register(free_name("sim-stand"), sim_stand.client_endpoint)
     try:
         icfg = InstrumentConfig(**instrument_section(instrument))
-        sim_instr = SimInstrument(model, icfg, sim_stand)
+        sim_instr = SimInstrument(
+            model, icfg, sim_stand, clock=clock,
+            channel=free_name("sim-instrument") if clock.virtual else None,
+        )
         sim_instr.start()
         try:
             stand_sec: dict[str, Any] = {
@@ -110,7 +123,9 @@ def live_bench(
                 "limits": LIMITS,
                 **(stand or {}),
             }
-            if transport == "rtu":
+            if stand_url is not None:
+                stand_sec["serial_port" if transport == "rtu" else "host"] = stand_url
+            elif transport == "rtu":
                 stand_sec["serial_port"] = sim_stand.serial_port
             else:
                 stand_sec["host"], stand_sec["port"] = "127.0.0.1", sim_stand.port
@@ -138,8 +153,12 @@ def live_bench(
             yield LiveBench(path, load_config(path), sim_stand, sim_instr)
         finally:
             sim_instr.stop()
+            if sim_instr.channel_name is not None:
+                unregister(sim_instr.channel_name)
     finally:
         sim_stand.stop()
+        if stand_url is not None:
+            unregister(stand_url)
 
 
 def expected_sigma(bench: LiveBench, motion: Any, axis: str) -> float:
