@@ -103,6 +103,6 @@ def test_a_virtual_config_refuses_a_callers_real_time_supervisor(tmp_path: Path)
     from benchctl.run.supervisor import Supervisor
 
     cfg = load_config(_config(tmp_path))
-    with pytest.raises(ConfigError, match="sim.clock = virtual"):
+    with pytest.raises(ConfigError, match=r"sim\.clock = virtual"):
         run_test(cfg, ROOT / "profiles/ci_short.yaml",
                  RunOptions(serial="x", operator="y"), supervisor=Supervisor())
