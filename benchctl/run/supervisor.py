@@ -142,6 +142,9 @@ class ShutdownReport:
 
     steps: list[dict[str, Any]] = field(default_factory=list)
     stand_at_rest: bool | None = None
+    #: where the stand was left, when it answered: {angle_deg, rate_deg_s, enabled, fault_code,
+    #: estop} (a faulted stand's too: its state is read without raising on the fault)
+    final_state: dict[str, Any] | None = None
 
     def add(self, step: str, ok: bool, detail: str = "") -> None:
         self.steps.append({"step": step, "ok": ok, "detail": detail})
@@ -187,11 +190,27 @@ def shutdown(
         _try(rep, "disable", stand.disable)
 
         def at_rest() -> None:
-            s = stand.read_sample()
+            # a faulted stand's state too: where it is matters most then
+            read = getattr(stand, "read_state", None) or stand.read_sample
+            s = read()
+            st = s.status
             rep.stand_at_rest = (
-                all(abs(v) <= 1.0 for v in s.rate_deg_s.values()) and not s.status.moving
+                all(abs(v) <= 1.0 for v in s.rate_deg_s.values()) and not st.moving
             )
-            rep.add("final angle", True, ", ".join(f"{a}={v:.3f}°" for a, v in s.angle_deg.items()))
+            rep.final_state = {
+                "angle_deg": dict(s.angle_deg),
+                "rate_deg_s": dict(s.rate_deg_s),
+                "enabled": st.enabled,
+                "fault_code": st.fault_code,
+                "estop": st.estop,
+            }
+            where = ", ".join(f"{a}={v:.3f}°" for a, v in s.angle_deg.items())
+            flags = ["servo on" if st.enabled else "servo off"]
+            if st.fault or st.fault_code:
+                flags.append(f"fault {st.fault_code}")
+            if st.estop:
+                flags.append("E-stop")
+            rep.add("final angle", True, f"{where} ({', '.join(flags)})")
 
         _try(rep, "read final state", at_rest)
     if sensor is not None:
