@@ -1,0 +1,406 @@
+"""A safety campaign on simulated time: N seeded runs with seeded disturbances, each one checked.
+
+Each run ``k`` draws from its seed (``--seed0 + k``): the stand mode (buffered, stream, table),
+the link (Modbus TCP or RTU), the instrument protocol (CANopen, J1939, NMEA 2000, NMEA 0183),
+the profile and its duration, and the disturbances (``benchctl.sim.disturb``): host stalls from
+tens of milliseconds to several seconds, send jitter, slow replies, and — in half the runs —
+lost replies, lost and garbled frames, stand and instrument faults and an operator's Ctrl-C.
+The simulators and the run share one VirtualClock in this process; the run is the product's own
+(``run_test`` with the drivers on in-process links), the same code a run on hardware takes.
+
+Checked for every run:
+
+1. limits: every commanded point (setpoints.csv: angle, and rate and acceleration between
+   consecutive slots) and the stand's true motion while it followed (the simulator's peaks)
+   within the stand's angle, rate and acceleration limits;
+2. the way out: the stand at rest at zero when the run ended, or — when it could not be brought
+   there (a fault, a lost link) — its final state reported in end.json;
+3. no abort in a run whose only disturbances were host stalls shorter than the stand's buffer
+   (and jitter, and replies slower than usual but within the reply timeout);
+4. σ: in such a run, without an underrun or a rejoin, σ within the 95 % interval of the same
+   configuration's undisturbed run.
+
+Prints one line per run (seed, what it drew, verdict, the checks) and the totals: runs,
+simulated hours, violations by check, the failing seeds. A failing seed replays exactly:
+``--seed0 S --runs 1``.
+
+Usage: python benchmarks/sim_campaign.py --runs 1000 [--seed0 1] [--jobs 2]
+       [--durations 120,300,600,900] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import multiprocessing
+import random
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchctl.clock.virtual import VirtualClock  # noqa: E402
+from benchctl.config import BenchConfig, load_config  # noqa: E402
+from benchctl.errors import BenchError, SafetyAbort  # noqa: E402
+from benchctl.run.session import RunOptions, open_devices, run_test  # noqa: E402
+from benchctl.run.supervisor import Supervisor  # noqa: E402
+from benchctl.sim.bench import SimBench  # noqa: E402
+from benchctl.sim.disturb import Disturbances  # noqa: E402
+
+MODES = ("buffered", "stream", "table")
+LINKS = ("tcp", "rtu")
+PROTOCOLS = {
+    "canopen": "sim.yaml",
+    "j1939": "sim_j1939.yaml",
+    "nmea2000": "sim_nmea2000.yaml",
+    "nmea0183": "sim_nmea0183.yaml",
+}
+PROFILES = (
+    "paper_vessel_roll.yaml",
+    "sea_state_3_small_vessel.yaml",
+    "sea_state_4_small_vessel.yaml",
+    "sea_state_5_small_vessel.yaml",
+    "fast_craft_roll.yaml",
+    "two_axis_roll_pitch.yaml",
+)
+#: slack on the commanded points' finite differences (rounding of the recorded values)
+SLACK = 1.001
+
+
+def _abs_paths(data: dict[str, Any], base: Path) -> None:
+    for sec, key in (("stand", "register_map"), ("instrument", "eds"), ("instrument", "dbc")):
+        v = data.get(sec, {}).get(key)
+        if isinstance(v, str) and not Path(v).is_absolute():
+            data[sec][key] = str((base / v).resolve())
+
+
+def config_for(draw: dict[str, Any], out: Path, disturb: dict[str, Any] | None) -> Path:
+    """The bench config for a draw: sim.yaml (or sim_rtu.yaml) with the protocol's instrument."""
+    base = yaml.safe_load((ROOT / "config" / ("sim_rtu.yaml" if draw["link"] == "rtu"
+                                              else "sim.yaml")).read_text())
+    proto = yaml.safe_load((ROOT / "config" / PROTOCOLS[draw["protocol"]]).read_text())
+    base["instrument"] = proto["instrument"]
+    base["sim"]["instrument"] = proto.get("sim", {}).get("instrument", base["sim"]["instrument"])
+    base["stand"]["mode"] = draw["mode"]
+    # the stand's own drive is set to the stand's limits, as a real stand's is: when commands
+    # stop (a stream-mode stall) it brakes within them, not at the servo's physical maximum
+    lim = base["stand"]["limits"]
+    base["sim"]["stand"]["accel_limit_deg_s2"] = lim["accel_deg_s2"]
+    base["sim"]["stand"]["rate_limit_deg_s"] = lim["rate_deg_s"]
+    base["sim"]["clock"] = "virtual"
+    base["sim"].pop("disturb", None)
+    if disturb is not None:
+        base["sim"]["disturb"] = disturb
+    base["run"]["output_dir"] = str(out / "runs")
+    _abs_paths(base, ROOT / "config")
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench.yaml"
+    path.write_text(yaml.safe_dump(base))
+    return path
+
+
+def draw_run(seed: int, durations: list[int]) -> dict[str, Any]:
+    rng = random.Random(f"campaign:{seed}")
+    draw: dict[str, Any] = {
+        "seed": seed,
+        "mode": rng.choice(MODES),
+        "link": rng.choice(LINKS),
+        "protocol": rng.choice(sorted(PROTOCOLS)),
+        "profile": rng.choice(PROFILES),
+        "duration": rng.choice(durations),
+    }
+    faulty = rng.random() < 0.5
+    disturb: dict[str, Any] = {
+        "seed": seed,
+        "host_stalls_per_min": round(rng.uniform(0.0, 6.0), 3),
+        "host_stall_s": [0.02, round(rng.uniform(0.1, 5.0), 3)],
+        "send_jitter_s": round(rng.uniform(0.0, 0.005), 5),
+        "slow_reply_p": round(rng.uniform(0.0, 0.02), 4),
+        "slow_reply_s": [0.005, round(rng.uniform(0.01, 0.2), 3)],
+    }
+    if faulty:
+        disturb.update({
+            "lost_reply_p": round(rng.uniform(0.0, 0.005), 5),
+            "lost_frame_p": round(rng.uniform(0.0, 0.01), 5),
+            "garbled_frame_p": round(rng.uniform(0.0, 0.01), 5),
+            "faults": rng.choice([0, 1, 1, 2]),
+            "fault_kinds": ["stand:stall", "stand:stand_fault", "stand:estop",
+                            "stand:modbus_exception", "instrument:silent",
+                            "instrument:garbled"],
+            "operator_stop_p": 0.2,
+        })
+    draw["faulty"] = faulty
+    draw["disturb"] = disturb
+    return draw
+
+
+def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
+         plan: Disturbances | None) -> dict[str, Any]:
+    """One run on its own VirtualClock, the simulators beside it; what the checks need."""
+    assert cfg.sim is not None
+    clock = VirtualClock(epoch=cfg.sim.epoch_utc)
+    with clock.running():
+        if plan is not None:
+            sim = cfg.sim.model_copy(update={"faults": (*cfg.sim.faults, *plan.faults)})
+            cfg = cfg.model_copy(update={"sim": sim})
+        bench = SimBench(cfg, private=True, clock=clock).start()
+        try:
+            if plan is not None:
+                bench.disturb(plan)
+            run_cfg = bench.config().model_copy(update={"sim": None})
+            sup = Supervisor(clock=clock)
+            if plan is not None and plan.operator_stop_s is not None:
+                at = clock.monotonic() + plan.operator_stop_s
+
+                def operator() -> None:
+                    clock.sleep(max(0.0, at - clock.monotonic()))
+                    sup.fault(SafetyAbort("interrupted by SIGINT"), "signal")
+
+                clock.thread(operator, name="operator-stop").start()
+            opts = RunOptions(serial="20260001", operator="campaign", out_dir=out / "runs",
+                              duration_s=float(draw["duration"]))
+            try:
+                res = run_test(run_cfg, ROOT / "profiles" / draw["profile"], opts,
+                               device_factory=lambda c, rec: open_devices(c, rec, clock=clock),
+                               supervisor=sup, clock=clock)
+            except BenchError as e:  # refused before anything moved (a profile over a limit)
+                return {"refused": str(e), "t_sim": clock.monotonic() - 1000.0}
+            now = clock.monotonic()
+            true = bench.stand.true_angles(now)
+            with bench.stand._lock:
+                moving = any(abs(s.rate_deg_s) > 1e-3 for s in bench.stand._state.values())
+                enabled = bench.stand._enabled
+            return {
+                "result": res, "peaks": bench.stand.peaks(), "true": true, "moving": moving,
+                "enabled": enabled, "t_sim": now - 1000.0,
+            }
+        finally:
+            bench.stop()
+
+
+def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
+              reference: dict[str, Any] | None) -> list[str]:
+    """The violations of one run (empty: it held)."""
+    if "refused" in got:
+        return []
+    res = got["result"]
+    lim = cfg.stand.limits
+    bad: list[str] = []
+    # 1. limits: the stand's true motion while following, and every commanded point
+    for axis, p in got["peaks"].items():
+        if p["rate_deg_s"] > lim.rate_deg_s * SLACK:
+            bad.append(f"limits: {axis} moved at {p['rate_deg_s']:.3f} deg/s "
+                       f"(limit {lim.rate_deg_s})")
+        if p["accel_deg_s2"] > lim.accel_deg_s2 * SLACK:
+            bad.append(f"limits: {axis} accelerated at {p['accel_deg_s2']:.3f} deg/s2 "
+                       f"(limit {lim.accel_deg_s2})")
+    rec = res.recording
+    if rec is not None and (rec / "setpoints.csv").is_file():
+        with (rec / "setpoints.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        # the profile's points (a slot each) and the shutdown ramp's (no slot: planned from the
+        # stand's measured state, so its first point continues the stand, not the last slot)
+        segments = [[r for r in rows if r["t_slot"]], [r for r in rows if not r["t_slot"]]]
+        for seg in segments:
+            if len(seg) < 3:
+                continue
+            cols = [c for c in seg[0] if c.endswith("_deg")]
+            t_raw = np.array([float(r["t_slot"] or r["t_send"]) for r in seg])
+            period = float(np.median(np.diff(t_raw)))
+            for c in cols:
+                x_raw = np.array([float(r[c]) for r in seg])
+                # slots never sent (missed, or a gap before a rejoin): the stand held the last
+                # point until the next one's slot came — the commanded motion holds, then moves
+                # (stream mode: that hold is the stand's documented behaviour on a missed slot,
+                # an abrupt stop its drive makes within its own limits; the step into a hold is
+                # counted as a hold, not judged; the rejoin from the held point is judged)
+                t_l, x_l, hold_at = [t_raw[0]], [x_raw[0]], set()
+                for i in range(1, len(t_raw)):
+                    if t_raw[i] - t_raw[i - 1] > 1.5 * period:
+                        hold_at.add(len(t_l) - 1)  # the accel at the last point before the hold
+                        t_l.append(t_raw[i] - period)
+                        x_l.append(x_raw[i - 1])
+                    t_l.append(t_raw[i])
+                    x_l.append(x_raw[i])
+                t, x = np.array(t_l), np.array(x_l)
+                got.setdefault("holds", 0)
+                got["holds"] += len(hold_at)
+                if np.max(np.abs(x)) > lim.angle_deg * SLACK:
+                    bad.append(f"limits: commanded {c} {np.max(np.abs(x)):.3f} deg")
+                dt = np.diff(t)
+                ok = dt > 1e-9
+                v = np.diff(x)[ok] / dt[ok]
+                if v.size and np.max(np.abs(v)) > lim.rate_deg_s * SLACK:
+                    bad.append(f"limits: commanded {c} rate {np.max(np.abs(v)):.3f} deg/s")
+                if v.size > 1:
+                    tv = t[1:][ok]
+                    dtv = np.diff(tv)
+                    okv = dtv > 1e-9
+                    # a[j] is the acceleration at point j+1 of the series (between v[j], v[j+1])
+                    idx = np.nonzero(ok)[0][1:][okv]
+                    judged = np.array([i not in hold_at for i in idx], dtype=bool)
+                    a = (np.diff(v)[okv] / dtv[okv])[judged] if idx.size else np.array([])
+                    if a.size and np.max(np.abs(a)) > lim.accel_deg_s2 * SLACK:
+                        bad.append(f"limits: commanded {c} accel {np.max(np.abs(a)):.3f} deg/s2")
+    # 2. the way out: at rest at zero, or the final state reported
+    at_zero = (not got["moving"] and all(abs(v) <= cfg.stand.zero_tolerance_deg
+                                          for v in got["true"].values()))
+    if not at_zero:
+        reported = any(s["step"] == "final angle" and s["ok"] for s in res.shutdown)
+        if not reported:
+            where = ", ".join(f"{a}={v:+.3f}" for a, v in got["true"].items())
+            bad.append(f"way out: stand left at {where} (moving={got['moving']}) and its "
+                       "final state not reported")
+    # 3. no abort when only short stalls happened
+    stalls = draw["plan_stalls"]
+    short = all(d < cfg.stand.buffer_s for _, d in stalls)
+    if not draw["faulty"] and short and res.state == "aborted":
+        bad.append(f"abort with every stall shorter than the buffer "
+                   f"(longest {max((d for _, d in stalls), default=0):.3f} s): {res.reason}")
+    # 4. σ against the undisturbed run of the same configuration
+    stats = res.stats or {}
+    clean = stats.get("underruns", 0) == 0 and stats.get("rejoins", 0) == 0
+    if (not draw["faulty"] and res.state == "done" and clean and reference is not None
+            and res.report is not None):
+        for axis, ref in reference.items():
+            got_axis = res.report.axes.get(axis) if hasattr(res.report, "axes") else None
+            if got_axis is None:
+                continue
+            s = got_axis.sigma_deg
+            lo, hi = ref["ci95"]
+            if not lo <= s <= hi:
+                bad.append(f"sigma: {axis} {s:.5f} deg outside the undisturbed run's "
+                           f"[{lo:.5f}, {hi:.5f}]")
+    return bad
+
+
+def _sigmas(res: Any) -> dict[str, Any] | None:
+    if res is None or res.report is None or not hasattr(res.report, "axes"):
+        return None
+    return {a: {"sigma": v.sigma_deg, "ci95": list(v.sigma_ci95_deg)}
+            for a, v in res.report.axes.items()}
+
+
+def one(args: tuple[int, list[int], str, str | None]) -> dict[str, Any]:
+    seed, durations, work, keep = args
+    draw = draw_run(seed, durations)
+    out = Path(work) / f"seed{seed}"
+    t0 = time.perf_counter()
+    try:
+        cfg_path = config_for(draw, out / "d", draw["disturb"])
+        cfg = load_config(cfg_path)
+        assert cfg.sim is not None and cfg.sim.disturb is not None
+        plan = Disturbances(cfg.sim.disturb, float(draw["duration"]) + 600.0)
+        draw["plan_stalls"] = plan.stalls
+        got = _run(cfg, draw, out / "d", plan)
+        reference = None
+        if not draw["faulty"] and "refused" not in got and got["result"].state == "done":
+            ref_cfg = load_config(config_for(draw, out / "u", None))
+            ref = _run(ref_cfg, draw, out / "u", None)
+            reference = _sigmas(ref.get("result"))
+        bad = check_run(draw, got, cfg, reference)
+        res = got.get("result")
+        line = {
+            "seed": seed, "mode": draw["mode"], "link": draw["link"],
+            "protocol": draw["protocol"], "profile": draw["profile"],
+            "duration": draw["duration"], "faulty": draw["faulty"],
+            "stalls": len(plan.stalls),
+            "longest_stall_s": round(max((d for _, d in plan.stalls), default=0.0), 3),
+            "faults": [f"{f.target}:{f.kind}" for f in plan.faults],
+            "operator_stop_s": plan.operator_stop_s,
+            "verdict": ("REFUSED" if res is None else
+                        (res.report.verdict if res.report is not None else "ABORTED")),
+            "reason": got.get("refused") or (res.reason if res is not None else ""),
+            "underruns": (res.stats or {}).get("underruns") if res is not None else None,
+            "rejoins": (res.stats or {}).get("rejoins") if res is not None else None,
+            "t_sim_s": round(got["t_sim"], 3),
+            "violations": bad,
+        }
+    except Exception as e:  # a crash of the harness or the product is a violation too
+        import traceback
+
+        line = {"seed": seed, "violations": [f"crash: {type(e).__name__}: {e}"], "t_sim_s": 0.0,
+                "traceback": traceback.format_exc(),
+                **{k: draw[k] for k in ("mode", "link", "protocol", "profile", "duration")}}
+    line["wall_s"] = round(time.perf_counter() - t0, 2)
+    if line["violations"] and keep:
+        shutil.copytree(out, Path(keep) / f"seed{seed}", dirs_exist_ok=True)
+    shutil.rmtree(out, ignore_errors=True)
+    return line
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--seed0", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--durations", default="120,300,600,900")
+    ap.add_argument("--json", type=Path, help="write every run's line here (JSON lines)")
+    ap.add_argument("--keep", type=Path, help="copy each failing run's recordings here")
+    a = ap.parse_args()
+    durations = [int(x) for x in a.durations.split(",")]
+    work = tempfile.mkdtemp(prefix="benchctl-campaign-")
+    keep = str(a.keep) if a.keep else None
+    jobs = [(a.seed0 + k, durations, work, keep) for k in range(a.runs)]
+    t0 = time.perf_counter()
+    lines: list[dict[str, Any]] = []
+    sink = a.json.open("w") if a.json else None
+    try:
+        if a.jobs > 1:
+            with multiprocessing.get_context("spawn").Pool(a.jobs) as pool:
+                it = pool.imap_unordered(one, jobs)
+                for line in it:
+                    lines.append(line)
+                    _print(line, sink)
+        else:
+            for j in jobs:
+                line = one(j)
+                lines.append(line)
+                _print(line, sink)
+    finally:
+        if sink is not None:
+            sink.close()
+        shutil.rmtree(work, ignore_errors=True)
+    wall = time.perf_counter() - t0
+    failing = sorted(x["seed"] for x in lines if x["violations"])
+    by_check: dict[str, int] = {}
+    for x in lines:
+        for v in x["violations"]:
+            k = v.split(":", 1)[0]
+            by_check[k] = by_check.get(k, 0) + 1
+    hours = sum(x["t_sim_s"] for x in lines) / 3600.0
+    verdicts: dict[str, int] = {}
+    for x in lines:
+        verdicts[str(x.get("verdict"))] = verdicts.get(str(x.get("verdict")), 0) + 1
+    print(f"\nruns {len(lines)}  simulated {hours:.2f} h  wall {wall / 60:.1f} min  "
+          f"(x{hours * 3600 / max(wall, 1e-9):.1f} real time)")
+    print(f"verdicts {verdicts}")
+    print(f"violations {sum(by_check.values())} {by_check}")
+    print(f"failing seeds {failing}")
+    return 1 if failing else 0
+
+
+def _print(line: dict[str, Any], sink: Any) -> None:
+    v = line["violations"]
+    print(f"seed {line['seed']:5d} {line.get('mode', '?'):8s} {line.get('link', '?'):3s} "
+          f"{line.get('protocol', '?'):8s} {str(line.get('profile', '?'))[:22]:22s} "
+          f"{line.get('duration', 0):4}s {'F' if line.get('faulty') else '-'} "
+          f"stalls {line.get('stalls', 0):3d}/{line.get('longest_stall_s', 0):5.2f}s "
+          f"{line.get('verdict')!s:12s} {line['wall_s']:6.1f}s "
+          + ("OK" if not v else "VIOLATION " + " | ".join(v)), flush=True)
+    if sink is not None:
+        sink.write(json.dumps(line, default=str) + "\n")
+        sink.flush()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
