@@ -209,8 +209,19 @@ def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
             rows = list(csv.DictReader(f))
         # the profile's points (a slot each) and the shutdown ramp's (no slot: planned from the
         # stand's measured state, so its first point continues the stand, not the last slot)
-        segments = [[r for r in rows if r["t_slot"]], [r for r in rows if not r["t_slot"]]]
-        for seg in segments:
+        # (the ramp's points are judged in runs of consecutive periods: after a gap the ramp
+        # starts again from where the stand was then)
+        ramp = [r for r in rows if not r["t_slot"]]
+        segments = [[r for r in rows if r["t_slot"]]]
+        t_ramp = [float(r["t_send"]) for r in ramp]
+        ramp_period = float(np.median(np.diff(t_ramp))) if len(t_ramp) > 2 else 0.0
+        for r in ramp:
+            if (len(segments) == 1 or not segments[-1]
+                    or float(r["t_send"]) - float(segments[-1][-1]["t_send"])
+                    > 1.2 * ramp_period):
+                segments.append([])
+            segments[-1].append(r)
+        for n_seg, seg in enumerate(segments):
             if len(seg) < 3:
                 continue
             cols = [c for c in seg[0] if c.endswith("_deg")]
@@ -225,7 +236,7 @@ def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
                 # counted as a hold, not judged; the rejoin from the held point is judged)
                 t_l, x_l, hold_at = [t_raw[0]], [x_raw[0]], set()
                 for i in range(1, len(t_raw)):
-                    if t_raw[i] - t_raw[i - 1] > 1.5 * period:
+                    if n_seg == 0 and t_raw[i] - t_raw[i - 1] > 1.5 * period:
                         hold_at.add(len(t_l) - 1)  # the accel at the last point before the hold
                         t_l.append(t_raw[i] - period)
                         x_l.append(x_raw[i - 1])
@@ -250,7 +261,10 @@ def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
                     judged = np.array([i not in hold_at for i in idx], dtype=bool)
                     a = (np.diff(v)[okv] / dtv[okv])[judged] if idx.size else np.array([])
                     if a.size and np.max(np.abs(a)) > lim.accel_deg_s2 * SLACK:
-                        bad.append(f"limits: commanded {c} accel {np.max(np.abs(a)):.3f} deg/s2")
+                        where = "the ramp to zero" if n_seg else "the motion"
+                        j = int(np.argmax(np.abs(a)))
+                        bad.append(f"limits: commanded {c} accel {np.max(np.abs(a)):.3f} deg/s2 "
+                                   f"in {where} (point {j + 1} of {len(x)})")
     # 2. the way out: at rest at zero, or the final state reported
     at_zero = (not got["moving"] and all(abs(v) <= cfg.stand.zero_tolerance_deg
                                           for v in got["true"].values()))
