@@ -105,17 +105,21 @@ class ClockStand:
 
 class ClockSensor(SensorReader):
     """An instrument reader whose transport is the stand itself, polled every 10 ms on the
-    reader's clock (the base class's thread, events and silence check on the same clock)."""
+    reader's clock (the base class's thread, events and silence check on the same clock); the
+    10 ms are the instrument's: the reader's own work per frame does not stretch them."""
 
     def __init__(self, stand: ClockStand, cfg: Any, clock: Clock) -> None:
         super().__init__(cfg, "fake", clock=clock)
         self.stand = stand
+        self._next: float | None = None
 
     def _identify(self) -> DeviceIdentity:
         return DeviceIdentity("fake", "inclinometer", "I1", "2.0", "fake")
 
     def _poll(self) -> list[tuple[Any, float]]:
-        self.clock.sleep(0.01)
+        now = self.clock.monotonic()
+        self._next = (now if self._next is None else self._next) + 0.01
+        self.clock.sleep(self._next - now)
         return [(dict(self.stand.angle), self.clock.monotonic())]
 
     def _handle(self, item: Any, t_host: float) -> None:

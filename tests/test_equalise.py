@@ -25,6 +25,7 @@ from benchctl.analysis.equalise import (
     response_at,
 )
 from benchctl.analysis.excitation import StandReach, fidelity_of_table
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError
 from benchctl.harmonics import HarmonicTable
@@ -233,8 +234,11 @@ def test_equalise_refuses_a_profile_without_lines(tmp_path: Path) -> None:
                        RunOptions("s", "o", equalise=True))
 
 
-# ---- the pre-test in the session, against in-process fakes (tests/run_fakes.py)
-def _fake_session(tmp_path: Path, mode: str = "stream") -> tuple[Any, Any, Any]:
+# ---- the pre-test in the session, against in-process fakes (tests/run_fakes.py), on simulated
+# time: a loaded host cannot stall the stand loop ("stand loop stalled: no cycle for 4.1 s")
+def _fake_session(
+    tmp_path: Path, clock: VirtualClock, mode: str = "stream"
+) -> tuple[Any, Any, Any]:
     from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
     from benchctl.profiles.synthesis import TableMotion
@@ -250,20 +254,22 @@ def _fake_session(tmp_path: Path, mode: str = "stream") -> tuple[Any, Any, Any]:
     prep.plan.tables = {"roll": tab}
     prep.plan.values = {"roll": tab.evaluate(np.arange(prep.plan.n_slots) * prep.plan.period_s)}
     prep.pretest = prepare_pretest(cfg, motion, 100.0, "test")
-    stand = FakeStand(("roll",))
+    stand = FakeStand(("roll",), clock=clock)
     sensor = FakeSensor(stand)
     sess = Session(cfg, prep, RunOptions("SN-EQ", "tester"),
-                   device_factory=lambda c, p: (stand, sensor))
+                   device_factory=lambda c, p: (stand, sensor), clock=clock)
     return sess, stand, sensor
 
 
 @pytest.mark.parametrize("mode", ["stream", "table"])
-def test_session_pretest_on_a_stand_that_follows(tmp_path: Path, mode: str) -> None:
+def test_session_pretest_on_a_stand_that_follows(
+    tmp_path: Path, mode: str, vclock: VirtualClock
+) -> None:
     """A stand that follows its setpoints exactly: |H_s| = 0 dB, the drive unchanged in
     amplitude; the pre-test is a state of its own, before the profile's motion_start."""
     from benchctl.recording import load_recording
 
-    sess, _, _ = _fake_session(tmp_path, mode)
+    sess, _, _ = _fake_session(tmp_path, vclock, mode)
     res = sess.run()
     assert res.state == "done", res.reason
     rec = load_recording(res.recording)
@@ -280,10 +286,12 @@ def test_session_pretest_on_a_stand_that_follows(tmp_path: Path, mode: str) -> N
         assert kinds.count("table_uploaded") == 2
 
 
-def test_session_fault_during_the_pretest_takes_the_one_cleanup_path(tmp_path: Path) -> None:
+def test_session_fault_during_the_pretest_takes_the_one_cleanup_path(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     from benchctl.recording import load_recording
 
-    sess, stand, sensor = _fake_session(tmp_path)
+    sess, stand, sensor = _fake_session(tmp_path, vclock)
     stand.fault_at = 1.5  # the pre-test's motion time
     res = sess.run()
     assert res.state == "aborted" and res.exit_code == 2 and "fault code" in res.reason

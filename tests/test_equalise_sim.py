@@ -18,6 +18,7 @@ import pytest
 from run_sim import ROOT, live_bench
 
 from benchctl.analysis.steps import motion_start
+from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 
@@ -29,9 +30,9 @@ STAND = {"mode": "buffered", "tracking_tolerance_deg": 1.5}
 RUN = {"profile_tolerance_deg": 1.5, "excitation": {"abort_db": 6.0}}
 
 
-def _run(tmp_path: Path, equalise: bool) -> Any:
-    with live_bench(tmp_path, stand=STAND, run=RUN, sim_stand=RESONANT) as b:
-        res = run_test(b.cfg, PROFILE, RunOptions("EQ-1", "ci", equalise=equalise))
+def _run(tmp_path: Path, equalise: bool, clock: VirtualClock) -> Any:
+    with live_bench(tmp_path, stand=STAND, run=RUN, sim_stand=RESONANT, clock=clock) as b:
+        res = run_test(b.cfg, PROFILE, RunOptions("EQ-1", "ci", equalise=equalise), clock=clock)
         assert res.state == "done", res.reason
         assert res.report is not None
         return res
@@ -46,16 +47,18 @@ def _lines(res: Any) -> tuple[np.ndarray, np.ndarray, float]:
     return err, judged, float(ex["variance_ratio"])
 
 
-def test_equalised_run_meets_the_profile_the_plain_one_misses(tmp_path: Path) -> None:
+def test_equalised_run_meets_the_profile_the_plain_one_misses(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     (tmp_path / "plain").mkdir()
     (tmp_path / "eq").mkdir()
-    plain = _run(tmp_path / "plain", equalise=False)
+    plain = _run(tmp_path / "plain", equalise=False, clock=vclock)
     err0, judged0, var0 = _lines(plain)
     assert np.max(err0[judged0]) > 1.0  # the resonance lifts the strong upper lines
     assert var0 > 1.05
     assert json.loads((Path(plain.recording) / "report.json").read_text())["equalisation"] is None
 
-    res = _run(tmp_path / "eq", equalise=True)
+    res = _run(tmp_path / "eq", equalise=True, clock=vclock)
     err, judged, var = _lines(res)
     assert np.max(np.abs(err[judged])) <= 0.5, err
     assert abs(var - 1.0) <= 0.02, var
@@ -84,14 +87,14 @@ def test_equalised_run_meets_the_profile_the_plain_one_misses(tmp_path: Path) ->
     assert report["equalisation"]["drive_check"]["ok"] is True
 
 
-def test_equalised_in_table_mode(tmp_path: Path) -> None:
+def test_equalised_in_table_mode(tmp_path: Path, vclock: VirtualClock) -> None:
     """The pre-test and the corrected drive as harmonic tables played on the stand's own clock
     (the pre-test's table uploaded first, then the corrected one). Stream mode is left out
     here: on a loaded host its missed slots and rejoins move the lines by up to ~0.9 dB (the
     pre-test's are counted in ``equalisation.pretest_stats``)."""
     with live_bench(tmp_path, stand={**STAND, "mode": "table"}, run=RUN,
-                    sim_stand=RESONANT) as b:
-        res = run_test(b.cfg, PROFILE, RunOptions("EQ-2", "ci", equalise=True))
+                    sim_stand=RESONANT, clock=vclock) as b:
+        res = run_test(b.cfg, PROFILE, RunOptions("EQ-2", "ci", equalise=True), clock=vclock)
     assert res.state == "done", res.reason
     err, judged, var = _lines(res)
     assert np.max(np.abs(err[judged])) <= 0.5, err

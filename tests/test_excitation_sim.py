@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ from run_sim import ROOT, live_bench
 
 from benchctl.analysis.steps import motion_start
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run.session import prepare_motion
@@ -38,15 +38,17 @@ TOL_DB = 0.1
 SYSTEMATIC_DB = 0.01
 
 
-def _run(tmp_path: Path, sim_stand: dict[str, Any], wide: bool) -> tuple[Any, Any, Any]:
+def _run(
+    tmp_path: Path, sim_stand: dict[str, Any], wide: bool, clock: VirtualClock
+) -> tuple[Any, Any, Any]:
     profile = ROOT / "profiles/ci_short.yaml"
     stand: dict[str, Any] = {"mode": "buffered"}
     run: dict[str, Any] = {}
     if wide:  # the resonant servo trails its setpoint by up to ~0.9°
         stand["tracking_tolerance_deg"] = 1.5
         run["profile_tolerance_deg"] = 1.5
-    with live_bench(tmp_path, stand=stand, run=run, sim_stand=sim_stand) as b:
-        res = run_test(b.cfg, profile, RunOptions("EXC-1", "ci"))
+    with live_bench(tmp_path, stand=stand, run=run, sim_stand=sim_stand, clock=clock) as b:
+        res = run_test(b.cfg, profile, RunOptions("EXC-1", "ci"), clock=clock)
         assert res.state == "done" and res.exit_code == 0, res.reason
         prep = prepare_motion(b.cfg, profile, RunOptions("x", "y"))
         tab = prep.motion.tables["roll"]
@@ -72,9 +74,10 @@ def _check_lines(ex: dict[str, Any], tab: Any, model: np.ndarray) -> np.ndarray:
 
 
 def test_resonant_stand_alarms_as_its_servo_says(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], vclock: VirtualClock
 ) -> None:
-    res, tab, model = _run(tmp_path, {"bandwidth_hz": 0.8, "damping": 0.3}, wide=True)
+    res, tab, model = _run(tmp_path, {"bandwidth_hz": 0.8, "damping": 0.3}, wide=True,
+                           clock=vclock)
     assert res.report is not None
     ex = res.report.axes["roll"].excitation
     assert ex is not None
@@ -100,8 +103,8 @@ def test_resonant_stand_alarms_as_its_servo_says(
     assert "excitation: rms" in capsys.readouterr().out
 
 
-def test_default_stand_reproduces_the_profile(tmp_path: Path) -> None:
-    res, tab, model = _run(tmp_path, {}, wide=False)
+def test_default_stand_reproduces_the_profile(tmp_path: Path, vclock: VirtualClock) -> None:
+    res, tab, model = _run(tmp_path, {}, wide=False, clock=vclock)
     assert res.report is not None
     ex = res.report.axes["roll"].excitation
     assert ex is not None
@@ -112,7 +115,7 @@ def test_default_stand_reproduces_the_profile(tmp_path: Path) -> None:
     assert abs(ex["rms_error_db"]) < TOL_DB
 
 
-def test_abort_level_stops_the_run(tmp_path: Path) -> None:
+def test_abort_level_stops_the_run(tmp_path: Path, vclock: VirtualClock) -> None:
     """A stand resonant enough (0.6 Hz, damping 0.2: the upper bands +4 … +6 dB) is stopped
     during the motion once the running estimate confirms a band beyond ±3 dB: exit 2, the
     reason names the band, the stand brought to rest. With run.excitation.abort_run off the
@@ -128,8 +131,8 @@ def test_abort_level_stops_the_run(tmp_path: Path) -> None:
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     with live_bench(tmp_path / "a", stand=stand, run={"profile_tolerance_deg": 3.0},
-                    sim_stand=sim) as b:
-        res = run_test(b.cfg, profile, RunOptions("EXC-2", "ci"))
+                    sim_stand=sim, clock=vclock) as b:
+        res = run_test(b.cfg, profile, RunOptions("EXC-2", "ci"), clock=vclock)
         assert res.state == "aborted" and res.exit_code == 2
         assert res.reason is not None and "excitation roll: the stand's motion in the band" in (
             res.reason), res.reason
@@ -140,14 +143,14 @@ def test_abort_level_stops_the_run(tmp_path: Path) -> None:
         t_abort = [e["t_state"] for e in rec.events
                    if e.get("kind") == "state" and e.get("to") == "aborted"]
         assert t_abort and t_abort[0] - t0 < 33.0  # before the fade-out: during the motion
-        deadline = time.monotonic() + 10.0
-        while not b.stand_at_rest() and time.monotonic() < deadline:
-            time.sleep(0.2)
+        deadline = vclock.monotonic() + 10.0
+        while not b.stand_at_rest() and vclock.monotonic() < deadline:
+            vclock.sleep(0.2)
         assert b.stand_at_rest()
     with live_bench(tmp_path / "b", stand=stand,
                     run={"profile_tolerance_deg": 3.0, "excitation": {"abort_run": False}},
-                    sim_stand=sim) as b:
-        res = run_test(b.cfg, profile, RunOptions("EXC-3", "ci"))
+                    sim_stand=sim, clock=vclock) as b:
+        res = run_test(b.cfg, profile, RunOptions("EXC-3", "ci"), clock=vclock)
         assert res.state == "done", res.reason
         assert res.report is not None
         ex = res.report.axes["roll"].excitation

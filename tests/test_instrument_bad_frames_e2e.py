@@ -1,23 +1,24 @@
 """End to end: bad frames on the instrument's wire during a real run are counted, the run PASSes.
 
-For each instrument protocol family (NMEA 0183 on a pty, CANopen over slcan on a pty) a real
-short run (``run_test``, ci_short shortened to 20 s) against the simulators; once the stand
-moves, the simulated instrument puts one bad frame of each known kind on the wire
-(``send_raw``: byte-exact) and then a burst of ``garbled how=bytes`` frames. The run must end
+For each instrument protocol family (NMEA 0183, CANopen over slcan; the real drivers over
+in-process links, on simulated time) a real short run (``run_test``, ci_short shortened to 20 s)
+against the simulators; once the stand moves, the simulated instrument puts one bad frame of
+each known kind on the wire (``send_raw``: byte-exact) and then a burst of ``garbled
+how=bytes`` frames, from a device thread (``sim-…``). The run must end
 ``done`` with a PASS verdict, every one of those frames counted in ``stats`` by its reason, and
 nothing else counted bad.
 """
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 from run_sim import ROOT, LiveBench, live_bench
 
+from benchctl.clock import EventLike
+from benchctl.clock.virtual import VirtualClock
 from benchctl.run import RunOptions, run_test
 
 pytestmark = pytest.mark.slow
@@ -44,29 +45,33 @@ SLCAN_BAD = [  # node 10: TPDO1 18A, EMCY 8A, heartbeat 70A, SDO answer 58A
 ]
 
 
-def _wait(cond: Callable[[], bool], timeout_s: float, what: str, stop: threading.Event) -> None:
-    end = time.monotonic() + timeout_s
+def _wait(cond: Callable[[], bool], timeout_s: float, what: str, stop: EventLike,
+          clock: VirtualClock) -> None:
+    end = clock.monotonic() + timeout_s
     while not cond():
         if stop.is_set():
             raise RuntimeError("test over")
-        if time.monotonic() > end:
+        if clock.monotonic() > end:
             raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.02)
+        clock.sleep(0.02)
 
 
 def _moving(bench: LiveBench) -> bool:
-    return any(abs(v) > 0.2 for v in bench.stand.true_angles(time.monotonic()).values())
+    now = bench.stand.clock.monotonic()
+    return any(abs(v) > 0.2 for v in bench.stand.true_angles(now).values())
 
 
-def _inject(bench: LiveBench, bad: list[tuple[bytes, str]], stop: threading.Event) -> None:
+def _inject(bench: LiveBench, bad: list[tuple[bytes, str]], stop: EventLike,
+            clock: VirtualClock) -> None:
     sim = bench.instrument
-    _wait(lambda: _moving(bench), 60.0, "the stand to move", stop)
+    _wait(lambda: _moving(bench), 60.0, "the stand to move", stop, clock)
     for data, _ in bad:
         sim.send_raw(data)
-    _wait(lambda: sim.counts["raw"] == len(bad), 10.0, "the raw frames on the wire", stop)
+    _wait(lambda: sim.counts["raw"] == len(bad), 10.0, "the raw frames on the wire", stop, clock)
     sim.inject("garbled", fraction=0.25, how="bytes")
     try:
-        _wait(lambda: sim.counts["garbled"] >= GARBLED_BURST, 10.0, "the garbled burst", stop)
+        _wait(lambda: sim.counts["garbled"] >= GARBLED_BURST, 10.0, "the garbled burst", stop,
+              clock)
     finally:
         sim.clear_faults()
 
@@ -77,22 +82,24 @@ def _inject(bench: LiveBench, bad: list[tuple[bytes, str]], stop: threading.Even
     ids=["nmea0183", "canopen-slcan"],
 )
 def test_bad_frames_during_a_run_are_counted_and_it_passes(
-    tmp_path: Path, instrument: str, bad: list[tuple[bytes, str]]
+    tmp_path: Path, instrument: str, bad: list[tuple[bytes, str]], vclock: VirtualClock
 ) -> None:
     errors: list[BaseException] = []
-    stop = threading.Event()
-    with live_bench(tmp_path, instrument=instrument) as b:
+    stop = vclock.event()
+    with live_bench(tmp_path, instrument=instrument, clock=vclock) as b:
 
         def injector() -> None:
             try:
-                _inject(b, bad, stop)
+                _inject(b, bad, stop, vclock)
             except BaseException as e:  # reported by the test, not lost in a thread
                 errors.append(e)
 
-        t = threading.Thread(target=injector, name="inject-bad-frames")
+        # the simulated instrument's side: a device thread (sim-…), which host stalls leave be
+        t = vclock.thread(injector, name="sim-inject-bad-frames")
         t.start()
         try:
-            res = run_test(b.cfg, PROFILE, RunOptions("BAD-FRAMES", "ci", duration_s=DURATION_S))
+            res = run_test(b.cfg, PROFILE, RunOptions("BAD-FRAMES", "ci", duration_s=DURATION_S),
+                           clock=vclock)
         finally:
             stop.set()
             t.join(timeout=10.0)

@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 from benchctl.analysis import analyze_recording
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import CrossAxisConfig, SimInstrumentConfig
 from benchctl.run import RunOptions, run_test
 from tests.run_sim import live_bench
@@ -33,14 +34,14 @@ axes:
 """
 
 
-def _run(tmp_path: Path, model: SimInstrumentConfig) -> dict[str, Any]:
+def _run(tmp_path: Path, model: SimInstrumentConfig, clock: VirtualClock) -> dict[str, Any]:
     profile = tmp_path / "odd.yaml"
     profile.write_text(PROFILE)
     # buffered: a streaming stand on a busy host holds and rejoins, so its motion is no longer
     # the periodic multisine, and the lines' noise floor — distortion, cross-axis intervals —
     # would measure the host's load instead of the instrument
-    with live_bench(tmp_path, model=model, stand={"mode": "buffered"}) as b:
-        res = run_test(b.cfg, profile, RunOptions("NL-1", "ci"))
+    with live_bench(tmp_path, model=model, stand={"mode": "buffered"}, clock=clock) as b:
+        res = run_test(b.cfg, profile, RunOptions("NL-1", "ci"), clock=clock)
         assert res.state == "done", res.reason
     assert res.recording is not None
     report = {a: v.analysis for a, v in res.report.axes.items()}  # type: ignore[union-attr]
@@ -53,10 +54,10 @@ def _run(tmp_path: Path, model: SimInstrumentConfig) -> dict[str, Any]:
     return report
 
 
-def test_cubic_instrument_shows_odd_distortion(tmp_path: Path) -> None:
+def test_cubic_instrument_shows_odd_distortion(tmp_path: Path, vclock: VirtualClock) -> None:
     model = SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0,
                                 cubic_per_deg2=0.005)
-    rep = _run(tmp_path, model)
+    rep = _run(tmp_path, model, vclock)
     for axis in ("roll", "pitch"):
         d = rep[axis]["distortion"]
         assert d is not None and d["n_periods"] == 2
@@ -64,10 +65,12 @@ def test_cubic_instrument_shows_odd_distortion(tmp_path: Path) -> None:
         assert d["odd_deg"] > 2 * d["noise_deg"]
 
 
-def test_cross_axis_coupling_found_and_linear_instrument_clean(tmp_path: Path) -> None:
+def test_cross_axis_coupling_found_and_linear_instrument_clean(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     model = SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0,
                                 cross_axis=CrossAxisConfig(roll_from_pitch=0.02))
-    rep = _run(tmp_path, model)
+    rep = _run(tmp_path, model, vclock)
     roll, pitch = rep["roll"]["cross_axis"], rep["pitch"]["cross_axis"]
     assert roll["input_axis"] == "pitch" and pitch["input_axis"] == "roll"
     assert roll["coefficient"] == pytest.approx(0.02, rel=0.05), roll

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from run_sim import live_bench
 
+from benchctl.clock.virtual import VirtualClock
 from benchctl.run import RunOptions, run_test
 from benchctl.run.precision import REASON_COMPLETE, REASON_PRECISION
 
@@ -39,14 +40,15 @@ def _events(rec: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in (rec / "events.jsonl").read_text().splitlines()]
 
 
-def test_precision_stop_end_to_end(tmp_path: Path) -> None:
+def test_precision_stop_end_to_end(tmp_path: Path, vclock: VirtualClock) -> None:
     profile = tmp_path / "repeating.yaml"
     profile.write_text(REPEATING)
-    with live_bench(tmp_path, stand={"mode": "buffered"}) as bench:
-        early = run_test(bench.cfg, profile, RunOptions("EARLY", "op", precision=0.10))
+    with live_bench(tmp_path, stand={"mode": "buffered"}, clock=vclock) as bench:
+        early = run_test(bench.cfg, profile, RunOptions("EARLY", "op", precision=0.10),
+                         clock=vclock)
         assert early.state == "done", early.reason
         assert bench.stand_at_rest()
-        full = run_test(bench.cfg, profile, RunOptions("FULL", "op"))
+        full = run_test(bench.cfg, profile, RunOptions("FULL", "op"), clock=vclock)
         assert full.state == "done", full.reason
     assert early.report is not None and full.report is not None
 

@@ -52,6 +52,12 @@ BAD_DECODE = "decode"  # an adapter line or payload that cannot be parsed
 BAD_STATUS = "status"  # the device flags the value as erroneous (e.g. J1939 figure of merit)
 BAD_REASONS = (BAD_CHECKSUM, BAD_LENGTH, BAD_RANGE, BAD_ID, BAD_DECODE, BAD_STATUS)
 
+#: host time the reader spends on one received frame (decode, checks, delivery), charged on a
+#: simulated clock (``Clock.compute``; on the real clock the work takes its own time): a burst
+#: read after a host stall is then stamped frame by frame, as on a real host, and not all at one
+#: instant — which a recording reads as one batch read and dates back, erasing the stall
+FRAME_HOST_COST_S = 50e-6
+
 #: what the parsing libraries (pynmea2, cantools, canopen, struct, int/float) raise on malformed
 #: input; a driver catches exactly these around a library call and counts the frame as ``decode``
 DECODE_ERRORS: tuple[type[Exception], ...] = (
@@ -243,4 +249,5 @@ class SensorReader:
                 except Exception as e:  # a bug in a decoder: never silent
                     self.stats.count_bad(BAD_DECODE)
                     self._report(e)
+                self.clock.compute(FRAME_HOST_COST_S)
             self._check_silence(self.clock.monotonic())

@@ -68,10 +68,22 @@ DEFAULT_LOCK_DIR = Path("/run/benchctl-locks")  # only root can create it: see t
 HOLDER_WAIT_S = 1.0  # a holder that has just taken the lock writes its details within this
 LOCK_FILE_MODE = 0o644  # created so (under the umask), never chmod'ed
 _OPEN_FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+#: an in-process link's URL (benchctl.channels): a simulated stand of this process only
+IN_PROCESS_SCHEME = "simchan://"
 
 
 def endpoint_key(stand: StandConfig) -> str:
-    """The stand's endpoint as a lock key: ``tcp HOST:PORT`` or ``rtu /real/device/path``."""
+    """The stand's endpoint as a lock key: ``tcp HOST:PORT`` or ``rtu /real/device/path``.
+
+    A simulated stand on an in-process link (``simchan://NAME``, simulated time) exists only in
+    the process that made it: its key names that process (``… pid N``), so two processes'
+    simulated stands of the same name (two test workers) are two stands, while two runs on one
+    of them in its process still exclude each other."""
+    where = str(stand.serial_port if stand.driver == "modbus-rtu" else stand.host)
+    if where.startswith(IN_PROCESS_SCHEME):
+        kind = "rtu" if stand.driver == "modbus-rtu" else "tcp"
+        port = "" if kind == "rtu" else f":{stand.port}"
+        return f"{kind} {where}{port} pid {os.getpid()}"
     if stand.driver == "modbus-rtu":
         port = str(stand.serial_port)
         if "://" in port:  # a pyserial URL: as given
