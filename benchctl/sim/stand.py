@@ -54,7 +54,7 @@ from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map
 from benchctl.errors import ConfigError, DeviceError
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.faults import FaultSpecError, check_params
-from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise, servo_step
+from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise
 from benchctl.sim.stand_servers import RtuStandServer, TcpStandServer
 
 FAULT_SOFT_LIMIT = 1
@@ -432,6 +432,10 @@ class SimStand:
         if self._mode == "traj_stop":
             traj_target = self._traj_stop_tick()
         at_rest = True
+        m = self.model  # servo_step's terms, as it computes them (this runs 1000 times a second)
+        wn2 = m.omega_n * m.omega_n
+        c2 = 2.0 * m.damping * m.omega_n
+        a_max, v_max, dt = m.accel_limit_deg_s2, m.rate_limit_deg_s, m.tick_s
         for i, a in enumerate(self.axes):
             s = self._state[a]
             if not self._enabled:
@@ -449,9 +453,13 @@ class SimStand:
                 else:
                     self._target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
-                servo_step(self.model, s, self._target[a])
-                p = self._peaks[a]  # the largest |rate| and |accel| while following (inline:
-                rate = s.rate_deg_s  # this runs a thousand times a simulated second)
+                # servo_step, inline
+                acc = wn2 * (self._target[a] - s.angle_deg) - c2 * v_before
+                acc = min(max(acc, -a_max), a_max)
+                rate = min(max(v_before + acc * dt, -v_max), v_max)
+                s.rate_deg_s = rate
+                s.angle_deg += rate * dt
+                p = self._peaks[a]  # the largest |rate| and |accel| while following
                 accel = (rate - v_before) / self._tick_s
                 if rate > p[0] or -rate > p[0]:
                     p[0] = abs(rate)
