@@ -26,6 +26,7 @@ reply's and the request's wire time, plus the client's polling for the reply's e
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -42,6 +43,8 @@ from benchctl.errors import ConnectionLost, DeviceTimeout, ModbusException, Prot
 log = logging.getLogger(__name__)
 wire_log = logging.getLogger("benchctl.wire")
 
+MAX_RTU_FRAME = 256  # bytes: the longest Modbus RTU frame (address, PDU of 253, CRC)
+
 EXCEPTION_NAMES = {
     1: "illegal function",
     2: "illegal data address",
@@ -53,6 +56,40 @@ EXCEPTION_NAMES = {
     10: "gateway path unavailable",
     11: "gateway target device failed to respond",
 }
+
+
+class _SerialClient(ModbusSerialClient):
+    """pymodbus's serial client with a reply wait that a host stall cannot make lose a reply.
+
+    pymodbus judges the reply timeout on the wall clock and, once it has run out, gives up
+    without another look at the line: a reply that arrived while this process was held up past
+    the time it had left was then thrown away by the retry (its ``send`` empties the input
+    first) and the request sent again — without a retry left the exchange failed on "no reply"
+    with the reply waiting. Here the timeout ends the wait only when nothing has arrived by
+    then: a reply whose bytes are waiting is read to its end, complete when the count of
+    waiting bytes has not changed over one poll (pymodbus's own rule, every 4 characters'
+    time). A line that keeps sending (noise) still ends the wait, one longest frame after the
+    timeout.
+    """
+
+    def _wait_for_data(self) -> int:
+        deadline = time.monotonic() + float(self.comm_params.timeout_connect or 0.0)
+        hard_end = math.inf
+        size = 0
+        while True:
+            available = int(self._in_waiting())
+            if size and available == size:
+                return size  # nothing new over one poll: the frame is complete
+            size = available
+            now = time.monotonic()
+            if now >= deadline:
+                if not size:
+                    return 0  # silence up to the timeout, and after any stall: no reply
+                if hard_end == math.inf:  # bytes after the timeout: one longest frame more
+                    hard_end = now + (MAX_RTU_FRAME + 4) * self._t0 + 2 * self._recv_interval
+                elif now >= hard_end:
+                    return size
+            time.sleep(self._recv_interval)
 
 
 class ModbusLink:
@@ -296,7 +333,7 @@ def rtu_link(
     """A Modbus RTU link over a serial device path or pyserial URL; not yet connected."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
-        return ModbusSerialClient(
+        return _SerialClient(
             port,
             framer=FramerType.RTU,
             baudrate=baudrate,
