@@ -9,7 +9,13 @@ driver cannot tell this stand from hardware. Three kinds of threads:
   Modbus specification says (``_MapDecoder``); other unit ids: TCP exception 0x0B, RTU silence.
 - ``sim-stand-physics``: ticks the servo at ``tick_hz`` on absolute times (host monotonic
   clock), integrating missed ticks when the thread was late, and checks the watchdog, soft
-  limits, table playback and scheduled faults.
+  limits, table playback and scheduled faults. The watchdog counts the host's heartbeat
+  silence, not this simulator's own hold-ups: when nothing of the simulator ran for longer than
+  ``SIM_HOLDUP_S`` (its physics had not been advanced — the process was not scheduled), the
+  host's requests waited unread in its socket meanwhile, and that time is not the host's
+  silence (a stand's controller is never held up by the host computer's scheduler).
+- Every request is answered, one at a time and in order, also several arriving in one read
+  (``_InOrderHandler``: a client's retry behind the request it had given up on).
 - ``sim-stand-rtu-relay`` (RTU only): relays bytes between two pseudo-terminal pairs, the server
   on one slave end, the client on the other, delaying each chunk by its serial byte time.
 
@@ -50,6 +56,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from benchctl.config import SimStandConfig, StandLimits
@@ -74,6 +81,8 @@ IDENTITY = {
 _HISTORY_S = 4.0
 _MOVING_DEG_S = 1e-3
 _MAX_CATCHUP_TICKS = 1000
+#: the physics not advanced for longer than this: nothing of the simulator ran (held up)
+SIM_HOLDUP_S = 0.1
 
 
 @dataclass
@@ -172,6 +181,7 @@ class SimStand:
         self._table_end = 0.0
         self._hb_value = 0
         self._hb_time = 0.0
+        self._held_s = 0.0  # this simulator's own hold-ups since the last heartbeat
         self._comm = _CommFaults()
         self._traj = _TrajectoryQueue(len(self.axes))
         self._peaks = {a: [0.0, 0.0] for a in self.axes}  # |rate|, |accel| while following
@@ -351,6 +361,9 @@ class SimStand:
         if not self._clock_on:
             return
         tick = self._tick_s
+        behind = now - (self._t0 + self._k * tick)
+        if behind > SIM_HOLDUP_S:  # the simulator itself was held up: not the host's silence
+            self._held_s += behind
         k_target = int((now - self._t0) / tick)
         if k_target - self._k > _MAX_CATCHUP_TICKS:
             self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
@@ -366,7 +379,7 @@ class SimStand:
         while self._pending_faults and t - self._start_time >= self._pending_faults[0].after_s:
             f = self._pending_faults.pop(0)
             self._apply(f.kind, t, f.duration_s, f.code)
-        if self._enabled and t - self._hb_time > self.cfg.watchdog_s:
+        if self._enabled and t - self._hb_time - self._held_s > self.cfg.watchdog_s:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
@@ -541,6 +554,10 @@ class SimStand:
                 trace_packet=self._trace,
                 trace_pdu=trace_pdu,
             )
+        server = self._server
+        server.callback_new_connection = lambda: _InOrderHandler(
+            server, server.trace_packet, server.trace_pdu, server.trace_connect
+        )
         # Spec-conformant refusals (see _MapDecoder): each connection's framer, made when the
         # server listens, decodes with the server's decoder.
         self._server.decoder = _MapDecoder(self.map, _register_addresses(simdata))
@@ -727,7 +744,7 @@ class SimStand:
         if touches(m.heartbeat):
             hb = int(value(m.heartbeat))
             if hb != self._hb_value:
-                self._hb_value, self._hb_time = hb, now
+                self._hb_value, self._hb_time, self._held_s = hb, now, 0.0
         if touches(m.control_word):
             result = self._control(int(value(m.control_word)), regs, start, now)
             if result is not None:
@@ -755,7 +772,7 @@ class SimStand:
             if not self._enabled and not (self._fault_code or self._estop):
                 self._enabled = True
                 self.enables += 1
-                self._hb_time = now
+                self._hb_time, self._held_s = now, 0.0
                 self._mode = "stream"
                 self._stream_target = {a: s.angle_deg for a, s in self._state.items()}
         elif self._enabled:
@@ -963,6 +980,48 @@ def _register_addresses(simdata: list[SimData]) -> frozenset[int]:
         if d.datatype != DataType.INVALID
         for i in range(len(d.build_registers(False)) * d.count)
     )
+
+
+class _InOrderHandler(ServerRequestHandler):
+    """pymodbus's connection handler, answering every request: one at a time, in order.
+
+    pymodbus takes one request out of what a read brought and leaves the rest in its buffer
+    until more bytes come, throws the whole buffer away once it holds more than one frame's
+    size (264 bytes), and keeps one request slot that a read arriving before the request is
+    answered overwrites. A client that gave up on the reply of a held-up simulator and sent its
+    request again has both copies read at once: the second went unanswered, and two trajectory
+    pushes (2 × 215 bytes) were both thrown away — the client then waited out its whole reply
+    timeout a second time; and sending a reply empties the buffer (a client's habit: what is
+    left is stale), losing any request behind the one answered. A stand answers each request;
+    so does this handler: while one is being answered the next waits in the buffer, a reply
+    leaves the buffer alone, and each answer takes up the next request.
+    """
+
+    def __init__(self, owner: Any, trace_packet: Any, trace_pdu: Any, trace_connect: Any) -> None:
+        super().__init__(owner, trace_packet, trace_pdu, trace_connect)
+        self.max_buffer_size = 16 * self.framer.MAX_SIZE  # several requests may wait their turn
+        self._answering = False
+
+    def callback_data(self, data: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        if self._answering:
+            return 0  # the request before this one is being answered: this one waits
+        used = int(super().callback_data(data, addr))
+        self._answering = self.last_pdu is not None
+        return used
+
+    def send(self, data: bytes, addr: tuple[Any, ...] | None = None) -> None:
+        pending = self.recv_buffer
+        super().send(data, addr)
+        self.recv_buffer = pending  # the requests behind the one answered stay
+
+    async def handle_request(self) -> None:
+        try:
+            await super().handle_request()
+        finally:
+            self._answering = False
+        if self.recv_buffer:  # requests that came with this one or while it was answered
+            cut = self.callback_data(self.recv_buffer, self.last_addr)
+            self.recv_buffer = self.recv_buffer[cut:]
 
 
 class _Refused(ModbusPDU):
