@@ -70,7 +70,9 @@ class StandConfig(Strict):
     stopbits: Literal[1, 2] = 1  # modbus-rtu
     device_id: int = Field(default=1, ge=0, le=247)
     register_map: Path = Path("../drivers/stand_generic.yaml")
-    timeout_s: Seconds = 0.5
+    # one exchange lasts at most timeout_s × (retries + 1), and the next heartbeat waits behind
+    # it: with heartbeat_period_s that must fit inside the stand's watchdog (checked below)
+    timeout_s: Seconds = 0.4
     retries: int = Field(default=1, ge=0, le=100)
     axes: tuple[Literal["roll", "pitch"], ...] = ("roll", "pitch")
     # stream: setpoints from the host; buffered: points queued ahead in the stand's trajectory
@@ -81,6 +83,9 @@ class StandConfig(Strict):
     setpoint_rate_hz: HostRate = 100.0
     sample_rate_hz: HostRate = 100.0  # how often the encoder angle is read (stream: each cycle)
     heartbeat_period_s: Seconds = 0.1
+    # the stand's own heartbeat watchdog (its setting, from its manual or parameters): when
+    # given, the config is checked against it (with a `sim:` section: sim.stand.watchdog_s)
+    watchdog_s: Seconds | None = None
     limits: StandLimits
     tracking_tolerance_deg: Positive = 0.5  # |measured - commanded| beyond this aborts
     zero_tolerance_deg: Positive = 0.05  # "at rest" means |angle| below this
@@ -628,6 +633,41 @@ def _check_fault_transports(cfg: BenchConfig, source: Path) -> None:
             ) from None
 
 
+def exchange_bound_s(stand: StandConfig) -> float:
+    """The longest one stand exchange may take plus the heartbeat period: every try's reply
+    timeout, ``timeout_s × (retries + 1)``, and the heartbeat that waits behind it."""
+    return stand.timeout_s * (stand.retries + 1) + stand.heartbeat_period_s
+
+
+def _check_watchdog(cfg: BenchConfig, source: Path) -> None:
+    """One exchange at its longest plus the heartbeat period must fit inside the stand's
+    watchdog (``stand.watchdog_s``, or the simulated stand's ``sim.stand.watchdog_s``): a link
+    allowed to wait longer for a reply than the stand waits for a heartbeat lets the stand stop
+    itself mid-run on a reply that was merely slow."""
+    st = cfg.stand
+    where, watchdog = "stand.watchdog_s", st.watchdog_s
+    if cfg.sim is not None:
+        sim_wd = cfg.sim.stand.watchdog_s
+        if watchdog is not None and watchdog != sim_wd:
+            raise ConfigError(
+                f"{source}: invalid bench config: field stand.watchdog_s = {watchdog:g} s: "
+                f"expected the simulated stand's, sim.stand.watchdog_s = {sim_wd:g} s (with a "
+                "`sim:` section the simulator is the stand)"
+            )
+        where, watchdog = "sim.stand.watchdog_s", sim_wd
+    if watchdog is None:
+        return
+    need = exchange_bound_s(st)
+    if need > watchdog * (1 + 1e-9):
+        raise ConfigError(
+            f"{source}: invalid bench config: fields stand.timeout_s = {st.timeout_s:g} s × "
+            f"(stand.retries = {st.retries} + 1) + stand.heartbeat_period_s = "
+            f"{st.heartbeat_period_s:g} s = {need:g} s: expected at most the stand's watchdog, "
+            f"{where} = {watchdog:g} s (one exchange may wait out every try's reply timeout, and "
+            "the heartbeat waits behind it: the stand would stop itself mid-run on a slow reply)"
+        )
+
+
 def parse_config(data: Any, source: Path) -> BenchConfig:
     """Validate a config mapping; relative paths resolve against ``source``'s folder."""
     if not isinstance(data, dict):
@@ -639,6 +679,7 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
     except ValidationError as err:
         raise ConfigError(_format_error(source, err)) from None
     _check_fault_transports(cfg, source)
+    _check_watchdog(cfg, source)
     base = source.parent
     updates: dict[str, Any] = {}
     for section, name in sorted(_PATH_FIELDS):

@@ -7,8 +7,10 @@ default config). Two CPU-bound processes run beside it for the whole benchmark, 
 process is stopped (SIGSTOP) for 50–300 ms every 2–4 s of its motion, then continued.
 
 First one run with neither load nor stalls gives the reference σ. Printed per loaded run and in
-total: verdict, aborts (goal 0), missed polls/slots, rejoins, buffer underruns, the largest
-commanded step rate and acceleration (from the recorded setpoints, as the stand plays them) and
+total: verdict, aborts (goal 0), the largest stand round trip (`rtt_s`: one Modbus exchange,
+against the stand's reply timeout and watchdog), missed polls/slots, rejoins, buffer underruns,
+the largest commanded step rate and acceleration (from the recorded setpoints, as the stand
+plays them) and
 the largest rate and acceleration the simulated stand measured while following (against the
 limits: the goal is within them), the number and total length of the stalls, and σ against the
 unloaded σ.
@@ -158,6 +160,7 @@ def main() -> int:
             port=sim_stand.port,
             register_map=str(base.stand.register_map),
             mode=args.mode,
+            watchdog_s=base.sim.stand.watchdog_s,  # the stand's: the config is checked against it
         )
         data["instrument"].update(
             channel=sim_instr.instrument_config().channel, eds=str(base.instrument.eds)
@@ -195,7 +198,8 @@ def main() -> int:
                 f"run {i + 1}: {rep['verdict']} (exit {r['code']})"
                 + (f" reason {rep.get('reason')}" if rep["verdict"] == "ABORTED" else "")
                 + f"; stalls {len(r['stalls'])} ({1e3 * sum(r['stalls']):.0f} ms in all, "
-                f"longest {1e3 * max(r['stalls'], default=0):.0f} ms); missed {st['missed_cycles']}"
+                f"longest {1e3 * max(r['stalls'], default=0):.0f} ms); largest rtt_s "
+                f"{st['stand_rtt_s'].get('max', float('nan')):.3f} s; missed {st['missed_cycles']}"
                 f", rejoins {st.get('rejoins')}, underruns {st.get('underruns')}"
             )
             for a in axes:
@@ -221,8 +225,18 @@ def main() -> int:
         f"mode {args.mode}, profile {args.profile.name} {args.duration:g} s, runs {len(results)}, "
         f"aborts {aborts}, load {'none' if args.no_load else '2 CPU-bound processes + stalls'}"
     )
+    print(
+        f"stand: reply timeout {base.stand.timeout_s:g} s × {base.stand.retries + 1} "
+        f"tries + heartbeat {base.stand.heartbeat_period_s:g} s, watchdog "
+        f"{base.sim.stand.watchdog_s:g} s"
+    )
     if done:
         axes = list(sigma_ref)
+        rtts = [(r["rep"]["stats"]["stand_rtt_s"].get("max", 0.0), i + 1)
+                for i, r in enumerate(results) if "rep" in r]
+        rtt, at = max(rtts)
+        print(f"largest rtt_s {rtt:.3f} s (run {at}); per run "
+              + ", ".join(f"{v:.3f}" for v, _ in rtts))
         print(
             f"stalls {sum(len(r['stalls']) for r in done)} "
             f"(longest {1e3 * max(max(r['stalls'], default=0) for r in done):.0f} ms); "

@@ -83,8 +83,9 @@ def _config(tmp_path: Path, port: int, sim: bool = False) -> Path:
         "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp_path / "runs"),
                 "lock_dir": str(tmp_path / "locks")},
     }
-    if sim:
+    if sim:  # the simulated stand's watchdog: one exchange and a heartbeat fit inside it
         data["sim"] = {"stand": {"watchdog_s": 0.5}}
+        data["stand"].update(timeout_s=0.2, retries=0)
     path = tmp_path / "bench.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

@@ -12,7 +12,11 @@ decoder, pymodbus's register model), fed by a TCP socket, a pty or an in-process
   Modbus specification says (``_MapDecoder``); other unit ids: TCP exception 0x0B, RTU silence.
 - ``sim-stand-physics``: ticks the servo at ``tick_hz`` on absolute times (the stand's clock:
   the host's, or simulated time), integrating missed ticks when the thread was late, and checks
-  the watchdog, soft limits, table playback and scheduled faults.
+  the watchdog, soft limits, table playback and scheduled faults. The watchdog counts the
+  host's heartbeat silence, not this simulator's own hold-ups: when nothing of the simulator ran
+  for longer than ``SIM_HOLDUP_S`` (its physics had not been advanced — the process was not
+  scheduled), the host's requests waited unread meanwhile, and that time is not the host's
+  silence (a stand's controller is never held up by the host computer's scheduler).
 
 On RTU each request is taken after its bytes' serial time on the line, and each reply is
 written after its own (10 bits a byte at ``baudrate``), on the pty and the link alike.
@@ -72,6 +76,8 @@ IDENTITY = {
 _HISTORY_S = 4.0
 _MOVING_DEG_S = 1e-3
 _MAX_CATCHUP_TICKS = 1000
+#: the physics not advanced for longer than this: nothing of the simulator ran (held up)
+SIM_HOLDUP_S = 0.1
 
 
 @dataclass
@@ -190,6 +196,7 @@ class SimStand:
         self._table_end = 0.0
         self._hb_value = 0
         self._hb_time = 0.0
+        self._held_s = 0.0  # this simulator's own hold-ups since the last heartbeat
         self._comm = _CommFaults()
         self._traj = _TrajectoryQueue(len(self.axes))
         self._peaks = {a: [0.0, 0.0] for a in self.axes}  # |rate|, |accel| while following
@@ -408,6 +415,9 @@ class SimStand:
         if not self._clock_on:
             return
         tick = self._tick_s
+        behind = now - (self._t0 + self._k * tick)
+        if behind > SIM_HOLDUP_S:  # the simulator itself was held up: not the host's silence
+            self._held_s += behind
         k_target = int((now - self._t0) / tick)
         if k_target - self._k > _MAX_CATCHUP_TICKS:
             self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
@@ -423,7 +433,7 @@ class SimStand:
         while self._pending_faults and t - self._start_time >= self._pending_faults[0].after_s:
             f = self._pending_faults.pop(0)
             self._apply(f.kind, t, f.duration_s, f.code)
-        if self._enabled and t - self._hb_time > self.cfg.watchdog_s:
+        if self._enabled and t - self._hb_time - self._held_s > self.cfg.watchdog_s:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
@@ -747,7 +757,7 @@ class SimStand:
         if touches(m.heartbeat):
             hb = int(value(m.heartbeat))
             if hb != self._hb_value:
-                self._hb_value, self._hb_time = hb, now
+                self._hb_value, self._hb_time, self._held_s = hb, now, 0.0
         if touches(m.control_word):
             result = self._control(int(value(m.control_word)), regs, start, now)
             if result is not None:
@@ -775,7 +785,7 @@ class SimStand:
             if not self._enabled and not (self._fault_code or self._estop):
                 self._enabled = True
                 self.enables += 1
-                self._hb_time = now
+                self._hb_time, self._held_s = now, 0.0
                 self._mode = "stream"
                 self._stream_target = {a: s.angle_deg for a, s in self._state.items()}
         elif self._enabled:

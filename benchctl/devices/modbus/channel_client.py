@@ -7,18 +7,20 @@ transport is replaced — the socket, or the serial port — by a
 
 - TCP: ``recv`` returns what has arrived, waiting up to the reply timeout for the first byte
   (pymodbus's own ``recv`` selects on a socket for the same);
-- RTU: pymodbus's serial client decides a reply is complete when the count of waiting bytes did
-  not change over one poll interval; ``_wait_for_data`` here does the same on the clock.
+- RTU: the link's serial client (``link._SerialClient``: a reply is complete when the count of
+  waiting bytes did not change over one poll, and the timeout ends the wait only when nothing
+  has arrived) on the endpoint's clock.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException
 
 from benchctl.channels import Endpoint
+from benchctl.devices.modbus.link import _SerialClient
 
 
 class ChannelTcpClient(ModbusTcpClient):
@@ -59,11 +61,12 @@ class ChannelTcpClient(ModbusTcpClient):
         return self.socket is not None
 
 
-class ChannelSerialClient(ModbusSerialClient):
-    """``ModbusSerialClient`` (RTU) whose serial port is an in-process endpoint."""
+class ChannelSerialClient(_SerialClient):
+    """The link's RTU client (pymodbus's, with its reply wait that a stall cannot make lose a
+    reply) whose serial port is an in-process endpoint, waiting on the endpoint's clock."""
 
     def __init__(self, endpoint: Endpoint, **kwargs: Any) -> None:
-        super().__init__("simchan", **kwargs)
+        super().__init__("simchan", clock=endpoint.clock, **kwargs)
         self._ep = endpoint
 
     def connect(self) -> bool:
@@ -71,22 +74,6 @@ class ChannelSerialClient(ModbusSerialClient):
             return False
         self.socket = _PortView(self._ep)
         return True
-
-    def _wait_for_data(self) -> int:
-        """As pymodbus's: poll the waiting bytes until they stop growing, on the clock."""
-        clock = self._ep.clock
-        size = 0
-        more_data = False
-        end = clock.monotonic() + self.comm_params.timeout_connect
-        while clock.monotonic() <= end:
-            available = self._in_waiting()
-            if (more_data and not available) or (more_data and available == size):
-                break
-            if available and available != size:
-                more_data = True
-                size = available
-            clock.sleep(self._recv_interval)
-        return size
 
 
 class _PortView:

@@ -26,6 +26,7 @@ reply's and the request's wire time, plus the client's polling for the reply's e
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -45,6 +46,7 @@ wire_log = logging.getLogger("benchctl.wire")
 #: a host or serial port starting so names an in-process link (``benchctl.channels``): the same
 #: pymodbus client and framing, the bytes carried in-process on the run's clock
 CHANNEL_SCHEME = "simchan://"
+MAX_RTU_FRAME = 256  # bytes: the longest Modbus RTU frame (address, PDU of 253, CRC)
 
 EXCEPTION_NAMES = {
     1: "illegal function",
@@ -57,6 +59,46 @@ EXCEPTION_NAMES = {
     10: "gateway path unavailable",
     11: "gateway target device failed to respond",
 }
+
+
+class _SerialClient(ModbusSerialClient):
+    """pymodbus's serial client with a reply wait that a host stall cannot make lose a reply.
+
+    pymodbus judges the reply timeout on the wall clock and, once it has run out, gives up
+    without another look at the line: a reply that arrived while this process was held up past
+    the time it had left was then thrown away by the retry (its ``send`` empties the input
+    first) and the request sent again — without a retry left the exchange failed on "no reply"
+    with the reply waiting. Here the timeout ends the wait only when nothing has arrived by
+    then: a reply whose bytes are waiting is read to its end, complete when the count of
+    waiting bytes has not changed over one poll (pymodbus's own rule, every 4 characters'
+    time). A line that keeps sending (noise) still ends the wait, one longest frame after the
+    timeout. ``clock``: the line's time (the real one for a serial port; an in-process line's
+    on simulated time, ``channel_client.ChannelSerialClient``).
+    """
+
+    def __init__(self, *args: Any, clock: Clock = REAL, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._clock = clock
+
+    def _wait_for_data(self) -> int:
+        clock = self._clock
+        deadline = clock.monotonic() + float(self.comm_params.timeout_connect or 0.0)
+        hard_end = math.inf
+        size = 0
+        while True:
+            available = int(self._in_waiting())
+            if size and available == size:
+                return size  # nothing new over one poll: the frame is complete
+            size = available
+            now = clock.monotonic()
+            if now >= deadline:
+                if not size:
+                    return 0  # silence up to the timeout, and after any stall: no reply
+                if hard_end == math.inf:  # bytes after the timeout: one longest frame more
+                    hard_end = now + (MAX_RTU_FRAME + 4) * self._t0 + 2 * self._recv_interval
+                elif now >= hard_end:
+                    return size
+            clock.sleep(self._recv_interval)
 
 
 class ModbusLink:
@@ -328,7 +370,7 @@ def rtu_link(
                 retries=retries,
                 trace_packet=trace,
             )
-        return ModbusSerialClient(
+        return _SerialClient(
             port,
             framer=FramerType.RTU,
             baudrate=baudrate,
