@@ -106,3 +106,13 @@ def test_a_virtual_config_refuses_a_callers_real_time_supervisor(tmp_path: Path)
     with pytest.raises(ConfigError, match=r"sim\.clock = virtual"):
         run_test(cfg, ROOT / "profiles/ci_short.yaml",
                  RunOptions(serial="x", operator="y"), supervisor=Supervisor())
+
+
+def test_the_simulated_time_config_is_the_default_one_on_a_virtual_clock() -> None:
+    """config/sim_virtual.yaml is config/sim.yaml with sim.clock: virtual (and its epoch): the
+    second README command runs the first one's bench."""
+    real = yaml.safe_load((ROOT / "config/sim.yaml").read_text())
+    virtual = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text())
+    assert virtual["sim"].pop("clock") == "virtual"
+    virtual["sim"].pop("epoch_utc")
+    assert virtual == real
