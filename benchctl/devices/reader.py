@@ -169,7 +169,10 @@ class SensorReader:
         self._first_good.set()
         with self._lock:
             cb, err = self._on_sample, self._on_error
-            self._last_good_t = sample.t_host
+            # silence is judged from when the reader got it, not from the sample's own stamp
+            # (an adapter's time of the frame): a backlog read after a host stall is old by its
+            # stamps, yet it proves the instrument was talking
+            self._last_good_t = self.clock.monotonic()
             self._silence_reported = False
         if cb is None:
             return
