@@ -8,7 +8,6 @@ its table), so the reference is exact; faults are injected at a motion time.
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.config import BenchConfig, parse_config
 from benchctl.devices.base import (
     DeviceIdentity,
@@ -31,15 +31,22 @@ from benchctl.run import prechecks as pc
 from benchctl.run.plan import make_plan
 from benchctl.run.session import PreparedMotion
 
+#: a fake stand's round trip on simulated time (on the host's clock the call takes its own time)
+SIM_RTT_S = 0.0005
+
 
 class FakeStand:
     """Follows each setpoint at once. ``fault_at``/``estop_at``/``drop_at``/``raise_at``: motion
-    time (s) at which a fault appears; ``lag_deg``: a constant offset (a stand off its track)."""
+    time (s) at which a fault appears; ``lag_deg``: a constant offset (a stand off its track).
+    ``clock``: the run's (a ``VirtualClock`` for a test on simulated time)."""
 
-    def __init__(self, axes: tuple[str, ...] = ("roll",), angle_limit: float = 20.0) -> None:
+    def __init__(
+        self, axes: tuple[str, ...] = ("roll",), angle_limit: float = 20.0, *, clock: Clock = REAL
+    ) -> None:
         self.axes = axes
+        self.clock = clock
         self.limits = StandLimitsView(angle_limit, 50.0, 300.0)
-        self._lock = threading.Lock()
+        self._lock = clock.lock()
         self.angle = dict.fromkeys(axes, 0.0)
         self.setpoint = dict.fromkeys(axes, 0.0)
         self.enabled = False
@@ -70,7 +77,7 @@ class FakeStand:
     def _tick(self) -> None:
         if self.t_motion is None:
             return
-        tm = time.monotonic() - self.t_motion
+        tm = self.clock.monotonic() - self.t_motion
         if self.on_motion_time is not None:
             self.on_motion_time(tm)
         if self.drop_at is not None and tm >= self.drop_at:
@@ -83,11 +90,11 @@ class FakeStand:
             self.estop_on = True
         if self.stall_at is not None and tm >= self.stall_at:
             self.stall_at = None
-            time.sleep(self.stall_s)
+            self.clock.sleep(self.stall_s)
 
     def _set_angle(self, angle: dict[str, float]) -> float:
         """The stand is now at ``angle`` (lock held); returns the moment, kept in the history."""
-        t = time.monotonic()
+        t = self.clock.monotonic()
         self.angle = angle
         self._history.append((t, dict(angle)))
         if len(self._history) > 400:
@@ -99,7 +106,7 @@ class FakeStand:
         force at that moment (the history of setpoint changes), plus its offset."""
         with self._lock:
             if self.table is not None and self.table_t0 is not None:
-                tt = (time.monotonic() if t is None else t) - self.table_t0
+                tt = (self.clock.monotonic() if t is None else t) - self.table_t0
                 return {a: self.table[a].at(tt) + self.offset_deg for a in self.axes}
             angle = self.angle
             if t is not None:
@@ -131,9 +138,11 @@ class FakeStand:
 
     def read_sample(self) -> StandSample:
         self._tick()
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
+        if self.clock.virtual:  # a read takes time (on the host's clock, the call itself does)
+            self.clock.sleep(SIM_RTT_S)
         ang = self.true_angle()
-        t1 = time.monotonic()
+        t1 = self.clock.monotonic()
         s = StandSample(
             t_host=0.5 * (t0 + t1),
             rtt_s=t1 - t0,
@@ -159,7 +168,7 @@ class FakeStand:
 
     def send_setpoint(self, angle_deg: dict[str, float], *, t_slot: float | None = None) -> float:
         if self.t_motion is None:
-            self.t_motion = time.monotonic()
+            self.t_motion = self.clock.monotonic()
         self._tick()
         with self._lock:
             t = self._set_angle({a: self.motion_gain * v for a, v in angle_deg.items()})
@@ -180,7 +189,7 @@ class FakeStand:
 
     def start_table(self) -> float:
         self.calls.append("start_table")
-        t = time.monotonic()
+        t = self.clock.monotonic()
         with self._lock:
             self.table, self.table_t0 = self._pending, t
         self.t_motion = t
@@ -190,7 +199,7 @@ class FakeStand:
         self.calls.append("stop_table")
         with self._lock:
             if self.table is not None and self.table_t0 is not None:
-                t = time.monotonic() - self.table_t0
+                t = self.clock.monotonic() - self.table_t0
                 self._set_angle({a: self.table[a].at(t) for a in self.axes})
             self.table, self.table_t0 = None, None
 
@@ -228,6 +237,7 @@ class FakeSensor:
         self, stand: FakeStand, rate_hz: float = 100.0, gain: float = 1.0, bias: float = 0.0
     ) -> None:
         self.stand = stand
+        self.clock = stand.clock
         self.axes = stand.axes
         self.stats = FrameStats()
         self.rate_hz = rate_hz
@@ -236,8 +246,8 @@ class FakeSensor:
         self.noise = 0.0
         self.silent_after: float | None = None
         self.error_after: float | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = self.clock.event()
+        self._thread: ThreadLike | None = None
         self.stopped = False
         self.closed = False
 
@@ -254,9 +264,10 @@ class FakeSensor:
         def run() -> None:
             n = 0
             period = 1.0 / self.rate_hz
-            t0 = time.monotonic()
-            while not self._stop.wait(max(0.0, t0 + n * period - time.monotonic())):
-                tm = None if self.stand.t_motion is None else time.monotonic() - self.stand.t_motion
+            t0 = self.clock.monotonic()
+            while not self._stop.wait(max(0.0, t0 + n * period - self.clock.monotonic())):
+                t_mo = self.stand.t_motion
+                tm = None if t_mo is None else self.clock.monotonic() - t_mo
                 if tm is not None and self.error_after is not None and tm >= self.error_after:
                     on_error(DeviceTimeout("fake instrument: bus error"))
                     return
@@ -271,10 +282,11 @@ class FakeSensor:
                         a: self.gain * v + self.bias + self.noise * rng.standard_normal()
                         for a, v in x.items()
                     }
-                    on_sample(InstrumentSample(time.monotonic(), y, counter=n))
+                    on_sample(InstrumentSample(self.clock.monotonic(), y, counter=n))
                 n += 1
 
-        self._thread = threading.Thread(target=run, name="fake instrument", daemon=True)
+        # a device's thread (``sim-…``): a host stall on simulated time does not stop it
+        self._thread = self.clock.thread(run, name="sim-fake-instrument")
         self._thread.start()
 
     def stop(self) -> None:
