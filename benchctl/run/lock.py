@@ -64,6 +64,8 @@ from benchctl.config import BenchConfig, StandConfig
 from benchctl.errors import ConfigError, StandInUse
 from benchctl.jsonout import dumps
 
+#: the URL scheme of an in-process link (benchctl.channels): a process's own endpoint
+SIMCHAN = "simchan://"
 DEFAULT_LOCK_DIR = Path("/run/benchctl-locks")  # only root can create it: see the docstring
 HOLDER_WAIT_S = 1.0  # a holder that has just taken the lock writes its details within this
 LOCK_FILE_MODE = 0o644  # created so (under the umask), never chmod'ed
@@ -71,12 +73,20 @@ _OPEN_FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
 
 
 def endpoint_key(stand: StandConfig) -> str:
-    """The stand's endpoint as a lock key: ``tcp HOST:PORT`` or ``rtu /real/device/path``."""
+    """The stand's endpoint as a lock key: ``tcp HOST:PORT`` or ``rtu /real/device/path``.
+
+    An in-process link (``simchan://NAME``, a simulated stand on simulated time) exists only in
+    the process that registered it: its key names that process, so two processes' links of one
+    name (each process numbers its own from the same base) are not one stand."""
     if stand.driver == "modbus-rtu":
         port = str(stand.serial_port)
+        if port.startswith(SIMCHAN):
+            return f"rtu {port} in process {os.getpid()}"
         if "://" in port:  # a pyserial URL: as given
             return f"rtu {port}"
         return f"rtu {os.path.realpath(port)}"
+    if stand.host.startswith(SIMCHAN):
+        return f"tcp {stand.host} in process {os.getpid()}"
     return f"tcp {_host(stand.host, stand.port)}:{stand.port}"
 
 
