@@ -29,6 +29,7 @@ from benchctl.config import (
     load_config,
 )
 from benchctl.sim.instrument import SimInstrument
+from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.stand import SimStand
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -164,10 +165,19 @@ def live_bench(
 def expected_sigma(bench: LiveBench, motion: Any, axis: str) -> float:
     """σ the simulated instrument must show for this motion: its stated transfer function applied
     to the stand's true motion (profile lines × the servo's response), plus its noise and the
-    wire quantisation. Over whole periods of the lines this is exact (steady state)."""
+    wire quantisation. Over whole periods of the lines this is exact (steady state).
+
+    On an in-process link (simulated time) the host has each output its bytes' time after its
+    instant, as over a real serial line (a pty has no byte time): that delay is the
+    instrument's too, added to its latency (``SimInstrument.wire_delay_s``)."""
     tab = motion.tables[axis]
     hs = np.array([abs(bench.stand.servo_response(f)) for f in tab.freq_hz])
-    var = bench.instrument.model.expected_error_variance(
+    model = bench.instrument.model
+    if bench.instrument.wire_delay_s > 0:
+        cfg = model.cfg.model_copy(
+            update={"latency_s": model.cfg.latency_s + bench.instrument.wire_delay_s})
+        model = InstrumentModel(cfg)
+    var = model.expected_error_variance(
         tab.amp_deg * hs, tab.freq_hz, resolution_deg=bench.instrument.wire_resolution_deg
     )
     return math.sqrt(var)

@@ -147,8 +147,9 @@ def test_redact_property_quoted_keyword(pw: str) -> None:
 
 # --- malformed URLs and config forms: the message hides the password -----------------------------
 
-def _config_text(tmp: Path, archive: dict[str, Any] | str) -> str:
-    data = yaml.safe_load((ROOT / "config/sim.yaml").read_text())
+def _config_text(tmp: Path, archive: dict[str, Any] | str, base: str = "config/sim.yaml") -> str:
+    """``base`` (the simulated bench) with ``archive`` and the test's folders."""
+    data = yaml.safe_load((ROOT / base).read_text())
     data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
     data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
     data["run"]["output_dir"] = str(tmp / "runs")
@@ -158,6 +159,8 @@ def _config_text(tmp: Path, archive: dict[str, Any] | str) -> str:
         return text + archive
     return text + yaml.safe_dump({"archive": archive}, sort_keys=False)
 
+
+VIRTUAL = "config/sim_virtual.yaml"  # the simulated bench on simulated time
 
 MALFORMED = {
     "port typo": f"archive:\n  url: postgresql+psycopg://bench:{SECRET}@127.0.0.1:54x2/db\n",
@@ -285,7 +288,9 @@ def test_a_whole_run_plan_sync_and_export_write_and_print_no_password(
     logs in by that password only; a run queued against a dead server and ``archive sync``;
     ``archive status``, ``history``, ``show``, ``recording show`` and ``export`` (CSV and
     .mat). Then every byte under the test's folder — recordings, plan folder, JUnit, queue,
-    lock folder, exports — and everything printed or logged, and the database's rows."""
+    lock folder, exports — and everything printed or logged, and the database's rows. The run
+    and the plan on simulated time (config/sim_virtual.yaml's bench, in this process); the
+    PostgreSQL server is real."""
     for var in ("PGPASSWORD", "PGPASSFILE", "PGSERVICEFILE", "PGSERVICE"):
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("PGPASSFILE", str(tmp_path / "none"))
@@ -296,13 +301,13 @@ def test_a_whole_run_plan_sync_and_export_write_and_print_no_password(
     profile.write_text(SHORT)
     run_cfg = inputs / "run.yaml"
     run_cfg.write_text(_config_text(tmp_path, {
-        "url": f"postgresql+psycopg://{ROLE}:{SECRET}@127.0.0.1:{pg.port}/{db}"}))
+        "url": f"postgresql+psycopg://{ROLE}:{SECRET}@127.0.0.1:{pg.port}/{db}"}, VIRTUAL))
     plan_cfg = inputs / "plan-bench.yaml"
     plan_cfg.write_text(_config_text(tmp_path, {
-        "url": f"postgresql://{ROLE}@127.0.0.1:{pg.port}/{db}?password={SECRET}"}))
+        "url": f"postgresql://{ROLE}@127.0.0.1:{pg.port}/{db}?password={SECRET}"}, VIRTUAL))
     dead_cfg = inputs / "dead.yaml"
     dead_cfg.write_text(_config_text(tmp_path, {
-        "url": f"postgresql+psycopg://{ROLE}:{SECRET}@127.0.0.1:{_closed_port()}/{db}"}))
+        "url": f"postgresql+psycopg://{ROLE}:{SECRET}@127.0.0.1:{_closed_port()}/{db}"}, VIRTUAL))
     plan = inputs / "plan.yaml"
     plan.write_text(yaml.safe_dump({
         "name": "secrets", "config": str(plan_cfg), "operator": "anna",

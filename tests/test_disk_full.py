@@ -30,7 +30,8 @@ from benchctl.recording import load_recording
 from benchctl.run import session as session_mod
 from benchctl.run.state import RunState, StateMachine
 
-pytestmark = pytest.mark.slow
+# a real tmpfs of a few MB mounted per test, the run's simulators on the host's time
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 DISK_SIZE = "4m"  # the whole recording of the 20 s profile (~0.6 MB) and its reserve fit
 
 

@@ -355,3 +355,20 @@ def test_a_user_takes_roots_stale_file_without_writing_into_it(shared: Path) -> 
         _, status = os.waitpid(pid, 0)
     assert os.waitstatus_to_exitcode(status) == 0
     assert path.read_bytes() == details and os.stat(path).st_uid == 0  # untouched, still there
+
+
+def test_an_in_process_link_is_locked_as_this_process_own_endpoint() -> None:
+    """A simulated stand on an in-process link (``simchan://NAME``) exists only in the process
+    that made it, and every process numbers its links from the same name: two test processes
+    (pytest-xdist) each running a simulated-time run must not lock one another out."""
+    from types import SimpleNamespace
+
+    from benchctl.run.lock import endpoint_key
+
+    tcp = SimpleNamespace(driver="modbus-tcp", host="simchan://sim-stand", port=502)
+    rtu = SimpleNamespace(driver="modbus-rtu", serial_port="simchan://sim-stand")
+    me = f"pid {os.getpid()}"
+    assert endpoint_key(tcp) == f"tcp simchan://sim-stand:502 {me}"  # type: ignore[arg-type]
+    assert endpoint_key(rtu) == f"rtu simchan://sim-stand {me}"  # type: ignore[arg-type]
+    real = SimpleNamespace(driver="modbus-tcp", host="127.0.0.1", port=5020)
+    assert endpoint_key(real) == "tcp localhost:5020"  # type: ignore[arg-type]

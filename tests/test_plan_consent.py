@@ -264,6 +264,7 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
 
 
 # ------------------------------------------------------------------ a real benchctl process
+@pytest.mark.realtime  # a real `benchctl plan` child on a pty, a real signal at its prompt
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_at_the_prompt_of_a_benchctl_plan_process(
     tmp_path: Path, stand: SimStand, sig: signal.Signals

@@ -1,7 +1,8 @@
 """Acceptance plans on the simulated bench, end to end.
 
-- ``plans/ci_short.yaml`` as shipped, through ``benchctl plan --yes --junit --json`` (its config,
-  config/sim.yaml, starts the simulators once for the plan): exit 0, JUnit XML with one test
+- ``plans/ci_short.yaml`` as shipped, through ``benchctl plan --yes --junit --json`` on
+  config/sim_virtual.yaml (its simulators started once for the plan, the whole plan on
+  simulated time from the config's epoch): exit 0, JUnit XML with one test
   case per measurement and the counts that the records imply, each step's record.json valid and
   judged by the step's limits, plan.json valid and equal to the --json output, the runs in the
   archive that ``benchctl history`` reads. One plan run shared by these checks.
@@ -9,7 +10,8 @@
   exit 1, ``on_fail: stop`` skips the next step, cleanup runs; an instrument that falls silent
   mid-plan → that step ABORTED (an ``<error>``), its record stored ABORTED, the next step
   skipped, cleanup ran and left the stand at rest, exit 2; a step timeout ends the step through
-  the run's abort path (record ABORTED with the timeout's reason), exit 2.
+  the run's abort path (record ABORTED with the timeout's reason), exit 2. These on simulated
+  time (the ``vclock`` fixture); Ctrl-C, a real SIGINT, on the host's (``realtime``).
 """
 
 from __future__ import annotations
@@ -19,7 +21,6 @@ import io
 import json
 import os
 import signal
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,12 +33,14 @@ from run_sim import live_bench
 
 from benchctl.cli import main
 from benchctl.cli.plan import summary
+from benchctl.clock import REAL, Clock, EventLike
+from benchctl.clock.virtual import VirtualClock
 from benchctl.plan import PlanResult, parse_plan, run_plan
 from benchctl.plan.record import load_plan_record
 from benchctl.results.record import load_record
 
-# the shared plan run is a module fixture: its 75 s (more on a loaded machine) count toward
-# the first test that uses it
+# the shared plan run is a module fixture (on simulated time): its time counts toward the first
+# test that uses it
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,16 +66,19 @@ axes:
 
 @pytest.fixture(scope="module")
 def ci_plan(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """plans/ci_short.yaml as shipped, once for the module, through the CLI."""
+    """plans/ci_short.yaml as shipped, once for the module, through the CLI, on the simulated
+    bench on simulated time: ``--config config/sim_virtual.yaml`` (config/sim.yaml with
+    ``sim.clock: virtual``) runs the whole plan on a VirtualClock."""
     out = tmp_path_factory.mktemp("ci_plan")
     junit = out / "ci_short.xml"
-    stdout = io.StringIO()
+    stdout, stderr = io.StringIO(), io.StringIO()
     t0 = time.monotonic()
-    with contextlib.redirect_stdout(stdout):
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
         code = main(["plan", str(ROOT / "plans/ci_short.yaml"), "--serial", PLAN_SERIAL, "--yes",
+                     "--config", str(ROOT / "config/sim_virtual.yaml"),
                      "--junit", str(junit), "--out", str(out / "runs"), "--json", "--quiet"])
     return {"code": code, "json": json.loads(stdout.getvalue()), "junit": junit,
-            "out": out / "runs", "seconds": time.monotonic() - t0}
+            "out": out / "runs", "seconds": time.monotonic() - t0, "stderr": stderr.getvalue()}
 
 
 def _kinds(case: Any) -> list[str]:
@@ -93,7 +99,24 @@ def test_ci_plan_passes_with_exit_0(ci_plan: dict[str, Any]) -> None:
     folders = list(ci_plan["out"].glob("plan_*"))
     assert len(folders) == 1
     assert load_plan_record(folders[0]) == rec
-    assert (folders[0] / "sim.log").is_file()  # one simulator process for the plan
+    # the simulators started once for the plan (on simulated time: in this process), not by
+    # each step's run
+    err = ci_plan["stderr"]
+    assert err.count("starting the simulators for the plan") == 1, err
+    assert not any((Path(s["recording"]) / "sim.log").exists() for s in rec["steps"])
+
+
+def test_a_plan_on_a_virtual_config_runs_on_simulated_time(ci_plan: dict[str, Any]) -> None:
+    """``sim.clock: virtual``: run_plan enters a VirtualClock from the config's epoch (as
+    run_test does): every stamp is simulated time, never the host's, and the plan's
+    simulated minute and more takes a fraction of it on the host."""
+    rec = ci_plan["json"]
+    assert rec["start_utc"].startswith("2026-01-01T00:0"), rec["start_utc"]
+    assert all(s["start_utc"].startswith("2026-01-01T00:0") for s in rec["steps"])
+    (folder,) = ci_plan["out"].glob("plan_*")
+    assert folder.name.startswith("plan_20260101T000")
+    assert rec["duration_s"] > 60.0  # the steps' profiles: 41 s and 25 s of motion, and more
+    assert ci_plan["seconds"] < rec["duration_s"]
 
 
 def test_ci_plan_junit_counts(ci_plan: dict[str, Any]) -> None:
@@ -180,23 +203,25 @@ def _plan(tmp_path: Path, steps: list[dict[str, Any]], **extra: Any) -> Any:
 
 
 @contextlib.contextmanager
-def _when_step_moves(out: Path, action: Any, nth: int = 2) -> Iterator[threading.Event]:
-    """Call ``action`` once the ``nth`` recording in ``out`` shows 2 s of motion."""
-    stop, done = threading.Event(), threading.Event()
+def _when_step_moves(out: Path, action: Any, nth: int = 2,
+                     clock: Clock = REAL) -> Iterator[EventLike]:
+    """Call ``action`` once the ``nth`` recording in ``out`` shows 2 s of motion (on ``clock``:
+    the run's, whose time the recording's ``t_host`` is)."""
+    stop, done = clock.event(), clock.event()
 
     def watch() -> None:
         while not stop.is_set():
             recs = sorted(p.parent for p in out.glob("2*/meta.json"))
             if len(recs) >= nth and (recs[nth - 1] / "events.jsonl").is_file():
                 for line in (recs[nth - 1] / "events.jsonl").read_text().splitlines():
-                    if '"motion_start"' in line and time.monotonic() - json.loads(line)[
+                    if '"motion_start"' in line and clock.monotonic() - json.loads(line)[
                             "t_host"] >= 2.0:
                         action()
                         done.set()
                         return
             stop.wait(0.1)
 
-    t = threading.Thread(target=watch, name="plan-test-watch")
+    t = clock.thread(watch, name="plan-test-watch")
     t.start()
     try:
         yield done
@@ -205,15 +230,17 @@ def _when_step_moves(out: Path, action: Any, nth: int = 2) -> Iterator[threading
         t.join()
 
 
-def test_a_failing_limit_exits_1_stops_the_plan_and_runs_cleanup(tmp_path: Path) -> None:
+def test_a_failing_limit_exits_1_stops_the_plan_and_runs_cleanup(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     roll = _profile(tmp_path, "roll12", 12)
-    with live_bench(tmp_path) as b:
+    with live_bench(tmp_path, clock=vclock) as b:
         plan = _plan(tmp_path, [
             {"name": "tight", "profile": str(roll), "limits": {"sigma_deg": 0.01},
              "on_fail": "stop"},
             {"name": "never", "profile": str(roll)},
         ])
-        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True,
+        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True, clock=vclock,
                        junit=tmp_path / "fail.xml")
         at_rest = b.stand_at_rest()
     assert (res.outcome, res.exit_code) == ("FAIL", 1), res.reason
@@ -240,18 +267,21 @@ def test_a_failing_limit_exits_1_stops_the_plan_and_runs_cleanup(tmp_path: Path)
     assert text[-2:] == [f"plan record {res.record_path}", f"JUnit XML {res.junit}"]
 
 
-def test_a_fault_mid_plan_aborts_the_step_runs_cleanup_and_exits_2(tmp_path: Path) -> None:
+def test_a_fault_mid_plan_aborts_the_step_runs_cleanup_and_exits_2(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     roll = _profile(tmp_path, "roll12", 12)
     out = tmp_path / "runs"
-    with live_bench(tmp_path) as b:
+    with live_bench(tmp_path, clock=vclock) as b:
         plan = _plan(tmp_path, [
             {"name": "first", "profile": str(roll), "on_fail": "continue"},
             {"name": "faulted", "profile": str(roll), "on_fail": "continue"},
             {"name": "after", "profile": str(roll)},
         ], setup=[{"check": "stand_at_rest"}])
-        with _when_step_moves(out, lambda: b.instrument.inject("silent")) as injected:
+        with _when_step_moves(out, lambda: b.instrument.inject("silent"),
+                              clock=vclock) as injected:
             res: PlanResult = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True,
-                                       out_dir=out, junit=tmp_path / "fault.xml")
+                                       clock=vclock, out_dir=out, junit=tmp_path / "fault.xml")
         assert injected.is_set()
         at_rest = b.stand_at_rest()
     assert (res.outcome, res.exit_code) == ("ABORTED", 2)
@@ -279,11 +309,13 @@ def test_a_fault_mid_plan_aborts_the_step_runs_cleanup_and_exits_2(tmp_path: Pat
     assert load_plan_record(res.record_path or "")["steps"][1]["record"] == rec
 
 
-def test_a_step_timeout_ends_the_step_through_the_abort_path(tmp_path: Path) -> None:
+def test_a_step_timeout_ends_the_step_through_the_abort_path(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     long_roll = _profile(tmp_path, "roll60", 60)
-    with live_bench(tmp_path) as b:
+    with live_bench(tmp_path, clock=vclock) as b:
         plan = _plan(tmp_path, [{"name": "slow", "profile": str(long_roll), "timeout_s": 12}])
-        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True)
+        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True, clock=vclock)
         at_rest = b.stand_at_rest()
     assert (res.outcome, res.exit_code) == ("ABORTED", 2)
     step = res.steps[0]
@@ -296,12 +328,14 @@ def test_a_step_timeout_ends_the_step_through_the_abort_path(tmp_path: Path) -> 
     assert [a.status for a in res.cleanup] == ["ok"] and at_rest
 
 
-def test_the_plan_timeout_ends_the_running_step_and_skips_the_rest(tmp_path: Path) -> None:
+def test_the_plan_timeout_ends_the_running_step_and_skips_the_rest(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     long_roll = _profile(tmp_path, "roll60", 60)
-    with live_bench(tmp_path) as b:
+    with live_bench(tmp_path, clock=vclock) as b:
         plan = _plan(tmp_path, [{"name": "slow", "profile": str(long_roll)},
                                 {"name": "next", "profile": str(long_roll)}], timeout_s=12)
-        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True)
+        res = run_plan(plan, serial=SERIAL, config=b.config_path, yes=True, clock=vclock)
         at_rest = b.stand_at_rest()
     assert (res.outcome, res.exit_code) == ("ABORTED", 2) and res.timed_out
     assert [s.status for s in res.steps] == ["ABORTED", "SKIPPED"]
@@ -312,6 +346,7 @@ def test_the_plan_timeout_ends_the_running_step_and_skips_the_rest(tmp_path: Pat
     assert [a.status for a in res.cleanup] == ["ok"] and at_rest
 
 
+@pytest.mark.realtime  # a real SIGINT to this process (the issue's "Ctrl-C in a plan")
 def test_ctrl_c_during_a_step_stops_the_plan_and_cleanup_still_runs(tmp_path: Path) -> None:
     """SIGINT while the first step moves: the run takes it (the stand brought to rest, the
     record ABORTED by the operator), the plan stops there and its cleanup runs."""

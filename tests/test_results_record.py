@@ -14,10 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import signal
 import subprocess
-import sys
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -31,6 +28,7 @@ from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 from run_sim import ROOT
 
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, parse_config
 from benchctl.errors import AnalysisError, DataError, DeviceTimeout, SafetyAbort, StandFault
 from benchctl.jsonout import dumps, loads_strict, plain
@@ -58,6 +56,7 @@ from benchctl.results.record import (
 )
 from benchctl.run.report import AxisVerdict, Report
 from benchctl.run.session import RunOptions, RunResult, Session, prepare_motion
+from benchctl.run.supervisor import Supervisor
 
 finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
 positive = st.floats(min_value=1e-6, max_value=1e3, allow_nan=False, allow_infinity=False)
@@ -272,19 +271,21 @@ DURATION, FADE = 5.0, 0.5
 
 
 def _run(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, cfg: BenchConfig | None = None,
-         **opts: Any) -> RunResult:
+         supervisor: Supervisor | None = None, **opts: Any) -> RunResult:
+    """The session on the fakes' clock (the tests': simulated time, the ``vclock`` fixture)."""
     cfg = cfg or bench_config(tmp_path)
     # table mode: a streaming stand on a busy host holds and rejoins, and a window the
     # departures spoil is not judged (INCONCLUSIVE); the record is the subject here
     prep = sine_motion(stand.axes, duration_s=DURATION, mode="table", fade_s=FADE)
     sess = Session(cfg, prep, RunOptions("SN-1", "tester", **opts),
-                   device_factory=lambda c, p: (stand, sensor))
+                   device_factory=lambda c, p: (stand, sensor), supervisor=supervisor,
+                   clock=stand.clock)
     return sess.run()
 
 
-def test_record_of_a_passing_run(tmp_path: Path) -> None:
+def test_record_of_a_passing_run(tmp_path: Path, vclock: VirtualClock) -> None:
     cfg = bench_config(tmp_path, decision_rule="guarded")
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     res = _run(tmp_path, stand, FakeSensor(stand, gain=1.05), cfg, part_number="PN-7")
     assert res.state == "done" and res.exit_code == 0, res.reason
     assert res.recording is not None and res.record == res.recording / RECORD_JSON
@@ -323,37 +324,40 @@ def _aborted(res: RunResult, kind: str) -> dict[str, Any]:
     return rec
 
 
-def test_record_of_an_operator_stop(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_record_of_an_operator_stop(tmp_path: Path, vclock: VirtualClock) -> None:
+    """The operator's SIGINT at 1 s of motion, as its handler reports it (``Supervisor.signals``:
+    a fault from ``signal``), on simulated time (a real SIGINT: test_run_session.py)."""
+    stand = FakeStand(clock=vclock)
+    sup = Supervisor(clock=vclock)
     sent: list[float] = []
 
     def kill(tm: float) -> None:
         if tm >= 1.0 and not sent:
             sent.append(tm)
-            os.kill(os.getpid(), signal.SIGINT)
+            sup.fault(SafetyAbort("interrupted by SIGINT"), "signal")
 
     stand.on_motion_time = kill
-    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "operator")
+    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand), supervisor=sup), "operator")
     assert "SIGINT" in rec["abort"]["reason"]
     assert all(m["outcome"] == PASS for m in rec["measurements"])  # its prechecks
 
 
-def test_record_of_an_equipment_fault(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_record_of_an_equipment_fault(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     stand.fault_at = 1.0
     rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "equipment")
     assert "fault code 7" in rec["abort"]["reason"]
 
 
-def test_record_of_a_failed_precheck(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_record_of_a_failed_precheck(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     rec = _aborted(_run(tmp_path, stand, FakeSensor(stand, bias=1.0)), "equipment")
     last = rec["measurements"][-1]
     assert last["name"] == "precheck: static agreement" and last["outcome"] == FAIL
 
 
-def test_record_of_a_software_error(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_record_of_a_software_error(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     stand.raise_at = 1.0
     rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "software")
     assert "RuntimeError" in rec["abort"]["reason"] and rec["abort"]["error"] == "RuntimeError"
@@ -377,20 +381,26 @@ def test_scaled_to_fit_is_a_deviation(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------ a simulated run
 @pytest.mark.slow
-def test_record_of_a_simulated_run_through_the_cli(tmp_path: Path) -> None:
-    """config/sim.yaml starts its simulators; the record is valid and says what ran."""
-    cfg_src = yaml.safe_load((ROOT / "config/sim.yaml").read_text(encoding="utf-8"))
+def test_record_of_a_simulated_run_through_the_cli(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """config/sim.yaml's bench (its simulators started by the run), through the CLI in this
+    process on simulated time (config/sim_virtual.yaml); the record is valid and says what
+    ran."""
+    cfg_src = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text(encoding="utf-8"))
     cfg_src["stand"]["calibration_due"] = "2027-03-31"
     for section, key in (("stand", "register_map"), ("instrument", "eds")):
         cfg_src[section][key] = str((ROOT / "config" / cfg_src[section][key]).resolve())
     cfg_path = tmp_path / "sim.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg_src), encoding="utf-8")
-    cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(cfg_path),
-           "--profile", str(ROOT / "profiles/ci_short.yaml"), "--duration", "20",
-           "--serial", "DEMO-1", "--operator", "ci", "--part-number", "PN-42",
-           "--out", str(tmp_path / "runs"), "--json", "--quiet"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
-    assert proc.returncode in (0, 1, 3), proc.stderr[-3000:]
+    capsys.readouterr()
+    code = main(["run", "--config", str(cfg_path),
+                 "--profile", str(ROOT / "profiles/ci_short.yaml"), "--duration", "20",
+                 "--serial", "DEMO-1", "--operator", "ci", "--part-number", "PN-42",
+                 "--out", str(tmp_path / "runs"), "--json", "--quiet"])
+    captured = capsys.readouterr()
+    assert code in (0, 1, 3), captured.err[-3000:]
+    proc = subprocess.CompletedProcess(["benchctl", "run"], code, captured.out, captured.err)
     out = loads_strict(proc.stdout)
     rec = load_record(out["record"])
     assert rec["outcome"] == out["verdict"] and rec["exit_code"] == proc.returncode

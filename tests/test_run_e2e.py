@@ -3,11 +3,14 @@
 - Modbus TCP + CANopen over slcan: a two-axis profile in table mode; Modbus RTU + NMEA 0183 over
   a pty: a roll profile streamed. The simulated instrument states its transfer function, so the
   σ to expect is known (tests/run_sim.py: ``expected_sigma``): measured within 5 %, inside its CI.
-- Every way out, with a REAL child ``benchctl run`` process driven by signals or by the
-  simulators' fault knobs: exit code 2, the recording closed ``aborted`` with the reason and
-  readable by ``benchctl analyze``, the stand at rest (at zero when it still answered).
-- ``kill -9`` mid-profile: the recording (never closed) is readable by ``benchctl analyze``, and
-  the stand's watchdog has brought it to rest.
+- Every way out, on simulated time (the run in this process on the ``vclock`` fixture), by the
+  operator's signal (what its handler does) or by the simulators' fault knobs: exit code 2, the
+  recording closed ``aborted`` with the reason and readable by ``benchctl analyze``, the stand
+  at rest (at zero when it still answered).
+- ``realtime`` (the host's time, real processes): ``kill -9`` of a REAL child mid-profile — the
+  recording (never closed) is readable by ``benchctl analyze``, and the stand's watchdog has
+  brought it to rest; the README's first command as a child with its simulator child over TCP;
+  a short RTU + NMEA 0183 run over real ptys.
 """
 
 from __future__ import annotations
@@ -15,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -37,13 +39,16 @@ from run_sim import (
 )
 
 from benchctl.cli import main
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
+from benchctl.errors import SafetyAbort
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run.session import prepare_motion
+from benchctl.run.supervisor import Supervisor
 
 pytestmark = pytest.mark.slow
 SYSTEMATIC = 0.01  # stated vs measured σ: allowed beside the interval (see _check_sigma)
-
 
 
 def _profile(tmp_path: Path, text: str, name: str) -> Path:
@@ -67,32 +72,40 @@ def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("transport", "instrument", "mode", "text"),
+    ("transport", "instrument", "mode", "text", "virtual"),
     [
-        ("tcp", "canopen", "table", TWO_AXIS),
-        ("rtu", "nmea0183", "buffered", ROLL),
+        ("tcp", "canopen", "table", TWO_AXIS, True),
+        ("rtu", "nmea0183", "buffered", ROLL, True),
+        pytest.param("rtu", "nmea0183", "buffered", ROLL, False, marks=pytest.mark.realtime),
     ],
     # stream mode's σ is not compared with the profile's here: a busy host makes a streaming
     # stand hold and rejoin, so its true motion is not the profile's (tests/test_run_stalls.py)
-    ids=["tcp-canopen-table-2axis", "rtu-nmea0183-buffered-roll"],
+    ids=["tcp-canopen-table-2axis", "rtu-nmea0183-buffered-roll",
+         "rtu-nmea0183-buffered-roll-ptys"],
 )
 def test_run_end_to_end_sigma_as_stated(
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
+    request: pytest.FixtureRequest,
     transport: str,
     instrument: str,
     mode: str,
     text: str,
+    virtual: bool,
 ) -> None:
+    """On simulated time over in-process links (the real drivers, the same simulators), and
+    once on the host's time over a real RTU pty and NMEA 0183 pty (``realtime``)."""
+    clock: Clock = request.getfixturevalue("vclock") if virtual else REAL
     profile = _profile(tmp_path, text, "profile")
     stand: dict[str, Any] = {"mode": mode}
     sim: dict[str, Any] = {}
     if transport == "rtu":  # RS-485 at 460800 Bd: a 100 Hz write + read cycle fits in 10 ms
         stand["baudrate"] = sim["baudrate"] = 460800
     with live_bench(
-        tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim
+        tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
+        clock=clock,
     ) as b:
-        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"))
+        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
         assert res.state == "done" and res.exit_code == 0, res.reason
         _check_sigma(b, res, profile)
         assert b.stand_at_rest()
@@ -123,19 +136,20 @@ def _child(cfg: Path, profile: Path, *extra: str) -> subprocess.Popen[str]:
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
-def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
+def _wait(cond: Callable[[], bool], timeout_s: float, what: str, clock: Clock = REAL) -> None:
+    end = clock.monotonic() + timeout_s
+    while clock.monotonic() < end:
         if cond():
             return
-        time.sleep(0.02)
+        clock.sleep(0.02)
     raise AssertionError(f"timed out waiting for {what}")
 
 
 def _at_rest(bench: LiveBench) -> bool:
-    a = bench.stand.true_angles(time.monotonic())
-    time.sleep(0.1)
-    b = bench.stand.true_angles(time.monotonic())
+    clock = bench.stand.clock
+    a = bench.stand.true_angles(clock.monotonic())
+    clock.sleep(0.1)
+    b = bench.stand.true_angles(clock.monotonic())
     return all(abs(b[k] - a[k]) < 0.002 for k in a)
 
 
@@ -156,43 +170,76 @@ def _analyze_reads(rec: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, A
     return out
 
 
-WAYS = {
+def _signal(name: str) -> Callable[[LiveBench, Supervisor], None]:
+    """What the run's signal handler does with ``name`` (``Supervisor.signals``): on simulated
+    time the operator's signal is this call at a simulated moment (the real signals to a real
+    child: tests/test_run_exits.py, ``realtime``)."""
+
+    def send(b: LiveBench, sup: Supervisor) -> None:
+        sup.fault(SafetyAbort(f"interrupted by {name}"), "signal")
+
+    return send
+
+
+WAYS: dict[str, tuple[Callable[[LiveBench, Supervisor], None] | None, str, bool]] = {
     # name: (injection, expected words in the reason, stand still answers → back at zero)
-    "sigint": (lambda b, p: p.send_signal(signal.SIGINT), "interrupted by SIGINT", True),
-    "sigterm": (lambda b, p: p.send_signal(signal.SIGTERM), "interrupted by SIGTERM", True),
-    "stand-fault": (lambda b, p: b.stand.inject("stand_fault", code=12), "fault 12", False),
-    "estop": (lambda b, p: b.stand.inject("estop"), "E-stop", False),
-    "stand-link": (lambda b, p: b.stand.inject("drop_connection"), "stand loop", False),
-    "instrument-silent": (lambda b, p: b.instrument.inject("silent"), "instrument silent", True),
-    "instrument-link": (lambda b, p: b.instrument.inject("drop"), "instrument", True),
+    "sigint": (_signal("SIGINT"), "interrupted by SIGINT", True),
+    "sigterm": (_signal("SIGTERM"), "interrupted by SIGTERM", True),
+    "stand-fault": (lambda b, s: b.stand.inject("stand_fault", code=12), "fault 12", False),
+    "estop": (lambda b, s: b.stand.inject("estop"), "E-stop", False),
+    "stand-link": (lambda b, s: b.stand.inject("drop_connection"), "stand loop", False),
+    "instrument-silent": (lambda b, s: b.instrument.inject("silent"), "instrument silent", True),
+    "instrument-link": (lambda b, s: b.instrument.inject("drop"), "instrument", True),
     "tracking": (None, "tracking error", True),
 }
 
 
+def _motion_lasted(runs: Path, seconds: float, clock: Clock) -> bool:
+    """True once the run's recording in ``runs`` shows ``seconds`` of motion on ``clock``."""
+    rec = recording_in(runs)
+    if rec is None or not (rec / "events.jsonl").is_file():
+        return False
+    for line in (rec / "events.jsonl").read_text().splitlines():
+        if '"motion_start"' in line:
+            return bool(clock.monotonic() - json.loads(line)["t_host"] >= seconds)
+    return False
+
+
 @pytest.mark.parametrize("way", list(WAYS))
-def test_every_way_out_of_a_real_child_run(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], way: str
+def test_every_way_out_of_a_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], vclock: VirtualClock, way: str
 ) -> None:
+    """On simulated time: the run in this process (the real drivers over in-process links),
+    the way out injected at 1.5 s of motion."""
     inject, words, answers = WAYS[way]
     profile = _profile(tmp_path, ROLL, "roll")
     stand = {"tracking_tolerance_deg": 0.02} if way == "tracking" else {}
-    with live_bench(tmp_path, stand=stand) as b:
+    with live_bench(tmp_path, stand=stand, clock=vclock) as b:
         runs = tmp_path / "runs"
-        proc = _child(b.config_path, profile)
-        try:
-            if inject is not None:
-                _wait(motion_for(runs, 1.5), 30.0, "the child's motion")
-                inject(b, proc)
-            code, out, err = _finish(proc)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.communicate()
-        assert code == 2, (out, err[-3000:])
-        assert "ABORTED" in out and words in out, out
-        _wait(lambda: _at_rest(b), 10.0, "the stand at rest")
+        sup = Supervisor(clock=vclock)
+        injected = vclock.event()
+
+        def watch() -> None:
+            assert inject is not None
+            while not _motion_lasted(runs, 1.5, vclock):
+                if sup.faulted:
+                    return
+                vclock.sleep(0.02)
+            inject(b, sup)
+            injected.set()
+
+        watcher = vclock.thread(watch, name="e2e-inject")
+        if inject is not None:
+            watcher.start()
+        res = run_test(b.cfg, profile, RunOptions("SAFE-1", "ci"), supervisor=sup, clock=vclock)
+        if inject is not None:
+            watcher.join()
+            assert injected.is_set()
+        assert res.exit_code == 2 and res.state == "aborted", res.reason
+        assert words in res.reason, res.reason
+        _wait(lambda: _at_rest(b), 10.0, "the stand at rest", vclock)
         if answers:
-            assert all(abs(v) <= 0.05 for v in b.stand.true_angles(time.monotonic()).values())
+            assert all(abs(v) <= 0.05 for v in b.stand.true_angles(vclock.monotonic()).values())
     rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
@@ -213,10 +260,11 @@ def test_every_way_out_of_a_real_child_run(
         sp = r.streams["setpoints"]
         assert np.sum(np.isnan(sp["t_slot"])) >= 2
         assert abs(r.streams["stand"]["roll_deg"][-1]) <= 0.05
-    res = _analyze_reads(rec, capsys)
-    assert math.isfinite(res["sigma"])
+    res_a = _analyze_reads(rec, capsys)
+    assert math.isfinite(res_a["sigma"])
 
 
+@pytest.mark.realtime  # a real child killed by SIGKILL, the stand's watchdog on the host's time
 def test_kill_9_mid_profile_leaves_a_readable_recording(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -245,6 +293,7 @@ def test_kill_9_mid_profile_leaves_a_readable_recording(
     assert math.isfinite(res["sigma"]) and res["n_samples"] > 300
 
 
+@pytest.mark.realtime  # the README's first command: a child with its simulator child over TCP
 def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) -> None:
     """The README's first command, shortened: `config/sim.yaml` has a `sim:` section, so
     `benchctl run` starts the simulators itself; `--json` gives the report; σ is as the

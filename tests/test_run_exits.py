@@ -32,6 +32,7 @@ from run_sim import ROOT, LiveBench, live_bench, motion_for, recording_in
 
 from benchctl import exits
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import Interrupted, RecordingError, StandInUse
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import session as session_mod
@@ -152,6 +153,7 @@ def _run_main(cfg: Path, *extra: str) -> int:
     )
 
 
+@pytest.mark.realtime  # real signals to a real child run
 # ------------------------------------------------------------------------------ signals
 @pytest.mark.slow
 @pytest.mark.parametrize(
@@ -196,6 +198,7 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
     lock.release()
 
 
+@pytest.mark.realtime  # a real SIGHUP to a child and its simulator child
 @pytest.mark.slow
 @NOHUP
 def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: Path) -> None:
@@ -235,6 +238,7 @@ def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: P
     _wait(gone, 20.0, "the simulators' child to exit")
 
 
+@pytest.mark.realtime  # real signals to a child while it starts
 @pytest.mark.parametrize(
     "sig", [signal.SIGTERM, pytest.param(signal.SIGHUP, marks=NOHUP)], ids=["SIGTERM", "SIGHUP"]
 )
@@ -260,6 +264,7 @@ def test_signal_during_startup_is_a_clean_exit_2(tmp_path: Path, sig: signal.Sig
         assert load_recording(rec).state == "aborted"
 
 
+@pytest.mark.realtime  # real SIGTERMs to this process
 def test_main_restores_the_signal_handlers_and_respects_ignored_ones(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -307,15 +312,16 @@ def _filling_writer(stream: str, after: int) -> type[RecordingWriter]:
 
 
 def test_disk_full_mid_run_aborts_through_the_cleanup(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, vclock: VirtualClock
 ) -> None:
     monkeypatch.setattr(session_mod, "RecordingWriter", _filling_writer("stand", 250))
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     cfg = bench_config(tmp_path)
     prep = sine_motion(stand.axes, duration_s=5.0, mode="stream", fade_s=0.5)
     sess = Session(
-        cfg, prep, RunOptions("SN-F", "tester"), device_factory=lambda c, p: (stand, sensor)
+        cfg, prep, RunOptions("SN-F", "tester"), device_factory=lambda c, p: (stand, sensor),
+        clock=vclock,
     )
     res = sess.run()
     assert res.exit_code == 2 and res.state == "aborted"
@@ -334,7 +340,7 @@ def test_disk_full_mid_run_aborts_through_the_cleanup(
 
 
 def test_disk_full_everywhere_still_cleans_up(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, vclock: VirtualClock
 ) -> None:
     """Nothing can be written any more, end.json included: the stand is still ramped and
     disabled, the failed step is reported, and the run is ABORTED (exit 2) without raising."""
@@ -361,7 +367,7 @@ def test_disk_full_everywhere_still_cleans_up(
     monkeypatch.setattr(
         session_mod, "archive_abort", lambda *a: (_ for _ in ()).throw(OSError(errno.ENOSPC, "x"))
     )
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     prep = sine_motion(stand.axes, duration_s=5.0, mode="stream", fade_s=0.5)
     sess = Session(
@@ -369,6 +375,7 @@ def test_disk_full_everywhere_still_cleans_up(
         prep,
         RunOptions("SN-F", "tester"),
         device_factory=lambda c, p: (stand, sensor),
+        clock=vclock,
     )
     res = sess.run()
     assert res.exit_code == 2 and res.reason.startswith("recording: disk full"), res.reason
@@ -470,6 +477,7 @@ def test_shutdown_guards_each_step(monkeypatch: pytest.MonkeyPatch) -> None:
     assert not stand.enabled and stand.closed
 
 
+@pytest.mark.realtime  # the file-size limit (RLIMIT_FSIZE) of a real child
 @pytest.mark.slow
 def test_file_too_large_in_a_real_child_run(tmp_path: Path) -> None:
     """A real OS write failure: RLIMIT_FSIZE makes the child's streams fail with EFBIG."""
@@ -514,6 +522,7 @@ time.sleep(600)
 """
 
 
+@pytest.mark.realtime  # the stand lock across two processes
 def test_a_second_run_is_refused_naming_the_holder_until_it_dies(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -592,6 +601,7 @@ def test_benchctl_sim_refuses_an_endpoint_a_run_holds(
     assert "serial RUN-1" in err and "operator busy" in err
 
 
+@pytest.mark.realtime  # two real child runs
 @pytest.mark.slow
 def test_second_real_run_refused_while_the_first_one_finishes_untouched(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -670,6 +680,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.realtime  # a real child process's console
 def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(tmp_path: Path) -> None:
     cfg = _cfg_file(tmp_path, lock_dir=str(tmp_path / "locks"))
     runs = tmp_path / "runs"
@@ -714,6 +725,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.realtime  # a real child process's console
 def test_exception_in_a_stray_thread_is_one_line(tmp_path: Path) -> None:
     env = {**os.environ, "TMPDIR": str(tmp_path)}
     cmd = [sys.executable, "-c", _CHILD_THREAD_BOOM, "run", "--config", "x", "--profile", "y"]

@@ -1,5 +1,7 @@
 """The whole session against in-process fakes of the Stand and AngleSensor protocols: the
-state machine's course, the verdict, and the one cleanup path for each way out.
+state machine's course, the verdict, and the one cleanup path for each way out. On simulated
+time (the ``vclock`` fixture): the fakes, the run's threads and its waits on one VirtualClock;
+only the real SIGINT stays on the host's time (``realtime``).
 
 (The end-to-end tests over the real protocols and simulators are in test_run_e2e.py.)
 """
@@ -16,11 +18,17 @@ from typing import Any
 import pytest
 from run_fakes import FakeSensor, FakeStand, bench_config, sigma_sine_gain, sine_motion
 
+from benchctl.clock import Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
 from benchctl.recording import load_recording
 from benchctl.run.session import RunOptions, RunResult, Session
 
 DURATION, FADE = 5.0, 0.5  # steady part 4 s: whole periods of 0.5 Hz and 1 Hz
+#: the fake instrument's white noise where a σ's interval is checked: on simulated time nothing
+#: else is random (without it the interval is a point, and σ's 0.01 % from the stand's 100 Hz
+#: steps lies outside it)
+NOISE_DEG = 0.01
 
 
 def _run(
@@ -34,8 +42,10 @@ def _run(
 ) -> RunResult:
     cfg = cfg or bench_config(tmp_path)
     prep = sine_motion(stand.axes, duration_s=duration, mode=mode, fade_s=FADE)
+    clock: Clock = stand.clock
     sess = Session(
-        cfg, prep, RunOptions("SN-1", "tester"), device_factory=lambda c, p: (stand, sensor)
+        cfg, prep, RunOptions("SN-1", "tester"), device_factory=lambda c, p: (stand, sensor),
+        clock=clock,
     )
     return sess.run()
 
@@ -49,14 +59,20 @@ def _states(path: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("axes", [("roll",), ("roll", "pitch")])
-def test_full_run_pass_per_axis_sigma(tmp_path: Path, axes: tuple[str, ...]) -> None:
-    """Gain 1.05 on a 5° sine over whole periods: σ = 0.05·5/√2 = 0.177° per axis → PASS."""
-    stand = FakeStand(axes)
+def test_full_run_pass_per_axis_sigma(
+    tmp_path: Path, axes: tuple[str, ...], vclock: VirtualClock
+) -> None:
+    """Gain 1.05 on a 5° sine over whole periods: σ = 0.05·5/√2 = 0.177° per axis → PASS.
+
+    On simulated time nothing jitters: the instrument's white noise of 0.01° (a real one has
+    some) is what the interval covers, and the stated σ includes it: √(0.177² + 0.01²)."""
+    stand = FakeStand(axes, clock=vclock)
     sensor = FakeSensor(stand, gain=1.05)
+    sensor.noise = NOISE_DEG
     res = _run(tmp_path, stand, sensor)
     assert res.state == "done" and res.exit_code == 0, res.reason
     assert res.report is not None and res.report.verdict == "PASS"
-    expect = sigma_sine_gain(5.0, 1.05)
+    expect = math.hypot(sigma_sine_gain(5.0, 1.05), NOISE_DEG)
     for a in axes:
         v = res.report.axes[a]
         assert v.sigma_deg == pytest.approx(expect, rel=0.02)
@@ -79,12 +95,12 @@ def test_full_run_pass_per_axis_sigma(tmp_path: Path, axes: tuple[str, ...]) -> 
     assert "static agreement" in names and "stand at zero" in names
 
 
-def test_full_run_fail_and_stream_mode(tmp_path: Path) -> None:
+def test_full_run_fail_and_stream_mode(tmp_path: Path, vclock: VirtualClock) -> None:
     """Gain 1.2: σ = 0.2·5/√2 = 0.707° > 0.4° → FAIL, exit 1 (stream mode). On a busy host
     the streaming stand holds and rejoins: when those departures touch every period of the
     window, σ is not judged — INCONCLUSIVE, exit 3, saying so — never a FAIL on another
     motion."""
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand, gain=1.2)
     res = _run(tmp_path, stand, sensor, mode="stream")
     assert res.report is not None and res.report.axes["roll"].sigma_deg > 0.4
@@ -106,12 +122,14 @@ def test_full_run_fail_and_stream_mode(tmp_path: Path) -> None:
     assert slots <= n <= slots + extra
 
 
-def test_a_motion_that_was_not_the_profiles_is_not_judged(tmp_path: Path) -> None:
+def test_a_motion_that_was_not_the_profiles_is_not_judged(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     """Stream mode, the host held up 0.3 s at 2 s into the motion: the stand held, the loop
     rejoined. With the bench's 3 s of settling that leaves less than half of the 4 s window
     under the profile's motion: σ (0.177°, well within 0.4°) is not judged — INCONCLUSIVE,
     exit 3 — and the report, report.html and record.json say why."""
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     stand.stall_at, stand.stall_s = 2.0, 0.3
     sensor = FakeSensor(stand, gain=1.05)
     cfg = bench_config(tmp_path, analysis={"departure_settle_s": 3.0})
@@ -170,8 +188,10 @@ def _assert_aborted(
         ("departure", "departs from the profile on roll"),
     ],
 )
-def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, match: str) -> None:
-    stand = FakeStand()
+def test_every_way_out_takes_the_one_cleanup_path(
+    tmp_path: Path, inject: str, match: str, vclock: VirtualClock
+) -> None:
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     at = 1.2
     if inject == "fault":
@@ -214,6 +234,8 @@ def test_every_way_out_takes_the_one_cleanup_path(tmp_path: Path, inject: str, m
     assert end["stats"]["setpoints_sent"] > 50  # it was moving when it happened
 
 
+@pytest.mark.realtime  # a real SIGINT: the OS runs its handler in the main thread whenever it
+# arrives, outside a virtual clock's one-thread-at-a-time schedule
 def test_sigint_mid_motion(tmp_path: Path) -> None:
     stand = FakeStand()
     sensor = FakeSensor(stand)
@@ -232,9 +254,9 @@ def test_sigint_mid_motion(tmp_path: Path) -> None:
     assert signal.getsignal(signal.SIGINT) is before  # restored
 
 
-def test_precheck_failure_never_moves_the_stand(tmp_path: Path) -> None:
+def test_precheck_failure_never_moves_the_stand(tmp_path: Path, vclock: VirtualClock) -> None:
     """An instrument 1° off the stand at rest: refused in prechecks, the stand never enabled."""
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand, bias=1.0)
     res = _run(tmp_path, stand, sensor)
     assert res.exit_code == 2 and "static agreement" in res.reason and "+1.000°" in res.reason
@@ -242,8 +264,8 @@ def test_precheck_failure_never_moves_the_stand(tmp_path: Path) -> None:
     assert load_recording(res.recording).state == "aborted"  # type: ignore[arg-type]
 
 
-def test_precheck_slow_instrument(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_precheck_slow_instrument(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand, rate_hz=40.0)
     res = _run(tmp_path, stand, sensor)
     assert (

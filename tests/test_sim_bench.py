@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import load_config, parse_config
 from benchctl.devices.base import InstrumentSample
 from benchctl.devices.instrument import open_instrument
@@ -52,6 +53,7 @@ def _collect(sensor: object, seconds: float) -> list[InstrumentSample]:
     return got
 
 
+@pytest.mark.realtime  # ptys linked at the config's paths, a TCP port: the host's transports
 @pytest.mark.parametrize("name", ["sim.yaml", "sim_rtu.yaml", "sim_nmea0183.yaml"])
 def test_sim_bench_where_the_config_says(tmp_path: Path, name: str) -> None:
     """Standalone placement: the ptys are linked at the config's own paths, so the config
@@ -84,9 +86,12 @@ def test_sim_bench_where_the_config_says(tmp_path: Path, name: str) -> None:
     assert abs(sum(roll) / len(roll) - 0.05) < 0.05
 
 
-def test_fault_schedule_counts_from_first_motion(tmp_path: Path) -> None:
+def test_fault_schedule_counts_from_first_motion(tmp_path: Path, vclock: VirtualClock) -> None:
+    """On simulated time: the simulators in this process over in-process links, the real
+    stand driver talking to them on the same clock."""
     path = _config(
         tmp_path,
+        clock="virtual",
         faults=[
             {
                 "target": "stand",
@@ -97,15 +102,12 @@ def test_fault_schedule_counts_from_first_motion(tmp_path: Path) -> None:
         ],
     )
     cfg = load_config(path)
-    with SimBench(cfg) as bench:
-        cfg = cfg.model_copy(
-            update={"stand": cfg.stand.model_copy(update={"port": bench.stand.port})}
-        )
-        stand = open_stand(cfg.stand)
+    with SimBench(cfg, private=True, clock=vclock) as bench:
+        stand = open_stand(bench.config().stand, clock=vclock)
         try:
             stand.connect()
             stand.enable()
-            time.sleep(0.5)  # nothing moves yet: no fault may come from the schedule
+            vclock.sleep(0.5)  # nothing moves yet: no fault may come from the schedule
             assert bench.motion_started_at is None and bench.injected == []
             # move: 0.5° over 0.5 s through the stand's queue (within the limits from rest)
             stand.begin_trajectory()
@@ -115,20 +117,23 @@ def test_fault_schedule_counts_from_first_motion(tmp_path: Path) -> None:
             stand.push_points(24, {"roll": pts[24:48]}, read=False)
             stand.push_points(48, {"roll": pts[48:]}, read=False)
             stand.start_trajectory()
-            deadline = time.monotonic() + 5.0
+            deadline = vclock.monotonic() + 5.0
             with pytest.raises(StandFault) as info:
-                while time.monotonic() < deadline:
+                while vclock.monotonic() < deadline:
                     stand.heartbeat()
                     stand.read_sample()
-                    time.sleep(0.02)
+                    vclock.sleep(0.02)
             assert info.value.code == 42
             assert bench.motion_started_at is not None
             t_fault = bench.injected[0][0]
-            assert t_fault - bench.motion_started_at >= 0.3
+            # not before 0.3 s of motion (compared as the schedule adds it: on simulated time
+            # the fault falls exactly there, and a difference of the two rounds below 0.3)
+            assert t_fault >= bench.motion_started_at + 0.3
         finally:
             stand.close()
 
 
+@pytest.mark.realtime  # a child process, its pty and TCP port
 def test_child_process_ready_line_and_exit_on_stdin_close(tmp_path: Path) -> None:
     """What `benchctl run` uses: `benchctl sim --private --ready-json` as a child process."""
     cfg = load_config(_config(tmp_path))

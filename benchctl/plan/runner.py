@@ -56,6 +56,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from benchctl.clock import REAL, Clock, EventLike, ThreadLike
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
@@ -493,7 +494,8 @@ def run_plan(
     ``junit``: write JUnit XML there.
     ``display``: a factory of each step's run display (default none). ``say``: a line of
     progress (default: logged). ``clock``: the run's clock (``benchctl.clock``) for every step,
-    stand check, timeout and stamp (default the real one).
+    stand check, timeout and stamp (default the real one; a config with ``sim.clock: virtual``
+    runs the plan on a ``VirtualClock`` from its ``sim.epoch_utc``, as ``run_test`` does).
 
     Raises ``BenchError`` only for bad input found before anything opens (the plan, the
     config, a step's profile or limits, prompts that cannot be answered); every later outcome
@@ -518,6 +520,17 @@ def run_plan(
     if cfg.unit.serial_pattern is not None:  # the config's form of a serial
         check_serial(serial, "serial", cfg.unit.serial_pattern,
                      f"unit.serial_pattern of {cfg.source or 'the config'}")
+    if cfg.sim is not None and cfg.sim.clock == "virtual" and not clock.virtual:
+        # a simulated bench on simulated time (as run_test): the whole plan -- its steps, stand
+        # checks, timeouts and stamps -- on one VirtualClock from the config's epoch. An
+        # operator prompt is a wait on the terminal (the host's time): the clock's hang watchdog
+        # gives it the prompt's timeout and a minute more
+        hang_s = max(120.0, p.prompt_timeout_s + 60.0)
+        vclock = VirtualClock(epoch=cfg.sim.epoch_utc, hang_s=hang_s)
+        with vclock.running():
+            return run_plan(p, serial=serial, config=cfg, operator=operator, yes=yes, ask=ask,
+                            out_dir=out_dir, junit=junit, display=display, say=say,
+                            clock=vclock)
     op = operator or p.operator
     if not op:
         raise InputError(f"{where}no operator: the plan names none (operator:) and none was "
@@ -538,7 +551,7 @@ def run_plan(
 
     result = PlanResult(p.name, p.source, serial, op, cfg.source, start_utc=_now(clock))
     t0 = clock.monotonic()
-    folder = recording_dir(out, serial, prefix="plan_")
+    folder = recording_dir(out, serial, prefix="plan_", clock=clock)
     try:
         folder.mkdir(parents=True)
     except OSError as e:
@@ -554,7 +567,7 @@ def run_plan(
             live = cfg
             if cfg.sim is not None:
                 tell("starting the simulators for the plan")
-                live = stack.enter_context(simulators(cfg, folder / "sim.log"))
+                live = stack.enter_context(simulators(cfg, folder / "sim.log", clock=clock))
                 live = live.model_copy(update={"sim": None})
             live_cfgs = [c.model_copy(update={"stand": live.stand, "instrument": live.instrument,
                                               "sim": None}) for c in cfgs]

@@ -166,6 +166,7 @@ class SimInstrument:
                                else DEFAULT_SOURCE_ADDRESS)
         self.serial_port: str | None = None
         self.channel: str | None = None
+        self._wire_bytes = 0  # the outputs' bytes written (wire_delay_s)
         self.counts = {"samples": 0, "sent": 0, "garbled": 0, "overflow": 0, "skipped": 0,
                        "sdo": 0, "raw": 0}
         self._raw: deque[bytes] = deque()
@@ -239,6 +240,16 @@ class SimInstrument:
         if self.is_can:
             return self.cfg.model_copy(update={"interface": "slcan", "channel": self.channel})
         return self.cfg.model_copy(update={"serial_port": self.serial_port})
+
+    @property
+    def wire_delay_s(self) -> float:
+        """The mean time an output spends on its in-process serial link (its bytes at the
+        link's byte time, 10 bits a byte): the host has it that long after its output instant,
+        as on a real serial line. 0 over a pty (no byte time there) and before any output."""
+        sent = self.counts["sent"]
+        if self.channel_name is None or not sent:
+            return 0.0
+        return self._wire_bytes / sent * 10.0 / self.cfg.baudrate
 
     @property
     def wire_resolution_deg(self) -> float:
@@ -412,6 +423,7 @@ class SimInstrument:
         if port.write(line):
             self.counts["sent"] += 1
             self.counts["garbled"] += garbled
+            self._wire_bytes += len(line)
         else:
             self.counts["overflow"] += 1
 
