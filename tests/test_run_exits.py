@@ -608,7 +608,10 @@ def test_second_real_run_refused_while_the_first_one_finishes_untouched(
 ) -> None:
     """The issue's case: a second run against a stand in use used to connect, and its cleanup
     disabled the stand under the first run. Now it is refused before connecting."""
-    with live_bench(tmp_path, run={"lock_dir": str(tmp_path / "locks")}) as b:
+    # buffered, as the default bench: this real-time child shares a loaded machine, and a
+    # streaming stand held up by it departs from the profile (σ then INCONCLUSIVE, exit 3)
+    with live_bench(tmp_path, run={"lock_dir": str(tmp_path / "locks")},
+                    stand={"mode": "buffered"}) as b:
         runs = tmp_path / "runs"
         first = _child(b.config_path, runs, "--json", serial="FIRST-1")
         try:
