@@ -20,6 +20,10 @@ from benchctl.devices.instrument import open_instrument
 from benchctl.errors import ConfigError, ConnectionLost, DeviceTimeout
 from benchctl.sim.instrument import SimInstrument
 
+# the simulated instrument on a real pty, paced by the host's clock: its rate, its
+# loss-free stream and its no-skip count need the host's time, alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
 

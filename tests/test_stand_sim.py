@@ -27,6 +27,10 @@ from benchctl.errors import (
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.stand import FAULT_ESTOP, FAULT_SOFT_LIMIT, FAULT_WATCHDOG, SimStand
 
+# the simulated stand over a real socket and a real pty, on the host's clock: its
+# timeouts, stalls and watchdog are timed on the host's time, alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
 # a slow servo, so its dynamics are plainly visible at 1 Hz: |H| ≈ 0.97, arg H ≈ −43°
