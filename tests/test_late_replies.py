@@ -19,6 +19,9 @@ from benchctl.devices.modbus.link import ModbusLink
 from benchctl.errors import ProtocolError
 from benchctl.sim.stand import SimStand
 
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 
 class _Reply:
     def __init__(self, fc: int, registers: list[int] | None = None) -> None:

@@ -18,11 +18,15 @@ import socket
 import struct
 import time
 
+import pytest
 from test_stand_sim import LIMITS, MAP, connect
 
 from benchctl.config import SimStandConfig
 from benchctl.devices.modbus.regmap import load_register_map, pdu_address
 from benchctl.sim.stand import SIM_HOLDUP_S, SimStand
+
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
 
 WATCHDOG_S = 0.6
 

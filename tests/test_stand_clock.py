@@ -36,6 +36,9 @@ from benchctl.errors import ConfigError
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.sim.stand import SimStand
 
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 MAP = ROOT / "drivers/stand_generic.yaml"
 WRAP = 0.65536
 

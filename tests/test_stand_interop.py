@@ -36,6 +36,9 @@ from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, ModbusException, StandFault
 from benchctl.sim.stand import SimStand
 
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
 REPLY_S = 5.0  # generous: the machine is loaded

@@ -28,6 +28,9 @@ from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, LimitError, ModbusException, ProtocolError, StandFault
 
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
+
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 H = bytes.fromhex
 
