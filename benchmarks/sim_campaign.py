@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchctl.clock.virtual import VirtualClock  # noqa: E402
 from benchctl.config import BenchConfig, load_config  # noqa: E402
-from benchctl.errors import BenchError, SafetyAbort  # noqa: E402
+from benchctl.errors import BenchError  # noqa: E402
 from benchctl.run.session import RunOptions, open_devices, run_test  # noqa: E402
 from benchctl.run.supervisor import Supervisor  # noqa: E402
 from benchctl.sim.bench import SimBench  # noqa: E402
@@ -154,8 +154,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
     clock = VirtualClock(epoch=cfg.sim.epoch_utc)
     with clock.running():
         if plan is not None:
-            sim = cfg.sim.model_copy(update={"faults": (*cfg.sim.faults, *plan.faults)})
-            cfg = cfg.model_copy(update={"sim": sim})
+            cfg = plan.with_faults(cfg)
         bench = SimBench(cfg, private=True, clock=clock).start()
         try:
             if plan is not None:
@@ -163,13 +162,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
             run_cfg = bench.config().model_copy(update={"sim": None})
             sup = Supervisor(clock=clock)
             if plan is not None and plan.operator_stop_s is not None:
-                at = clock.monotonic() + plan.operator_stop_s
-
-                def operator() -> None:
-                    clock.sleep(max(0.0, at - clock.monotonic()))
-                    sup.fault(SafetyAbort("interrupted by SIGINT"), "signal")
-
-                clock.thread(operator, name="operator-stop").start()
+                sup.interrupt_after(plan.operator_stop_s)
             opts = RunOptions(serial="20260001", operator="campaign", out_dir=out / "runs",
                               duration_s=float(draw["duration"]))
             try:

@@ -426,8 +426,7 @@ def simulators(
         plan = None
         if cfg.sim.disturb is not None:
             plan = Disturbances(cfg.sim.disturb, horizon_s)
-            with_faults = cfg.sim.model_copy(update={"faults": (*cfg.sim.faults, *plan.faults)})
-            cfg = cfg.model_copy(update={"sim": with_faults})
+            cfg = plan.with_faults(cfg)
         with SimBench(cfg, private=True, clock=clock) as bench:
             if plan is not None:
                 bench.disturb(plan)
@@ -636,14 +635,7 @@ class Session:
             + "); the same seed replays this run exactly"
         )
         if plan.operator_stop_s is not None:
-            at = self.clock.monotonic() + plan.operator_stop_s
-            clock, sup = self.clock, self.supervisor
-
-            def operator() -> None:
-                clock.sleep(max(0.0, at - clock.monotonic()))
-                sup.fault(SafetyAbort("interrupted by SIGINT"), "signal")
-
-            clock.thread(operator, name="operator-stop").start()
+            self.supervisor.interrupt_after(plan.operator_stop_s)
 
     def _new_loop(self, plan: MotionPlan, machine: StateMachine | None = None) -> StandLoop:
         """A stand loop for ``plan`` (not started); ``machine``: whose states it moves (the

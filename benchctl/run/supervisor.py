@@ -115,6 +115,18 @@ class Supervisor:
     def thread(self, name: str, target: Callable[[], None]) -> ThreadLike:
         return self.clock.thread(self.guard(name, target), name=name, daemon=True)
 
+    def interrupt_after(self, seconds: float, signame: str = "SIGINT") -> None:
+        """``seconds`` from now, take the path a signal takes (the operator's Ctrl-C on
+        simulated time, at a seeded moment): the same fault the signal handler reports."""
+        clock = self.clock
+        at = clock.monotonic() + seconds
+
+        def operator() -> None:
+            clock.sleep(max(0.0, at - clock.monotonic()))
+            self.fault(SafetyAbort(f"interrupted by {signame}"), "signal")
+
+        clock.thread(operator, name="operator-stop").start()
+
     @contextmanager
     def signals(self) -> Iterator[None]:
         """Turn SIGINT, SIGTERM, SIGHUP and SIGQUIT into faults while the run lasts (main thread

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from benchctl.config import SimDisturbConfig, SimFault
+from benchctl.config import BenchConfig, SimDisturbConfig, SimFault
 
 #: fault kinds' parameters when drawn (a stall within the stand's reach, a short silence)
 _FAULT_PARAMS: dict[str, Callable[[random.Random], dict[str, Any]]] = {
@@ -87,6 +87,12 @@ class Disturbances:
         rng = self._rng("operator")
         if rng.random() < s.operator_stop_p:
             self.operator_stop_s = round(rng.uniform(0.0, self.horizon_s), 3)
+
+    def with_faults(self, cfg: BenchConfig) -> BenchConfig:
+        """``cfg`` with the drawn faults added to its simulators' schedule (``sim.faults``)."""
+        assert cfg.sim is not None
+        sim = cfg.sim.model_copy(update={"faults": (*cfg.sim.faults, *self.faults)})
+        return cfg.model_copy(update={"sim": sim})
 
     def _rng(self, kind: str) -> random.Random:
         return random.Random(f"{self.spec.seed}:{kind}")

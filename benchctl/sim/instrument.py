@@ -471,21 +471,13 @@ class SimInstrument:
                     self._serve_host(port)
                 if wlist:
                     port.flush()
-                while self._raw:
-                    if port.write(self._raw.popleft()):
-                        self.counts["raw"] += 1
-                    else:
-                        self.counts["overflow"] += 1
+                self._send_raw(port)
                 now = self.clock.monotonic()
                 if now - next_t > _MAX_CATCH_UP_S:  # stalled: do not burst, skip (counted)
                     k_now = int((now - t0) / period)
                     self.counts["skipped"] += k_now - k
                     k = k_now
-                    next_t = t0 + k * period
-                while now >= next_t:
-                    self._tick(k, next_t)
-                    k += 1
-                    next_t = t0 + k * period
+                k = self._tick_due(k, t0, period, now)
         except Exception as e:  # a simulator bug must not pass for a silent instrument
             self._start_error = e
             with contextlib.suppress(Exception):
@@ -510,18 +502,30 @@ class SimInstrument:
                 next_t = t0 + k * period
                 port.wait(max(0.0, next_t - clock.monotonic()))
                 self._serve_host(port)
-                while self._raw:
-                    port.write(self._raw.popleft())
-                    self.counts["raw"] += 1
-                now = clock.monotonic()
-                while now >= next_t:
-                    self._tick(k, next_t)
-                    k += 1
-                    next_t = t0 + k * period
+                self._send_raw(port)
+                k = self._tick_due(k, t0, period, clock.monotonic())
         except Exception as e:  # a simulator bug must not pass for a silent instrument
             self._start_error = e
             port.close()
             raise
+
+    def _send_raw(self, port: PtyPort | _ChannelPort) -> None:
+        """Write the bytes ``send_raw`` queued (lost, and counted ``overflow``, when the port
+        cannot take them)."""
+        while self._raw:
+            if port.write(self._raw.popleft()):
+                self.counts["raw"] += 1
+            else:
+                self.counts["overflow"] += 1
+
+    def _tick_due(self, k: int, t0: float, period: float, now: float) -> int:
+        """Produce every output instant ``t0 + k·period`` up to ``now``; the next ``k``."""
+        next_t = t0 + k * period
+        while now >= next_t:
+            self._tick(k, next_t)
+            k += 1
+            next_t = t0 + k * period
+        return k
 
     @property
     def device_endpoint(self) -> Any:

@@ -88,9 +88,10 @@ class StandWire:
 
 
 def serve_endpoint(wire: StandWire, ep: Endpoint, stop: EventLike) -> None:
-    """A device's server loop on an in-process link: each request in, its reply out."""
+    """A device's server loop on an in-process link: each request in (a write arrives whole,
+    as a frame ends with the line's silence), its reply out."""
     while not stop.is_set():
-        data = ep.read_chunk()
+        data = ep.read(1 << 16)
         if not data:
             if ep.closed:
                 return

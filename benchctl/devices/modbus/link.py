@@ -316,16 +316,16 @@ def tcp_link(
     clock: Clock = REAL,
 ) -> ModbusLink:
     """A Modbus TCP link (MBAP framing) to ``host:port``; not yet connected. ``clock`` stamps
-    the sends (pymodbus's own waits for the reply stay on the real time)."""
+    the sends; a ``simchan://`` host is an in-process link whose waits are on its own clock
+    (pymodbus's socket waits are on the real time)."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
         if host.startswith(CHANNEL_SCHEME):  # an in-process link to a simulated stand
             from benchctl.channels import lookup
             from benchctl.devices.modbus.channel_client import ChannelTcpClient
 
-            return ChannelTcpClient(
-                lookup(host), timeout=timeout_s, retries=retries, trace_packet=trace
-            )
+            return ChannelTcpClient(lookup(host), timeout=timeout_s, retries=retries,
+                                    trace_packet=trace)
         return ModbusTcpClient(
             host, port=port, timeout=timeout_s, retries=retries, trace_packet=trace
         )
@@ -353,33 +353,19 @@ def rtu_link(
     clock: Clock = REAL,
 ) -> ModbusLink:
     """A Modbus RTU link over a serial device path or pyserial URL; not yet connected.
-    ``clock`` stamps the sends (pymodbus's own waits for the reply stay on the real time)."""
+    ``clock`` stamps the sends; a ``simchan://`` port is an in-process line whose waits are on
+    its own clock (a serial port's, on the real time)."""
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
+        line: dict[str, Any] = {"framer": FramerType.RTU, "baudrate": baudrate, "parity": parity,
+                "stopbits": stopbits, "timeout": timeout_s, "retries": retries,
+                "trace_packet": trace}
         if port.startswith(CHANNEL_SCHEME):  # an in-process line to a simulated stand
             from benchctl.channels import lookup
             from benchctl.devices.modbus.channel_client import ChannelSerialClient
 
-            return ChannelSerialClient(
-                lookup(port),
-                framer=FramerType.RTU,
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                timeout=timeout_s,
-                retries=retries,
-                trace_packet=trace,
-            )
-        return _SerialClient(
-            port,
-            framer=FramerType.RTU,
-            baudrate=baudrate,
-            parity=parity,
-            stopbits=stopbits,
-            timeout=timeout_s,
-            retries=retries,
-            trace_packet=trace,
-        )
+            return ChannelSerialClient(lookup(port), **line)
+        return _SerialClient(port, **line)
 
     bits = 1 + 8 + (0 if parity.upper() == "N" else 1) + stopbits
     return ModbusLink(
