@@ -193,6 +193,10 @@ class SimStandConfig(Strict):
     watchdog_s: Seconds = 1.0  # heartbeat silence that stops the stand
     tick_hz: DeviceRate = 1000.0
     rtu_wire_delay: bool = True  # emulate serial byte time on the RTU pty
+    # stream mode: the drive interpolates linearly between consecutive setpoints over the
+    # interval between them (as a drive in cyclic synchronous position mode does), instead of
+    # stepping to each one (a staircase the servo follows with its own, higher acceleration)
+    stream_interpolation: bool = False
     baudrate: Baud = 115200  # byte time of the emulated RTU wire
     faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
 

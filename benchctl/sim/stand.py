@@ -76,6 +76,8 @@ IDENTITY = {
 _HISTORY_S = 4.0
 _MOVING_DEG_S = 1e-3
 _MAX_CATCHUP_TICKS = 1000
+#: stream interpolation: a setpoint after a longer pause than this is reached over this long
+STREAM_INTERP_MAX_S = 0.1
 #: the physics not advanced for longer than this: nothing of the simulator ran (held up)
 SIM_HOLDUP_S = 0.1
 
@@ -185,6 +187,11 @@ class SimStand:
         self._state = {a: AxisState() for a in self.axes}
         self._target = dict.fromkeys(self.axes, 0.0)  # the servo's active position setpoint
         self._stream_target = dict.fromkeys(self.axes, 0.0)
+        #: stream setpoints interpolated (sim.stand.stream_interpolation): the target moves
+        #: linearly from _stream_from (at _stream_t) to _stream_target over _stream_T
+        self._stream_from: dict[str, float] | None = None
+        self._stream_t = 0.0
+        self._stream_T = 0.0
         self._mode: Literal["stream", "table", "stopping", "trajectory", "traj_stop"] = "stream"
         self._enabled = False
         self._fault_code = 0
@@ -387,6 +394,7 @@ class SimStand:
             for a, v in angle_deg.items():
                 self._state[a] = AxisState(float(v), 0.0)
                 self._target[a] = self._stream_target[a] = float(v)
+            self._stream_from = None
             row = [self._state[a].angle_deg for a in self.axes]
             self._hist[:] = row  # the true angle's recent history too
 
@@ -437,6 +445,7 @@ class SimStand:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._table_value(a, self._table_end) for a in self.axes}
         traj_target = self._trajectory_tick(t) if self._mode == "trajectory" else None
         if self._mode == "traj_stop":
@@ -460,6 +469,10 @@ class SimStand:
                     self._target[a] = self._table_value(a, t - self._table_start)
                 elif traj_target is not None:
                     self._target[a] = float(traj_target[i])
+                elif self._stream_from is not None:
+                    f = min(1.0, (t - self._stream_t) / self._stream_T)
+                    x0 = self._stream_from[a]
+                    self._target[a] = x0 + (self._stream_target[a] - x0) * f
                 else:
                     self._target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
@@ -483,6 +496,7 @@ class SimStand:
                 self._fault(FAULT_SOFT_LIMIT)
         if self._mode == "stopping" and at_rest:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
 
     def peaks(self, reset: bool = False) -> dict[str, dict[str, float]]:
@@ -507,6 +521,7 @@ class SimStand:
             return target
         last, before = q.last_two()
         self._mode = "stream"
+        self._stream_from = None
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
         rate = (last - before) / q.period_s
         # ran dry before its end: an underrun, a controlled stop. The normal end of a queue is
@@ -535,6 +550,7 @@ class SimStand:
             out.append(x)
         if not moving:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._traj_stop[a][0] for a in self.axes}
         return np.asarray(out)
 
@@ -752,8 +768,16 @@ class SimStand:
                 if not math.isfinite(v) or abs(v) > self.cfg.soft_limit_deg:
                     return ExcCodes.ILLEGAL_VALUE
             if self._enabled and self._mode == "stream" and not self._traj.queued:
-                self._stream_target.update(commands)
-                self._target.update(commands)  # in effect from now on
+                if self.cfg.stream_interpolation:
+                    # the drive moves from where its target is now to the new setpoint over
+                    # the interval since the last one (cyclic synchronous position)
+                    last, self._stream_t = self._stream_t, now
+                    self._stream_T = min(max(now - last, self._tick_s), STREAM_INTERP_MAX_S)
+                    self._stream_from = dict(self._target)
+                    self._stream_target.update(commands)
+                else:
+                    self._stream_target.update(commands)
+                    self._target.update(commands)  # in effect from now on
         if touches(m.heartbeat):
             hb = int(value(m.heartbeat))
             if hb != self._hb_value:
@@ -787,6 +811,7 @@ class SimStand:
                 self.enables += 1
                 self._hb_time, self._held_s = now, 0.0
                 self._mode = "stream"
+                self._stream_from = None
                 self._stream_target = {a: s.angle_deg for a, s in self._state.items()}
         elif self._enabled:
             self._enabled = False
