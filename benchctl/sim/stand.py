@@ -470,9 +470,9 @@ class SimStand:
                 elif traj_target is not None:
                     self._target[a] = float(traj_target[i])
                 elif self._stream_from is not None:
-                    f = min(1.0, (t - self._stream_t) / self._stream_T)
+                    frac = min(1.0, (t - self._stream_t) / self._stream_T)
                     x0 = self._stream_from[a]
-                    self._target[a] = x0 + (self._stream_target[a] - x0) * f
+                    self._target[a] = x0 + (self._stream_target[a] - x0) * frac
                 else:
                     self._target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
