@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from run_sim import LIMITS, live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.modbus.stand import open_stand
+from benchctl.harmonics import HarmonicTable
 
 
 def _ramp_peaks(tmp_path: Path, vclock: VirtualClock, interpolate: bool) -> dict[str, float]:
@@ -73,3 +75,48 @@ def test_the_drive_ends_on_the_last_setpoint(
             assert stand.read_sample().angle_deg["roll"] == pytest.approx(1.0, abs=2e-3)
         finally:
             stand.close()
+
+
+@pytest.mark.parametrize("mode", ["table", "stream"])
+def test_the_ramp_after_a_stop_waits_for_the_stand_to_brake(
+    tmp_path: Path, vclock: VirtualClock, mode: str
+) -> None:
+    """A stop (the shutdown's first step) brakes the stand within its limits, and it takes no
+    setpoint until at rest: a ramp planned from the braking state would meet the stand where
+    it stopped with a step (campaign seed 412: 138 deg/s² against 60). The ramp to zero waits
+    for rest, then plans from there."""
+    sim = {"stream_interpolation": True, "accel_limit_deg_s2": 5000.0,
+           "rate_limit_deg_s": 500.0}
+    with live_bench(tmp_path, sim_stand=sim, clock=vclock) as bench:
+        stand = open_stand(bench.cfg.stand, clock=vclock)
+        try:
+            stand.connect()
+            stand.enable()
+            if mode == "table":  # 4° at 0.5 Hz: 12.6°/s, 39°/s² (the limits: 40, 200)
+                tab = HarmonicTable(np.array([0.5]), np.array([4.0]), np.array([0.0]),
+                                    duration_s=60.0, fade_in_s=2.0, fade_out_s=2.0)
+                stand.upload_table({"roll": tab})
+                stand.start_table()
+            else:  # a stream up to 10°/s at 100°/s²
+                x = v = 0.0
+                for _ in range(80):
+                    v = min(v + 1.0, 10.0)
+                    x += v * 0.01
+                    stand.heartbeat()
+                    stand.send_setpoint({"roll": x, "pitch": 0.0})
+                    vclock.sleep(0.01)
+            t_end = vclock.monotonic() + (3.3 if mode == "table" else 0.0)
+            while vclock.monotonic() < t_end:
+                stand.heartbeat()
+                vclock.sleep(0.05)
+            s = stand.read_sample()
+            assert abs(s.rate_deg_s["roll"]) > 5.0  # moving fast when it is told to stop
+            bench.stand.peaks(reset=True)
+            stand.stop()
+            stand.ramp_to_zero()
+            assert abs(stand.read_sample().angle_deg["roll"]) <= bench.cfg.stand.zero_tolerance_deg
+        finally:
+            stand.close()
+        p = bench.stand.peaks()["roll"]
+    assert p["rate_deg_s"] <= LIMITS["rate_deg_s"]
+    assert p["accel_deg_s2"] <= LIMITS["accel_deg_s2"]
