@@ -111,6 +111,9 @@ def test_the_ramp_after_a_stop_waits_for_the_stand_to_brake(
                 vclock.sleep(0.05)
             s = stand.read_sample()
             assert abs(s.rate_deg_s["roll"]) > 5.0  # moving fast when it is told to stop
+            if mode == "table":
+                assert bench.stand.peaks(following="stream")["roll"]["rate_deg_s"] == 0.0
+                assert bench.stand.peaks(following="profile")["roll"]["rate_deg_s"] > 5.0
             bench.stand.peaks(reset=True)
             stand.stop()
             stand.ramp_to_zero()
@@ -118,5 +121,7 @@ def test_the_ramp_after_a_stop_waits_for_the_stand_to_brake(
         finally:
             stand.close()
         p = bench.stand.peaks()["roll"]
+        if mode == "stream":  # the peaks of what it played by itself and what it was sent
+            assert bench.stand.peaks(following="profile")["roll"]["accel_deg_s2"] == 0.0
     assert p["rate_deg_s"] <= LIMITS["rate_deg_s"]
     assert p["accel_deg_s2"] <= LIMITS["accel_deg_s2"]

@@ -206,7 +206,10 @@ class SimStand:
         self._held_s = 0.0  # this simulator's own hold-ups since the last heartbeat
         self._comm = _CommFaults()
         self._traj = _TrajectoryQueue(len(self.axes))
-        self._peaks = {a: [0.0, 0.0] for a in self.axes}  # |rate|, |accel| while following
+        # |rate|, |accel| while following: its own queue or table ("profile"), or setpoints
+        # streamed by the host ("stream", whose timing is the host's)
+        self._peaks = {a: [0.0, 0.0] for a in self.axes}
+        self._peaks_stream = {a: [0.0, 0.0] for a in self.axes}
         self._traj_period = 0.0  # the period register as last written
         self._traj_stop: dict[str, tuple[float, float]] = {}  # axis -> (angle, rate) of a stop
         self._pending_faults = sorted(sim_cfg.faults, key=lambda f: f.after_s)
@@ -465,15 +468,18 @@ class SimStand:
                 brake_step(self.model, s, min(self.model.accel_limit_deg_s2, self._stop_accel))
                 self._target[a] = s.angle_deg
             else:
+                streamed = False
                 if self._mode == "table":
                     self._target[a] = self._table_value(a, t - self._table_start)
                 elif traj_target is not None:
                     self._target[a] = float(traj_target[i])
                 elif self._stream_from is not None:
+                    streamed = True
                     frac = min(1.0, (t - self._stream_t) / self._stream_T)
                     x0 = self._stream_from[a]
                     self._target[a] = x0 + (self._stream_target[a] - x0) * frac
                 else:
+                    streamed = True
                     self._target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
                 # servo_step, inline
@@ -482,7 +488,8 @@ class SimStand:
                 rate = min(max(v_before + acc * dt, -v_max), v_max)
                 s.rate_deg_s = rate
                 s.angle_deg += rate * dt
-                p = self._peaks[a]  # the largest |rate| and |accel| while following
+                # the largest |rate| and |accel| while following
+                p = self._peaks_stream[a] if streamed else self._peaks[a]
                 accel = (rate - v_before) / self._tick_s
                 if rate > p[0] or -rate > p[0]:
                     p[0] = abs(rate)
@@ -499,13 +506,24 @@ class SimStand:
             self._stream_from = None
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
 
-    def peaks(self, reset: bool = False) -> dict[str, dict[str, float]]:
+    def peaks(
+        self, reset: bool = False, following: str = "any"
+    ) -> dict[str, dict[str, float]]:
         """The largest |rate| (deg/s) and |acceleration| (deg/s²) each axis made while the servo
-        followed its target (servo on, not braking), since the start or the last reset."""
+        followed its target (servo on, not braking), since the start or the last reset.
+        ``following``: ``"any"`` target; ``"profile"``, its own queue or table only (the motion
+        the stand plays by itself); ``"stream"``, setpoints streamed by the host only (whose
+        timing is the host's: a late or jittered setpoint moves the servo too)."""
         with self._lock:
-            out = {a: {"rate_deg_s": p[0], "accel_deg_s2": p[1]} for a, p in self._peaks.items()}
+            out = {}
+            for a in self.axes:
+                own, st = self._peaks[a], self._peaks_stream[a]
+                p = {"any": [max(own[0], st[0]), max(own[1], st[1])], "profile": own,
+                     "stream": st}[following]
+                out[a] = {"rate_deg_s": p[0], "accel_deg_s2": p[1]}
             if reset:
                 self._peaks = {a: [0.0, 0.0] for a in self.axes}
+                self._peaks_stream = {a: [0.0, 0.0] for a in self.axes}
         return out
 
     @property
