@@ -308,6 +308,19 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
             "table; expected mode 'stream' for this profile"
         )
+    if cfg.stand.mode == "table":
+        from benchctl.devices.modbus.regmap import load_register_map
+
+        axes_map = load_register_map(cfg.stand.register_map).axes
+        for a, tab in (motion.tables or {}).items():
+            room = axes_map[a].table_max_lines if a in axes_map else 0
+            if tab is not None and tab.n_lines > room:
+                raise LimitError(
+                    f"{profile_path} on {src} (field stand.mode = 'table'): the {a} table has "
+                    f"{tab.n_lines} lines over {duration:g} s, the stand's table takes at most "
+                    f"{room} (register map {cfg.stand.register_map}); expected mode 'buffered' "
+                    "or 'stream', or a profile with fewer lines"
+                )
     # raises LimitError naming needed vs allowed, before anything opens
     try:
         result = check_motion(

@@ -76,6 +76,8 @@ IDENTITY = {
 _HISTORY_S = 4.0
 _MOVING_DEG_S = 1e-3
 _MAX_CATCHUP_TICKS = 1000
+#: an underrun's stop: the share of the acceleration limit its target decelerates at
+TRAJ_STOP_SHARE = 0.9
 #: stream interpolation: a setpoint after a longer pause than this is reached over this long
 STREAM_INTERP_MAX_S = 0.1
 #: the physics not advanced for longer than this: nothing of the simulator ran (held up)
@@ -555,8 +557,11 @@ class SimStand:
 
     def _traj_stop_tick(self) -> np.ndarray:
         """After an underrun: go on from the last point at its rate, decelerating within the
-        stand's acceleration limit, then hold (lock held)."""
-        dv = self._stop_accel * self._tick_s
+        stand's acceleration limit, then hold (lock held). The servo follows this target, and
+        a second-order servo following a deceleration overshoots it by a few per cent at its
+        start: the target decelerates at ``TRAJ_STOP_SHARE`` of the limit, so the stand's own
+        motion stays within it."""
+        dv = TRAJ_STOP_SHARE * self._stop_accel * self._tick_s
         out = []
         moving = False
         for a in self.axes:
