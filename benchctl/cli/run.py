@@ -74,25 +74,28 @@ def ask_value(value: str | None, what: str, option: str,
 
     ``check(text, option)`` returns the value to use or raises ``InputError``
     (``benchctl.text``: a serial, an operator): a given ``value`` it refuses ends the command
-    (exit 2); a line typed on the terminal it refuses is explained and asked for again."""
+    (exit 2); a line typed on the terminal it refuses is explained and asked for again. The
+    input ending at the prompt (Ctrl-D: end of file) ends the command too (exit 2), saying so."""
     if value:
         return check(value, option) if check is not None else value
-    if sys.stdin.isatty() and sys.stderr.isatty():
-        while True:
-            sys.stderr.write(f"{what}: ")
-            sys.stderr.flush()
-            line = sys.stdin.readline()
-            if not line:
-                break
-            if not line.strip():
-                continue
-            if check is None:
-                return line.strip()
-            try:
-                return check(line, option)
-            except InputError as e:
-                sys.stderr.write(f"{e}\n")
-    raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
+    if not (sys.stdin.isatty() and sys.stderr.isatty()):
+        raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
+    while True:
+        sys.stderr.write(f"{what}: ")
+        sys.stderr.flush()
+        line = sys.stdin.readline()
+        if not line:  # end of file: Ctrl-D on an empty line
+            sys.stderr.write("\n")  # the command's message on a line of its own
+            raise InputError(f"{option}: the input ended (EOF, Ctrl-D) at the prompt for the "
+                             f"{what.lower()}; nothing was run")
+        if not line.strip():
+            continue
+        if check is None:
+            return line.strip()
+        try:
+            return check(line, option)
+        except InputError as e:
+            sys.stderr.write(f"{e}\n")
 
 
 def handle(args: argparse.Namespace) -> int:
