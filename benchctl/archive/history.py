@@ -72,26 +72,45 @@ def to_text(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+NONE = "—"  # a field the run has no value for (an aborted run's report, a killed run's end)
+
+
+def _v(value: object) -> str:
+    """A field's value for the terminal: ``—`` for none (never ``None``)."""
+    return NONE if value is None or value == "" else str(value)
+
+
+def _file_lines(label: str, f: dict[str, Any] | None, missing: str) -> list[str]:
+    """A file's path and SHA-256 (two lines), or one line saying why there is none."""
+    f = f or {}
+    if not f.get("path"):
+        return [f"{label:<10} {NONE} ({missing})"]
+    return [f"{label:<10} {f['path']}", f"{'':<10} sha256 {_v(f.get('sha256'))}"]
+
+
 def show_text(run: dict[str, Any]) -> str:
-    """One run, for the terminal (every line made safe: ``benchctl.text.visible``)."""
+    """One run, for the terminal (every line made safe: ``benchctl.text.visible``). A field the
+    run has no value for is ``—`` (an aborted run has no report: the line says so)."""
     p = run.get("profile") or {}
     abort = run.get("abort") or {}
+    aborted = run.get("outcome") == "ABORTED"
+    why = "no report: the run was aborted" if aborted else "no report recorded"
     lines = [
         f"run        {run['run_id']}",
-        f"outcome    {run['outcome']}"
-        + (f" ({abort.get('kind')}: {abort.get('reason')})" if abort else "")
+        f"outcome    {_v(run.get('outcome'))}"
+        + (f" ({_v(abort.get('kind'))}: {_v(abort.get('reason'))})" if abort else "")
         + (f", rule {run['decision_rule']}" if run.get("decision_rule") else ""),
-        f"unit       {run['serial']}"
+        f"unit       {_v(run.get('serial'))}"
         + (f" (part {run['part_number']})" if run.get("part_number") else ""),
-        f"station    {run['station']}   operator {run['operator']}",
-        f"start/end  {run.get('start_utc')} → {run.get('end_utc')}",
-        f"profile    {p.get('name')} ({p.get('kind') or '?'}), seed {p.get('seed')}",
-        f"software   {run.get('software_version')}   config sha256 {run.get('config_sha256')}",
-        f"recording  {run['recording']['path']}",
-        f"           sha256 {run['recording']['sha256']}",
-        f"report     {run['report_json']['path']}",
-        f"           sha256 {run['report_json']['sha256']}",
-        f"archived   {run.get('archived_utc')} (from {run.get('source')})",
+        f"station    {_v(run.get('station'))}   operator {_v(run.get('operator'))}",
+        f"start/end  {_v(run.get('start_utc'))} → "
+        + (_v(run.get("end_utc")) if run.get("end_utc") else f"{NONE} (no end recorded)"),
+        f"profile    {_v(p.get('name'))} ({p.get('kind') or '?'}), seed {_v(p.get('seed'))}",
+        f"software   {_v(run.get('software_version'))}   "
+        f"config sha256 {_v(run.get('config_sha256'))}",
+        *_file_lines("recording", run.get("recording"), "no recording folder recorded"),
+        *_file_lines("report", run.get("report_json"), why),
+        f"archived   {_v(run.get('archived_utc'))} (from {_v(run.get('source'))})",
     ]
     ms = run.get("measurements") or []
     if ms:
@@ -110,10 +129,12 @@ def show_text(run: dict[str, Any]) -> str:
                 lim = ""
             ci = m.get("ci95")
             ci_text = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
-            val = "—" if m.get("value") is None else f"{m['value']:.4g}"
+            v = m.get("value")
+            val = (NONE if v is None else ("yes" if v else "no") if isinstance(v, bool)
+                   else f"{v:.4g}" if isinstance(v, int | float) else str(v))
             unit = f" {m['unit']}" if m.get("unit") else ""
-            lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   {m.get('outcome') or ''}"
-                         .rstrip())
+            lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   "
+                         f"{m.get('outcome') or NONE}")
     return terminal_lines(lines)
 
 
