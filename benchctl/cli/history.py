@@ -27,7 +27,20 @@ def since_date(text: str) -> datetime:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("history", help="runs in the results archive (a unit's, a station's)")
+    p = sub.add_parser(
+        "history",
+        help="runs in the results archive (a unit's, a station's)",
+        description=(
+            "The runs in the results archive, oldest first: every run, or one unit's (SERIAL), "
+            "one station's (--station), from a date on (--since). As a table, CSV (--csv) or "
+            "one JSON object (--json: the runs, the yield per day, and with SERIAL the unit's "
+            "σ over its runs); --html FILE also writes the history page (σ over the runs with "
+            "its limit, the yield per day, the table of runs; self-contained, prints on A4). "
+            "Which archive: --url, else the config's archive: section (--config), else "
+            "archive.sqlite in --out (or ./runs). Exit 0, or 2 for an archive that cannot be "
+            "read."
+        ),
+    )
     p.add_argument("serial", nargs="?", help="only this unit's runs (and its σ over them)")
     p.add_argument("--since", type=since_date, metavar="DATE", help="runs started from DATE on")
     p.add_argument("--station", metavar="S", help="only runs of station S")
