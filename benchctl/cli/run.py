@@ -76,7 +76,7 @@ def ask_value(value: str | None, what: str, option: str,
     (``benchctl.text``: a serial, an operator): a given ``value`` it refuses ends the command
     (exit 2); a line typed on the terminal it refuses is explained and asked for again. The
     input ending at the prompt (Ctrl-D: end of file) ends the command too (exit 2), saying so."""
-    if value:
+    if value is not None:  # given, even empty or blank: checked, never asked for again
         return check(value, option) if check is not None else value
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
         raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
