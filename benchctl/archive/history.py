@@ -219,14 +219,46 @@ def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
     return None
 
 
+VERDICTS = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
+
+
+def _counted(key: dict[str, Any], outcomes: Sequence[str | None]) -> dict[str, Any]:
+    c = {v: sum(o == v for o in outcomes) for v in VERDICTS}
+    judged = c["PASS"] + c["FAIL"] + c["INCONCLUSIVE"]
+    return {**key, "runs": len(outcomes), "pass": c["PASS"], "fail": c["FAIL"],
+            "inconclusive": c["INCONCLUSIVE"], "aborted": c["ABORTED"],
+            "yield": None if judged == 0 else c["PASS"] / judged}
+
+
+def unit_yield(serial: str, rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """A unit's yield over ``rows`` (its runs): runs, pass, fail, inconclusive, aborted and
+    the yield = PASS / (PASS + FAIL + INCONCLUSIVE) (None when none reached a verdict)."""
+    return _counted({"serial": serial}, [r.get("outcome") for r in rows])
+
+
+def unit_yield_per_day(serial: str, rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A unit's yield per UTC day of its runs ``rows`` (as :func:`unit_yield`, a ``day``
+    each), oldest first."""
+    days: dict[str, list[str | None]] = {}
+    for r in rows:
+        day = str(r.get("start_utc") or "")[:10] or "unknown"
+        days.setdefault(day, []).append(r.get("outcome"))
+    return [_counted({"serial": serial, "day": d}, o) for d, o in sorted(days.items())]
+
+
 def yield_plot(days: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """SVG geometry per station: a bar per UTC day, its height the yield (0…100 %), with the
-    day's counts in its title."""
+    """SVG geometry per station (or per unit: entries with a ``serial`` and no ``station``):
+    a bar per UTC day, its height the yield (0…100 %), with the day's counts in its title."""
     out = []
-    stations = sorted({d["station"] for d in days})
+
+    def group(d: dict[str, Any]) -> str:
+        return f"station {d['station']}" if d.get("station") is not None else \
+            f"unit {d.get('serial')}"
+
+    stations = list(dict.fromkeys(group(d) for d in days))  # as given: a unit's first
     pw, ph = W - ML - MR, H - MT - MB
     for st in stations:
-        ds = [d for d in days if d["station"] == st]
+        ds = [d for d in days if group(d) == st]
         bw = pw / max(len(ds), 1)
         bars = []
         for i, d in enumerate(ds):
@@ -303,7 +335,7 @@ svg text { font-size: 11px; font-family: sans-serif; }
 <p>Filled: PASS; open: not PASS. Bars: σ's 95 % interval.</p>
 {% endif %}
 {% for st in yields %}
-<h2>Yield per day: station {{ st.station }}</h2>
+<h2>Yield per day: {{ st.station }}</h2>
 <svg xmlns="http://www.w3.org/2000/svg" width="{{ st.width }}" height="{{ st.height }}"
  role="img" aria-label="yield per day">
 {% for t in st.yticks %}<line x1="{{ st.left }}" y1="{{ t.y }}" x2="{{ st.right }}" y2="{{ t.y
@@ -356,4 +388,4 @@ def html_page(rows: Sequence[dict[str, Any]], *, archive: str, serial: str | Non
 
 
 __all__ = ["HISTORY_COLUMNS", "flat", "html_page", "show_text", "sigma_plot", "to_csv",
-           "to_text", "yield_plot"]
+           "to_text", "unit_yield", "unit_yield_per_day", "yield_plot"]

@@ -62,13 +62,16 @@ def handle(args: argparse.Namespace) -> int:
         listed = {r["run_id"] for r in rows}  # the σ series of the runs selected
         series = [s for s in a.sigma_series(args.serial) if s["run_id"] in listed] \
             if args.serial else []
-        stations = {r["station"] for r in rows} if args.serial else None
-        yields = [y for y in a.station_yield(args.station, since=args.since)
-                  if stations is None or y["station"] in stations]
+        # a station's yield where a station is asked for, or no unit: every station's
+        stations = (a.station_yield(args.station, since=args.since)
+                    if args.station is not None or not args.serial else [])
         name = a.name
+    # a unit's yield: its own runs' verdicts (not its stations' days)
+    yields = h.unit_yield_per_day(args.serial, rows) if args.serial else stations
     if args.html is not None:
         page = h.html_page(rows, archive=name, serial=args.serial, sigma_series=series,
-                           yields=yields, station=args.station,
+                           yields=[*yields, *stations] if args.serial else yields,
+                           station=args.station,
                            since=None if args.since is None else args.since.isoformat())
         try:
             args.html.write_text(page, encoding="utf-8")
@@ -78,6 +81,9 @@ def handle(args: argparse.Namespace) -> int:
         out: dict[str, Any] = {"archive": name, "runs": rows, "yield_per_day": yields}
         if args.serial:
             out["sigma"] = series
+            out["yield"] = h.unit_yield(args.serial, rows)
+            if args.station is not None:
+                out["station_yield_per_day"] = stations
         print(dumps(out))
     elif args.csv:
         print(h.to_csv(rows), end="")
