@@ -80,4 +80,4 @@ def test_the_units_page_shows_its_own_yield(url: str, tmp_path: Path,
     capsys.readouterr()
     html = page.read_text()
     assert "Yield per day: unit A" in html and "Yield per day: station" not in html
-    assert f"{DAY1}: 1 pass, 1 fail, 0 inconclusive, 1 aborted" in html
+    assert f"{DAY1}: 3 run(s): 1 pass, 1 fail, 0 inconclusive, 1 aborted" in html

@@ -207,9 +207,28 @@ def sigma_plot(series: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
         "axes": list(axes.values()),
         "limits": [{"y": round(y(v), 1), "value": v} for v in limits],
         "yticks": [{"y": round(y(v), 1), "label": f"{v:.3g}"} for v in _ticks(lo, hi)],
-        "xlabels": [{"x": round(x(i), 1), "label": (pts_start(series, r) or r)[:10]}
-                    for i, r in enumerate(runs) if i % label_every == 0],
+        "xlabels": [{"x": round(x(i), 1), "label": label}
+                    for i, label in zip(range(0, len(runs), label_every),
+                                        run_labels([pts_start(series, r) or r
+                                                    for r in runs[::label_every]]),
+                                        strict=True)],
     }
+
+
+def run_labels(starts: Sequence[str]) -> list[str]:
+    """Distinct x labels for runs started at ``starts`` (ISO UTC times, oldest first): the
+    date when the runs are on different days (``2026-11-20``), else the day and time to the
+    minute (``11-20 08:02``), to the second, and as a last resort numbered (``#3``)."""
+    def fmt(s: str, form: int) -> str:
+        if len(s) < 16 or s[10] != "T":  # not a time (a run id): as it is
+            return s[:16]
+        return (s[:10], f"{s[5:10]} {s[11:16]}", f"{s[5:10]} {s[11:19]}")[form]
+
+    for form in range(3):
+        labels = [fmt(s, form) for s in starts]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [f"{fmt(s, 1)} #{i + 1}" for i, s in enumerate(starts)]
 
 
 def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
@@ -264,13 +283,22 @@ def yield_plot(days: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         for i, d in enumerate(ds):
             yv = d["yield"]
             h = 0.0 if yv is None else ph * float(yv)
+            # the day's aborted runs beside its yield bar: their share of the day's runs
+            share = d["aborted"] / d["runs"] if d["runs"] else 0.0
+            ha = ph * share
+            title = (f"{d['day']}: {d['runs']} run(s): {d['pass']} pass, {d['fail']} fail, "
+                     f"{d['inconclusive']} inconclusive, {d['aborted']} aborted")
             bars.append({
-                "x": round(ML + i * bw + bw * 0.15, 1), "width": round(bw * 0.7, 1),
+                "x": round(ML + i * bw + bw * 0.1, 1), "width": round(bw * 0.5, 1),
                 "y": round(MT + ph - h, 1), "height": round(h, 1),
-                "label": d["day"], "label_x": round(ML + (i + 0.5) * bw, 1),
+                "label": d["day"], "label_x": round(ML + (i + 0.35) * bw, 1),
                 "text": "—" if yv is None else f"{100 * float(yv):.0f} %",
-                "title": f"{d['day']}: {d['pass']} pass, {d['fail']} fail, "
-                         f"{d['inconclusive']} inconclusive, {d['aborted']} aborted",
+                "title": title,
+                "aborted": None if not d["aborted"] else {
+                    "x": round(ML + i * bw + bw * 0.62, 1), "width": round(bw * 0.28, 1),
+                    "y": round(MT + ph - ha, 1), "height": round(max(ha, 1.0), 1),
+                    "text_x": round(ML + i * bw + bw * 0.76, 1),
+                    "text": f"{d['aborted']} ab.", "title": title},
             })
         out.append({
             "station": st, "width": W, "height": H, "left": ML, "right": W - MR, "top": MT,
@@ -287,8 +315,10 @@ TEMPLATE = """<!DOCTYPE html>
 <title>benchctl history{% if serial %} — {{ serial }}{% endif %}</title>
 <style>
 body { font-family: sans-serif; margin: 1.5em; color: #222; }
-table { border-collapse: collapse; font-size: 0.8em; }
+table { border-collapse: collapse; font-size: 0.8em; max-width: 100%; }
 td { white-space: nowrap; }
+td.col-abort_reason, td.col-run_id { white-space: normal; overflow-wrap: anywhere; }
+td.col-abort_reason { min-width: 12em; }
 th, td { border: 1px solid #bbb; padding: 0.2em 0.5em; text-align: left; }
 th { background: #eee; }
 td.PASS { color: #176117; font-weight: bold; } td.FAIL { color: #a11; font-weight: bold; }
@@ -346,18 +376,23 @@ svg text { font-size: 11px; font-family: sans-serif; }
 {% for b in st.bars %}<rect class="yield" x="{{ b.x }}" y="{{ b.y }}" width="{{ b.width }}"
  height="{{ b.height }}" fill="#4a8"><title>{{ b.title }}</title></rect><text x="{{ b.label_x
  }}" y="{{ b.y - 3 }}" text-anchor="middle">{{ b.text }}</text>
+{% if b.aborted %}<rect class="aborted" x="{{ b.aborted.x }}" y="{{ b.aborted.y }}"
+ width="{{ b.aborted.width }}" height="{{ b.aborted.height }}" fill="#999"><title>{{
+ b.aborted.title }}</title></rect><text class="aborted" x="{{ b.aborted.text_x }}" y="{{
+ b.aborted.y - 3 }}" text-anchor="middle" fill="#555">{{ b.aborted.text }}</text>{% endif %}
 {% if loop.index0 % st.label_every == 0 %}<text x="{{ b.label_x }}" y="{{ st.bottom + 16 }}"
  text-anchor="middle">{{ b.label }}</text>{% endif %}
 {% endfor %}
 <text x="{{ (st.left + st.right) / 2 }}" y="{{ st.height - 8 }}" text-anchor="middle">day
- (UTC); yield = PASS / (PASS + FAIL + INCONCLUSIVE)</text>
+ (UTC); green: yield = PASS / (PASS + FAIL + INCONCLUSIVE); grey: aborted runs (share of the
+ day's runs)</text>
 </svg>
 {% endfor %}
 <h2>Runs</h2>
 <table>
 <tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}</tr>
-{% for r in rows %}<tr>{% for c in columns %}<td{% if c == 'outcome' %} class="{{ r[c]
-}}"{% endif %}>{{ r[c] }}</td>{% endfor %}</tr>
+{% for r in rows %}<tr>{% for c in columns %}<td class="col-{{ c }}{% if c == 'outcome' %} {{ r[c]
+}}{% endif %}">{{ r[c] }}</td>{% endfor %}</tr>
 {% endfor %}
 </table>
 </body></html>
