@@ -227,3 +227,19 @@ def test_report_of_a_killed_run(aborted: tuple[Path, str], tmp_path: Path,
     _common_checks(html)
     assert 'class="verdict INCOMPLETE"' in html and "no end.json" in html
     assert "PN-42" in html and "2031-05-17" in html  # from meta.json's config
+
+
+def test_health_table_names_a_rejoin_as_rejoining_the_profile(passed: Path) -> None:
+    """A rejoin is the stand brought back onto the profile after missed setpoints (or an
+    underrun), not a reconnection: the health table and the warnings say so."""
+    report = json.loads((passed / "report.json").read_text())
+    report["stats"] = {**report["stats"], "rejoins": 2}
+    html = render_html(build_context(passed, report=report, trace=False))
+    row = re.search(r"<tr><th>(rejoins[^<]*)</th><td class=\"([^\"]*)\">([^<]*)</td></tr>", html)
+    assert row is not None, html
+    label, cls, value = row.groups()
+    assert label == "rejoins (the stand rejoined the profile after missed setpoints or an " \
+        "underrun)"
+    assert "warn" in cls and value.strip() == "2"
+    assert "2 rejoin(s): the stand rejoined the profile after missed setpoints" in html
+    assert "reconnect" not in html.lower()

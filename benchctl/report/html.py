@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 REPORT_HTML = "report.html"
 TEMPLATE = "report.html.j2"
 TRACE_EXCERPT_S = 20.0  # the time-trace excerpt's length
+# a rejoin is the stand brought back onto the profile (stream mode: after missed setpoints it
+# held; buffered: after an underrun stopped it), never a reconnection of the link
+REJOIN_LABEL = "rejoins (the stand rejoined the profile after missed setpoints or an underrun)"
 
 
 @cache
@@ -124,7 +127,7 @@ def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
         ("control cycles", _num(cycles, "d"), False),
         ("missed cycles", f"{missed}" + (f" ({100 * missed / cycles:.2g} %)" if cycles else ""),
          bool(missed) and cycles > 0 and missed / cycles > 0.01),
-        ("rejoins (the profile rejoined after a hold or a stop)",
+        (REJOIN_LABEL,
          _num(stats.get("rejoins", 0), "d"),
          bool(stats.get("rejoins"))),
         ("underruns (stand queue empty)", _num(stats.get("underruns", 0), "d"),
@@ -148,7 +151,8 @@ def _health_warnings(stats: Mapping[str, Any]) -> list[str]:
     if missed:
         share = f" ({100 * missed / cycles:.2g} % of {cycles})" if cycles else ""
         out.append(f"{missed} missed control cycle(s){share}")
-    for key, what in (("rejoins", "rejoin(s) of the profile (the stand had held or stopped)"),
+    for key, what in (("rejoins", "rejoin(s): the stand rejoined the profile after missed "
+                                  "setpoints or an underrun"),
                       ("underruns", "stand queue underrun(s)"),
                       ("instrument_lost", "instrument sample(s) lost"),
                       ("instrument_bad_frames", "bad instrument frame(s)")):
