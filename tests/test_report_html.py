@@ -243,3 +243,29 @@ def test_health_table_names_a_rejoin_as_rejoining_the_profile(passed: Path) -> N
     assert "warn" in cls and value.strip() == "2"
     assert "2 rejoin(s): the stand rejoined the profile after missed setpoints" in html
     assert "reconnect" not in html.lower()
+
+
+def test_psd_limit_line_is_drawn_against_the_sigma_axis(passed: Path) -> None:
+    """The σ limit (deg) is drawn on the axis of σ accumulated over frequency (deg), not on,
+    nor beside, the PSD's density axis (deg²/Hz)."""
+    from benchctl.report.figures import psd_figure
+
+    analysis = json.loads((passed / "report.json").read_text())["axes"]["roll"]["analysis"]
+    fig = psd_figure(analysis, 0.4, "roll")
+    assert fig is not None
+    axes = fig.get_axes()
+    assert len(axes) == 2  # two panels, no twin axis sharing one panel
+    by_label = {a.get_ylabel(): a for a in axes}
+    psd_ax, sigma_ax = by_label["PSD, deg²/Hz"], by_label["cumulative σ, deg"]
+    limits = [ln for a in axes for ln in a.get_lines() if ln.get_label().startswith("σ limit")]
+    assert len(limits) == 1 and limits[0].axes is sigma_ax
+    assert list(limits[0].get_ydata()) == [0.4, 0.4]
+    lo, hi = sigma_ax.get_ylim()
+    assert lo <= 0.4 < hi and sigma_ax.get_yscale() == "linear"
+    cum = [ln for ln in sigma_ax.get_lines() if ln.get_label() == "cumulative σ"]
+    assert len(cum) == 1 and max(cum[0].get_ydata()) < hi
+    assert psd_ax.get_yscale() == "log"
+    assert all(not ln.get_label().startswith("σ limit") for ln in psd_ax.get_lines())
+    # each panel's legend names only what is on it
+    assert "σ limit 0.4°" in [t.get_text() for t in sigma_ax.get_legend().get_texts()]
+    assert "σ limit 0.4°" not in [t.get_text() for t in psd_ax.get_legend().get_texts()]

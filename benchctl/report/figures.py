@@ -77,10 +77,12 @@ def _period_marks(axes: Sequence[Axes], periods: Sequence[Mapping[str, Any]]) ->
                        label="gain-table periods" if i == 0 else None)
 
 
-def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
-            title: str = "") -> str | None:
-    """The error PSD (eq. 1) with its pointwise 95 % band and the analysis band, and on a
-    second axis the cumulative σ over frequency against the σ limit."""
+def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
+               title: str = "") -> Figure | None:
+    """The error PSD figure: above, the PSD (eq. 1) with its pointwise 95 % band and the
+    analysis band (deg²/Hz, log); below, on its own axis in deg, σ accumulated over frequency
+    and the σ limit — the limit is drawn against the axis whose unit it has, never beside a
+    density axis it could be read against."""
     from benchctl.analysis.uncertainty import density_interval
 
     psd = analysis.get("psd") or {}
@@ -91,7 +93,8 @@ def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
     if keep.sum() < 2:
         return None
     floor = max(float(np.nanmax(np.abs(s))) * 1e-12, 1e-300)
-    fig, (ax,) = _figure(7.0, 3.6)
+    fig, (ax, ax2) = _figure(7.0, 4.4, 2)
+    ax.sharex(ax2)
     dof = psd.get("dof")
     if isinstance(dof, int | float) and dof > 0:
         lo, hi = density_interval(s, float(dof))
@@ -100,26 +103,38 @@ def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
     ax.loglog(f[keep], np.maximum(s[keep], floor), color="tab:blue", label="error PSD (eq. 1)")
     band = analysis.get("band")
     if isinstance(band, Mapping) and band.get("lo") is not None and band.get("hi") is not None:
-        ax.axvspan(max(float(band["lo"]), float(f[keep][0])), float(band["hi"]),
-                   color="tab:green", alpha=0.08, label="analysis band")
-    ax.set_xlabel("frequency, Hz")
+        for a in (ax, ax2):
+            a.axvspan(max(float(band["lo"]), float(f[keep][0])), float(band["hi"]),
+                      color="tab:green", alpha=0.08,
+                      label="analysis band" if a is ax else None)
     ax.set_ylabel("PSD, deg²/Hz")
     ax.grid(True, which="both", alpha=0.3)
+    ax.tick_params(labelbottom=False)
+    ax.legend(loc="lower left", fontsize=7)
     # cumulative σ(f): √∫₀^f S — where the error's variance sits, against the limit
     df = np.gradient(f)
     cum = np.sqrt(np.maximum(np.cumsum(np.where(np.isfinite(s), s, 0.0) * df), 0.0))
-    ax2 = ax.twinx()
     ax2.plot(f[keep], cum[keep], color="tab:red", lw=1.0, label="cumulative σ")
+    top = float(np.nanmax(cum[keep])) if np.isfinite(cum[keep]).any() else 0.0
     if limit_deg is not None and math.isfinite(limit_deg):
-        ax2.axhline(limit_deg, color="tab:red", ls="--", lw=1.0, label=f"limit {limit_deg:g}°")
-        ax2.set_ylim(0, max(limit_deg, float(np.nanmax(cum))) * 1.15)
+        ax2.axhline(limit_deg, color="black", ls="--", lw=1.0, label=f"σ limit {limit_deg:g}°")
+        top = max(top, limit_deg)
+    ax2.set_ylim(0, top * 1.15 if top > 0 else 1.0)
+    ax2.set_xscale("log")
+    ax2.set_xlabel("frequency, Hz")
     ax2.set_ylabel("cumulative σ, deg")
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="lower left", fontsize=7)
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(loc="upper left", fontsize=7)
     if title:
         ax.set_title(title, fontsize=9)
-    return svg_text(fig)
+    return fig
+
+
+def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
+            title: str = "") -> str | None:
+    """:func:`psd_figure` as inline SVG (None without a PSD)."""
+    fig = psd_figure(analysis, limit_deg, title)
+    return None if fig is None else svg_text(fig)
 
 
 def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
@@ -232,4 +247,4 @@ def trace_svg(t_ref: FloatArray, x_ref: FloatArray, t_dev: FloatArray, y_dev: Fl
     return svg_text(fig)
 
 
-__all__ = ["excitation_svg", "frf_svg", "psd_svg", "svg_text", "trace_svg"]
+__all__ = ["excitation_svg", "frf_svg", "psd_figure", "psd_svg", "svg_text", "trace_svg"]
