@@ -123,8 +123,12 @@ def test_report_of_a_passing_run(passed: Path) -> None:
                  rec["config_sha256"] or "—", rec["start_utc"], rec["end_utc"], "fake-sine",
                  "serial S1", "serial I1", "DOES NOT MATCH"):
         assert text in html, text
-    # warnings: the serial mismatch the record warns about is in the list
+    # warnings: the serial mismatch the record warns about is in the list; its measurement
+    # is informative, a WARNING, and a PASS report shows no FAIL anywhere
     assert "serial mismatch" in html
+    row = re.search(r"<tr><td>serial match.*?</tr>", html, re.S)
+    assert row is not None and '<td class="WARNING">WARNING</td>' in row.group(0)
+    assert 'class="FAIL"' not in html and ">FAIL<" not in html
     # the record names the report with its hash; end.json lists it
     entry = rec["files"]["report_html"]
     assert Path(entry["path"]) == passed / REPORT_HTML

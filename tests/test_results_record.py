@@ -29,14 +29,16 @@ from run_sim import ROOT
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
-from benchctl.config import BenchConfig, parse_config
+from benchctl.config import BenchConfig, UnitConfig, parse_config
 from benchctl.errors import AnalysisError, DataError, DeviceTimeout, SafetyAbort, StandFault
 from benchctl.jsonout import dumps, loads_strict, plain
+from benchctl.recording import load_recording
 from benchctl.results.measurements import (
     FAIL,
     INCONCLUSIVE,
     NOT_JUDGED,
     PASS,
+    WARNING,
     Limits,
     axis_measurements,
     decide,
@@ -178,7 +180,28 @@ def test_serial_match() -> None:
     assert serial_match("SN-1", "I1") is False
     assert serial_match("SN-1", None) is None
     m = serial_measurement("SN-1", "I1")
-    assert m.outcome == FAIL and not m.decisive and "I1" in (m.note or "")
+    assert m.outcome == WARNING and not m.decisive and "I1" in (m.note or "")
+    assert serial_measurement("SN-1", "sn-1").outcome == PASS
+    assert serial_measurement("SN-1", None).outcome == NOT_JUDGED
+
+
+def test_informative_measurements_are_never_fail() -> None:
+    """The excitation fidelity beyond its alarm level is informative: a WARNING, never FAIL,
+    and it does not touch the run's outcome."""
+    axis = {"sigma": 0.2, "sigma_ci95": [0.19, 0.21], "mean_error": 0.0, "delay": 0.01,
+            "analysis": {"periods": []},
+            "excitation": {"judgement": "alarm", "rms_error_db": 2.4,
+                           "worst_band": {"error_db": -3.1, "centre_hz": 0.2}}}
+    ms = axis_measurements("roll", axis, Limits(sigma_deg=0.4, excitation_db=1.5))
+    exc = [m for m in ms if m.name.startswith("excitation")]
+    assert [m.outcome for m in exc] == [WARNING, WARNING]
+    assert all(not m.decisive for m in exc)
+    assert all(m.outcome != FAIL for m in ms if not m.decisive)
+    assert overall(ms) == PASS
+    within = {**axis, "excitation": {"judgement": "ok", "rms_error_db": 0.2,
+                                     "worst_band": {"error_db": 0.4, "centre_hz": 0.2}}}
+    assert [m.outcome for m in axis_measurements("roll", within, Limits(sigma_deg=0.4))
+            if m.name.startswith("excitation")] == [PASS, PASS]
 
 
 @pytest.mark.parametrize(
@@ -295,6 +318,10 @@ def test_record_of_a_passing_run(tmp_path: Path, vclock: VirtualClock) -> None:
     assert rec["unit"] == {"serial": "SN-1", "part_number": "PN-7", "reported_serial": "I1",
                            "serial_match": False}
     assert any("serial mismatch" in w for w in rec["warnings"])
+    # unit.serial_check: warn (the default): the mismatch is a WARNING, the run PASSes
+    sm = [m for m in rec["measurements"] if m["name"] == "serial match"]
+    assert len(sm) == 1 and sm[0]["outcome"] == WARNING and sm[0]["decisive"] is False
+    assert all(m["outcome"] != FAIL for m in rec["measurements"])
     assert rec["stand"]["identity"]["serial"] == "S1"
     assert rec["instruments"][0]["identity"]["serial"] == "I1"
     assert rec["run_id"] == res.recording.name and rec["operator"] == "tester"
@@ -354,6 +381,44 @@ def test_record_of_a_failed_precheck(tmp_path: Path, vclock: VirtualClock) -> No
     rec = _aborted(_run(tmp_path, stand, FakeSensor(stand, bias=1.0)), "equipment")
     last = rec["measurements"][-1]
     assert last["name"] == "precheck: static agreement" and last["outcome"] == FAIL
+
+
+def _require_serial(tmp_path: Path) -> BenchConfig:
+    cfg = bench_config(tmp_path)
+    return cfg.model_copy(update={"unit": UnitConfig(serial_check="require")})
+
+
+def test_serial_check_require_refuses_another_unit_before_motion(
+        tmp_path: Path, vclock: VirtualClock) -> None:
+    """unit.serial_check: require — a unit whose reported serial is not the one typed is
+    refused as a failed precheck: aborted (exit 2) before the stand is enabled or moved."""
+    stand = FakeStand(clock=vclock)
+    res = _run(tmp_path, stand, FakeSensor(stand), _require_serial(tmp_path))
+    rec = _aborted(res, "equipment")
+    assert "precheck 'serial match' failed" in res.reason
+    assert "'SN-1' typed, the instrument reports 'I1'" in res.reason
+    assert "enable" not in stand.calls and stand.sent == [] and stand.table is None
+    last = rec["measurements"][-1]
+    assert last["name"] == "precheck: serial match" and last["outcome"] == FAIL
+    assert last["decisive"] is True
+    assert res.recording is not None
+    kinds = [e["kind"] for e in load_recording(res.recording).events]
+    assert "precheck" in kinds and "motion_start" not in kinds
+
+
+def test_serial_check_require_runs_the_unit_named(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
+    cfg = _require_serial(tmp_path)
+    prep = sine_motion(stand.axes, duration_s=DURATION, mode="table", fade_s=FADE)
+    sensor = FakeSensor(stand)
+    res = Session(cfg, prep, RunOptions("i1", "tester"), device_factory=lambda c, p: (
+        stand, sensor), clock=stand.clock).run()
+    assert res.state == "done" and res.exit_code == 0, res.reason
+    assert res.recording is not None
+    rec = load_record(res.recording)
+    names = [m["name"] for m in rec["measurements"]]
+    assert "precheck: serial match" in names and "serial match" not in names
+    assert not any("serial mismatch" in w for w in rec["warnings"])
 
 
 def test_record_of_a_software_error(tmp_path: Path, vclock: VirtualClock) -> None:
@@ -453,6 +518,7 @@ def test_cli_passes_the_rule_and_part_number_and_names_the_abort_kind(
         (("run", "limits"), {"delay": 0.1}, "run.limits.delay"),
         (("stand", "calibration_due"), "31.12.2027", "stand.calibration_due"),
         (("unit",), {"part_number": "PN", "serial": "x"}, "unit.serial"),
+        (("unit", "serial_check"), "block", "unit.serial_check"),
     ],
 )
 def test_config_fields_refused_with_their_path(tmp_path: Path, where: tuple[str, ...],

@@ -71,6 +71,7 @@ from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
 from benchctl.results.measurements import (
+    WARNING,
     Measurement,
     axis_measurements,
     limits_from_config,
@@ -625,6 +626,8 @@ class Session:
             )
         )
         w.update_meta(devices=ids)
+        if cfg.unit.serial_check == "require":  # the unit named must be the one mounted
+            self._precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
         status = stand.read_status()
         if status.fault or status.estop:  # latched: the check names the command that clears it
             self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
@@ -1098,8 +1101,9 @@ class Session:
         meta = self.writer.meta if self.writer is not None else self.meta
         dut = (meta.get("devices") or {}).get("instrument")
         sm = serial_measurement(self.opts.serial, reported_serial(dut))
-        out.append(sm)
-        if sm.outcome == "FAIL":
+        if self.cfg.unit.serial_check != "require":  # else its precheck says it, decisive
+            out.append(sm)
+        if sm.outcome == WARNING:
             warnings.append(f"serial mismatch: {sm.note}")
             log.warning("serial mismatch: %s", sm.note)
         return out, warnings
