@@ -129,6 +129,13 @@ def test_report_of_a_passing_run(passed: Path) -> None:
     row = re.search(r"<tr><td>serial match.*?</tr>", html, re.S)
     assert row is not None and '<td class="WARNING">WARNING</td>' in row.group(0)
     assert 'class="FAIL"' not in html and ">FAIL<" not in html
+    # every data file of the recording with its SHA-256, and the recording's own
+    data = rec["data"]
+    assert 'class="data-files"' in html and data["recording_sha256"] in html
+    for f in data["files"]:
+        assert re.search(rf"<td>{re.escape(f['name'])}</td><td class=\"n\">{f['bytes']}</td>"
+                         rf"<td class=\"hash\">{f['sha256']}</td>", html), f
+    assert hashlib.sha256((passed / "stand.csv").read_bytes()).hexdigest() in html
     # the record names the report with its hash; end.json lists it
     entry = rec["files"]["report_html"]
     assert Path(entry["path"]) == passed / REPORT_HTML

@@ -318,6 +318,7 @@ def test_record_of_a_passing_run(tmp_path: Path, vclock: VirtualClock) -> None:
     assert rec["unit"] == {"serial": "SN-1", "part_number": "PN-7", "reported_serial": "I1",
                            "serial_match": False}
     assert any("serial mismatch" in w for w in rec["warnings"])
+    _check_data_hashes(res.recording, rec)
     # unit.serial_check: warn (the default): the mismatch is a WARNING, the run PASSes
     sm = [m for m in rec["measurements"] if m["name"] == "serial match"]
     assert len(sm) == 1 and sm[0]["outcome"] == WARNING and sm[0]["decisive"] is False
@@ -372,8 +373,31 @@ def test_record_of_an_operator_stop(tmp_path: Path, vclock: VirtualClock) -> Non
 def test_record_of_an_equipment_fault(tmp_path: Path, vclock: VirtualClock) -> None:
     stand = FakeStand(clock=vclock)
     stand.fault_at = 1.0
-    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "equipment")
+    res = _run(tmp_path, stand, FakeSensor(stand))
+    rec = _aborted(res, "equipment")
     assert "fault code 7" in rec["abort"]["reason"]
+    assert res.recording is not None
+    _check_data_hashes(res.recording, rec)  # an aborted run's recording: hashed as closed
+
+
+def test_recording_hash_changes_with_any_data_file(tmp_path: Path) -> None:
+    from benchctl.results.record import data_hashes
+
+    for name, body in (("meta.json", b"{}"), ("stand.csv", b"t\n1\n"),
+                       ("events.jsonl", b"{}\n"), ("benchctl.log", b"log")):
+        (tmp_path / name).write_bytes(body)
+    a = data_hashes(tmp_path)
+    assert [f["name"] for f in a["files"]] == ["events.jsonl", "meta.json", "stand.csv"]
+    (tmp_path / "benchctl.log").write_bytes(b"more log")  # not a data file
+    assert data_hashes(tmp_path)["recording_sha256"] == a["recording_sha256"]
+    (tmp_path / "stand.csv").write_bytes(b"t\n2\n")
+    assert data_hashes(tmp_path)["recording_sha256"] != a["recording_sha256"]
+    # the CAN log under the name the config gives it (a CAN instrument only)
+    (tmp_path / "frames.asc").write_bytes(b"frame")
+    meta = {"config": {"instrument": {"driver": "canopen", "can_log": "frames.asc"}}}
+    assert "frames.asc" in [f["name"] for f in data_hashes(tmp_path, meta)["files"]]
+    meta["config"]["instrument"]["driver"] = "nmea0183"
+    assert "frames.asc" not in [f["name"] for f in data_hashes(tmp_path, meta)["files"]]
 
 
 def test_record_of_a_failed_precheck(tmp_path: Path, vclock: VirtualClock) -> None:
@@ -477,6 +501,36 @@ def test_record_of_a_simulated_run_through_the_cli(
     assert len(rec["config_sha256"]) == 64 and rec["software"]["version"] == metadata.version(
         "benchctl")
     assert any(m["name"] == "sigma" and m["axis"] == "roll" for m in rec["measurements"])
+    # the CAN log is a data file of the recording: hashed with the others
+    folder = Path(rec["files"]["recording"])
+    names = [f["name"] for f in rec["data"]["files"]]
+    assert "can.blf" in names and (folder / "can.blf").stat().st_size > 0
+    _check_data_hashes(folder, rec)
+
+
+def _check_data_hashes(folder: Path, rec: dict[str, Any]) -> None:
+    """record.json's ``data``: every data file with its size and SHA-256 as on the disk, sorted
+    by name, and the recording's SHA-256 as the README defines it — recomputed here with
+    sha256sum, as a QA engineer would."""
+    import hashlib
+
+    data = rec["data"]
+    names = [f["name"] for f in data["files"]]
+    assert names == sorted(names)
+    assert {"meta.json", "stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl",
+            "end.json"} <= set(names)
+    assert not {"benchctl.log", "sim.log", "record.json", "report.html"} & set(names)
+    for f in data["files"]:
+        body = (folder / f["name"]).read_bytes()
+        assert f["sha256"] == hashlib.sha256(body).hexdigest() and f["bytes"] == len(body)
+    listing = subprocess.run(["sha256sum", *names], cwd=folder, capture_output=True,
+                             check=True).stdout
+    assert data["recording_sha256"] == hashlib.sha256(listing).hexdigest()
+    # the writer's own hashes (end.json's integrity, taken as it wrote) agree
+    integrity = json.loads((folder / "end.json").read_text())["integrity"]["files"]
+    by_name = {f["name"]: f["sha256"] for f in data["files"]}
+    for name, entry in integrity.items():
+        assert by_name[name] == entry["sha256"], name
 
 
 # ------------------------------------------------------------------------------ CLI and config
@@ -532,3 +586,35 @@ def test_config_fields_refused_with_their_path(tmp_path: Path, where: tuple[str,
     target[where[-1]] = value
     with pytest.raises(ConfigError, match=match):
         parse_config(data, tmp_path / "bench.yaml")
+
+
+def test_record_and_report_rewritten_together_or_not_at_all(
+        tmp_path: Path, vclock: VirtualClock, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once the recording is closed, record.json and report.html are written again with the
+    data files' SHA-256; when the record cannot be (a full disk), the earlier pair stays and
+    still names each other: the report's hash in the record is the report's on the disk."""
+    import errno
+    import hashlib
+
+    import benchctl.run.session as session_mod
+
+    calls: list[Path] = []
+    real = session_mod.write_record
+
+    def failing_second(folder: Path, record: dict[str, Any]) -> Path:
+        calls.append(folder)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(folder, record)
+
+    monkeypatch.setattr(session_mod, "write_record", failing_second)
+    stand = FakeStand(clock=vclock)
+    res = _run(tmp_path, stand, FakeSensor(stand))
+    assert res.state == "done" and res.exit_code == 0 and len(calls) == 2, res.reason
+    assert res.recording is not None
+    rec = load_record(res.recording)
+    assert "data" not in rec  # the first record stands
+    html = res.recording / "report.html"
+    assert rec["files"]["report_html"]["sha256"] == hashlib.sha256(html.read_bytes()).hexdigest()
+    assert 'class="data-files"' not in html.read_text(encoding="utf-8")
+    assert not (res.recording / "report.html.prev").exists()

@@ -352,6 +352,9 @@ def build_context(
         abort = {"kind": None, "reason": reason}
     files = [(k, v.get("path"), v.get("sha256")) for k, v in (rec.get("files") or {}).items()
              if isinstance(v, Mapping)]
+    data = rec.get("data") if isinstance(rec.get("data"), Mapping) else None
+    if data is not None:
+        who.append(("recording SHA-256", str(data.get("recording_sha256") or "—")))
     return {
         "verdict": verdict,
         "serial": serial,
@@ -368,6 +371,7 @@ def build_context(
         "health": _health(stats),
         "ended": rep.get("ended"),
         "files": files,
+        "data": data,
         "recording": str(folder),
     }
 
