@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import browser, page_errors, pdf_pages
+from browser import browser, page_errors, pdf_pages, pdf_text, print_pdf
 from run_fakes import FakeSensor, FakeStand, sine_motion
 
 from benchctl.cli import main
@@ -27,7 +27,7 @@ from benchctl.run.session import RunOptions, RunResult, Session
 
 NASTY_SERIAL = "<script>alert('x')</script>&SN"
 NASTY_OPERATOR = 'O"Brien <b>'
-SECTIONS = ("verdict", "sigma", "measurements", "identity", "warnings", "files")
+SECTIONS = ("verdict", "sigma", "measurements", "identity", "warnings", "files", "signoff")
 
 
 def _config(tmp: Path) -> Any:
@@ -280,3 +280,25 @@ def test_psd_limit_line_is_drawn_against_the_sigma_axis(passed: Path) -> None:
     # each panel's legend names only what is on it
     assert "σ limit 0.4°" in [t.get_text() for t in sigma_ax.get_legend().get_texts()]
     assert "σ limit 0.4°" not in [t.get_text() for t in psd_ax.get_legend().get_texts()]
+
+
+@pytest.fixture(scope="module")
+def passed_pdf(passed: Path, tmp_path_factory: pytest.TempPathFactory) -> list[str]:
+    """The passing run's report printed by headless Chromium: each page's text."""
+    return pdf_text(print_pdf(passed / REPORT_HTML, tmp_path_factory.mktemp("pdf")))
+
+
+def test_sign_off_block_printed_whole(passed: Path, passed_pdf: list[str]) -> None:
+    """The printed report ends with a sign-off block — tested by (the operator's name
+    printed), checked by, the date and the remarks, each with room to sign — kept on one page."""
+    html = (passed / REPORT_HTML).read_text(encoding="utf-8")
+    block = html[html.index('<section id="signoff"'):]
+    assert "<th>Tested by</th><td class=\"sign\">O&#34;Brien &lt;b&gt;</td>" in block
+    for text in ("<th>Checked by</th>", "<th>name</th><th>signature</th><th>date</th>",
+                 "Remarks:", load_record(passed)["data"]["recording_sha256"]):
+        assert text in block, text
+    assert block.count('<div class="line"></div>') == 3
+    last = passed_pdf[-1]
+    pos = [last.find(t) for t in ("Sign-off", "Tested by", "Checked by", "Remarks")]
+    assert -1 not in pos and pos == sorted(pos), last  # in that order, all on the last page
+    assert 'O"Brien <b>' in last

@@ -373,6 +373,8 @@ def build_context(
         "files": files,
         "data": data,
         "recording": str(folder),
+        "operator": str(rec.get("operator") or rep.get("operator") or m.get("operator") or ""),
+        "run_id": str(rec.get("run_id") or folder.name),
     }
 
 
