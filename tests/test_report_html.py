@@ -150,7 +150,13 @@ def test_report_of_an_aborted_run(aborted: tuple[Path, str]) -> None:
     assert 'class="verdict ABORTED"' in html
     assert "Aborted (equipment)" in html and "fault code 7" in reason
     assert "fault code 7" in html
-    assert "precheck: static agreement" in html  # the prechecks it passed
+    # the prechecks it passed, on one group row that names them
+    group = re.search(r'<tr class="group"><td>prechecks \((\d+)\)<br><small>([^<]*)</small>'
+                      r'.*?</tr>', html, re.S)
+    assert group is not None and "static agreement" in group.group(2)
+    assert f"{group.group(1)} of {group.group(1)} passed" in group.group(0)
+    assert '<td class="PASS">PASS</td>' in group.group(0)
+    assert "<tr><td>precheck: " not in html
     assert "No analysis" in html
     assert load_record(folder)["files"]["report_html"] is not None
 
@@ -302,3 +308,27 @@ def test_sign_off_block_printed_whole(passed: Path, passed_pdf: list[str]) -> No
     pos = [last.find(t) for t in ("Sign-off", "Tested by", "Checked by", "Remarks")]
     assert -1 not in pos and pos == sorted(pos), last  # in that order, all on the last page
     assert 'O"Brien <b>' in last
+
+
+def test_measurements_table_groups_the_prechecks() -> None:
+    """The prechecks are one row (how many passed, their names); a failed one is also shown
+    on its own row with its detail, and the group row is FAIL; nothing else is grouped."""
+    from benchctl.report.html import measurement_rows
+
+    def pre(name: str, ok: bool) -> dict[str, Any]:
+        return {"name": f"precheck: {name}", "axis": None, "value": ok, "unit": None,
+                "low": None, "high": None, "ci95": None, "outcome": "PASS" if ok else "FAIL",
+                "rule": "check", "decisive": True, "note": f"{name} detail"}
+
+    sigma = {"name": "sigma", "axis": "roll", "value": 0.2, "unit": "deg", "low": None,
+             "high": 0.4, "ci95": [0.19, 0.21], "outcome": "PASS", "rule": "simple",
+             "decisive": True, "note": None}
+    rows = measurement_rows([pre("disk space", True), pre("stand answers", True), sigma])
+    assert [r["name"] for r in rows] == ["prechecks (2)", "sigma"]
+    assert rows[0]["value"] == "2 of 2 passed" and rows[0]["outcome"] == "PASS"
+    assert rows[0]["note"] == "disk space, stand answers" and rows[0]["group"]
+    rows = measurement_rows([pre("disk space", True), pre("static agreement", False)])
+    assert [r["name"] for r in rows] == ["prechecks (2)", "precheck: static agreement"]
+    assert rows[0]["outcome"] == "FAIL" and rows[0]["value"] == "1 of 2 passed"
+    assert rows[1]["note"] == "static agreement detail" and not rows[1]["group"]
+    assert measurement_rows([sigma]) == [{**sigma, "group": False}]

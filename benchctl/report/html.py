@@ -181,6 +181,35 @@ def _analysis_warnings(axis: str, an: Mapping[str, Any]) -> list[str]:
     return out
 
 
+PRECHECK_PREFIX = "precheck: "
+
+
+def measurement_rows(measurements: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The measurements table's rows, compact: the prechecks as one group row where the first
+    one stood (how many passed, their names in its note; its outcome FAIL if any failed), and
+    a failed precheck also on a row of its own, with its detail. Every other measurement on
+    its own row, as recorded."""
+    pre = [m for m in measurements if str(m.get("name") or "").startswith(PRECHECK_PREFIX)]
+    rows: list[dict[str, Any]] = []
+    grouped = False
+    for m in measurements:
+        if m not in pre:
+            rows.append({**m, "group": False})
+            continue
+        if grouped:
+            continue
+        grouped = True
+        ok = [p for p in pre if p.get("outcome") == "PASS"]
+        failed = [p for p in pre if p.get("outcome") != "PASS"]
+        names = ", ".join(str(p.get("name"))[len(PRECHECK_PREFIX):] for p in pre)
+        rows.append({"name": f"prechecks ({len(pre)})", "axis": None,
+                     "value": f"{len(ok)} of {len(pre)} passed", "unit": None, "low": None,
+                     "high": None, "ci95": None, "outcome": "FAIL" if failed else "PASS",
+                     "rule": "check", "decisive": True, "note": names, "group": True})
+        rows.extend({**p, "group": False} for p in failed)
+    return rows
+
+
 def _decomposition(an: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
     """(component, variance deg², share of the mean-square error) rows."""
     c = an.get("components") or {}
@@ -367,7 +396,8 @@ def build_context(
         "who": who,
         "axes": axes,
         "traces": traces,
-        "measurements": list(rec.get("measurements") or rep.get("measurements") or []),
+        "measurements": measurement_rows(list(rec.get("measurements")
+                                              or rep.get("measurements") or [])),
         "health": _health(stats),
         "ended": rep.get("ended"),
         "files": files,
@@ -400,4 +430,5 @@ def write_html(
     return dest
 
 
-__all__ = ["REPORT_HTML", "build_context", "identity_text", "render_html", "write_html"]
+__all__ = ["REPORT_HTML", "build_context", "identity_text", "measurement_rows", "render_html",
+           "write_html"]
