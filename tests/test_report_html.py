@@ -151,8 +151,8 @@ def test_report_of_an_aborted_run(aborted: tuple[Path, str]) -> None:
     assert "Aborted (equipment)" in html and "fault code 7" in reason
     assert "fault code 7" in html
     # the prechecks it passed, on one group row that names them
-    group = re.search(r'<tr class="group"><td>prechecks \((\d+)\)<br><small>([^<]*)</small>'
-                      r'.*?</tr>', html, re.S)
+    group = re.search(r'<tr class="group"><td>prechecks \((\d+)\)</td>.*?</tr>\s*'
+                      r'<tr class="group"><td colspan="9"><small>([^<]*)</small>', html, re.S)
     assert group is not None and "static agreement" in group.group(2)
     assert f"{group.group(1)} of {group.group(1)} passed" in group.group(0)
     assert '<td class="PASS">PASS</td>' in group.group(0)
@@ -224,8 +224,8 @@ def test_report_in_headless_chromium_loads_and_prints_a4(passed: Path, tmp_path:
     data = pdf.read_bytes()
     assert data.startswith(b"%PDF-")
     pages = pdf_pages(data)
-    # the summary, the measurements and each axis on its own page: several A4 pages
-    assert 2 <= len(pages) <= 20, len(pages)
+    # a one-axis run on at most three A4 pages (test_printed_layout below: what is where)
+    assert 2 <= len(pages) <= 3, len(pages)
     for w, h in pages:  # A4: 595 × 842 pt
         assert abs(w - 595.3) < 2 and abs(h - 841.9) < 2, (w, h)
 
@@ -252,7 +252,7 @@ def test_health_table_names_a_rejoin_as_rejoining_the_profile(passed: Path) -> N
     report = json.loads((passed / "report.json").read_text())
     report["stats"] = {**report["stats"], "rejoins": 2}
     html = render_html(build_context(passed, report=report, trace=False))
-    row = re.search(r"<tr><th>(rejoins[^<]*)</th><td class=\"([^\"]*)\">([^<]*)</td></tr>", html)
+    row = re.search(r"<th>(rejoins[^<]*)</th><td class=\"([^\"]*)\">([^<]*)</td>", html)
     assert row is not None, html
     label, cls, value = row.groups()
     assert label == "rejoins (the stand rejoined the profile after missed setpoints or an " \
@@ -332,3 +332,54 @@ def test_measurements_table_groups_the_prechecks() -> None:
     assert rows[0]["outcome"] == "FAIL" and rows[0]["value"] == "1 of 2 passed"
     assert rows[1]["note"] == "static agreement detail" and not rows[1]["group"]
     assert measurement_rows([sigma]) == [{**sigma, "group": False}]
+
+
+# each heading of the printed report and the text that follows it: on the same page
+HEADINGS = (
+    ("Dynamic error of a ship inclinometer", "PASS"),
+    ("Dynamic error σ per axis", "axis"),
+    ("Measurements", "Rule: how the value was judged"),
+    ("Who, what, when, where", "serial"),
+    ("Warnings and the stand's health", "roll"),
+    ("Axis roll", "Above: the error PSD"),
+    ("Gain table", "period, s"),
+    ("Error decomposition", "component"),
+    ("Files", "Recording:"),
+    ("Sign-off", "Tested by"),
+)
+
+
+def test_printed_layout_of_a_one_axis_run(passed_pdf: list[str]) -> None:
+    """Chromium's PDF of a one-axis run: at most 3 A4 pages; the sections in order; no heading
+    left at the foot of a page away from what it heads; page 1 filled (the summary, the
+    measurements and the who/what table begin on it); the last page not the files alone."""
+    pages = passed_pdf
+    assert len(pages) <= 3, len(pages)
+    text = "\n".join(pages)
+    where = [text.find(h) for h, _ in HEADINGS]
+    assert -1 not in where and where == sorted(where), list(zip(HEADINGS, where, strict=True))
+
+    def page_of(s: str, after: int = 0) -> int:
+        pos = text.find(s, after)
+        assert pos >= 0, s
+        return _page_at(pages, pos)
+
+    for heading, follower in HEADINGS:
+        h = text.find(heading)
+        assert page_of(heading) == page_of(follower, h + len(heading)), (heading, follower)
+    # page 1 is the summary, full: σ, the measurements and who/what begin there
+    for h in ("Dynamic error σ per axis", "Measurements", "Who, what, when, where"):
+        assert h in pages[0], h
+    # the last page holds the sign-off, not the files table alone
+    assert "Sign-off" in pages[-1] and "Tested by" in pages[-1]
+
+
+def _page_at(pages: list[str], pos: int) -> int:
+    """The page holding character ``pos`` of the pages' text joined by newlines."""
+    start = 0
+    for i, page in enumerate(pages):
+        end = start + len(page) + 1
+        if pos < end:
+            return i
+        start = end
+    return len(pages) - 1

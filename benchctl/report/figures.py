@@ -27,6 +27,10 @@ FloatArray = NDArray[np.float64]
 _PROLOG = re.compile(r"^.*?(?=<svg\b)", re.S)
 _METADATA = re.compile(r"<metadata>.*?</metadata>\s*", re.S)
 MAX_POINTS = 1500  # a trace is thinned to about this many points per line (file size)
+# the report's figures are drawn at the size they are printed: half the A4 text width (two
+# side by side), their text in points as it will be read on paper
+FIG_W = 3.6  # inches
+TITLE_PT, LABEL_PT, TICK_PT, LEGEND_PT = 7.5, 7.0, 6.5, 6.0
 
 
 def _figure(width_in: float, height_in: float, rows: int = 1) -> tuple[Figure, list[Axes]]:
@@ -42,6 +46,14 @@ def svg_text(fig: Figure) -> str:
     from matplotlib.backends.backend_svg import FigureCanvasSVG
 
     FigureCanvasSVG(fig)
+    for ax in fig.get_axes():
+        ax.tick_params(labelsize=TICK_PT)
+        ax.xaxis.label.set_fontsize(LABEL_PT)
+        ax.yaxis.label.set_fontsize(LABEL_PT)
+        leg = ax.get_legend()
+        if leg is not None:
+            for t in leg.get_texts():
+                t.set_fontsize(LEGEND_PT)
     buf = io.StringIO()
     fig.savefig(buf, format="svg", metadata={"Date": None})
     text = _METADATA.sub("", _PROLOG.sub("", buf.getvalue(), count=1))
@@ -93,7 +105,7 @@ def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
     if keep.sum() < 2:
         return None
     floor = max(float(np.nanmax(np.abs(s))) * 1e-12, 1e-300)
-    fig, (ax, ax2) = _figure(7.0, 4.4, 2)
+    fig, (ax, ax2) = _figure(FIG_W, 2.9, 2)
     ax.sharex(ax2)
     dof = psd.get("dof")
     if isinstance(dof, int | float) and dof > 0:
@@ -110,7 +122,7 @@ def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
     ax.set_ylabel("PSD, deg²/Hz")
     ax.grid(True, which="both", alpha=0.3)
     ax.tick_params(labelbottom=False)
-    ax.legend(loc="lower left", fontsize=7)
+    ax.legend(loc="lower left", fontsize=LEGEND_PT)
     # cumulative σ(f): √∫₀^f S — where the error's variance sits, against the limit
     df = np.gradient(f)
     cum = np.sqrt(np.maximum(np.cumsum(np.where(np.isfinite(s), s, 0.0) * df), 0.0))
@@ -124,9 +136,9 @@ def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
     ax2.set_xlabel("frequency, Hz")
     ax2.set_ylabel("cumulative σ, deg")
     ax2.grid(True, which="both", alpha=0.3)
-    ax2.legend(loc="upper left", fontsize=7)
+    ax2.legend(loc="upper left", fontsize=LEGEND_PT)
     if title:
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=TITLE_PT)
     return fig
 
 
@@ -148,7 +160,7 @@ def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
         frf.get("coherence"))
     glo, ghi = _pairs(frf.get("gain_ci95"), f.size)
     plo, phi = _pairs(frf.get("phase_ci95_deg"), f.size)
-    fig, (a1, a2, a3) = _figure(7.0, 6.0, 3)
+    fig, (a1, a2, a3) = _figure(FIG_W, 3.4, 3)
     a1.axhline(1.0, color="black", lw=0.8, label="gain = 1")
     a1.fill_between(f, glo, ghi, color="tab:blue", alpha=0.25, label="95 % interval")
     a1.plot(f, gain, ".-", color="tab:blue", label="gain")
@@ -165,9 +177,9 @@ def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
     for ax in (a1, a2, a3):
         ax.set_xlabel("frequency, Hz")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize=7)
+        ax.legend(loc="best", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 
@@ -185,7 +197,7 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     err = np.array([math.nan if b.get("error_db") is None else float(b["error_db"])
                     for b in bands])
     elo, ehi = _pairs([b.get("error_ci95_db") for b in bands], len(bands))
-    fig, (a1, a2) = _figure(7.0, 4.6, 2)
+    fig, (a1, a2) = _figure(FIG_W, 2.9, 2)
     pos = (tgt > 0) | (ach > 0)
     a1.loglog(fc[pos], np.where(tgt[pos] > 0, tgt[pos], np.nan), "s-", color="black", ms=4,
               lw=0.8, label="target (profile)")
@@ -211,9 +223,9 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     for ax in (a1, a2):
         ax.set_xlabel("frequency, Hz")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="best", fontsize=7)
+        ax.legend(loc="best", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 
@@ -229,7 +241,7 @@ def trace_svg(t_ref: FloatArray, x_ref: FloatArray, t_dev: FloatArray, y_dev: Fl
     if t_ref.size < 2 or t_dev.size < 2:
         return None
     err = y_dev - np.interp(t_dev, t_ref, x_ref, left=np.nan, right=np.nan)
-    fig, (a1, a2) = _figure(7.0, 4.2, 2)
+    fig, (a1, a2) = _figure(FIG_W, 2.9, 2)
     tr, xr = _thin(t_ref - t0, x_ref)
     td, yd = _thin(t_dev - t0, y_dev)
     te, ye = _thin(t_dev - t0, err)
@@ -241,9 +253,9 @@ def trace_svg(t_ref: FloatArray, x_ref: FloatArray, t_dev: FloatArray, y_dev: Fl
     for ax in (a1, a2):
         ax.set_xlabel("time from the motion's start, s")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=7)
+        ax.legend(loc="upper right", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 

@@ -96,6 +96,12 @@ def identity_text(d: Any) -> str:
     return text + (f" ({d['protocol']})" if d.get("protocol") else "")
 
 
+def _in_folder(path: Any, folder: Path) -> str:
+    """``path`` as its name when it is in ``folder`` (the recording), else as it is."""
+    p = Path(str(path or ""))
+    return p.name if p.parent == folder or p.parent.name == folder.name else str(path or "—")
+
+
 def _verdict(report: Mapping[str, Any] | None, record: Mapping[str, Any] | None,
              end: Mapping[str, Any] | None) -> str:
     if record and record.get("outcome"):
@@ -179,6 +185,31 @@ def _analysis_warnings(axis: str, an: Mapping[str, Any]) -> list[str]:
         out.append(f"{axis}: timing (time-stamp jitter × angular rate) contributes "
                    f"{_pct(share)} of σ²")
     return out
+
+
+SHORT_VALUE = 34  # characters: a who/what value this short shares its table row with another
+
+
+def who_rows(who: Sequence[tuple[str, Any]]) -> list[list[tuple[str, str]]]:
+    """The who/what table's rows, in order: two short items side by side, a long one (a
+    SHA-256, an identity, a path) on a row of its own — half the height on paper."""
+    rows: list[list[tuple[str, str]]] = []
+    half: list[tuple[str, str]] = []
+    for k, v in who:
+        text = str(v)
+        if len(text) <= SHORT_VALUE and "SHA-256" not in k:
+            half.append((k, text))
+            if len(half) == 2:
+                rows.append(half)
+                half = []
+            continue
+        if half:
+            rows.append(half)
+            half = []
+        rows.append([(k, text)])
+    if half:
+        rows.append(half)
+    return rows
 
 
 PRECHECK_PREFIX = "precheck: "
@@ -379,8 +410,9 @@ def build_context(
         reason = (end or {}).get("reason") if end else "the run ended without closing its " \
             "recording (no end.json: the process was killed)"
         abort = {"kind": None, "reason": reason}
-    files = [(k, v.get("path"), v.get("sha256")) for k, v in (rec.get("files") or {}).items()
-             if isinstance(v, Mapping)]
+    # the reports by their names in the recording (its path is printed above them)
+    files = [(k, _in_folder(v.get("path"), folder), v.get("sha256"))
+             for k, v in (rec.get("files") or {}).items() if isinstance(v, Mapping)]
     data = rec.get("data") if isinstance(rec.get("data"), Mapping) else None
     if data is not None:
         who.append(("recording SHA-256", str(data.get("recording_sha256") or "—")))
@@ -394,6 +426,7 @@ def build_context(
         "deviations": list(rec.get("deviations") or rep.get("deviations") or []),
         "warnings": list(dict.fromkeys(warnings)),
         "who": who,
+        "who_rows": who_rows(who),
         "axes": axes,
         "traces": traces,
         "measurements": measurement_rows(list(rec.get("measurements")
@@ -431,4 +464,4 @@ def write_html(
 
 
 __all__ = ["REPORT_HTML", "build_context", "identity_text", "measurement_rows", "render_html",
-           "write_html"]
+           "who_rows", "write_html"]
