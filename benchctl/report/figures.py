@@ -47,7 +47,7 @@ def svg_text(fig: Figure) -> str:
 
     FigureCanvasSVG(fig)
     for ax in fig.get_axes():
-        ax.tick_params(labelsize=TICK_PT)
+        ax.tick_params(which="both", labelsize=TICK_PT)
         ax.xaxis.label.set_fontsize(LABEL_PT)
         ax.yaxis.label.set_fontsize(LABEL_PT)
         leg = ax.get_legend()
@@ -216,6 +216,15 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     a2.axhline(0.0, color="black", lw=0.8)
     a2.set_xscale("log")
     a2.set_ylabel("error, dB")
+    from matplotlib.ticker import FuncFormatter
+
+    def _plain(v: float, _pos: int) -> str:  # 0.2, 0.3, 0.5 (not 2×10⁻¹ …: they overlap)
+        m = v / 10 ** math.floor(math.log10(v)) if v > 0 else 0.0
+        return f"{v:g}" if round(m, 6) in (1.0, 2.0, 3.0, 5.0) else ""
+
+    for ax in (a1, a2):
+        ax.xaxis.set_major_formatter(FuncFormatter(_plain))
+        ax.xaxis.set_minor_formatter(FuncFormatter(_plain))
     lim = max(float(abort) if isinstance(abort, int | float) else 0.0,
               float(np.nanmax(np.abs(np.concatenate([err, elo, ehi])))) if np.isfinite(
                   np.concatenate([err, elo, ehi])).any() else 0.0, 0.5)

@@ -285,7 +285,7 @@ def _trace(folder: Path, axes: Sequence[str], window: Sequence[float] | None,
         kd = (td >= lo) & (td <= hi)
         t0 = motion_start if motion_start is not None else float(tr[0])
         svg = trace_svg(np.asarray(tr[kr]), np.asarray(xr[kr]), np.asarray(td[kd]),
-                        np.asarray(yd[kd]), t0, title=f"{axis}: {title}")
+                        np.asarray(yd[kd]), t0, title=f"{axis} time trace — {title}")
         if svg is not None:
             out[axis] = svg
     return out
@@ -397,7 +397,7 @@ def build_context(
                                f"{name} error PSD — {title}"),
             "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),
             "excitation_svg": None if not exc else excitation_svg(
-                exc, f"{name} stand spectrum, achieved vs target — {title}"),
+                exc, f"{name} stand spectrum vs target — {title}"),
         })
     window = rep.get("analysis_window") or (end or {}).get("analysis_window")
     motion_start = stats.get("motion_start") if isinstance(stats, Mapping) else None
