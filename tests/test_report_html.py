@@ -383,3 +383,27 @@ def _page_at(pages: list[str], pos: int) -> int:
             return i
         start = end
     return len(pages) - 1
+
+
+def test_figures_of_the_same_content_drawn_once(passed: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run draws its report twice (before and after its recording closes): the figures of
+    the same analysis are drawn once; other content is drawn anew."""
+    import benchctl.report.figures as figures
+
+    calls: list[str] = []
+    real = figures.psd_svg
+
+    def counting(an: Any, limit: Any = None, title: str = "") -> str | None:
+        calls.append(title)
+        return real(an, limit, title)
+
+    monkeypatch.setattr(figures, "psd_svg", counting)
+    report = json.loads((passed / "report.json").read_text())
+    report["axes"]["roll"]["limit"] = 0.3999  # content not drawn before in this process
+    first = render_html(build_context(passed, report=report, trace=False))
+    again = render_html(build_context(passed, report=report, trace=False))
+    assert len(calls) == 1 and first == again
+    report["axes"]["roll"]["limit"] = 0.3998
+    render_html(build_context(passed, report=report, trace=False))
+    assert len(calls) == 2

@@ -19,20 +19,24 @@ begun, the time-trace excerpt.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
 from datetime import date
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
-from benchctl.jsonout import loads_strict
+from benchctl.jsonout import dumps, loads_strict
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 REPORT_HTML = "report.html"
 TEMPLATE = "report.html.j2"
@@ -291,6 +295,62 @@ def _trace(folder: Path, axes: Sequence[str], window: Sequence[float] | None,
     return out
 
 
+# A run draws its report twice (before its recording closes, and after, with the data files'
+# SHA-256): the figures of the same content are drawn once. Keyed by their content (and the
+# streams' size and time for the trace), the last few kept.
+# (No lock: a report is drawn on one thread; two drawn at once would at worst draw twice.)
+_FIGURES: OrderedDict[str, Any] = OrderedDict()
+FIGURE_CACHE_SIZE = 8
+
+
+def _key(*parts: Any) -> str:
+    return hashlib.sha256(dumps(list(parts)).encode("utf-8")).hexdigest()
+
+
+def _stamp(folder: Path) -> list[Any]:
+    """The streams' sizes and modification times (a trace drawn of other data is not reused)."""
+    out: list[Any] = []
+    for name in ("stand.csv", "instrument.csv"):
+        try:
+            st = (folder / name).stat()
+        except OSError:
+            out.append(None)
+            continue
+        out.append([st.st_size, st.st_mtime_ns])
+    return out
+
+
+def _cached(key: str, make: Callable[[], T]) -> T:
+    hit = _FIGURES.get(key)
+    if hit is not None:
+        value: T = hit
+        return value
+    value = make()
+    _FIGURES[key] = value
+    with contextlib.suppress(KeyError):
+        while len(_FIGURES) > FIGURE_CACHE_SIZE:
+            _FIGURES.popitem(last=False)
+    return value
+
+
+def _figures_of(name: str, an: Mapping[str, Any], lim: Any, exc: Any,
+                title: str) -> dict[str, str | None]:
+    """An axis's PSD, frequency response and excitation figures (SVG), drawn once per content."""
+    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
+
+    limit = lim if isinstance(lim, int | float) else None
+
+    def make() -> dict[str, str | None]:
+        return {
+            "psd_svg": psd_svg(an, limit, f"{name} error PSD — {title}"),
+            "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),
+            "excitation_svg": None if not exc else excitation_svg(
+                exc, f"{name} stand spectrum vs target — {title}"),
+        }
+
+    return dict(_cached(_key("axis", name, an, limit, exc, title), make))
+
+
 def build_context(
     folder: Path,
     *,
@@ -303,8 +363,6 @@ def build_context(
     """The report's content for ``folder``: what is not given is read from the folder
     (``report.json``, ``record.json``, ``meta.json``, ``end.json``); missing files are no error
     (an aborted run has no report.json), but a folder without any of them is."""
-    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
-
     folder = Path(folder)
     report = report if report is not None else _read_json(folder / "report.json")
     record = record if record is not None else _read_json(folder / "record.json")
@@ -393,18 +451,16 @@ def build_context(
             "departures": departure_text(an["departures"])
             if isinstance(an.get("departures"), Mapping) else None,
             "sigma_inconclusive": a.get("sigma_inconclusive"),
-            "psd_svg": psd_svg(an, lim if isinstance(lim, int | float) else None,
-                               f"{name} error PSD — {title}"),
-            "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),
-            "excitation_svg": None if not exc else excitation_svg(
-                exc, f"{name} stand spectrum vs target — {title}"),
+            **_figures_of(name, an, lim, exc, title),
         })
     window = rep.get("analysis_window") or (end or {}).get("analysis_window")
     motion_start = stats.get("motion_start") if isinstance(stats, Mapping) else None
     traces: dict[str, str] = {}
     if trace:
         names = [a["name"] for a in axes] or list(m.get("axes") or [])
-        traces = _trace(folder, names, window, motion_start, title)
+        traces = _cached(_key("trace", str(folder.resolve()), names, window, motion_start,
+                              title, _stamp(folder)),
+                         lambda: _trace(folder, names, window, motion_start, title))
     abort = rec.get("abort")
     if abort is None and verdict in ("ABORTED", "INCOMPLETE"):
         reason = (end or {}).get("reason") if end else "the run ended without closing its " \
