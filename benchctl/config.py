@@ -540,10 +540,14 @@ MAX_SERIAL_PATTERN = 200  # characters of unit.serial_pattern
 class UnitConfig(Strict):
     """The unit under test: its part number (the serial is given per run: --serial) and the
     form every serial typed for it must have, ``serial_pattern``: a Python regular expression
-    the whole serial must match (e.g. ``SN-[0-9]{6}``), checked before anything opens."""
+    the whole serial must match (e.g. ``SN-[0-9]{6}``), checked before anything opens.
+    ``serial_check``: what a serial typed unlike the one the instrument reports does —
+    ``warn`` (the default: a warning, the run goes on) or ``require`` (a precheck: the run is
+    refused before the stand moves, as is an instrument that reports no serial)."""
 
     part_number: str | None = None
     serial_pattern: str | None = Field(default=None, min_length=1, max_length=MAX_SERIAL_PATTERN)
+    serial_check: Literal["warn", "require"] = "warn"
 
     @field_validator("part_number")
     @classmethod
