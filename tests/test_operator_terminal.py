@@ -232,3 +232,59 @@ def test_log_records_go_above_the_block_not_through_it() -> None:
         assert "after the run" in buf.getvalue()  # the console handler prints again
     finally:
         root.removeHandler(console)
+
+
+def _read_all(master: int) -> str:
+    """What the terminal received so far (the master end, without waiting)."""
+    import os
+    import select
+
+    out = b""
+    while select.select([master], [], [], 0)[0]:
+        chunk = os.read(master, 65536)
+        if not chunk:
+            break
+        out += chunk
+    return out.decode("utf-8", "replace")
+
+
+@pytest.mark.parametrize(("env", "coloured"), [({}, True), ({"NO_COLOR": "1"}, False),
+                                                ({"TERM": "dumb"}, False)])
+def test_colour_on_a_terminal_unless_no_color(monkeypatch: pytest.MonkeyPatch,
+                                              vclock: VirtualClock, env: dict[str, str],
+                                              coloured: bool) -> None:
+    import sys
+
+    from terminal import on_terminal
+
+    from benchctl.run.display import make_display
+
+    monkeypatch.delenv("NO_COLOR", raising=False)
+    monkeypatch.setenv("TERM", "xterm-256color")
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    with on_terminal(monkeypatch) as master:
+        d = make_display(sys.stderr, clock=vclock)
+        assert isinstance(d, TtyDisplay) and d.colour is coloured
+        d.update(_snap(missed_cycles=3))
+        vclock.sleep(1.0)
+        d.update(_snap(missed_cycles=3, rejoins=1))
+        d.verdict("FAIL", "roll σ 0.5012° limit 0.4° FAIL")
+        d.close()
+        seen = _read_all(master)
+    assert "FAIL" in seen
+    assert ("\x1b[1;31m" in seen) is coloured and ("\x1b[33m" in seen) is coloured
+    assert (re.search(r"\x1b\[[0-9;]*m", seen) is not None) is coloured
+
+
+def test_no_colour_without_a_terminal(monkeypatch: pytest.MonkeyPatch,
+                                     vclock: VirtualClock) -> None:
+    from benchctl.run.display import colour_wanted, make_display
+
+    monkeypatch.delenv("NO_COLOR", raising=False)
+    buf = io.StringIO()
+    d = make_display(buf, clock=vclock)
+    assert isinstance(d, LogDisplay) and not colour_wanted(buf)
+    d.update(_snap(rejoins=1))
+    d.verdict("FAIL", "roll σ 0.5°")
+    assert "\x1b" not in buf.getvalue()

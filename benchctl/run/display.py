@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 import textwrap
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol, TextIO
@@ -53,6 +55,26 @@ class Snapshot:
 
 
 WIDTH = 80  # the live block's widest line (columns)
+#: SGR colours of a verdict's banner head and of a warning (a terminal that supports colour)
+COLOURS = {"PASS": "1;32", "FAIL": "1;31", "ABORTED": "1;31", "INCONCLUSIVE": "1;33",
+           "WARNING": "33"}
+
+
+def colour_wanted(stream: TextIO, environ: Mapping[str, str] | None = None) -> bool:
+    """Colour on ``stream``: a terminal, ``NO_COLOR`` unset or empty (no-color.org) and
+    ``TERM`` not ``dumb``."""
+    env = os.environ if environ is None else environ
+    try:
+        tty = stream.isatty()
+    except (OSError, ValueError):  # closed
+        return False
+    return tty and not env.get("NO_COLOR") and env.get("TERM", "") != "dumb"
+
+
+def paint(text: str, key: str, colour: bool) -> str:
+    """``text`` in the colour ``COLOURS[key]`` when ``colour`` (else as it is)."""
+    code = COLOURS.get(key)
+    return f"\x1b[{code}m{text}\x1b[0m" if colour and code and text else text
 MISSED_WARN_SHARE = 0.01  # missed cycles above this share of the cycles: a warning
 MISSED_WARN_STEP = 10  # … or this many more since the last drawing
 
@@ -124,10 +146,11 @@ def format_block(snap: Snapshot, width: int = WIDTH, previous_missed: int = 0) -
     return [*lines, fit(("  " + warn) if warn else "", width)]
 
 
-def banner(verdict: str, detail: str = "", width: int = WIDTH) -> list[str]:
-    """The final banner: the verdict framed, its detail lines below, all within ``width``."""
+def banner(verdict: str, detail: str = "", width: int = WIDTH, colour: bool = False) -> list[str]:
+    """The final banner: the verdict framed, its detail lines below, all within ``width``;
+    the verdict's line in its colour when ``colour``."""
     bar = "=" * width
-    head = f" {verdict} ".center(width, "=")
+    head = paint(f" {verdict} ".center(width, "="), verdict, colour)
     body = [fit(visible(ln), width) for ln in detail.split("\n") if ln.strip()]
     return [bar, head, *body, bar]
 
@@ -213,9 +236,11 @@ class TtyDisplay:
     break its redrawing); the handler gets them again at ``close``."""
 
     def __init__(
-        self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL
+        self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL,
+        colour: bool = False,
     ) -> None:
         self.stream = stream
+        self.colour = colour
         self.clock = clock
         self.min_dt = 1.0 / fps
         self._drawn = 0
@@ -276,6 +301,7 @@ class TtyDisplay:
         elif now < self._warn_until:
             lines[-1] = self._warning
         self._missed_seen = snap.missed_cycles
+        lines[-1] = paint(lines[-1], "WARNING", self.colour)
         self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()
         self._drawn = len(lines)
@@ -309,7 +335,7 @@ class TtyDisplay:
             self._erase()
             self._done = True
             self._release_logging()
-            self.stream.write("\n".join(banner(verdict, detail, self.width)) + "\n")
+            self.stream.write("\n".join(banner(verdict, detail, self.width, self.colour)) + "\n")
             self.stream.flush()
 
     def close(self) -> None:
@@ -323,12 +349,13 @@ class TtyDisplay:
 def make_display(
     stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL
 ) -> Display:
-    """A TTY display when ``stream`` is a terminal, plain log lines otherwise."""
+    """A TTY display when ``stream`` is a terminal (in colour unless ``NO_COLOR`` is set or
+    ``TERM`` is ``dumb``: ``colour_wanted``), plain log lines without colour otherwise."""
     s = stream if stream is not None else sys.stderr
     if quiet:
         return NullDisplay()
     if s.isatty():
-        return TtyDisplay(s, clock=clock)
+        return TtyDisplay(s, clock=clock, colour=colour_wanted(s))
     return LogDisplay(s, clock=clock)
 
 
