@@ -4,10 +4,11 @@ On a terminal: a small block of lines redrawn in place with plain ANSI escapes, 
 than 80 columns (nor than the terminal), so nothing wraps or scrolls: the unit's serial and the
 operator, state, elapsed and remaining time, stand and instrument angles, tracking error, the
 running σ beside its limit, and the stand's health (missed control cycles, rejoins,
-instrument samples) with a warning once it climbs (``health_warning``); at the end a banner
-with the verdict. Without a terminal: plain log lines, one every ``period_s`` and one at each
-state change, and the verdict as one more line. ``NullDisplay`` for ``--json`` scripts that
-want silence.
+instrument samples) with a warning only when the motion is touched (``health_warning``: stream
+mode's missed cycles, underruns, rejoins; buffered mode's missed polls are a count); at the
+end a banner with the verdict. Without a terminal: plain log lines, one every ``period_s``
+and one at each state change, and the verdict as one more line. ``NullDisplay`` for
+``--json`` scripts that want silence.
 
 Every text a display writes — the serial and the operator, messages (a device's identity, a log
 record), reasons, the verdict's detail — goes through ``benchctl.text.visible``: a control
@@ -52,6 +53,11 @@ class Snapshot:
     limit_deg: float | None = None  # the σ limit (run.limit_sigma_deg)
     cycles: int = 0  # control cycles so far (the missed ones' share)
     rejoins: int = 0  # the stand re-joined the profile after a lost link or a breach
+    #: the stand's mode (stand.mode): in "stream" a missed cycle is a setpoint not sent (the
+    #: motion held); in "buffered" and "table" a missed poll leaves the motion alone (the stand
+    #: plays on its own clock). "" (not said): judged as "stream"
+    mode: str = ""
+    underruns: int = 0  # the stand's trajectory queue ran dry while moving (it stopped itself)
 
 
 WIDTH = 80  # the live block's widest line (columns)
@@ -87,18 +93,38 @@ class Display(Protocol):
     def close(self) -> None: ...
 
 
+def motion_paced_by_host(snap: Snapshot) -> bool:
+    """Whether the host's missed cycles touch the motion: in stream mode (or a mode not said)
+    each missed cycle is a setpoint the stand did not get; buffered and table modes play on the
+    stand's own clock, and a missed poll only delays a reading."""
+    return snap.mode not in ("buffered", "table")
+
+
 def health_warning(snap: Snapshot, previous_missed: int = 0) -> str:
-    """A warning about the stand's health, or "": any rejoin; missed cycles above
-    ``MISSED_WARN_SHARE`` of the cycles, or climbing by ``MISSED_WARN_STEP`` or more since the
-    last look (``previous_missed``)."""
+    """A warning when the stand's health touches the motion, or "": any rejoin or underrun;
+    in stream mode missed cycles above ``MISSED_WARN_SHARE`` of the cycles, or climbing by
+    ``MISSED_WARN_STEP`` or more since the last look (``previous_missed``). Missed polls in
+    buffered or table mode are only counted on the health line (``format_lines``)."""
     parts = []
-    if snap.cycles and snap.missed_cycles / snap.cycles > MISSED_WARN_SHARE:
-        parts.append(f"missed {100 * snap.missed_cycles / snap.cycles:.1f} % of cycles")
-    elif snap.missed_cycles - previous_missed >= MISSED_WARN_STEP:
-        parts.append(f"+{snap.missed_cycles - previous_missed} missed cycles")
+    if motion_paced_by_host(snap):
+        if snap.cycles and snap.missed_cycles / snap.cycles > MISSED_WARN_SHARE:
+            parts.append(f"missed {100 * snap.missed_cycles / snap.cycles:.1f} % of cycles")
+        elif snap.missed_cycles - previous_missed >= MISSED_WARN_STEP:
+            parts.append(f"+{snap.missed_cycles - previous_missed} missed cycles")
+    if snap.underruns:
+        parts.append(f"{snap.underruns} underrun(s)")
     if snap.rejoins:
         parts.append(f"{snap.rejoins} rejoin(s)")
     return ("WARNING stand health: " + ", ".join(parts)) if parts else ""
+
+
+def health_text(snap: Snapshot) -> str:
+    """The health line's counts: missed cycles (stream mode) or missed polls (buffered, table:
+    a count only), underruns when there were any, rejoins, instrument samples."""
+    missed = ("missed cycles" if motion_paced_by_host(snap) else "missed polls")
+    under = f"  underruns {snap.underruns}" if snap.underruns else ""
+    return (f"{missed} {snap.missed_cycles}{under}  rejoins {snap.rejoins}"
+            f"  instrument samples {snap.instrument_samples}")
 
 
 def fit(text: str, width: int = WIDTH) -> str:
@@ -133,8 +159,7 @@ def format_lines(snap: Snapshot) -> list[str]:
         f"  instrument  {_angles(snap.instrument_deg)}",
         f"  tracking    {_angles(snap.tracking_error_deg, '+7.3f')}",
         f"  σ (running) {_angles(snap.sigma_deg, '7.3f')}{limit}",
-        f"  health      missed cycles {snap.missed_cycles}  rejoins {snap.rejoins}"
-        f"  instrument samples {snap.instrument_samples}",
+        f"  health      {health_text(snap)}",
     ]
 
 

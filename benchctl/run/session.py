@@ -585,6 +585,8 @@ class Session:
             limit_deg=self.cfg.run.limit_sigma_deg,
             cycles=self.loop.cycles,
             rejoins=self.loop.rejoins,
+            mode=self.prep.plan.mode,
+            underruns=self.loop.underruns,
         )
 
     def _base_meta(self) -> dict[str, Any]:
