@@ -5,8 +5,10 @@ it climbs, and a final banner with the verdict; log lines without a terminal as 
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -58,7 +60,7 @@ def test_live_block_fits_80_columns_and_shows_who_limit_health() -> None:
     assert max(len(ln) for ln in lines) <= 80
     text = "\n".join(lines)
     assert "serial SN-999" in text and "operator" in text  # cut to fit, still there
-    sigma = next(ln for ln in lines if "σ (running)" in ln)
+    sigma = next(ln for ln in lines if "σ (running est.)" in ln)
     assert "0.283°" in sigma and "limit 0.4°" in sigma
     health = next(ln for ln in lines if "health" in ln)
     assert "missed cycles 3" in health and "rejoins 0" in health
@@ -112,6 +114,40 @@ def test_health_warning_only_when_the_motion_is_touched() -> None:
     assert "underruns 1" in _screen(buf.getvalue())[-3]
 
 
+def test_running_sigma_settles_before_it_is_judged() -> None:
+    """The running σ is an estimate: "settling" (no value beside the limit) until the fade-in
+    and one whole period are over, then its values against the limit; never judged without a
+    period."""
+    from benchctl.run.display import sigma_judgement, sigma_text
+
+    early = _snap(elapsed_s=30.0, sigma_judged_after_s=62.5, sigma_deg={"roll": 0.61})
+    assert sigma_judgement(early) == "settling"
+    text = sigma_text(early)
+    assert "settling" in text and "00:32 to go" in text and "0.61" not in text
+    assert "σ (running est.)" in text
+    ok = _snap(elapsed_s=70.0, sigma_judged_after_s=62.5)
+    assert sigma_judgement(ok) == "within"
+    assert "0.283°" in sigma_text(ok) and "over" not in sigma_text(ok)
+    over = _snap(elapsed_s=70.0, sigma_judged_after_s=62.5,
+                 sigma_deg={"roll": 0.61, "pitch": 0.52})
+    assert sigma_judgement(over) == "over"
+    assert sigma_text(over).endswith("limit 0.4° (roll, pitch over)")
+    assert len(sigma_text(over)) <= 80
+    nan = _snap(elapsed_s=70.0, sigma_judged_after_s=62.5, sigma_deg={"roll": math.nan})
+    assert sigma_judgement(nan) == "settling"
+    never = _snap(elapsed_s=700.0, sigma_judged_after_s=None)
+    assert sigma_judgement(never) == "" and sigma_text(never).endswith("(not judged live)")
+    # on a colour terminal: over the limit in yellow (an estimate, not the verdict's red)
+    buf = io.StringIO()
+    d = TtyDisplay(buf, fps=1e9, width=80, colour=True)
+    d.update(early)
+    assert "\x1b[33m  σ" not in buf.getvalue() and "\x1b[32m  σ" not in buf.getvalue()
+    d.update(over)
+    assert "\x1b[33m  σ (running est.) roll" in buf.getvalue()
+    d.update(ok)
+    assert "\x1b[32m  σ (running est.) roll" in buf.getvalue()
+
+
 def test_final_banner_and_log_lines() -> None:
     buf = io.StringIO()
     d = TtyDisplay(buf, fps=1e9, width=80)
@@ -121,7 +157,7 @@ def test_final_banner_and_log_lines() -> None:
     lines = _screen(buf.getvalue())
     banner_at = next(i for i, ln in enumerate(lines) if "FAIL" in ln and "=" in ln)
     assert lines[banner_at - 1] == "=" * WIDTH and len(lines[banner_at]) == WIDTH
-    assert "σ (running)" not in "\n".join(lines[banner_at:])
+    assert "σ (running" not in "\n".join(lines[banner_at:])
     assert "report /runs/x/report.html" in lines[banner_at + 2]
     # without a terminal: one line per state change and per period, the verdict one more
     log = io.StringIO()
@@ -169,6 +205,9 @@ def _run_on_a_terminal(tmp: Path, clock: VirtualClock) -> tuple[Path, str]:
     # table mode: a streaming stand on a busy host holds and rejoins, and a window the
     # departures spoil is not judged (INCONCLUSIVE); this is about the display, not that
     prep = sine_motion(stand.axes, duration_s=5.0, mode="table", fade_s=0.5)
+    # the lines on k/2 s: a periodic motion, its running σ judged after the fade-in and 2 s
+    tables = {a: dataclasses.replace(t, period_s=2.0) for a, t in (prep.plan.tables or {}).items()}
+    prep = dataclasses.replace(prep, plan=dataclasses.replace(prep.plan, tables=tables))
     sess = Session(bench_config(tmp), prep, RunOptions("SN-TTY-1", "dana"),
                    display=TtyDisplay(buf, fps=20, width=80),
                    device_factory=lambda c, p: (stand, FakeSensor(stand)), clock=clock)
@@ -183,7 +222,10 @@ def test_a_run_on_an_80_column_terminal(run_on_a_terminal: tuple[Path, str]) -> 
     assert max(len(ln) for ln in lines) <= 80
     text = "\n".join(lines)
     assert "serial SN-TTY-1 operator dana" in text
-    assert re.search(r"σ \(running\) roll +\d+\.\d{3}°.*limit 0\.4°", text)
+    # the running σ: settling until the fade-in and one period are over, then judged
+    settling = text.index("σ (running est.) settling: judged after one period")
+    judged = re.search(r"σ \(running est\.\) roll +\d+\.\d{3}°.*limit 0\.4°$", text, re.M)
+    assert judged is not None and judged.start() > settling
     # table mode: the stand plays on its own clock, missed polls are a count, not a warning
     assert "health      missed polls" in text and "WARNING" not in text
     head = next(i for i, ln in enumerate(lines) if " PASS " in ln and ln.startswith("="))

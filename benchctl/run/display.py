@@ -58,12 +58,16 @@ class Snapshot:
     #: plays on its own clock). "" (not said): judged as "stream"
     mode: str = ""
     underruns: int = 0  # the stand's trajectory queue ran dry while moving (it stopped itself)
+    #: motion time (``elapsed_s``) from which the running σ is judged against the limit: the
+    #: fade-in and one whole period of the multisine. None: never judged live (no period)
+    sigma_judged_after_s: float | None = None
 
 
 WIDTH = 80  # the live block's widest line (columns)
 #: SGR colours of a verdict's banner head and of a warning (a terminal that supports colour)
 COLOURS = {"PASS": "1;32", "FAIL": "1;31", "ABORTED": "1;31", "INCONCLUSIVE": "1;33",
-           "WARNING": "33"}
+           "WARNING": "33", "within": "32", "over": "33"}
+SIGMA_LABEL = "σ (running est.)"  # the live σ: an estimate on the way, not the verdict
 
 
 def colour_wanted(stream: TextIO, environ: Mapping[str, str] | None = None) -> bool:
@@ -145,9 +149,42 @@ def _angles(d: dict[str, float], fmt: str = "+7.2f") -> str:
     return "  ".join(f"{a} {v:{fmt}}°" if math.isfinite(v) else f"{a}    —  " for a, v in d.items())
 
 
+def sigma_judgement(snap: Snapshot) -> str:
+    """How the running σ stands: "settling" (not meaningful yet: before the fade-in and one
+    whole period of the multisine), "within" or "over" the limit (judged), or "" (not judged
+    live: no limit, no period, or no estimate yet)."""
+    if snap.limit_deg is None or snap.sigma_judged_after_s is None:
+        return ""
+    if snap.elapsed_s is None or snap.elapsed_s < snap.sigma_judged_after_s:
+        return "settling"
+    values = [v for v in snap.sigma_deg.values() if math.isfinite(v)]
+    if not values:
+        return "settling"
+    return "over" if max(values) > snap.limit_deg else "within"
+
+
+def sigma_text(snap: Snapshot) -> str:
+    """The running σ's line: settling (with the time to go) until it is meaningful, then the
+    values beside the limit and, over it, which axes."""
+    limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
+    judged = sigma_judgement(snap)
+    if judged == "settling":
+        assert snap.sigma_judged_after_s is not None
+        to_go = snap.sigma_judged_after_s - (snap.elapsed_s or 0.0)
+        return (f"  {SIGMA_LABEL} settling: judged after one period,"
+                f" {_mmss(to_go)} to go{limit}")
+    text = f"  {SIGMA_LABEL} {_angles(snap.sigma_deg, '7.3f')}{limit}"
+    if judged == "over":
+        assert snap.limit_deg is not None
+        over = [a for a, v in snap.sigma_deg.items() if math.isfinite(v) and v > snap.limit_deg]
+        text += f" ({', '.join(over)} over)"
+    elif not judged and snap.limit_deg is not None:
+        text += " (not judged live)"
+    return text
+
+
 def format_lines(snap: Snapshot) -> list[str]:
     """The progress block as text lines (the log line joins them)."""
-    limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
     who = " ".join(p for p in (f"serial {visible(snap.serial)}" if snap.serial else "",
                                f"operator {visible(snap.operator)}" if snap.operator else "")
                    if p)
@@ -158,7 +195,7 @@ def format_lines(snap: Snapshot) -> list[str]:
         f"  stand       {_angles(snap.stand_deg)}",
         f"  instrument  {_angles(snap.instrument_deg)}",
         f"  tracking    {_angles(snap.tracking_error_deg, '+7.3f')}",
-        f"  σ (running) {_angles(snap.sigma_deg, '7.3f')}{limit}",
+        sigma_text(snap),
         f"  health      {health_text(snap)}",
     ]
 
@@ -327,6 +364,7 @@ class TtyDisplay:
             lines[-1] = self._warning
         self._missed_seen = snap.missed_cycles
         lines[-1] = paint(lines[-1], "WARNING", self.colour)
+        lines[-3] = paint(lines[-3], sigma_judgement(snap), self.colour)  # the σ line
         self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()
         self._drawn = len(lines)

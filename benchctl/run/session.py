@@ -587,7 +587,17 @@ class Session:
             rejoins=self.loop.rejoins,
             mode=self.prep.plan.mode,
             underruns=self.loop.underruns,
+            sigma_judged_after_s=self._sigma_judged_after(),
         )
+
+    def _sigma_judged_after(self) -> float | None:
+        """Motion time from which the running σ is judged live: the fade-in and one whole
+        period of a periodic multisine (every line excited once); None without a period."""
+        plan = self.prep.plan
+        periods = [t.period_s for t in (plan.tables or {}).values()]
+        if not periods or None in periods or getattr(self.prep.motion, "segments", None):
+            return None
+        return plan.fade_in_s + max(float(p) for p in periods if p is not None)
 
     def _base_meta(self) -> dict[str, Any]:
         cfg = self.cfg
