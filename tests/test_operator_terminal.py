@@ -14,6 +14,8 @@ import shutil
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
 from benchctl.cli import main
@@ -54,10 +56,13 @@ def test_live_block_fits_80_columns_and_shows_who_limit_health() -> None:
     buf = io.StringIO()
     d = TtyDisplay(buf, fps=1e9, width=80)
     d.update(_snap())
-    d.message("precheck stand at zero: ok — " + "x" * 120)
+    d.message("precheck stand at zero: ok — " + "y " * 50 + "x" * 120)
     d.update(_snap(missed_cycles=4))
     lines = [ln for ln in _screen(buf.getvalue()) if ln]
-    assert max(len(ln) for ln in lines) <= 80
+    # a message wrapped at words; a word longer than the line whole on its own (the terminal
+    # folds it), never cut
+    assert any(ln.strip() == "x" * 120 for ln in lines)
+    assert max(len(ln) for ln in lines if "x" * 120 not in ln) <= 80
     text = "\n".join(lines)
     assert "serial SN-999" in text and "operator" in text  # cut to fit, still there
     sigma = next(ln for ln in lines if "σ (running est.)" in ln)
@@ -294,7 +299,8 @@ def test_log_records_go_above_the_block_not_through_it() -> None:
         text = "\n".join(_screen(buf.getvalue()))
         assert text.count("WARNING: serial mismatch") == 1
         assert "benchctl.test:" not in text  # not the console handler's format
-        assert all(len(ln) <= 80 for ln in _screen(buf.getvalue()))
+        # within 80 columns, but for a word longer than a line: whole on its own
+        assert all(len(ln) <= 80 or len(ln.split()) == 1 for ln in _screen(buf.getvalue()))
         d.close()
         assert console.filters == [] and len(root.handlers) >= 1
         logging.getLogger("benchctl.test").warning("after the run")
@@ -357,3 +363,154 @@ def test_no_colour_without_a_terminal(monkeypatch: pytest.MonkeyPatch,
     d.update(_snap(rejoins=1))
     d.verdict("FAIL", "roll σ 0.5°")
     assert "\x1b" not in buf.getvalue()
+
+
+# --- the end of a run at 80×24: the summary wrapped at words, the banner last ---
+
+_WORD = st.text(alphabet=st.sampled_from("abcdefgh°σ…/.-_0123456789"), min_size=1, max_size=12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(words=st.lists(_WORD, min_size=1, max_size=40),
+       gaps=st.lists(st.integers(1, 3), min_size=40, max_size=40),
+       indent=st.integers(0, 8), width=st.integers(20, 120))
+def test_wrap_words_never_cuts_a_word(words: list[str], gaps: list[int], indent: int,
+                                      width: int) -> None:
+    """Wrapped at words: no line longer than the width, no word cut, all words kept in order
+    (words of at most 12 characters, widths from 20)."""
+    from benchctl.run.display import wrap_words
+
+    text = " " * indent + "".join(w + " " * g for w, g in zip(words, gaps, strict=False))
+    lines = wrap_words(text.rstrip(), width)
+    assert all(len(ln) <= width for ln in lines)
+    assert [w for ln in lines for w in ln.split()] == words
+    assert len(lines) == 1 or all(ln.strip() for ln in lines)
+
+
+def test_wrap_words_keeps_a_fitting_line_and_a_long_word_whole() -> None:
+    from benchctl.run.display import wrap_words
+
+    assert wrap_words("  roll  σ = 0.2104°  limit 0.4°", 80) == ["  roll  σ = 0.2104°  limit 0.4°"]
+    path = "/runs/" + "x" * 90 + "/report.html"
+    assert wrap_words(f"report {path} here", 80) == ["report", path, "  here"]
+    assert wrap_words("a\n\nb", 80) == ["a", "", "b"]
+
+
+def test_fit_rows_less_detail_first() -> None:
+    from benchctl.run.display import fit_rows
+
+    lines = ["PASS   serial X", "  decision rule: simple", "profile p", *(
+        f"        detail {i} " + "word " * 20 for i in range(6)), "  warning: keep me",
+        "  recording /r"]
+    out = fit_rows(lines, 79, 10, "/r/report.txt")
+    assert len(out) <= 10 and all(len(ln) <= 79 for ln in out)
+    assert out[0] == "PASS   serial X" and "  warning: keep me" in out
+    # the most indented went first, from the bottom: two rows each, four of them
+    assert out[-1] == "  … 4 line(s) of detail left out: /r/report.txt"
+    assert any("detail 1" in ln for ln in out) and not any("detail 2" in ln for ln in out)
+    assert "  decision rule: simple" in out and "  recording /r" in out
+    assert fit_rows(lines[:3], 79, 10) == lines[:3]  # it fits: as it is
+
+
+class _Screen:
+    """The rows a terminal shows after ``text``: newlines, carriage returns, cursor up to a
+    line's start (``ESC[nF``) and erase below (``ESC[J``); colour ignored; a line longer than
+    ``columns`` folds."""
+
+    def __init__(self, columns: int, rows: int) -> None:
+        self.columns, self.rows = columns, rows
+        self.lines: list[str] = [""]
+        self.y = 0
+
+    def feed(self, text: str) -> None:
+        for tok in re.findall(r"\x1b\[[0-9;]*[A-Za-z]|\r|\n|[^\x1b\r\n]+", text):
+            if tok == "\n":
+                self.y += 1
+                if self.y == len(self.lines):
+                    self.lines.append("")
+            elif tok == "\r" or tok.endswith("m"):
+                continue
+            elif tok.endswith("F"):
+                self.y = max(0, self.y - int(tok[2:-1] or 1))
+                self.lines[self.y] = ""
+            elif tok.endswith("J"):
+                del self.lines[self.y + 1:]
+                self.lines[self.y] = ""
+            else:
+                self.lines[self.y] += tok
+
+    def shown(self) -> list[str]:
+        folded = [ln[i:i + self.columns] for ln in self.lines
+                  for i in range(0, max(len(ln), 1), self.columns)]
+        return folded[-self.rows:]
+
+
+def test_a_run_ends_with_its_banner_at_80x24(monkeypatch: pytest.MonkeyPatch,
+                                             vclock: VirtualClock, tmp_path: Path) -> None:
+    """A whole run (fake devices, simulated time) on an 80×24 pseudo-terminal, stdout and
+    stderr both on it, as ``benchctl run`` ends it: the verdict's banner is the last thing on
+    the screen, the summary above it wrapped at words within 80 columns, summary and banner
+    within the 24 rows (one for the prompt)."""
+    import os
+    import sys
+    import threading
+
+    from terminal import on_terminal
+
+    from benchctl.cli.run import print_outcome, summary_lines
+    from benchctl.run.display import make_display
+
+    end = "\x1b]END\x07"
+    got: list[bytes] = []
+    with on_terminal(monkeypatch, stdout=True, size=(80, 24)) as master:
+        def drain() -> None:
+            while not b"".join(got[-2:]).endswith(end.encode()):
+                got.append(os.read(master, 65536))
+
+        reader = threading.Thread(target=drain, name="pty-drain")
+        reader.start()
+        try:
+            display = make_display(sys.stderr, clock=vclock, hold_banner=True)
+            assert isinstance(display, TtyDisplay) and display.width == 79
+            stand = FakeStand(clock=vclock)
+            prep = sine_motion(stand.axes, duration_s=5.0, mode="table", fade_s=0.5)
+            res = Session(bench_config(tmp_path), prep, RunOptions("SN-80x24", "dana"),
+                          display=display, device_factory=lambda c, p: (stand, FakeSensor(stand)),
+                          clock=vclock).run()
+            assert res.state == "done", res.reason
+            print_outcome(res, display)
+        finally:
+            sys.stderr.write(end)
+            sys.stderr.flush()
+            reader.join()
+    text = b"".join(got).decode("utf-8", "replace").replace(end, "")
+    screen = _Screen(80, 24)
+    screen.feed(text)
+    shown = screen.shown()
+    rows = [ln for ln in shown]
+    while rows and not rows[-1]:
+        rows.pop()
+    assert rows[-1] == "=" * 79, rows  # the banner closes the screen
+    head = max(i for i, ln in enumerate(rows) if " PASS " in ln and ln.startswith("="))
+    assert rows[head - 1] == "=" * 79
+    assert "limit 0.4°  PASS" in rows[head + 1]
+    # the summary above the banner, its first line on the same screen, a row left for the
+    # prompt; wrapped at words within 79 columns (a word longer than that whole on its own)
+    first = next(i for i, ln in enumerate(rows) if ln.startswith("PASS   serial SN-80x24"))
+    assert len(rows) - first <= 23
+    logical = list(screen.lines)
+    while logical and not logical[-1]:
+        logical.pop()
+    lfirst = max(i for i, ln in enumerate(logical) if ln.startswith("PASS   serial SN-80x24"))
+    lbar = max(i for i, ln in enumerate(logical) if " PASS " in ln and ln.startswith("=")) - 1
+    above = logical[lfirst:lbar]
+    assert all(len(ln) <= 79 or len(ln.split()) == 1 for ln in above)
+    note = next((i for i, ln in enumerate(above) if ln.startswith("  … ")), len(above))
+    kept = [w for ln in above[:note] for w in ln.split()]
+    words = [w for ln in summary_lines(res) for w in ln.split()]
+    if note == len(above):
+        assert kept == words  # nothing left out: every word, in order, none cut
+    else:  # less detail: the words shown are the summary's, in order, none cut
+        assert "report.txt" in "".join(above[note:])
+        it = iter(words)
+        assert all(any(w == v for v in it) for w in kept)

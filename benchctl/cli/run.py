@@ -109,8 +109,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
     from benchctl.run.plan import check_setpoints
-    from benchctl.run.report import format_report
-    from benchctl.text import check_operator, check_part_number, check_serial, visible
+    from benchctl.text import check_operator, check_part_number, check_serial
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -146,36 +145,72 @@ def handle(args: argparse.Namespace) -> int:
         part_number=part_number,
         equalise=args.equalise,
     )
-    display = make_display(sys.stderr, quiet=args.quiet)
+    # on a terminal the verdict's banner waits for the summary: the last thing on the screen
+    display = make_display(sys.stderr, quiet=args.quiet, hold_banner=not args.json)
     result = run_test(cfg, args.profile, opts, display=display)
+    if args.json:
+        with contextlib.suppress(OSError):  # the console may be gone: the exit code still tells
+            print(dumps(result.to_dict()))
+        return result.exit_code
+    print_outcome(result, display)
+    return result.exit_code
+
+
+def summary_lines(result: Any) -> list[str]:
+    """The run's summary for stdout: the report's text, or an aborted run's reason, cleanup
+    steps and files."""
+    from benchctl.run.report import format_report
+    from benchctl.text import visible
+
+    if result.report is not None:
+        return str(format_report(result.report)).split("\n")
+    lines = [f"ABORTED: {visible(result.reason)}"]
+    if result.abort is not None:
+        lines.append(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
+    if result.measured is not None:
+        lines.append(f"  {_measured_text(result.measured)}")
+    if result.shutdown:
+        lines.append("  cleanup:")
+        for step in result.shutdown:
+            ok = "ok" if step["ok"] else f"FAILED {step['detail']}"
+            lines.append(f"    {step['step']}: {ok}"
+                         + (f" ({step['detail']})" if step["ok"] and step["detail"] else "")
+                         + (f" (at the {step['when']})" if step.get("when") else ""))
+    if result.recording is not None:
+        closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
+        how = "closed, marked aborted" if closed else "NOT closed: no end.json"
+        lines.append(f"  recording {result.recording} ({how})")
+    if result.log is not None:
+        lines.append(f"  log {result.log}")
+    if result.record is not None:
+        lines.append(f"  record {result.record}")
+    return lines
+
+
+def print_outcome(result: Any, display: Any) -> None:
+    """The summary on stdout, then the verdict's banner the display held back (stderr), so the
+    banner is the last thing on the screen. With both on a terminal the summary is wrapped at
+    words to its width and, with the banner, kept within its height (less detail, and where the
+    whole summary is: the recording's report.txt)."""
+    from benchctl.run.display import TtyDisplay, fit_rows, rows_of, terminal_size
+
     # the console may be gone (SIGHUP, a closed pipe): the exit code still tells
     with contextlib.suppress(OSError):
-        if args.json:
-            print(dumps(result.to_dict()))
-        elif result.report is not None:
-            print(format_report(result.report))
-        else:
-            print(f"ABORTED: {visible(result.reason)}")
-            if result.abort is not None:
-                print(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
-            if result.measured is not None:
-                print(f"  {_measured_text(result.measured)}")
-            if result.shutdown:
-                print("  cleanup:")
-                for step in result.shutdown:
-                    ok = "ok" if step["ok"] else f"FAILED {step['detail']}"
-                    print(f"    {step['step']}: {ok}"
-                          + (f" ({step['detail']})" if step["ok"] and step["detail"] else "")
-                          + (f" (at the {step['when']})" if step.get("when") else ""))
-            if result.recording is not None:
-                closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
-                how = "closed, marked aborted" if closed else "NOT closed: no end.json"
-                print(f"  recording {result.recording} ({how})")
-            if result.log is not None:
-                print(f"  log {result.log}")
-            if result.record is not None:
-                print(f"  record {result.record}")
-    return result.exit_code
+        try:
+            lines = summary_lines(result)
+            held = display.held if isinstance(display, TtyDisplay) else []
+            if sys.stdout.isatty():
+                size = terminal_size(sys.stdout)
+                width = max(20, size.columns - 1)  # the last column left: no early fold
+                room = size.lines - 1 - rows_of(held, size.columns)  # a row for the prompt
+                txt = None if result.recording is None else Path(result.recording) / "report.txt"
+                more = "" if txt is None or not txt.is_file() else str(txt)
+                lines = fit_rows(lines, width, max(room, 3), more, size.columns)
+            sys.stdout.write("\n".join(lines) + "\n")
+            sys.stdout.flush()
+        finally:
+            if isinstance(display, TtyDisplay):
+                display.show_banner()
 
 
 def _measured_text(m: dict[str, Any]) -> str:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import re
 import sys
 import textwrap
 from collections.abc import Mapping
@@ -64,6 +65,7 @@ class Snapshot:
 
 
 WIDTH = 80  # the live block's widest line (columns)
+ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 #: SGR colours of a verdict's banner head and of a warning (a terminal that supports colour)
 COLOURS = {"PASS": "1;32", "FAIL": "1;31", "ABORTED": "1;31", "INCONCLUSIVE": "1;33",
            "WARNING": "33", "within": "32", "over": "33"}
@@ -129,6 +131,70 @@ def health_text(snap: Snapshot) -> str:
     under = f"  underruns {snap.underruns}" if snap.underruns else ""
     return (f"{missed} {snap.missed_cycles}{under}  rejoins {snap.rejoins}"
             f"  instrument samples {snap.instrument_samples}")
+
+
+def wrap_words(text: str, width: int = WIDTH) -> list[str]:
+    """``text`` (lines split at ``\\n``) wrapped at spaces to ``width`` columns: a line that fits
+    is kept as it is; a longer one is broken between words, its continuation indented two more
+    than the line (at most half the width). No word is ever cut: a word longer than the width (a
+    long path) stands whole on a line of its own, for the terminal to fold."""
+    out: list[str] = []
+    for para in text.split("\n"):
+        para = para.rstrip()
+        if len(para) <= width:
+            out.append(para)
+            continue
+        indent = len(para) - len(para.lstrip(" "))
+        pad = " " * min(indent, width // 2)
+        cont = " " * min(indent + 2, width // 2)
+        tokens = re.split(r"( +)", para.strip())  # words, and the gaps between them kept
+        line = pad + tokens[0] if len(pad) + len(tokens[0]) <= width else tokens[0]
+        for gap, word in zip(tokens[1::2], tokens[2::2], strict=True):
+            if len(line) + len(gap) + len(word) <= width:
+                line += gap + word
+            else:
+                out.append(line)
+                line = cont + word if len(cont) + len(word) <= width else word
+        out.append(line)
+    return out
+
+
+def rows_of(lines: list[str], columns: int) -> int:
+    """The terminal rows ``lines`` take on ``columns`` columns (a longer line folds)."""
+    return sum(max(1, -(-len(ANSI.sub("", ln)) // columns)) for ln in lines)
+
+
+def fit_rows(lines: list[str], width: int, rows: int, more: str = "",
+             columns: int | None = None) -> list[str]:
+    """``lines`` wrapped at words to ``width`` (``wrap_words``) and, when they take more than
+    ``rows`` rows, fewer of them: the most indented (the most detailed) go first, from the
+    bottom; the first line, warnings and deviations stay. A last line then says how many were
+    left out and ``more`` (where they are). Rows are counted on ``columns`` (default one more
+    than ``width``): a word longer than a line folds over several."""
+    cols = width + 1 if columns is None else columns
+    blocks = [wrap_words(ln, width) for ln in lines]
+    if rows_of([r for b in blocks for r in b], cols) <= rows:
+        return [r for b in blocks for r in b]
+
+    def rank(i: int) -> int:  # higher goes first
+        head = lines[i].strip()
+        if i == 0 or head.lower().startswith(("warning", "deviation")):
+            return -1
+        return len(lines[i]) - len(lines[i].lstrip(" "))
+
+    def note(n: int) -> list[str]:
+        return wrap_words(f"  … {n} line(s) of detail left out{': ' + more if more else ''}",
+                          width)
+
+    kept = set(range(len(blocks)))
+    dropped = 0
+    for i in sorted((i for i in kept if rank(i) >= 0), key=lambda i: (-rank(i), -i)):
+        if sum(rows_of(blocks[j], cols) for j in kept) + rows_of(note(max(dropped, 1)),
+                                                                cols) <= rows:
+            break
+        kept.discard(i)
+        dropped += 1
+    return [r for j in sorted(kept) for r in blocks[j]] + note(dropped)
 
 
 def fit(text: str, width: int = WIDTH) -> str:
@@ -213,7 +279,7 @@ def banner(verdict: str, detail: str = "", width: int = WIDTH, colour: bool = Fa
     the verdict's line in its colour when ``colour``."""
     bar = "=" * width
     head = paint(f" {verdict} ".center(width, "="), verdict, colour)
-    body = [fit(visible(ln), width) for ln in detail.split("\n") if ln.strip()]
+    body = wrap_words("\n".join(visible(ln) for ln in detail.split("\n") if ln.strip()), width)
     return [bar, head, *body, bar]
 
 
@@ -299,10 +365,14 @@ class TtyDisplay:
 
     def __init__(
         self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL,
-        colour: bool = False,
+        colour: bool = False, hold_banner: bool = False,
     ) -> None:
         self.stream = stream
         self.colour = colour
+        #: the verdict's banner kept until ``show_banner`` (the command prints its summary
+        #: first, so that the banner is the last thing on the screen)
+        self.hold_banner = hold_banner
+        self.held: list[str] = []
         self.clock = clock
         self.min_dt = 1.0 / fps
         self._drawn = 0
@@ -315,9 +385,7 @@ class TtyDisplay:
         self._lock = clock.rlock()  # log records may come from the run's other threads
         self._logging: tuple[logging.Handler, list[logging.Handler], _Held] | None = None
         if width is None:
-            import shutil
-
-            width = shutil.get_terminal_size((WIDTH, 24)).columns - 1
+            width = terminal_size(stream).columns - 1
         self.width = max(20, min(WIDTH, width))
 
     def _erase(self) -> None:
@@ -385,7 +453,8 @@ class TtyDisplay:
         with self._lock:
             self._erase()
             lines = textwrap.wrap(f"[{_hms(self.clock)}] {visible(text)}", self.width,
-                                  subsequent_indent=" " * 11, break_on_hyphens=False) or [""]
+                                  subsequent_indent=" " * 11, break_on_hyphens=False,
+                                  break_long_words=False) or [""]
             self.stream.write("\n".join(lines) + "\n")
             if self._snap is not None and not self._done:
                 self._draw(self._snap)
@@ -398,8 +467,20 @@ class TtyDisplay:
             self._erase()
             self._done = True
             self._release_logging()
-            self.stream.write("\n".join(banner(verdict, detail, self.width, self.colour)) + "\n")
+            lines = banner(verdict, detail, self.width, self.colour)
+            if self.hold_banner:
+                self.held = lines
+            else:
+                self.stream.write("\n".join(lines) + "\n")
             self.stream.flush()
+
+    def show_banner(self) -> None:
+        """The banner held back (``hold_banner``), now: below whatever came since."""
+        with self._lock:
+            lines, self.held = self.held, []
+            if lines:
+                self.stream.write("\n".join(lines) + "\n")
+                self.stream.flush()
 
     def close(self) -> None:
         with self._lock:
@@ -409,8 +490,22 @@ class TtyDisplay:
             self.stream.flush()
 
 
+def terminal_size(stream: TextIO) -> os.terminal_size:
+    """The terminal's columns and rows: ``COLUMNS``/``LINES`` when set, else ``stream``'s
+    terminal, else 80×24."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (OSError, ValueError, AttributeError):
+        size = os.terminal_size((WIDTH, 24))
+    env = os.environ
+    cols = int(env["COLUMNS"]) if env.get("COLUMNS", "").isdigit() else size.columns
+    rows = int(env["LINES"]) if env.get("LINES", "").isdigit() else size.lines
+    return os.terminal_size((cols or WIDTH, rows or 24))
+
+
 def make_display(
-    stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL
+    stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL,
+    hold_banner: bool = False,
 ) -> Display:
     """A TTY display when ``stream`` is a terminal (in colour unless ``NO_COLOR`` is set or
     ``TERM`` is ``dumb``: ``colour_wanted``), plain log lines without colour otherwise."""
@@ -418,7 +513,7 @@ def make_display(
     if quiet:
         return NullDisplay()
     if s.isatty():
-        return TtyDisplay(s, clock=clock, colour=colour_wanted(s))
+        return TtyDisplay(s, clock=clock, colour=colour_wanted(s), hold_banner=hold_banner)
     return LogDisplay(s, clock=clock)
 
 
