@@ -224,7 +224,8 @@ def _run_on_a_terminal(tmp: Path, clock: VirtualClock) -> tuple[Path, str]:
 def test_a_run_on_an_80_column_terminal(run_on_a_terminal: tuple[Path, str]) -> None:
     folder, out = run_on_a_terminal
     lines = _screen(out)
-    assert max(len(ln) for ln in lines) <= 80
+    # within 80 columns, but for a word longer than that (a path): whole on a line of its own
+    assert all(len(ln) <= 80 or len(ln.split()) == 1 for ln in lines)
     text = "\n".join(lines)
     assert "serial SN-TTY-1 operator dana" in text
     # the running σ: settling until the fade-in and one period are over, then judged
@@ -235,10 +236,11 @@ def test_a_run_on_an_80_column_terminal(run_on_a_terminal: tuple[Path, str]) -> 
     assert "health      missed polls" in text and "WARNING" not in text
     head = next(i for i, ln in enumerate(lines) if " PASS " in ln and ln.startswith("="))
     assert "limit 0.4°  PASS" in lines[head + 1]
-    # the report's path as far as 80 columns go: a longer one ends in "…" in the 80th (a
-    # parallel worker's temporary folder, popen-gwN/, makes it longer)
+    # the report's path whole, never cut: on the line of "report", or on its own after it
+    # when longer than the line (a parallel worker's temporary folder, popen-gwN/)
     report = f"report {folder / 'report.html'}"
-    assert (report if len(report) <= 80 else report[:79] + "…") in lines[head + 2]
+    assert lines[head + 2] == report or lines[head + 2:head + 4] == [
+        "report", str(folder / "report.html")]
 
 
 def test_analyze_says_aborted_or_incomplete(run_on_a_terminal: tuple[Path, str], tmp_path: Path,
@@ -445,12 +447,14 @@ class _Screen:
         return folded[-self.rows:]
 
 
+@pytest.mark.parametrize("verdict", ["PASS", "ABORTED"])
 def test_a_run_ends_with_its_banner_at_80x24(monkeypatch: pytest.MonkeyPatch,
-                                             vclock: VirtualClock, tmp_path: Path) -> None:
-    """A whole run (fake devices, simulated time) on an 80×24 pseudo-terminal, stdout and
-    stderr both on it, as ``benchctl run`` ends it: the verdict's banner is the last thing on
-    the screen, the summary above it wrapped at words within 80 columns, summary and banner
-    within the 24 rows (one for the prompt)."""
+                                             vclock: VirtualClock, tmp_path: Path,
+                                             verdict: str) -> None:
+    """A whole run (fake devices, simulated time; passed, or aborted by an E-stop) on an
+    80×24 pseudo-terminal, stdout and stderr both on it, as ``benchctl run`` ends it: the
+    verdict's banner is the last thing on the screen, the summary above it wrapped at words
+    within 80 columns, summary and banner within the 24 rows (one for the prompt)."""
     import os
     import sys
     import threading
@@ -473,11 +477,13 @@ def test_a_run_ends_with_its_banner_at_80x24(monkeypatch: pytest.MonkeyPatch,
             display = make_display(sys.stderr, clock=vclock, hold_banner=True)
             assert isinstance(display, TtyDisplay) and display.width == 79
             stand = FakeStand(clock=vclock)
+            if verdict == "ABORTED":
+                stand.estop_at = 2.0
             prep = sine_motion(stand.axes, duration_s=5.0, mode="table", fade_s=0.5)
             res = Session(bench_config(tmp_path), prep, RunOptions("SN-80x24", "dana"),
                           display=display, device_factory=lambda c, p: (stand, FakeSensor(stand)),
                           clock=vclock).run()
-            assert res.state == "done", res.reason
+            assert res.state == ("done" if verdict == "PASS" else "aborted"), res.reason
             print_outcome(res, display)
         finally:
             sys.stderr.write(end)
@@ -491,18 +497,20 @@ def test_a_run_ends_with_its_banner_at_80x24(monkeypatch: pytest.MonkeyPatch,
     while rows and not rows[-1]:
         rows.pop()
     assert rows[-1] == "=" * 79, rows  # the banner closes the screen
-    head = max(i for i, ln in enumerate(rows) if " PASS " in ln and ln.startswith("="))
+    head = max(i for i, ln in enumerate(rows) if f" {verdict} " in ln and ln.startswith("="))
     assert rows[head - 1] == "=" * 79
-    assert "limit 0.4°  PASS" in rows[head + 1]
+    assert ("limit 0.4°  PASS" if verdict == "PASS" else "E-stop") in rows[head + 1]
+    start = "PASS   serial SN-80x24" if verdict == "PASS" else "ABORTED: "
     # the summary above the banner, its first line on the same screen, a row left for the
     # prompt; wrapped at words within 79 columns (a word longer than that whole on its own)
-    first = next(i for i, ln in enumerate(rows) if ln.startswith("PASS   serial SN-80x24"))
+    first = next(i for i, ln in enumerate(rows) if ln.startswith(start))
     assert len(rows) - first <= 23
     logical = list(screen.lines)
     while logical and not logical[-1]:
         logical.pop()
-    lfirst = max(i for i, ln in enumerate(logical) if ln.startswith("PASS   serial SN-80x24"))
-    lbar = max(i for i, ln in enumerate(logical) if " PASS " in ln and ln.startswith("=")) - 1
+    lfirst = max(i for i, ln in enumerate(logical) if ln.startswith(start))
+    lbar = max(i for i, ln in enumerate(logical)
+               if f" {verdict} " in ln and ln.startswith("=")) - 1
     above = logical[lfirst:lbar]
     assert all(len(ln) <= 79 or len(ln.split()) == 1 for ln in above)
     note = next((i for i, ln in enumerate(above) if ln.startswith("  … ")), len(above))
@@ -511,6 +519,6 @@ def test_a_run_ends_with_its_banner_at_80x24(monkeypatch: pytest.MonkeyPatch,
     if note == len(above):
         assert kept == words  # nothing left out: every word, in order, none cut
     else:  # less detail: the words shown are the summary's, in order, none cut
-        assert "report.txt" in "".join(above[note:])
+        assert ("report.txt" if verdict == "PASS" else "end.json") in "".join(above[note:])
         it = iter(words)
         assert all(any(w == v for v in it) for w in kept)

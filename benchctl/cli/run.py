@@ -191,7 +191,7 @@ def print_outcome(result: Any, display: Any) -> None:
     """The summary on stdout, then the verdict's banner the display held back (stderr), so the
     banner is the last thing on the screen. With both on a terminal the summary is wrapped at
     words to its width and, with the banner, kept within its height (less detail, and where the
-    whole summary is: the recording's report.txt)."""
+    rest is: ``_where_in_full``)."""
     from benchctl.run.display import TtyDisplay, fit_rows, rows_of, terminal_size
 
     # the console may be gone (SIGHUP, a closed pipe): the exit code still tells
@@ -203,14 +203,24 @@ def print_outcome(result: Any, display: Any) -> None:
                 size = terminal_size(sys.stdout)
                 width = max(20, size.columns - 1)  # the last column left: no early fold
                 room = size.lines - 1 - rows_of(held, size.columns)  # a row for the prompt
-                txt = None if result.recording is None else Path(result.recording) / "report.txt"
-                more = "" if txt is None or not txt.is_file() else str(txt)
+                more = _where_in_full(result)
                 lines = fit_rows(lines, width, max(room, 3), more, size.columns)
             sys.stdout.write("\n".join(lines) + "\n")
             sys.stdout.flush()
         finally:
             if isinstance(display, TtyDisplay):
                 display.show_banner()
+
+
+def _where_in_full(result: Any) -> str:
+    """Where the lines a terminal's summary leaves out are: the recording's report.txt (a
+    finished run), else its end.json (an aborted run: the reason and the cleanup's steps)."""
+    if result.recording is None:
+        return ""
+    for name in ("report.txt", "end.json"):
+        if (Path(result.recording) / name).is_file():
+            return str(Path(result.recording) / name)
+    return ""
 
 
 def _measured_text(m: dict[str, Any]) -> str:
