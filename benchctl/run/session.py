@@ -1337,7 +1337,7 @@ class Session:
         """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
         reason = f.reason if f else "aborted"
-        abort = {
+        abort: dict[str, Any] = {
             "kind": abort_kind(f.error if f else None, f.source if f else None),
             "reason": reason,
             "source": f.source if f else None,
@@ -1383,6 +1383,7 @@ class Session:
             extra=extra,
         )
         steps = [*self._end_steps, *rep.steps]
+        abort["shutdown"] = steps  # the record and its report show the cleanup, step by step
         for s in steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
                                  + (f" (at the {s['when']})" if s.get("when") else ""))

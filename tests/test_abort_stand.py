@@ -1,0 +1,102 @@
+"""After an abort: where the stand is, the cleanup's steps and the stand's samples through the
+shutdown ramp — on the screen, in ``record.json`` and in ``report.html`` (simulated time: the
+real drivers and simulators on the ``vclock`` fixture)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from run_sim import ROLL, LiveBench, live_bench, recording_in
+
+from benchctl.clock import Clock
+from benchctl.clock.virtual import VirtualClock
+from benchctl.results.record import load_record
+from benchctl.run import RunOptions, run_test
+from benchctl.run.supervisor import Supervisor
+
+pytestmark = pytest.mark.slow
+
+
+class Screen:
+    """A display that keeps what the run would print (its messages and its verdict)."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def state(self, state: str, reason: str = "") -> None:
+        pass
+
+    def update(self, snap: Any) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.lines.append(text)
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        self.lines.append(verdict)
+        self.lines.extend(detail.splitlines())
+
+    def close(self) -> None:
+        pass
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+def _motion_lasted(runs: Path, seconds: float, clock: Clock) -> bool:
+    rec = recording_in(runs)
+    if rec is None or not (rec / "events.jsonl").is_file():
+        return False
+    for line in (rec / "events.jsonl").read_text().splitlines():
+        if '"motion_start"' in line:
+            return bool(clock.monotonic() - json.loads(line)["t_host"] >= seconds)
+    return False
+
+
+def _fault_mid_run(tmp_path: Path, vclock: VirtualClock, b: LiveBench,
+                   screen: Screen) -> Path:
+    profile = tmp_path / "roll.yaml"
+    profile.write_text(ROLL)
+    runs = tmp_path / "runs"
+    sup = Supervisor(clock=vclock)
+
+    def watch() -> None:
+        while not _motion_lasted(runs, 1.5, vclock):
+            vclock.sleep(0.02)
+        b.stand.inject("stand_fault", code=12)
+
+    watcher = vclock.thread(watch, name="inject-fault")
+    watcher.start()
+    res = run_test(b.cfg, profile, RunOptions("SAFE-1", "ci"), screen, supervisor=sup,
+                   clock=vclock)
+    watcher.join()
+    assert res.exit_code == 2 and "fault 12" in res.reason, res.reason
+    rec = recording_in(runs)
+    assert rec is not None
+    return rec
+
+
+def test_a_stand_fault_mid_run_shows_the_shutdown_steps(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
+    screen = Screen()
+    with live_bench(tmp_path, clock=vclock) as b:
+        rec = _fault_mid_run(tmp_path, vclock, b, screen)
+    record = load_record(rec)
+    steps = record["abort"]["shutdown"]
+    names = [s["step"] for s in steps]
+    assert names[:2] == ["stop loops", "ramp to zero"] and "close recording" in names
+    ramp = steps[names.index("ramp to zero")]
+    assert ramp["ok"] is False and ramp["detail"]  # the stand is in fault: the ramp is refused
+    html = (rec / "report.html").read_text()
+    assert 'id="shutdown"' in html
+    at = html.index('id="shutdown"')
+    section = html[at:html.index("</section>", at)]
+    for s in steps:
+        assert s["step"] in section
+    assert "FAILED" in section
+    assert "ramp to zero: FAILED" in screen.text
