@@ -100,3 +100,29 @@ def test_a_stand_fault_mid_run_shows_the_shutdown_steps(
         assert s["step"] in section
     assert "FAILED" in section
     assert "ramp to zero: FAILED" in screen.text
+
+
+def test_a_stand_fault_mid_run_says_where_the_stand_is_and_how_to_zero_it(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
+    screen = Screen()
+    with live_bench(tmp_path, clock=vclock) as b:
+        rec = _fault_mid_run(tmp_path, vclock, b, screen)
+        true = b.stand.true_angles(vclock.monotonic())["roll"]
+    cfg = str(b.cfg.source)
+    reset, home = f"benchctl stand reset --config {cfg}", f"benchctl stand home --config {cfg}"
+    where = load_record(rec)["abort"]["stand"]  # validated against the schema
+    assert where["known"] and where["fault_code"] == 12 and where["fault_text"]
+    assert where["enabled"] is False and where["at_rest"] is True
+    angle = where["axes"]["roll"]["angle_deg"]
+    assert abs(angle) > 0.05 and angle == pytest.approx(true, abs=0.01)  # braked off zero
+    assert where["at_zero"] is False and where["commands"] == [reset, home]
+    # the terminal: the stand's line and the commands, under the ABORTED banner
+    text = screen.text
+    banner = text[text.rindex("ABORTED"):]
+    assert f"roll {angle:+.3f}°" in banner and "fault 12" in banner and "NOT at zero" in banner
+    assert f"to bring it to rest at zero, in this order:\n  {reset}\n  {home}\n" in banner
+    html = (rec / "report.html").read_text()
+    assert 'id="stand-after"' in html and f"roll {angle:+.3f}°" in html
+    assert f"<code>{reset}</code>, then <code>{home}</code>" in html
+    print(text)
