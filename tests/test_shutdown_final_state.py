@@ -39,4 +39,5 @@ def test_a_faulted_stands_final_state_is_read_and_reported() -> None:
     assert steps["read final state"]["ok"] is True  # before: failed on the fault it reports
     assert steps["final angle"]["detail"] == "roll=1.787° (servo off, fault 7)"
     assert rep.final_state == {"angle_deg": {"roll": 1.787}, "rate_deg_s": {"roll": 0.0},
-                               "enabled": False, "fault_code": 7, "estop": False}
+                               "enabled": False, "fault_code": 7, "estop": False,
+                               "fault_text": "", "moving": False}  # no register map: no text

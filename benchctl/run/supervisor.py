@@ -210,14 +210,15 @@ def shutdown(
             rep.stand_at_rest = (
                 all(abs(v) <= 1.0 for v in s.rate_deg_s.values()) and not st.moving
             )
-            codes = getattr(getattr(stand, "map", None), "fault_codes", None) or {}
+            # the register map's text for the code; none without a map (a stand of its own)
+            codes = getattr(getattr(stand, "map", None), "fault_codes", None)
             rep.final_state = {
                 "angle_deg": dict(s.angle_deg),
                 "rate_deg_s": dict(s.rate_deg_s),
                 "enabled": st.enabled,
                 "fault_code": st.fault_code,
                 "fault_text": str(codes.get(st.fault_code, "unknown fault"))
-                if st.fault_code else "",
+                if st.fault_code and codes is not None else "",
                 "estop": st.estop,
                 "moving": bool(st.moving),
             }
