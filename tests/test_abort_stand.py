@@ -8,11 +8,13 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from run_sim import ROLL, LiveBench, live_bench, recording_in
 
 from benchctl.clock import Clock
 from benchctl.clock.virtual import VirtualClock
+from benchctl.recording import load_recording
 from benchctl.results.record import load_record
 from benchctl.run import RunOptions, run_test
 from benchctl.run.supervisor import Supervisor
@@ -126,3 +128,46 @@ def test_a_stand_fault_mid_run_says_where_the_stand_is_and_how_to_zero_it(
     assert 'id="stand-after"' in html and f"roll {angle:+.3f}°" in html
     assert f"<code>{reset}</code>, then <code>{home}</code>" in html
     print(text)
+
+
+def test_a_ctrl_c_records_the_stand_through_the_shutdown_ramp(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
+    """The operator's Ctrl-C (``Supervisor.interrupt_after``, on simulated time) mid-motion:
+    the stand's samples go on into stand.csv through the ramp to zero, as during the motion."""
+    profile = tmp_path / "roll.yaml"
+    profile.write_text(ROLL)
+    runs = tmp_path / "runs"
+    screen = Screen()
+    with live_bench(tmp_path, clock=vclock) as b:
+        sup = Supervisor(clock=vclock)
+
+        def watch() -> None:
+            while not _motion_lasted(runs, 1.5, vclock):
+                vclock.sleep(0.02)
+            sup.interrupt_after(0.013)
+
+        watcher = vclock.thread(watch, name="operator")
+        watcher.start()
+        res = run_test(b.cfg, profile, RunOptions("SAFE-2", "ci"), screen, supervisor=sup,
+                       clock=vclock)
+        watcher.join()
+        period = 1.0 / b.cfg.stand.sample_rate_hz
+    assert res.exit_code == 2 and "interrupted by SIGINT" in res.reason
+    rec = recording_in(runs)
+    assert rec is not None
+    r = load_recording(rec)
+    t_abort = next(e["t_host"] for e in r.events
+                   if e["kind"] == "state" and e["to"] == "aborted")
+    sp = r.streams["setpoints"]
+    ramp = sp["t_send"][np.isnan(sp["t_slot"]) & (sp["t_send"] >= t_abort)]
+    assert len(ramp) >= 20  # the ramp to zero was streamed (not a stand at zero already)
+    t = r.streams["stand"]["t_host"]
+    during = t[(t >= t_abort) & (t <= ramp[-1] + period)]
+    assert during.size and during[0] - t_abort <= 5 * period
+    gaps = np.diff(np.concatenate([[t_abort], during, [ramp[-1]]]))
+    assert gaps.max() <= 5 * period, (gaps.max(), period)  # no hole in the stand's record
+    assert abs(r.streams["stand"]["roll_deg"][-1]) <= b.cfg.stand.zero_tolerance_deg
+    where = load_record(rec)["abort"]["stand"]
+    assert where["at_zero"] and where["commands"] == [] and where["fault_code"] == 0
+    assert "to bring it to rest at zero" not in screen.text
