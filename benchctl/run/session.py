@@ -1450,7 +1450,7 @@ def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
     if final is None:
         if known:
             out["commands"] = [f"benchctl stand status --config {cfg}"]
-            out["text"] = ("where the stand is is not known: it did not answer; see "
+            out["text"] = ("unknown: the stand did not answer; see "
                            f"`benchctl stand status --config {cfg}`")
         else:
             out["text"] = "the stand was not connected: it has not moved"
