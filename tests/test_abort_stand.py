@@ -10,8 +10,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROLL, LiveBench, live_bench, recording_in
+import yaml
+from run_sim import ROLL, ROOT, LiveBench, live_bench, recording_in
 
+from benchctl.cli import main
 from benchctl.clock import Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
@@ -171,3 +173,30 @@ def test_a_ctrl_c_records_the_stand_through_the_shutdown_ramp(
     where = load_record(rec)["abort"]["stand"]
     assert where["at_zero"] and where["commands"] == [] and where["fault_code"] == 0
     assert "to bring it to rest at zero" not in screen.text
+
+
+def test_benchctl_run_ends_its_screen_with_where_the_stand_is(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`benchctl run` on simulated time (``sim.clock: virtual``), the simulated stand faulting
+    by itself 2 s into the motion: the last lines printed say where the stand is and name the
+    commands, with the config the run was given."""
+    data = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text())
+    data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
+    data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
+    data["run"]["output_dir"] = str(tmp_path / "runs")
+    data["sim"]["faults"] = [{"target": "stand", "kind": "stand_fault", "after_motion_s": 2.0,
+                              "params": {"code": 2}}]
+    cfg = tmp_path / "bench.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    code = main(["run", "--config", str(cfg), "--profile", str(ROOT / "profiles/ci_short.yaml"),
+                 "--serial", "20260001", "--operator", "ci", "--duration", "20"])
+    out = capsys.readouterr().out
+    print(out)
+    assert code == 2 and "stand fault 2" in out
+    tail = out.strip().splitlines()[-4:]
+    assert tail[0].startswith("  stand: roll ") and "fault 2 (" in tail[0], tail
+    assert "NOT at zero" in tail[0]
+    assert tail[1:] == ["  to bring it to rest at zero, in this order:",
+                        f"    benchctl stand reset --config {cfg}",
+                        f"    benchctl stand home --config {cfg}"]

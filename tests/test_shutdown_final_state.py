@@ -68,6 +68,9 @@ def test_where_the_stand_is_and_the_commands_that_bring_it_to_zero() -> None:
     estop_at_zero = stand_after({**base, "estop": True, "fault_code": 3},
                                 zero_tolerance_deg=0.05, config=cfg)
     assert estop_at_zero["commands"] == [reset] and "E-stop pressed" in estop_at_zero["text"]
+    settling = stand_after({**base, "rate_deg_s": {"roll": 0.02, "pitch": 0.0}, "moving": True},
+                           zero_tolerance_deg=0.05, config=cfg)  # just after the servo went off
+    assert settling["at_rest"] and settling["at_zero"] and settling["commands"] == []
     moving = stand_after({**base, "rate_deg_s": {"roll": 4.0, "pitch": 0.0}, "moving": True},
                          zero_tolerance_deg=0.05, config=cfg)
     assert not moving["at_rest"] and "MOVING" in moving["text"] and moving["commands"] == [home]

@@ -110,6 +110,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.run.display import make_display
     from benchctl.run.plan import check_setpoints
     from benchctl.run.report import format_report
+    from benchctl.run.session import stand_lines
     from benchctl.text import check_operator, check_part_number, check_serial, visible
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
@@ -175,6 +176,10 @@ def handle(args: argparse.Namespace) -> int:
                 print(f"  log {result.log}")
             if result.record is not None:
                 print(f"  record {result.record}")
+            stand_after: dict[str, Any] | None = (result.abort or {}).get("stand")
+            if stand_after:  # last on the screen: where the stand is, and how to bring it to zero
+                for line in stand_lines(stand_after):
+                    print(f"  {visible(line)}")
     return result.exit_code
 
 

@@ -1438,7 +1438,8 @@ def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
                 config: Path | str | None, known: bool = True) -> dict[str, Any]:
     """Where an abort left the stand (``record.json``'s ``abort.stand``), from the cleanup's
     ``ShutdownReport.final_state`` (None: the stand did not answer): each axis's angle and
-    rate, the fault code and its text, the E-stop, the servo, at rest, at zero; and, when it is
+    rate, the fault code and its text, the E-stop, the servo, at rest (every |rate| ≤
+    ``REST_RATE_DEG_S``), at zero; and, when it is
     not at rest at zero, the commands that bring it there (``benchctl stand reset`` when
     faulted, then ``benchctl stand home``, with the run's config). ``known`` False: no stand was
     connected (nothing moved)."""
@@ -1459,7 +1460,10 @@ def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
     rates = {a: float(v) for a, v in (final.get("rate_deg_s") or {}).items()}
     code = int(final.get("fault_code") or 0)
     estop = bool(final.get("estop"))
-    at_rest = bool(all(abs(v) <= 1.0 for v in rates.values()) and not final.get("moving"))
+    # at rest as the next run's precheck has it by rate (|rate| ≤ REST_RATE_DEG_S); the status
+    # bit ``moving`` is not used: read just after the servo went off it may still show a
+    # settling stand (a few hundredths of °/s) as moving
+    at_rest = bool(all(abs(v) <= pc.REST_RATE_DEG_S for v in rates.values()))
     at_zero = bool(at_rest and all(abs(v) <= zero_tolerance_deg for v in angles.values()))
     commands = []
     if code or estop:
