@@ -173,6 +173,12 @@ def _check_measured(out: str, end: dict[str, Any], disk: Path) -> None:
     (rec,) = [p.parent for p in disk.glob("*/meta.json")]
     record = json.loads((rec / "record.json").read_text())
     assert record["outcome"] == "ABORTED" and record["abort"]["measured_verdict"] == "PASS"
+    # where the stand is: as the motion's end left it (its devices closed since), at rest at
+    # zero, so no command to bring it there
+    where = record["abort"]["stand"]
+    assert where["known"] and where["at_zero"] and where["commands"] == [], where
+    assert "to bring it to rest at zero" not in out, out
+    assert f"stand: {where['text']}" in out, out
 
 
 def test_disk_full_in_the_prechecks(

@@ -184,6 +184,11 @@ def summary_lines(result: Any) -> list[str]:
         lines.append(f"  log {result.log}")
     if result.record is not None:
         lines.append(f"  record {result.record}")
+    stand_after: dict[str, Any] | None = (result.abort or {}).get("stand")
+    if stand_after:  # where the stand is, and how to bring it to zero
+        from benchctl.run.session import stand_lines
+
+        lines += [f"  {visible(line)}" for line in stand_lines(stand_after)]
     return lines
 
 

@@ -13,8 +13,8 @@ stylesheet for A4.
   into ``<folder>/report.html`` (atomically) and returns its path.
 
 An aborted run gets a report too, with what is known: its verdict ABORTED, the kind and reason
-of the abort, who/what/when/where, the prechecks, the stand's health and, when the motion had
-begun, the time-trace excerpt.
+of the abort, the shutdown's steps (step, ok, detail), who/what/when/where, the prechecks, the
+stand's health and, when the motion had begun, the time-trace excerpt.
 """
 
 from __future__ import annotations
@@ -466,6 +466,13 @@ def build_context(
         reason = (end or {}).get("reason") if end else "the run ended without closing its " \
             "recording (no end.json: the process was killed)"
         abort = {"kind": None, "reason": reason}
+    # an aborted run's cleanup, step by step: the record's, else end.json's (a record not
+    # written); those at the motion's end first
+    shutdown: list[Any] = []
+    if verdict in ("ABORTED", "INCOMPLETE"):
+        shutdown = list((abort or {}).get("shutdown") or [
+            *((end or {}).get("motion_end_shutdown") or []),
+            *((end or {}).get("shutdown") or [])])
     # the reports by their names in the recording (its path is printed above them)
     files = [(k, _in_folder(v.get("path"), folder), v.get("sha256"))
              for k, v in (rec.get("files") or {}).items() if isinstance(v, Mapping)]
@@ -479,6 +486,7 @@ def build_context(
         "date": date_text,
         "rule": rec.get("decision_rule") or rep.get("decision_rule") or {},
         "abort": abort,
+        "shutdown": [st for st in shutdown if isinstance(st, Mapping)],
         "deviations": list(rec.get("deviations") or rep.get("deviations") or []),
         "warnings": list(dict.fromkeys(warnings)),
         "who": who,

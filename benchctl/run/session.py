@@ -43,6 +43,7 @@ import contextlib
 import logging
 import math
 import os
+import shlex
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
@@ -534,6 +535,9 @@ class Session:
         self.rule = opts.decision_rule or cfg.run.decision_rule
         self.report: Report | None = None  # the verdict, once the analysis has measured it
         self._end_steps: list[dict[str, Any]] = []  # the cleanup at the motion's normal end
+        # where that cleanup left the stand (ShutdownReport.final_state): an abort after it
+        # has no stand left open to read
+        self._end_final: dict[str, Any] | None = None
 
     # ---- helpers
     def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
@@ -1292,6 +1296,7 @@ class Session:
                 self._final_stats = self._stats()
                 # shown and recorded again should the run abort after this (a full disk)
                 self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
+                self._end_final = rep.final_state
                 self.stand = self.sensor = None  # closed: an abort from here has nothing to move
                 self.moved = False
                 for step in rep.steps:
@@ -1349,7 +1354,7 @@ class Session:
         """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
         reason = f.reason if f else "aborted"
-        abort = {
+        abort: dict[str, Any] = {
             "kind": abort_kind(f.error if f else None, f.source if f else None),
             "reason": reason,
             "source": f.source if f else None,
@@ -1395,6 +1400,14 @@ class Session:
             extra=extra,
         )
         steps = [*self._end_steps, *rep.steps]
+        abort["shutdown"] = steps  # the record and its report show the cleanup, step by step
+        where = stand_after(
+            rep.final_state if self.stand is not None or self._end_final is None
+            else self._end_final,
+            zero_tolerance_deg=self.cfg.stand.zero_tolerance_deg, config=self.cfg.source,
+            known=self.stand is not None or self._end_final is not None,
+        )
+        abort["stand"] = where
         for s in steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
                                  + (f" (at the {s['when']})" if s.get("when") else ""))
@@ -1403,6 +1416,7 @@ class Session:
         html = self.path / "report.html"
         self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
                              + (_measured_line(measured) + "\n" if measured else "")
+                             + "".join(f"{line}\n" for line in stand_lines(where))
                              + (f"report {html}" if html.exists() else f"recording {self.path}"))
         try:
             archive_abort(self.out_dir, self.meta, self.path, reason)
@@ -1430,6 +1444,69 @@ _REPORT_META = (
     "scale",
     "equalisation",
 )
+
+
+def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
+                config: Path | str | None, known: bool = True) -> dict[str, Any]:
+    """Where an abort left the stand (``record.json``'s ``abort.stand``), from the cleanup's
+    ``ShutdownReport.final_state`` (None: the stand did not answer): each axis's angle and
+    rate, the fault code and its text, the E-stop, the servo, at rest (every |rate| ≤
+    ``REST_RATE_DEG_S``), at zero; and, when it is
+    not at rest at zero, the commands that bring it there (``benchctl stand reset`` when
+    faulted, then ``benchctl stand home``, with the run's config). ``known`` False: no stand was
+    connected (nothing moved)."""
+    cfg = shlex.quote(str(config)) if config else "CFG"
+    out: dict[str, Any] = {
+        "known": final is not None, "axes": {}, "enabled": None, "fault_code": None,
+        "fault_text": None, "estop": None, "at_rest": None, "at_zero": None, "commands": [],
+    }
+    if final is None:
+        if known:
+            out["commands"] = [f"benchctl stand status --config {cfg}"]
+            out["text"] = ("unknown: the stand did not answer; see "
+                           f"`benchctl stand status --config {cfg}`")
+        else:
+            out["text"] = "the stand was not connected: it has not moved"
+        return out
+    angles = {a: float(v) for a, v in (final.get("angle_deg") or {}).items()}
+    rates = {a: float(v) for a, v in (final.get("rate_deg_s") or {}).items()}
+    code = int(final.get("fault_code") or 0)
+    estop = bool(final.get("estop"))
+    # at rest as the next run's precheck has it by rate (|rate| ≤ REST_RATE_DEG_S); the status
+    # bit ``moving`` is not used: read just after the servo went off it may still show a
+    # settling stand (a few hundredths of °/s) as moving
+    at_rest = bool(all(abs(v) <= pc.REST_RATE_DEG_S for v in rates.values()))
+    at_zero = bool(at_rest and all(abs(v) <= zero_tolerance_deg for v in angles.values()))
+    commands = []
+    if code or estop:
+        commands.append(f"benchctl stand reset --config {cfg}")
+    if not at_zero:
+        commands.append(f"benchctl stand home --config {cfg}")
+    out.update(
+        axes={a: {"angle_deg": angles[a], "rate_deg_s": rates.get(a, 0.0)} for a in angles},
+        enabled=bool(final.get("enabled")), fault_code=code,
+        fault_text=str(final.get("fault_text") or "") if code else "", estop=estop,
+        at_rest=at_rest, at_zero=at_zero, commands=commands,
+    )
+    where = ", ".join(f"{a} {v:+.3f}°" for a, v in angles.items())
+    flags = ["at rest" if at_rest else "MOVING",
+             "servo on" if out["enabled"] else "servo off"]
+    if code:
+        flags.append(f"fault {code}" + (f" ({out['fault_text']})" if out["fault_text"] else ""))
+    if estop:
+        flags.append("E-stop pressed")
+    out["text"] = f"{where}; {', '.join(flags)}" + ("" if at_zero else "; NOT at zero")
+    return out
+
+
+def stand_lines(where: dict[str, Any]) -> list[str]:
+    """The stand's place after an abort as the terminal shows it: one line, and the commands
+    that bring it to rest at zero when it is not."""
+    lines = [f"stand: {where['text']}"]
+    if where["known"] and where["commands"]:
+        lines.append("to bring it to rest at zero, in this order:")
+        lines.extend(f"  {c}" for c in where["commands"])
+    return lines
 
 
 def _banner_detail(report: Report, path: Path) -> str:

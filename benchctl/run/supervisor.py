@@ -155,7 +155,8 @@ class ShutdownReport:
     steps: list[dict[str, Any]] = field(default_factory=list)
     stand_at_rest: bool | None = None
     #: where the stand was left, when it answered: {angle_deg, rate_deg_s, enabled, fault_code,
-    #: estop} (a faulted stand's too: its state is read without raising on the fault)
+    #: fault_text, estop, moving} (a faulted stand's too: its state is read without raising on
+    #: the fault; ``fault_text`` the register map's text for the code, "" without a fault)
     final_state: dict[str, Any] | None = None
 
     def add(self, step: str, ok: bool, detail: str = "") -> None:
@@ -209,17 +210,23 @@ def shutdown(
             rep.stand_at_rest = (
                 all(abs(v) <= 1.0 for v in s.rate_deg_s.values()) and not st.moving
             )
+            # the register map's text for the code; none without a map (a stand of its own)
+            codes = getattr(getattr(stand, "map", None), "fault_codes", None)
             rep.final_state = {
                 "angle_deg": dict(s.angle_deg),
                 "rate_deg_s": dict(s.rate_deg_s),
                 "enabled": st.enabled,
                 "fault_code": st.fault_code,
+                "fault_text": str(codes.get(st.fault_code, "unknown fault"))
+                if st.fault_code and codes is not None else "",
                 "estop": st.estop,
+                "moving": bool(st.moving),
             }
             where = ", ".join(f"{a}={v:.3f}°" for a, v in s.angle_deg.items())
             flags = ["servo on" if st.enabled else "servo off"]
             if st.fault or st.fault_code:
-                flags.append(f"fault {st.fault_code}")
+                text = rep.final_state["fault_text"]
+                flags.append(f"fault {st.fault_code}" + (f" ({text})" if text else ""))
             if st.estop:
                 flags.append("E-stop")
             rep.add("final angle", True, f"{where} ({', '.join(flags)})")

@@ -526,7 +526,10 @@ class ModbusStand:
         acceleration limits, and streamed at the setpoint period while keeping the heartbeat.
         If a send comes so late that the stand has held its last setpoint, the rest of the
         ramp is planned afresh from the measured state: the driver's own checks therefore
-        accept every step whatever happened before (``benchctl.kinematics``). It ends when
+        accept every step whatever happened before (``benchctl.kinematics``). Each setpoint
+        is sent with a read of the stand's feedback (:meth:`send_setpoint_and_read`), so its
+        samples reach ``on_sample`` all through the ramp (a fault met there raises at once).
+        It ends when
         every axis has been within ``zero_tolerance_deg`` of zero and at rest for
         ``REST_HOLD_S``.
 
@@ -595,7 +598,11 @@ class ModbusStand:
                         self._sleep(pause)
                     else:
                         t_next = self._clock()  # late: carry on from now, never catch up
-                    self.send_setpoint({a: float(p[min(k, len(p) - 1)]) for a, p in plans.items()})
+                    # each setpoint with the stand's feedback (one FC23 transaction where the
+                    # map allows it): the ramp's samples reach the listener (the recording)
+                    # as the motion's do, with no hole while it lasts
+                    self.send_setpoint_and_read(
+                        {a: float(p[min(k, len(p) - 1)]) for a, p in plans.items()})
                     if self._clock() - t_hb >= self.heartbeat_period_s:
                         self.heartbeat()
                         t_hb = self._clock()
