@@ -126,7 +126,9 @@ class Endpoint:
         start = max(self.clock.monotonic() + self.latency_s + extra, self._tx.busy_until)
         self._tx.busy_until = start + n * self.byte_time_s
         self._tx.chunks.append([self._tx.busy_until, bytes(data), 0])  # whole, its last byte in
-        self._tx.changed.set()
+        # the reader wakes when the write has arrived (a reader waiting for it has nothing to
+        # read before then)
+        self.clock.set_at(self._tx.changed, self._tx.busy_until)
         return n
 
     @property

@@ -112,7 +112,9 @@ class VirtualClock:
         self.hang_s = hang_s
         self._mu = threading.Lock()
         self._ready: deque[_Task] = deque()
-        self._timers: list[tuple[float, int, _Task, int, bool]] = []
+        #: (deadline, seq, task, wait id, resume) of a timed wait, or (when, seq, event, 0,
+        #: False) of an event set at a time (set_at)
+        self._timers: list[tuple[float, int, _Task | VEvent, int, bool]] = []
         #: host stalls: (start, end) on simulated time, sorted; the host's threads (every thread
         #: not named ``sim-…``) do not run inside one — the run's process stopped, as by SIGSTOP
         self._stalls: list[tuple[float, float]] = []
@@ -146,6 +148,15 @@ class VirtualClock:
     def compute(self, seconds: float) -> None:
         if seconds > 0:
             self._block("compute", self._now + seconds)
+
+    def set_at(self, event: VEvent, when: float) -> None:
+        """Set ``event`` at simulated time ``when`` (now if ``when`` is not later), by the
+        clock itself: no thread wakes before then."""
+        if when <= self._now:
+            event.set()
+            return
+        with self._mu:
+            heapq.heappush(self._timers, (when, next(self._seq), event, 0, False))
 
     def stall_host(self, start_s: float, duration_s: float) -> None:
         """Stop the host's threads from simulated time ``start_s`` (``monotonic()``'s scale) for
@@ -285,6 +296,13 @@ class VirtualClock:
             return self._ready.popleft()
         while self._timers:
             deadline, _, task, wid, resume = heapq.heappop(self._timers)
+            if isinstance(task, VEvent):  # an event set at its time: its waiters run
+                if deadline > self._now:
+                    self._now = deadline
+                task._set_locked()
+                if self._ready:
+                    return self._ready.popleft()
+                continue
             if task.blocked and task.wait_id == wid:
                 if deadline > self._now:
                     self._now = deadline
@@ -394,10 +412,13 @@ class VEvent:
 
     def set(self) -> None:
         with self._c._mu:
-            self._flag = True
-            for t in self._waiters:
-                self._c._wake(t)
-            self._waiters.clear()
+            self._set_locked()
+
+    def _set_locked(self) -> None:
+        self._flag = True
+        for t in self._waiters:
+            self._c._wake(t)
+        self._waiters.clear()
 
     def clear(self) -> None:
         self._flag = False
