@@ -149,9 +149,11 @@ class VirtualClock:
         if seconds > 0:
             self._block("compute", self._now + seconds)
 
-    def set_at(self, event: VEvent, when: float) -> None:
-        """Set ``event`` at simulated time ``when`` (now if ``when`` is not later), by the
-        clock itself: no thread wakes before then."""
+    def set_at(self, event: Any, when: float) -> None:
+        """Set ``event`` (a :class:`VEvent` of this clock) at simulated time ``when`` (now if
+        ``when`` is not later), by the clock itself: no thread wakes before then."""
+        if not isinstance(event, VEvent) or event._c is not self:
+            raise TypeError(f"set_at: {event!r} is not an event of this clock")
         if when <= self._now:
             event.set()
             return
