@@ -39,6 +39,7 @@ estop             the E-stop is pressed: as stand_fault with code 3 and the E-st
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -178,6 +179,16 @@ class SimStand:
             sim_cfg.accel_limit_deg_s2,
             1.0 / sim_cfg.tick_hz,
         )
+        m = self.model  # servo_step's terms, as it computes them
+        self._servo_terms = (
+            m.omega_n * m.omega_n,
+            2.0 * m.damping * m.omega_n,
+            m.accel_limit_deg_s2,
+            m.rate_limit_deg_s,
+            m.tick_s,
+        )
+        self._soft_limit_deg = sim_cfg.soft_limit_deg
+        self._watchdog_s = sim_cfg.watchdog_s
         self.requests = 0  # requests served (for tests and figures)
         self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
 
@@ -421,19 +432,28 @@ class SimStand:
         k_target = int((now - self._t0) / tick)
         if k_target - self._k > _MAX_CATCHUP_TICKS:
             self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
-        while self._k < k_target:
-            self._k += 1
-            self._tick(self._t0 + self._k * tick)
-            self._hist[self._k % self._hist.shape[0]] = [
-                self._state[a].angle_deg for a in self.axes
-            ]
+        if self._k >= k_target:
+            return
+        hist = self._hist
+        n = hist.shape[0]
+        states = list(enumerate(self._state[a] for a in self.axes))
+        t0 = self._t0
+        k = self._k
+        while k < k_target:
+            k += 1
+            self._k = k
+            self._tick(t0 + k * tick)
+            r = k % n
+            for j, st in states:
+                hist[r, j] = st.angle_deg
 
     def _tick(self, t: float) -> None:
         """One physics tick at time ``t`` (lock held)."""
-        while self._pending_faults and t - self._start_time >= self._pending_faults[0].after_s:
-            f = self._pending_faults.pop(0)
+        pending = self._pending_faults
+        while pending and t - self._start_time >= pending[0].after_s:
+            f = pending.pop(0)
             self._apply(f.kind, t, f.duration_s, f.code)
-        if self._enabled and t - self._hb_time - self._held_s > self.cfg.watchdog_s:
+        if self._enabled and t - self._hb_time - self._held_s > self._watchdog_s:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
@@ -442,29 +462,30 @@ class SimStand:
         if self._mode == "traj_stop":
             traj_target = self._traj_stop_tick()
         at_rest = True
-        m = self.model  # servo_step's terms, as it computes them (this runs 1000 times a second)
-        wn2 = m.omega_n * m.omega_n
-        c2 = 2.0 * m.damping * m.omega_n
-        a_max, v_max, dt = m.accel_limit_deg_s2, m.rate_limit_deg_s, m.tick_s
+        # servo_step's terms, as it computes them (this runs 1000 times a second)
+        wn2, c2, a_max, v_max, dt = self._servo_terms
+        soft = self._soft_limit_deg
+        state, target = self._state, self._target
         for i, a in enumerate(self.axes):
-            s = self._state[a]
+            s = state[a]
             if not self._enabled:
                 brake_step(self.model, s)  # servo off, fault or E-stop: the brakes' own limit
-                self._target[a] = s.angle_deg
+                target[a] = s.angle_deg
             elif self._mode == "stopping":
                 # a commanded stop: decelerate within the stand's acceleration limit
                 brake_step(self.model, s, min(self.model.accel_limit_deg_s2, self._stop_accel))
-                self._target[a] = s.angle_deg
+                target[a] = s.angle_deg
             else:
-                if self._mode == "table":
-                    self._target[a] = self._table_value(a, t - self._table_start)
+                mode = self._mode
+                if mode == "table":
+                    tgt = target[a] = self._table_value(a, t - self._table_start)
                 elif traj_target is not None:
-                    self._target[a] = float(traj_target[i])
+                    tgt = target[a] = float(traj_target[i])
                 else:
-                    self._target[a] = self._stream_target[a]
+                    tgt = target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
                 # servo_step, inline
-                acc = wn2 * (self._target[a] - s.angle_deg) - c2 * v_before
+                acc = wn2 * (tgt - s.angle_deg) - c2 * v_before
                 acc = min(max(acc, -a_max), a_max)
                 rate = min(max(v_before + acc * dt, -v_max), v_max)
                 s.rate_deg_s = rate
@@ -475,9 +496,11 @@ class SimStand:
                     p[0] = abs(rate)
                 if accel > p[1] or -accel > p[1]:
                     p[1] = abs(accel)
-            if abs(s.rate_deg_s) > _MOVING_DEG_S:
+            rate = s.rate_deg_s
+            if rate > _MOVING_DEG_S or -rate > _MOVING_DEG_S:
                 at_rest = False
-            if abs(s.angle_deg) > self.cfg.soft_limit_deg and s.angle_deg * s.rate_deg_s > 0:
+            angle = s.angle_deg
+            if (angle > soft or -angle > soft) and angle * rate > 0:
                 self._axis_fault[a] = FAULT_SOFT_LIMIT
                 self._limit = True
                 self._fault(FAULT_SOFT_LIMIT)
@@ -498,7 +521,7 @@ class SimStand:
     def _stop_accel(self) -> float:
         return float(self.limits.accel_deg_s2)
 
-    def _trajectory_tick(self, t: float) -> np.ndarray | None:
+    def _trajectory_tick(self, t: float) -> Sequence[float] | None:
         """The queue's target at ``t`` (lock held); running dry: the normal end or an underrun."""
         q = self._traj
         u = q.base + (t - q.t_start) / q.period_s
@@ -508,10 +531,10 @@ class SimStand:
         last, before = q.last_two()
         self._mode = "stream"
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
-        rate = (last - before) / q.period_s
+        rate = [(x1 - x0) / q.period_s for x1, x0 in zip(last, before, strict=True)]
         # ran dry before its end: an underrun, a controlled stop. The normal end of a queue is
         # its last point repeated (the motion at rest): nothing left to stop.
-        if np.any(last != before):
+        if last != before:
             q.underruns += 1
             self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
             self._mode = "traj_stop"
@@ -520,7 +543,7 @@ class SimStand:
         q.clear()
         return last
 
-    def _traj_stop_tick(self) -> np.ndarray:
+    def _traj_stop_tick(self) -> list[float]:
         """After an underrun: go on from the last point at its rate, decelerating within the
         stand's acceleration limit, then hold (lock held)."""
         dv = self._stop_accel * self._tick_s
@@ -536,7 +559,7 @@ class SimStand:
         if not moving:
             self._mode = "stream"
             self._stream_target = {a: self._traj_stop[a][0] for a in self.axes}
-        return np.asarray(out)
+        return out
 
     def _table_value(self, axis: str, t_rel: float) -> float:
         table = self._tables.get(axis)
@@ -902,12 +925,13 @@ class SimStand:
 
 
 class _TrajectoryQueue:
-    """The stand's trajectory queue: points k = first … next_index−1, one per period."""
+    """The stand's trajectory queue: points k = first … next_index−1, one per period (each a
+    tuple of the axes' angles: the physics reads two of them on every tick)."""
 
     def __init__(self, n_axes: int) -> None:
         self.n_axes = n_axes
         self.period_s = 0.01
-        self.points = np.zeros((0, n_axes))
+        self.points: list[tuple[float, ...]] = []
         self.first = 0  # index of points[0]
         self.base = 0  # index played at t_start
         self.t_start = 0.0
@@ -924,39 +948,40 @@ class _TrajectoryQueue:
 
     def reset(self, period_s: float) -> None:
         self.period_s = period_s
-        self.points = np.zeros((0, self.n_axes))
+        self.points = []
         self.first = 0
         self.running = False
 
     def clear(self) -> None:
         self.first = self.next_index
-        self.points = np.zeros((0, self.n_axes))
+        self.points = []
         self.running = False
 
     def append(self, pts: np.ndarray) -> None:
-        self.points = np.vstack([self.points, pts])
+        self.points.extend(tuple(float(v) for v in row) for row in pts)
 
     def start(self, now: float) -> None:
         self.base = self.first
         self.t_start = now
         self.running = True
 
-    def at(self, u: float) -> np.ndarray | None:
+    def at(self, u: float) -> tuple[float, ...] | None:
         """Linear interpolation at queue position ``u``; None when u is past the last point.
         Points before the one being played are dropped."""
+        points = self.points
         i = math.floor(u) - self.first
         if i < 0:
-            return self.points[0] if len(self.points) else None
-        if i + 1 >= len(self.points):
+            return points[0] if points else None
+        if i + 1 >= len(points):
             return None
         if i > 0:
-            self.points = self.points[i:]
+            del points[:i]
             self.first += i
-            i = 0
         w = u - self.first
-        return np.asarray((1.0 - w) * self.points[0] + w * self.points[1])
+        w0 = 1.0 - w
+        return tuple([w0 * x0 + w * x1 for x0, x1 in zip(points[0], points[1], strict=True)])
 
-    def last_two(self) -> tuple[np.ndarray, np.ndarray]:
+    def last_two(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         last = self.points[-1]
         before = self.points[-2] if len(self.points) > 1 else last
         return last, before
