@@ -671,6 +671,18 @@ class SimStand:
         regs: list[int],
         values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
+        return self._act(fc, start, address, count, regs, values)
+
+    def _act(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        regs: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
+        """A request's action on the registers (``_action``, the register model's hook)."""
         now = self.clock.monotonic()
         self._regs, self._regs_start = regs, start
         with self._lock:
