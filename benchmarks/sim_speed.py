@@ -21,7 +21,8 @@ is printed before and after: this is a measurement on a shared machine.
 
 Usage: python benchmarks/sim_speed.py [--profile profiles/paper_vessel_roll_short120.yaml]
        [--duration SEC] [--link tcp|rtu] [--protocol canopen|j1939|nmea2000|nmea0183]
-       [--mode buffered|stream|table] [--disturb-seed N] [--repeat N] [--against DIR]
+       [--mode buffered|stream|table] [--disturb-seed N [--faults]] [--repeat N]
+       [--against DIR]
 """
 
 from __future__ import annotations
@@ -49,6 +50,14 @@ DISTURB = {
     "slow_reply_p": 0.02, "slow_reply_s": [0.005, 0.3], "lost_reply_p": 0.002,
     "lost_frame_p": 0.002, "garbled_frame_p": 0.002,
 }
+#: --faults: the campaign's faulty draws add these (stand and instrument faults at random
+#: moments, an operator's Ctrl-C)
+FAULTS = {
+    "faults": 2, "fault_kinds": ["stand:stall", "stand:stand_fault", "stand:estop",
+                                 "stand:modbus_exception", "instrument:silent",
+                                 "instrument:garbled"],
+    "operator_stop_p": 0.2,
+}
 DATA = ("stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl")
 
 
@@ -64,7 +73,8 @@ def bench_config(tree: Path, args: argparse.Namespace, out: Path) -> Path:
     if args.mode is not None:
         base["stand"]["mode"] = args.mode
     if args.disturb_seed is not None:
-        base["sim"]["disturb"] = {"seed": args.disturb_seed, **DISTURB}
+        base["sim"]["disturb"] = {"seed": args.disturb_seed, **DISTURB,
+                                  **(FAULTS if args.faults else {})}
     for sec, key in (("stand", "register_map"), ("instrument", "eds"), ("instrument", "dbc")):
         v = base.get(sec, {}).get(key)
         if isinstance(v, str) and not Path(v).is_absolute():
@@ -146,6 +156,7 @@ def one(tree: Path, args: argparse.Namespace) -> dict[str, Any]:
         for opt in ("duration", "mode", "disturb_seed"):
             if getattr(args, opt) is not None:
                 cmd += [f"--{opt.replace('_', '-')}", str(getattr(args, opt))]
+        cmd += ["--faults"] if args.faults else []
         env = {**os.environ, "PYTHONPATH": str(tree)}
         proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
@@ -172,6 +183,8 @@ def main() -> int:
     ap.add_argument("--protocol", choices=sorted(PROTOCOLS), default="canopen")
     ap.add_argument("--mode", choices=("buffered", "stream", "table"), default=None)
     ap.add_argument("--disturb-seed", type=int, default=None)
+    ap.add_argument("--faults", action="store_true",
+                    help="with --disturb-seed: stand and instrument faults too")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--against", type=Path, default=None,
                     help="another checkout (the baseline), run interleaved with this one")
@@ -186,7 +199,8 @@ def main() -> int:
         trees = {"baseline": args.against.resolve(), "this": ROOT}
     what = [args.profile, f"link {args.link}", args.protocol]
     what += [f"mode {args.mode}"] if args.mode else []
-    what += [f"disturbances seed {args.disturb_seed}"] if args.disturb_seed is not None else []
+    what += [f"disturbances seed {args.disturb_seed}" + (" with faults" if args.faults else "")
+             ] if args.disturb_seed is not None else []
     what += [f"duration {args.duration:g} s"] if args.duration is not None else []
     print(f"{', '.join(what)}; load average before: "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
