@@ -434,6 +434,8 @@ class SimInstrument:
     def _true_many(self, ts: Any) -> dict[str, Any]:
         """``_true`` at each of ``ts`` in one call (a motion with ``true_angles_many``)."""
         a = self.motion.true_angles_many(ts)  # type: ignore[attr-defined]
+        if all(ax in a for ax in AXES):
+            return a
         zero = np.zeros(len(ts))
         return {ax: a.get(ax, zero) for ax in AXES}
 

@@ -188,6 +188,7 @@ class SimStand:
             m.tick_s,
         )
         self._soft_limit_deg = sim_cfg.soft_limit_deg
+        self._fb_span = self.map.feedback_span()
         self._watchdog_s = sim_cfg.watchdog_s
         self.requests = 0  # requests served (for tests and figures)
         self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
@@ -359,8 +360,9 @@ class SimStand:
             k0 = np.floor(u).astype(np.int64)
             k1 = np.minimum(k0 + 1, k_end)
             w = (u - k0)[:, None]
-            rows = (1.0 - w) * self._hist[k0 % n] + w * self._hist[k1 % n]
-        return {a: rows[:, i].copy() for i, a in enumerate(self.axes)}
+            hist = self._hist  # rows k0 % n and k1 % n
+            rows = (1.0 - w) * hist.take(k0, 0, mode="wrap") + w * hist.take(k1, 0, mode="wrap")
+        return {a: rows[:, i] for i, a in enumerate(self.axes)}
 
     def servo_response(self, f_hz: float) -> complex:
         """Small-signal angle/setpoint response at ``f_hz`` (see ``ServoModel.response``)."""
@@ -682,7 +684,7 @@ class SimStand:
             for i in range(tr.push_size(len(m.axes), tr.max_points_per_push)):
                 rw_words[tr.push_address + i] = 0
         blocks += _blocks(rw_words, readonly=False)
-        fb_addr, fb_count = m.feedback_span()
+        fb_addr, fb_count = self._fb_span
         blocks += _blocks({fb_addr + i: 0 for i in range(fb_count)}, readonly=True)
         return blocks
 
@@ -757,7 +759,7 @@ class SimStand:
         and, where the map has ``sample_time``, the stand's clock then (lock held)."""
         m = self.map
         since = max(0.0, now - (self._t0 + self._k * self._tick_s)) if self._clock_on else 0.0
-        fb_addr, fb_count = m.feedback_span()
+        fb_addr, fb_count = self._fb_span
         if address >= fb_addr + fb_count or address + count <= fb_addr:
             return
         bits = {
