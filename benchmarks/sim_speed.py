@@ -120,9 +120,10 @@ def child(tree: Path, args: argparse.Namespace) -> None:
     t_end = time.perf_counter()
     first = next((s for s in ("fade-in", "running") if s in stamps), None)
     last = next((s for s in ("analysing", "aborted") if s in stamps), None)
-    if first is None or last is None:
-        raise SystemExit(f"the run never moved: {res.state} {res.reason}")
-    a, b = stamps[first], stamps[last]
+    if first is None or last is None:  # ended before the motion: no motion to time
+        a = b = stamps.get(last or "", (t_end, 0.0, 0, 0.0, 0.0, 0))
+    else:
+        a, b = stamps[first], stamps[last]
     rec = res.recording
     print(json.dumps({
         "state": res.state, "exit": res.exit_code, "recording": str(rec),
@@ -168,6 +169,10 @@ def one(tree: Path, args: argparse.Namespace) -> dict[str, Any]:
 
 def show(name: str, r: dict[str, Any]) -> None:
     sim = r["motion_sim"]
+    if sim <= 0 or r["motion_wall"] <= 0:
+        print(f"  {name:9s} {r['state']:7s} pre {r['pre_wall']:5.2f} s | no motion | after "
+              f"{r['after_wall']:5.2f} s | total {r['total_wall']:6.2f} s", flush=True)
+        return
     print(f"  {name:9s} {r['state']:7s} pre {r['pre_wall']:5.2f} s | motion {sim:6.1f} s sim "
           f"in {r['motion_wall']:6.2f} s wall = {sim / r['motion_wall']:5.1f}× real time; "
           f"{r['motion_switches'] / sim:4.0f} hand-overs, {r['motion_csw'] / sim:4.0f} context "
@@ -221,6 +226,10 @@ def main() -> int:
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     med = {}
     for name, rs in got.items():
+        rs = [r for r in rs if r["motion_sim"] > 0 and r["motion_wall"] > 0]
+        if not rs:
+            print(f"{name:9s}: no motion")
+            continue
         speed = [r["motion_sim"] / r["motion_wall"] for r in rs]
         cpu = [1000.0 * (r["motion_user"] + r["motion_sys"]) / r["motion_sim"] for r in rs]
         after = statistics.median(r["after_wall"] for r in rs)
@@ -229,7 +238,7 @@ def main() -> int:
         print(f"{name:9s}: motion {statistics.median(speed):5.1f}× real time (median; best "
               f"{max(speed):5.1f}×), CPU {min(cpu):5.1f} ms per simulated second (least); "
               f"after the motion {after:5.2f} s, the whole run {total:6.2f} s (medians)")
-    if "baseline" in med:
+    if "baseline" in med and "this" in med:
         b, t = med["baseline"], med["this"]
         print(f"this / baseline: motion ×{t[0] / b[0]:.2f} as fast (median; best ×"
               f"{t[1] / b[1]:.2f}), CPU per simulated second ×{b[2] / t[2]:.2f} less; after the "
