@@ -3,11 +3,19 @@
 - ``Clock.set_at``: the virtual clock sets an event at its time, by itself (no thread wakes
   before then); the real clock sets it at once. A reader of an in-process link waiting for a
   write wakes once, on its arrival, not also when it was sent.
+- ``VirtualClock.call_at`` and ``Endpoint.serve``: the clock runs a device's work at its time,
+  in order with the threads, where a thread woken then would have run; it never waits.
+- The simulated stand's fast path for reads and read/writes answers as pymodbus's path does,
+  byte for byte.
 """
 
 from __future__ import annotations
 
+import math
 import threading
+from typing import Any
+
+import pytest
 
 from benchctl import channels
 from benchctl.clock import REAL
@@ -70,6 +78,69 @@ def test_a_link_reader_wakes_once_per_write_on_its_arrival() -> None:
     assert [d for d, _ in got] == [b"ab"] * 3
     for i, (_, when) in enumerate(got):
         assert abs(when - (0.001 + 0.01 * i + 0.0005 + 0.0002)) < 1e-12
+
+
+def test_call_at_runs_at_its_time_in_order_with_the_threads() -> None:
+    clock = VirtualClock(start_s=0.0)
+    seen: list[tuple[str, float]] = []
+    with clock.running():
+        def worker() -> None:
+            clock.sleep(0.2)
+            seen.append(("thread", clock.monotonic()))
+            clock.call_at(clock.monotonic(), lambda: seen.append(("now", clock.monotonic())),
+                          "sim-now")
+            seen.append(("thread again", clock.monotonic()))
+
+        t = clock.thread(worker, name="worker")
+        t.start()
+        clock.call_at(0.1, lambda: seen.append(("cb", clock.monotonic())), "sim-cb")
+        clock.call_at(0.2, lambda: seen.append(("cb2", clock.monotonic())), "sim-cb2")
+        t.join()
+        clock.sleep(0.01)
+    # at 0.2 the callback set first runs before the worker's sleep (set when the worker first
+    # ran, once this thread waited) ends; a callback due now runs once the thread running has
+    # given the baton up
+    assert seen == [("cb", 0.1), ("cb2", 0.2), ("thread", 0.2), ("thread again", 0.2),
+                    ("now", 0.2)]
+
+
+def test_a_callback_never_waits_and_its_error_is_reported_as_a_threads(monkeypatch: Any) -> None:
+    from benchctl.errors import SimulationHang
+
+    hooked: list[tuple[type[BaseException] | None, str]] = []
+    monkeypatch.setattr(threading, "excepthook",
+                        lambda a: hooked.append((a.exc_type, a.thread.name)))
+    clock = VirtualClock(start_s=0.0)
+    with clock.running():
+        clock.call_at(0.1, lambda: clock.sleep(1.0), "sim-sleeper")
+        clock.call_at(0.2, lambda: 1 / 0, "sim-divider")
+        clock.sleep(0.5)
+        assert clock.monotonic() == 0.5
+    assert hooked == [(SimulationHang, "sim-sleeper"), (ZeroDivisionError, "sim-divider")]
+
+
+def test_a_served_endpoint_runs_its_handler_at_each_arrival() -> None:
+    clock = VirtualClock(start_s=0.0)
+    with clock.running():
+        host, dev = channels.link(clock, "t", latency_s=0.001)
+        calls: list[float] = []
+
+        def handler() -> None:
+            calls.append(clock.monotonic())
+            data = dev.read(100, 0.0)
+            if data:
+                dev.write(data.upper())
+
+        dev.serve(handler, "sim-echo")
+        host.write(b"ab")
+        assert host.read(10, timeout=1.0) == b"AB"
+        assert clock.monotonic() == 0.002 and calls == [0.001]
+        host.write(b"c")
+        host.write(b"d")  # two writes in flight: the first call reads both
+        assert host.read(10, timeout=1.0) == b"CD"
+        assert calls == [0.001, 0.003, 0.003]
+    with pytest.raises(TypeError):
+        channels.link(REAL, "r")[1].serve(handler, "sim-echo")
 
 
 # -- the simulated stand's fast path for reads and read/writes ------------------------------
@@ -172,10 +243,6 @@ def _requests(framing: str, seed: int, n: int) -> list[bytes]:
         out.append(frame)
     return out
 
-
-import math  # noqa: E402
-
-import pytest  # noqa: E402
 
 
 @pytest.mark.parametrize("framing", ["tcp", "rtu"])

@@ -275,7 +275,7 @@ class SimStand:
 
     def _start_channel(self) -> None:
         """Transport "channel": the link, a server thread and a physics thread on the clock."""
-        from benchctl.sim.stand_wire import StandWire, serve_endpoint
+        from benchctl.sim.stand_wire import StandWire, serve_endpoint, serve_on_arrival
 
         byte_time = 0.0
         if self.framing == "rtu" and self.cfg.rtu_wire_delay:
@@ -286,16 +286,20 @@ class SimStand:
         self.client_endpoint = host
         self.device_endpoint = device
         wire = StandWire(self, self.framing)
-        server = self.clock.thread(
-            serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
-        )
         # on simulated time the physics thread wakes every 50 ticks (each request brings the
         # state to its own instant first): the same states, far fewer hand-overs
         physics = self.clock.thread(
             self._physics_loop, name="sim-stand-physics", args=(50 if self.clock.virtual else 1,)
         )
-        self._threads += [physics, server]
+        self._threads.append(physics)
         physics.start()
+        if self.clock.virtual:  # the server's loop run by the clock at each request's arrival
+            serve_on_arrival(wire, device, self._stop_evt, "sim-stand-modbus")
+            return
+        server = self.clock.thread(
+            serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
+        )
+        self._threads.append(server)
         server.start()
 
     def stop(self) -> None:

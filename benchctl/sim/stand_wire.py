@@ -190,6 +190,32 @@ def _runs(flags: list[int], size: int, *, readonly_too: bool) -> list[int]:
     return out[:size]
 
 
+def serve_on_arrival(wire: StandWire, ep: Endpoint, stop: EventLike, name: str) -> None:
+    """:func:`serve_endpoint` without its thread, on a virtual clock: the clock runs the loop's
+    body at each request's arrival (``Endpoint.serve``) — where the thread, waiting in its
+    read, would have been woken — so the stand answers the same bytes at the same instants in
+    the same order, without two hand-overs of the baton per request."""
+    dead = False
+
+    def handle() -> None:
+        nonlocal dead
+        if dead:
+            return
+        try:
+            while not stop.is_set():  # serve_endpoint's loop, up to its next wait
+                data = ep.read(1 << 16, 0.0)
+                if not data:
+                    return
+                reply = wire.feed(data)
+                if reply and not ep.closed:
+                    ep.write(reply)
+        except BaseException:
+            dead = True  # as the thread would have ended: no more answers
+            raise
+
+    ep.serve(handle, name)
+
+
 def serve_endpoint(wire: StandWire, ep: Endpoint, stop: EventLike) -> None:
     """A device's server loop on an in-process link: each request in (a write arrives whole,
     as a frame ends with the line's silence), its reply out."""
