@@ -272,3 +272,20 @@ def test_the_stands_fast_path_answers_as_pymodbus_does_byte_for_byte(framing: st
         assert fast_st._traj.points == slow_st._traj.points  # type: ignore[attr-defined]
         assert fast_st._enabled == slow_st._enabled  # type: ignore[attr-defined]
         assert fast_hits > 1000  # the well-formed reads and read/writes went the fast way
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "sched_setscheduler"), reason="Linux only")
+def test_the_clocks_threads_run_in_the_batch_class_and_the_entering_thread_gets_its_back() -> None:
+    import os
+
+    before = os.sched_getscheduler(0)
+    clock = VirtualClock(start_s=0.0)
+    seen: list[int] = []
+    with clock.running():
+        seen.append(os.sched_getscheduler(0))
+        t = clock.thread(lambda: seen.append(os.sched_getscheduler(0)), name="t")
+        t.start()
+        t.join()
+    assert os.sched_getscheduler(0) == before
+    if before == os.SCHED_OTHER:
+        assert seen == [os.SCHED_BATCH, os.SCHED_BATCH]
