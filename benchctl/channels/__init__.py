@@ -185,6 +185,9 @@ class Endpoint:
         for p in (self._rx, self._tx):
             p.closed = True
             p.changed.set()
+            if p.handler is not None:  # as a reader woken by the close: runs after those ready
+                fn, name = p.handler
+                self.clock.call_at(self.clock.monotonic(), fn, name)  # type: ignore[attr-defined]
 
 
 def link(
