@@ -7,6 +7,9 @@
   in order with the threads, where a thread woken then would have run; it never waits.
 - The simulated stand's fast path for reads and read/writes answers as pymodbus's path does,
   byte for byte.
+- The simulated instrument's loop run by the clock outputs what its thread outputs, at the same
+  instants.
+- The clock's threads run in the operating system's batch scheduling class.
 """
 
 from __future__ import annotations
@@ -289,3 +292,90 @@ def test_the_clocks_threads_run_in_the_batch_class_and_the_entering_thread_gets_
     assert os.sched_getscheduler(0) == before
     if before == os.SCHED_OTHER:
         assert seen == [os.SCHED_BATCH, os.SCHED_BATCH]
+
+
+# -- the simulated instrument's loop run by the clock ---------------------------------------
+
+class _Sine:
+    def true_angles(self, t: float) -> dict[str, float]:
+        return {"roll": 3.0 * math.sin(t), "pitch": math.cos(2.0 * t)}
+
+
+def _instrument_trace(driver: str, threaded: bool, monkeypatch: Any) -> list[Any]:
+    """What the host end of a simulated instrument's link receives over 3 s of simulated time
+    (each read with its instant), with the host's own bytes, raw bytes and faults meanwhile,
+    then what it gets as the instrument stops; its loop as a thread or run by the clock."""
+    from pathlib import Path
+
+    from benchctl.config import InstrumentConfig, SimInstrumentConfig
+    from benchctl.sim import instrument as sim_instrument
+
+    root = Path(__file__).resolve().parent.parent / "drivers"
+    base: dict[str, Any] = {"driver": driver}
+    if driver == "nmea0183":
+        base["serial_port"] = "set-by-the-simulator"
+    else:
+        base.update(interface="slcan", channel="set-by-the-simulator")
+    if driver == "canopen":
+        base["eds"] = root / "cia410_inclinometer.eds"
+    if driver == "j1939":
+        base["dbc"] = root / "j1939_slope.dbc"
+    with monkeypatch.context() as mp:
+        if threaded:  # the loop as a thread, as on the host's time
+            mp.setattr(sim_instrument.SimInstrument, "start", _threaded_start)
+        clock = VirtualClock(start_s=0.0)
+        out: list[Any] = []
+        with clock.running():
+            sim = sim_instrument.SimInstrument(
+                SimInstrumentConfig(rate_hz=100.0, noise_deg=0.05, lag_s=0.05, seed=3),
+                InstrumentConfig(**base), _Sine(), clock=clock,
+                channel=channels.free_name("fast-paths"))
+            sim.start()
+            assert isinstance(sim._thread, sim_instrument._Loop) != threaded
+            host = channels.lookup(sim.channel or "")
+            if driver != "nmea0183":
+                host.write(b"C\rS6\rO\r")  # the host opens the adapter (acknowledged)
+            if driver == "canopen":  # NMT start: the node sends its PDOs
+                host.write(f"t000201{sim.cfg.node_id:02X}\r".encode())
+            end = clock.monotonic() + 3.0
+            while clock.monotonic() < end:
+                got = host.read(1 << 16, 0.013)
+                out.append((round(clock.monotonic(), 9), got))
+                n = len(out)
+                if n == 40:
+                    sim.send_raw(b"raw!\r")
+                if n == 60:
+                    sim.inject("garbled", fraction=0.5)
+                if n == 90:
+                    sim.clear_faults()
+                    sim.inject("silent")
+                if n == 120:
+                    sim.clear_faults()
+            sim.stop()
+            out.append(("stopped", round(clock.monotonic(), 9), dict(sim.counts)))
+            channels.unregister(sim.channel or "")
+        return out
+
+
+def _threaded_start(self: Any) -> None:
+    self._port = __import__("benchctl.sim.instrument", fromlist=["_ChannelPort"])._ChannelPort(
+        self.clock, self.channel_name, self.cfg.baudrate)
+    self.serial_port = self.channel = self._port.path
+    if self.is_can:
+        from benchctl.sim.slcan import SlcanAdapter
+
+        self._adapter = SlcanAdapter(self.cfg.bitrate, self._on_host_frame,
+                                     clock=self.clock.monotonic)
+    self._stop.clear()
+    self._thread = self.clock.thread(self._run_channel, name=f"sim-instrument-{self.driver}")
+    self._thread.start()
+    self._ready.wait(5.0)
+
+
+@pytest.mark.parametrize("driver", ["canopen", "j1939", "nmea0183"])
+def test_the_instruments_loop_run_by_the_clock_outputs_as_its_thread(
+        driver: str, monkeypatch: Any) -> None:
+    by_clock = _instrument_trace(driver, False, monkeypatch)
+    by_thread = _instrument_trace(driver, True, monkeypatch)
+    assert sum(len(b) for _, b in by_clock[:-1]) > 3000  # it did talk
+    assert by_clock == by_thread
