@@ -148,8 +148,11 @@ def test_a_served_endpoint_runs_its_handler_at_each_arrival() -> None:
 
 # -- the simulated stand's fast path for reads and read/writes ------------------------------
 
-def _stands(framing: str, clock: VirtualClock) -> tuple[object, object, object, object]:
-    """Two identical stands, one answering through the fast path, one through pymodbus's."""
+def _stands(framing: str, clock: VirtualClock, *, general_physics: bool = False,
+            **cfg: Any) -> tuple[Any, Any, Any, Any]:
+    """Two identical stands, one answering through the fast path, one through pymodbus's (or,
+    ``general_physics``: both through the fast path, the second ticking its physics through
+    the general ``_tick`` only)."""
     from pathlib import Path
 
     from benchctl.config import SimStandConfig, StandLimits
@@ -157,16 +160,21 @@ def _stands(framing: str, clock: VirtualClock) -> tuple[object, object, object, 
     from benchctl.sim.stand_wire import StandWire
 
     root = Path(__file__).resolve().parent.parent
-    out = []
+    out: list[Any] = []
     for _ in range(2):
-        st = SimStand(SimStandConfig(bandwidth_hz=8, damping=0.8, watchdog_s=3600),
+        st = SimStand(SimStandConfig(**{"bandwidth_hz": 8, "damping": 0.8, "watchdog_s": 3600,
+                                        **cfg}),
                       limits=StandLimits(angle_deg=30, rate_deg_s=30, accel_deg_s2=60),
                       register_map=root / "drivers/stand_generic.yaml", transport="channel",
                       framing=framing, clock=clock)  # type: ignore[arg-type]
         st._t0 = st._hb_time = st._start_time = clock.monotonic()
         st._clock_on = True
-        out += [st, StandWire(st, framing)]  # type: ignore[arg-type]
-    out[3]._fast = lambda data: None  # type: ignore[attr-defined]  # the general path only
+        out += [st, StandWire(st, framing)]
+    if general_physics:
+        out[2]._follow = lambda t, states: False
+        out[2]._follow2 = lambda k, k_target, states: k
+    else:
+        out[3]._fast = lambda data: None  # the general path only
     return out[0], out[1], out[2], out[3]
 
 
@@ -262,36 +270,124 @@ def test_the_stands_fast_path_answers_as_pymodbus_does_byte_for_byte(framing: st
             fast_hits += got is not None
             return got
 
-        fast._fast = counting  # type: ignore[attr-defined]
+        fast._fast = counting
         for i, frame in enumerate(_requests(framing, 7, 4000)):
-            a = fast.feed(frame)  # type: ignore[attr-defined]
-            b = slow.feed(frame)  # type: ignore[attr-defined]
+            a = fast.feed(frame)
+            b = slow.feed(frame)
             assert a == b, (i, frame.hex(), a.hex(), b.hex())
             if i % 10 == 9:  # a frame left half-way in one buffer: both start afresh
-                fast._buf = slow._buf = b""  # type: ignore[attr-defined]
+                fast._buf = slow._buf = b""
             clock.sleep(0.003)
-        assert fast._regs == slow._regs  # type: ignore[attr-defined]
-        assert fast_st.requests == slow_st.requests  # type: ignore[attr-defined]
-        assert fast_st._traj.points == slow_st._traj.points  # type: ignore[attr-defined]
-        assert fast_st._enabled == slow_st._enabled  # type: ignore[attr-defined]
+        assert fast._regs == slow._regs
+        assert fast_st.requests == slow_st.requests
+        assert fast_st._traj.points == slow_st._traj.points
+        assert fast_st._enabled == slow_st._enabled
         assert fast_hits > 1000  # the well-formed reads and read/writes went the fast way
 
 
-@pytest.mark.skipif(not hasattr(__import__("os"), "sched_setscheduler"), reason="Linux only")
-def test_the_clocks_threads_run_in_the_batch_class_and_the_entering_thread_gets_its_back() -> None:
-    import os
+def _episodes(seed: int, n: int) -> Any:
+    """A host driving a stand through trajectory episodes (MBAP frames, each with the pause
+    after it): reset, period, enable, pushes ahead, start; then heartbeats, feedback reads and
+    pushes every 10 ms until the episode ends — by a stop, an E-stop, a silence (the watchdog),
+    the queue run dry (an underrun) or points beyond the soft limit."""
+    import random
+    import struct
 
-    before = os.sched_getscheduler(0)
+    rng = random.Random(seed)
+    tid = 0
+
+    def frame(pdu: bytes) -> bytes:
+        nonlocal tid
+        tid = (tid + 1) & 0xFFFF
+        return struct.pack(">HHHB", tid, 0, len(pdu) + 1, 1) + pdu
+
+    def fc16(addr: int, words: list[int]) -> bytes:
+        return frame(struct.pack(">BHHB", 16, addr, len(words), 2 * len(words))
+                     + b"".join(w.to_bytes(2, "big") for w in words))
+
+    def f32(v: float) -> list[int]:
+        b = struct.pack(">f", v)
+        return [int.from_bytes(b[:2], "big"), int.from_bytes(b[2:], "big")]
+
+    def push(first: int, amp: float, count: int) -> bytes:
+        regs = [first >> 16, first & 0xFFFF, count]
+        for j in range(count):
+            t = (first + j) * 0.01
+            regs += f32(amp * math.sin(1.3 * t)) + f32(0.6 * amp * math.cos(0.7 * t))
+        return frame(struct.pack(">BHHHHB", 23, 200, 26, 400, len(regs), 2 * len(regs))
+                     + b"".join(w.to_bytes(2, "big") for w in regs))
+
+    read = frame(struct.pack(">BHH", 3, 200, 26))
+    hb = 0
+    for _ in range(n):
+        end = rng.choice(["stop", "estop", "silence", "dry", "soft", "long"])
+        amp = 6.0 if end == "soft" else rng.uniform(1.0, 3.5)
+        yield fc16(100, [8]), 0.002  # fault reset
+        yield fc16(230, f32(0.01)), 0.002
+        yield fc16(100, [1]), 0.002
+        nxt = 0
+        yield push(nxt, amp, 24), 0.002
+        nxt += 24
+        yield fc16(100, [1 | 32]), 0.003
+        for c in range(rng.randint(60, 400)):
+            if end != "silence" or c < 30:
+                hb = (hb + 1) & 0xFFFF
+                yield frame(struct.pack(">BHH", 6, 101, hb)), 0.0005
+            if (end != "dry" or c < 40) and nxt < (c + 1) + 40:
+                yield push(nxt, amp, 12), 0.001
+                nxt += 12
+            else:
+                yield read, 0.001
+            yield read, rng.choice([0.0085, 0.0085, 0.0085, 0.02, 0.0013])
+        if end == "stop":
+            yield fc16(100, [1 | 4]), 0.3
+        elif end == "estop":
+            yield fc16(100, [16]), 0.3
+        else:
+            yield read, 0.5
+
+
+def test_the_stands_physics_in_one_piece_ticks_as_the_general_tick() -> None:
+    """Following the trajectory queue, tick by tick or many ticks at once, against the
+    general tick alone — through soft-limit faults (a low soft limit), the watchdog, scheduled
+    faults, underruns, stops, E-stops and resets: the same replies, states, history, peaks."""
+    import numpy as np
+
+    from benchctl.config import SimStandFault
+
     clock = VirtualClock(start_s=0.0)
-    seen: list[int] = []
     with clock.running():
-        seen.append(os.sched_getscheduler(0))
-        t = clock.thread(lambda: seen.append(os.sched_getscheduler(0)), name="t")
-        t.start()
-        t.join()
-    assert os.sched_getscheduler(0) == before
-    if before == os.SCHED_OTHER:
-        assert seen == [os.SCHED_BATCH, os.SCHED_BATCH]
+        fast_st, fast, slow_st, slow = _stands(
+            "tcp", clock, general_physics=True, soft_limit_deg=4.5, watchdog_s=0.3,
+            faults=(SimStandFault(kind="stand_fault", after_s=13.0, code=9),
+                    SimStandFault(kind="estop", after_s=41.0)))
+        followed = 0
+        orig = fast_st._follow2
+
+        def counting(k: int, k_target: int, states: Any) -> int:
+            nonlocal followed
+            done: int = orig(k, k_target, states)
+            followed += done - k
+            return done
+
+        fast_st._follow2 = counting
+        for i, (frame, pause) in enumerate(_episodes(5, 40)):
+            assert fast.feed(frame) == slow.feed(frame), i
+            clock.sleep(pause)
+            if i % 25 == 0:  # as the instrument and the physics thread look at it
+                ts = clock.monotonic() - 0.0137 * np.arange(5)[::-1]
+                ta, tb = fast_st.true_angles_many(ts), slow_st.true_angles_many(ts)
+                assert all((ta[a] == tb[a]).all() for a in ta)
+        for name in ("_k", "_mode", "_enabled", "_fault_code", "_estop", "_limit", "_target",
+                     "_stream_target", "_peaks", "_axis_fault", "_traj_stop"):
+            assert getattr(fast_st, name) == getattr(slow_st, name), name
+        assert [(s.angle_deg, s.rate_deg_s) for s in fast_st._state.values()] == [
+            (s.angle_deg, s.rate_deg_s) for s in slow_st._state.values()]
+        assert (fast_st._hist == slow_st._hist).all()
+        assert fast_st._traj.points == slow_st._traj.points
+        assert fast_st._traj.underruns == slow_st._traj.underruns > 0
+        assert fast_st.enables > 10
+        assert followed > 20_000  # most ticks went the one-piece way
 
 
 # -- the simulated instrument's loop run by the clock ---------------------------------------

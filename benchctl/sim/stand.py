@@ -446,7 +446,13 @@ class SimStand:
         idx = range(len(states))
         t0 = self._t0
         k = self._k
+        two = len(states) == 2
         while k < k_target:
+            if two and self._mode == "trajectory" and self._enabled:
+                done = self._follow2(k, k_target, states)
+                if done > k:
+                    k = done
+                    continue
             k += 1
             self._k = k
             t = t0 + k * tick
@@ -455,6 +461,83 @@ class SimStand:
             r = k % n
             for j in idx:
                 hist[r, j] = states[j].angle_deg
+
+    def _follow2(self, k: int, k_target: int, states: list[AxisState]) -> int:
+        """:meth:`_follow` for a two-axis stand, tick after tick from tick ``k + 1`` up to
+        ``k_target`` in one call (the state in local variables, written back once): the same
+        arithmetic in the same order. Stops before the first tick ``_follow`` would not take;
+        returns the last tick done (``k``: none)."""
+        pending = self._pending_faults
+        fault_after = pending[0].after_s if pending else None
+        start = self._start_time
+        hb, held, wd = self._hb_time, self._held_s, self._watchdog_s
+        q = self._traj
+        base, t_start, period, points, first = q.base, q.t_start, q.period_s, q.points, q.first
+        wn2, c2, a_max, v_max, dt = self._servo_terms
+        soft = self._soft_limit_deg
+        t0, tick_s, hist = self._t0, self._tick_s, self._hist
+        n = hist.shape[0]
+        s0, s1 = states
+        x0, v0, x1, v1 = s0.angle_deg, s0.rate_deg_s, s1.angle_deg, s1.rate_deg_s
+        a0, a1 = self.axes
+        pk0, pk1 = self._peaks[a0], self._peaks[a1]
+        r0_max, acc0_max, r1_max, acc1_max = pk0[0], pk0[1], pk1[0], pk1[1]
+        tg0 = tg1 = 0.0
+        done = k
+        while done < k_target:
+            kk = done + 1
+            t = t0 + kk * tick_s
+            if fault_after is not None and t - start >= fault_after:
+                break
+            if t - hb - held > wd:
+                break
+            u = base + (t - t_start) / period
+            i = math.floor(u) - first
+            if i < 0 or i + 1 >= len(points):
+                break
+            if i > 0:  # as q.at(u) does: the points before the one being played are dropped
+                del points[:i]
+                first += i
+            w = u - first
+            w0 = 1.0 - w
+            pa, pb = points[0], points[1]
+            t0_ = w0 * pa[0] + w * pb[0]
+            acc = wn2 * (t0_ - x0) - c2 * v0
+            acc = min(max(acc, -a_max), a_max)
+            rate0 = min(max(v0 + acc * dt, -v_max), v_max)
+            y0 = x0 + rate0 * dt
+            if (y0 > soft or -y0 > soft) and y0 * rate0 > 0:
+                break  # a soft limit: _tick faults the stand
+            t1_ = w0 * pa[1] + w * pb[1]
+            acc = wn2 * (t1_ - x1) - c2 * v1
+            acc = min(max(acc, -a_max), a_max)
+            rate1 = min(max(v1 + acc * dt, -v_max), v_max)
+            y1 = x1 + rate1 * dt
+            if (y1 > soft or -y1 > soft) and y1 * rate1 > 0:
+                break
+            accel = (rate0 - v0) / tick_s
+            if rate0 > r0_max or -rate0 > r0_max:
+                r0_max = abs(rate0)
+            if accel > acc0_max or -accel > acc0_max:
+                acc0_max = abs(accel)
+            accel = (rate1 - v1) / tick_s
+            if rate1 > r1_max or -rate1 > r1_max:
+                r1_max = abs(rate1)
+            if accel > acc1_max or -accel > acc1_max:
+                acc1_max = abs(accel)
+            x0, v0, x1, v1 = y0, rate0, y1, rate1
+            tg0, tg1 = t0_, t1_
+            r = kk % n
+            hist[r, 0] = x0
+            hist[r, 1] = x1
+            done = kk
+        q.first = first
+        if done > k:
+            s0.angle_deg, s0.rate_deg_s, s1.angle_deg, s1.rate_deg_s = x0, v0, x1, v1
+            self._target[a0], self._target[a1] = tg0, tg1
+            pk0[0], pk0[1], pk1[0], pk1[1] = r0_max, acc0_max, r1_max, acc1_max
+            self._k = done
+        return done
 
     def _follow(self, t: float, states: list[AxisState]) -> bool:
         """``_tick(t)`` of a stand following its trajectory queue, when nothing else happens
