@@ -9,7 +9,6 @@
   byte for byte.
 - The simulated instrument's loop run by the clock outputs what its thread outputs, at the same
   instants.
-- The clock's threads run in the operating system's batch scheduling class.
 """
 
 from __future__ import annotations

@@ -31,7 +31,6 @@ import ctypes
 import heapq
 import itertools
 import logging
-import os
 import queue
 import sys
 import threading
@@ -50,31 +49,6 @@ log = logging.getLogger(__name__)
 #: the default epoch of a simulated run's wall time: recordings made on simulated time carry
 #: stamps from here, never the host's date
 DEFAULT_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)
-
-
-def _batch_scheduling() -> tuple[int, Any] | None:
-    """Put the calling thread in the operating system's batch scheduling class (Linux's
-    ``SCHED_BATCH``) and return its previous (policy, parameters), or None (not Linux, not the
-    normal class, or refused). The clock's threads hand the baton over hundreds of times a
-    simulated second; in the normal class the thread woken preempts the one waking it, which
-    still has to reach its own wait, and on a loaded machine each hand-over then costs a few
-    extra context switches (18–28 µs measured against 7 µs). A batch thread is not preempted
-    on a wake-up. Only the host's scheduling changes: the run's simulated time and order are
-    the clock's, whatever the operating system does."""
-    try:
-        old = (os.sched_getscheduler(0), os.sched_getparam(0))
-        if old[0] != os.SCHED_OTHER:
-            return None
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-    except (AttributeError, OSError):
-        return None
-    return old
-
-
-def _restore_scheduling(old: tuple[int, Any] | None) -> None:
-    if old is not None:
-        with contextlib.suppress(AttributeError, OSError):
-            os.sched_setscheduler(0, old[0], old[1])
 
 
 class ClockClosed(BaseException):
@@ -294,12 +268,10 @@ class VirtualClock:
             target=self._watch, name="virtual-clock-watchdog", daemon=True
         )
         self._watchdog.start()
-        sched = _batch_scheduling()
         try:
             yield self
         finally:
             self._end_others(task)
-            _restore_scheduling(sched)
             self._watchdog_stop.set()
             with self._mu:
                 task.done = True
@@ -756,7 +728,6 @@ class VThread:
         registered = threading.Event()
 
         def body() -> None:
-            _batch_scheduling()
             task.ident = threading.get_ident()
             with c._mu:
                 c._tasks[task.ident] = task
