@@ -577,6 +577,8 @@ class _Loop:
         self.clock.call_at(self.clock.monotonic(), self._first, self.name)
 
     def join(self, timeout: float | None = None) -> None:
+        if self.done or getattr(self.clock, "_root", None) is None:
+            return  # ended, or the clock has closed (as it ends its threads)
         self.exited.wait(timeout)
 
     def is_alive(self) -> bool:
