@@ -193,6 +193,10 @@ class SimStandConfig(Strict):
     watchdog_s: Seconds = 1.0  # heartbeat silence that stops the stand
     tick_hz: DeviceRate = 1000.0
     rtu_wire_delay: bool = True  # emulate serial byte time on the RTU pty
+    # stream mode: the drive interpolates linearly between consecutive setpoints over the
+    # interval between them (as a drive in cyclic synchronous position mode does), instead of
+    # stepping to each one (a staircase the servo follows with its own, higher acceleration)
+    stream_interpolation: bool = False
     baudrate: Baud = 115200  # byte time of the emulated RTU wire
     faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
 
@@ -536,10 +540,14 @@ MAX_SERIAL_PATTERN = 200  # characters of unit.serial_pattern
 class UnitConfig(Strict):
     """The unit under test: its part number (the serial is given per run: --serial) and the
     form every serial typed for it must have, ``serial_pattern``: a Python regular expression
-    the whole serial must match (e.g. ``SN-[0-9]{6}``), checked before anything opens."""
+    the whole serial must match (e.g. ``SN-[0-9]{6}``), checked before anything opens.
+    ``serial_check``: what a serial typed unlike the one the instrument reports does —
+    ``warn`` (the default: a warning, the run goes on) or ``require`` (a precheck: the run is
+    refused before the stand moves, as is an instrument that reports no serial)."""
 
     part_number: str | None = None
     serial_pattern: str | None = Field(default=None, min_length=1, max_length=MAX_SERIAL_PATTERN)
+    serial_check: Literal["warn", "require"] = "warn"
 
     @field_validator("part_number")
     @classmethod

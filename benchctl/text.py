@@ -5,6 +5,7 @@ identity strings devices report.
 :func:`check_station`) a value is refused with an ``InputError`` (exit 2) naming the option, the
 value (shown safe) and what is expected, unless it is
 
+- there: not empty, not blank (only whitespace: ``'   '``, a lone TAB);
 - printable: letters, digits, punctuation, symbols and spaces; no control character (C0, DEL,
   C1: ESC, CR, LF, TAB …), no format character (bidirectional overrides, zero-width
   characters, Unicode category Cf), no line or paragraph separator, no surrogate, private-use or
@@ -197,6 +198,9 @@ def check_text(value: object, option: str, max_chars: int, what: str) -> str:
     if not isinstance(value, str):
         raise InputError(f"{option} = {visible(repr(value))}: expected the {what} as text")
     s = value.strip()
+    if not s and value:  # '   ', a lone TAB or CR: typed, but nothing of a value
+        raise InputError(f"{option} {shown(value)}: blank (only whitespace); expected the "
+                         f"{what}")
     bad = problem(s, max_chars, what)
     if bad is not None:
         raise InputError(f"{option} {shown(s or value)}: {bad}")

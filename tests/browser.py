@@ -44,3 +44,25 @@ def pdf_pages(pdf: bytes) -> list[tuple[float, float]]:
         boxes = re.findall(rb"/MediaBox\s*\[\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s*\]",
                            pdf)
     return [(float(c) - float(a), float(d) - float(b)) for a, b, c, d in boxes]
+
+
+def pdf_text(pdf: Path) -> list[str]:
+    """The text of each page of a PDF, in reading order (pypdf), NFKC-normalised (the font's
+    ligatures, "ﬀ", read as their letters)."""
+    import unicodedata
+
+    from pypdf import PdfReader
+
+    return [unicodedata.normalize("NFKC", page.extract_text() or "")
+            for page in PdfReader(str(pdf)).pages]
+
+
+def print_pdf(page: Path, tmp: Path) -> Path:
+    """``page`` printed to ``tmp/<name>.pdf`` by headless Chromium (no header or footer);
+    fails the test on a browser error or an error from the page."""
+    pdf = tmp / (page.stem + ".pdf")
+    out = browser([f"--print-to-pdf={pdf}", "--no-pdf-header-footer"], page, tmp)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert page_errors(out.stderr) == [], out.stderr[-3000:]
+    assert pdf.read_bytes().startswith(b"%PDF-")
+    return pdf

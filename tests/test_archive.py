@@ -440,8 +440,9 @@ def test_a_second_bench_on_a_shared_postgresql_archive(
     out = json.loads(capsys.readouterr().out)
     assert [(r["run_id"], r["station"]) for r in out["runs"]] == [
         (r1.name, "bench-1"), (r2.name, "bench-2")]
-    assert {(d["station"], d["yield"]) for d in out["yield_per_day"]} == {
-        ("bench-1", 1.0), ("bench-2", 0.0)}
+    # the unit's yield per day (its own runs, on either bench)
+    assert {(d["day"], d["yield"]) for d in out["yield_per_day"]} == {
+        ("2026-11-20", 1.0), ("2026-11-21", 0.0)}
     assert not (runs1 / "archive.sqlite").exists()  # nothing went to a local file
 
 

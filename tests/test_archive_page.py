@@ -34,7 +34,7 @@ def test_history_page_in_headless_chromium(tmp_path: Path,
     dom = browser(["--dump-dom"], page, tmp_path)
     assert dom.returncode == 0, dom.stderr[-2000:]
     assert page_errors(dom.stderr) == [], dom.stderr[-3000:]
-    assert dom.stdout.count("<svg") == html.count("<svg") == 3  # σ, yield of two stations
+    assert dom.stdout.count("<svg") == html.count("<svg") == 2  # σ, the unit's yield per day
     assert dom.stdout.count("<circle") == 24  # a marker per run and axis
     assert "&lt;img src=x onerror=alert(1)&gt;" in dom.stdout
     pdf = tmp_path / "history.pdf"

@@ -29,7 +29,7 @@ from benchctl.analysis.inputs import load_csv_pair, load_single_csv
 from benchctl.cli import main
 from benchctl.config import MAX_PROFILE_SAMPLES, load_config, parse_config
 from benchctl.devices.modbus.regmap import load_register_map
-from benchctl.errors import ConfigError, DataError, InputError
+from benchctl.errors import ConfigError, DataError, InputError, LimitError
 from benchctl.plan import load_plan, run_plan
 from benchctl.profiles import load_profile
 from benchctl.profiles.loader import read_angle_csv
@@ -380,3 +380,21 @@ def test_the_cap_is_the_one_the_run_command_states() -> None:
     with pytest.raises(InputError):
         check_setpoints(20_000.0, 1000.0, "x")  # 2×10⁷ + 1 setpoints
     check_setpoints(19_999.0, 1000.0, "x")
+
+
+def test_a_table_longer_than_the_stands_is_refused_before_anything_opens() -> None:
+    """Table mode: the profile's table must fit the stand's (the register map's
+    ``axes.<axis>.table.max_lines``); refused while preparing, as a limit is — not after the
+    prechecks, as the driver's own upload check did (safety campaign seed 471)."""
+    cfg = load_config(ROOT / "config/sim.yaml")
+    cfg = cfg.model_copy(update={"stand": cfg.stand.model_copy(update={"mode": "table"})})
+    prof = ROOT / "profiles/sea_state_4_small_vessel.yaml"
+    with pytest.raises(LimitError) as e:
+        prepare_motion(cfg, prof, RunOptions(serial="S", operator="O", duration_s=300.0))
+    msg = str(e.value)
+    assert msg.startswith(f"{prof} on {cfg.source} (field stand.mode = 'table'): the roll table "
+                          "has 127 lines over 300 s, the stand's table takes at most 64"), msg
+    assert "expected mode 'buffered' or 'stream'" in msg
+    # a table that fits is prepared
+    ok = prepare_motion(cfg, ROOT / "profiles/sine_5s_5deg.yaml", RunOptions("S", "O"))
+    assert ok.plan.tables is not None

@@ -28,7 +28,7 @@ from typing import Any
 
 import pytest
 import yaml
-from junitparser import Error, Failure, JUnitXml, Skipped
+from junitparser import Error, Failure, JUnitXml, Properties, Skipped
 from run_sim import live_bench
 
 from benchctl.cli import main
@@ -129,17 +129,23 @@ def test_ci_plan_junit_counts(ci_plan: dict[str, Any]) -> None:
         suite = suites[step["name"]]
         ms = step["record"]["measurements"]
         cases = list(suite)
-        # one test case per measurement, in the record's order
+        # one test case per judged measurement, in the record's order; the NOT_JUDGED ones
+        # (no limit, a period not excited) are properties of the case they go with, never
+        # skipped tests
+        judged = [m for m in ms if m["outcome"] != "NOT_JUDGED"]
         assert [c.name for c in cases] == [
-            f"{m['axis']}: {m['name']}" if m["axis"] else m["name"] for m in ms]
+            f"{m['axis']}: {m['name']}" if m["axis"] else m["name"] for m in judged]
+        props = [p.name for c in cases for ps in c.iterchildren(Properties) for p in ps]
+        assert sorted(props) == sorted(f"{m['axis']}: {m['name']}" for m in ms
+                                       if m["outcome"] == "NOT_JUDGED")
         expected = {
-            "tests": len(ms),
+            "tests": len(judged),
             "failures": sum(m["decisive"] and m["outcome"] in ("FAIL", "INCONCLUSIVE")
                             for m in ms),
             "errors": 0,
-            "skipped": sum(m["outcome"] == "NOT_JUDGED" for m in ms),
+            "skipped": 0,
         }
-        assert expected["failures"] == 0 and expected["skipped"] > 0
+        assert expected["failures"] == 0 and len(props) > 0
         got = {"tests": len(cases),
                "failures": sum("Failure" in _kinds(c) for c in cases),
                "errors": sum("Error" in _kinds(c) for c in cases),
@@ -151,11 +157,23 @@ def test_ci_plan_junit_counts(ci_plan: dict[str, Any]) -> None:
             totals[k] += v
         by_name = {c.name: c for c in cases}
         assert _kinds(by_name["roll: sigma"]) == []  # passed
+        # every case its real time: the motion's for what it measured, a precheck its own
+        assert by_name["roll: sigma"].time > 0.5 * step["duration_s"]
+        assert by_name["precheck: instrument streams"].time > 0.5  # a 1 s window
+        assert sum(c.time for c in cases if c.name.startswith("precheck: ")) < 10.0
     totals["tests"] += 4  # two setup actions, two cleanup actions: passed
     assert (xml.tests, xml.failures, xml.errors, xml.skipped) == tuple(totals.values())
-    # the sine steps' gain at 7 and 10 s: a period the profile does not excite → skipped
+    # the sine steps' gain at 7 and 10 s: a period the profile does not excite → a property
     lin = {c.name: c for c in suites["linearity"]}
-    assert _kinds(lin["roll: gain at 10 s"]) == ["Skipped"]
+    assert "roll: gain at 10 s" not in lin
+    sigma_props = {p.name: p.value for ps in lin["roll: sigma"].iterchildren(Properties)
+                   for p in ps}
+    assert sigma_props["roll: gain at 10 s"] == ("not measured (not judged: not excited by the "
+                                                 "profile)")
+    phase = {p.name: p.value for ps in lin["roll: gain at 3 s"].iterchildren(Properties)
+             for p in ps}
+    assert list(phase) == ["roll: phase at 3 s"] and phase["roll: phase at 3 s"].endswith(
+        "(not judged: no limit)")
     assert _kinds(lin["roll: linearity spread"]) == []
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import browser, page_errors, pdf_pages
+from browser import browser, page_errors, pdf_pages, pdf_text, print_pdf
 from run_fakes import FakeSensor, FakeStand, sine_motion
 
 from benchctl.cli import main
@@ -27,7 +27,7 @@ from benchctl.run.session import RunOptions, RunResult, Session
 
 NASTY_SERIAL = "<script>alert('x')</script>&SN"
 NASTY_OPERATOR = 'O"Brien <b>'
-SECTIONS = ("verdict", "sigma", "measurements", "identity", "warnings", "files")
+SECTIONS = ("verdict", "sigma", "measurements", "identity", "warnings", "files", "signoff")
 
 
 def _config(tmp: Path) -> Any:
@@ -123,8 +123,19 @@ def test_report_of_a_passing_run(passed: Path) -> None:
                  rec["config_sha256"] or "—", rec["start_utc"], rec["end_utc"], "fake-sine",
                  "serial S1", "serial I1", "DOES NOT MATCH"):
         assert text in html, text
-    # warnings: the serial mismatch the record warns about is in the list
+    # warnings: the serial mismatch the record warns about is in the list; its measurement
+    # is informative, a WARNING, and a PASS report shows no FAIL anywhere
     assert "serial mismatch" in html
+    row = re.search(r"<tr><td>serial match.*?</tr>", html, re.S)
+    assert row is not None and '<td class="WARNING">WARNING</td>' in row.group(0)
+    assert 'class="FAIL"' not in html and ">FAIL<" not in html
+    # every data file of the recording with its SHA-256, and the recording's own
+    data = rec["data"]
+    assert 'class="data-files"' in html and data["recording_sha256"] in html
+    for f in data["files"]:
+        assert re.search(rf"<td>{re.escape(f['name'])}</td><td class=\"n\">{f['bytes']}</td>"
+                         rf"<td class=\"hash\">{f['sha256']}</td>", html), f
+    assert hashlib.sha256((passed / "stand.csv").read_bytes()).hexdigest() in html
     # the record names the report with its hash; end.json lists it
     entry = rec["files"]["report_html"]
     assert Path(entry["path"]) == passed / REPORT_HTML
@@ -139,7 +150,13 @@ def test_report_of_an_aborted_run(aborted: tuple[Path, str]) -> None:
     assert 'class="verdict ABORTED"' in html
     assert "Aborted (equipment)" in html and "fault code 7" in reason
     assert "fault code 7" in html
-    assert "precheck: static agreement" in html  # the prechecks it passed
+    # the prechecks it passed, on one group row that names them
+    group = re.search(r'<tr class="group"><td>prechecks \((\d+)\)</td>.*?</tr>\s*'
+                      r'<tr class="group"><td colspan="9"><small>([^<]*)</small>', html, re.S)
+    assert group is not None and "static agreement" in group.group(2)
+    assert f"{group.group(1)} of {group.group(1)} passed" in group.group(0)
+    assert '<td class="PASS">PASS</td>' in group.group(0)
+    assert "<tr><td>precheck: " not in html
     assert "No analysis" in html
     assert load_record(folder)["files"]["report_html"] is not None
 
@@ -207,8 +224,8 @@ def test_report_in_headless_chromium_loads_and_prints_a4(passed: Path, tmp_path:
     data = pdf.read_bytes()
     assert data.startswith(b"%PDF-")
     pages = pdf_pages(data)
-    # the summary, the measurements and each axis on its own page: several A4 pages
-    assert 2 <= len(pages) <= 20, len(pages)
+    # a one-axis run on at most three A4 pages (test_printed_layout below: what is where)
+    assert 2 <= len(pages) <= 3, len(pages)
     for w, h in pages:  # A4: 595 × 842 pt
         assert abs(w - 595.3) < 2 and abs(h - 841.9) < 2, (w, h)
 
@@ -227,3 +244,166 @@ def test_report_of_a_killed_run(aborted: tuple[Path, str], tmp_path: Path,
     _common_checks(html)
     assert 'class="verdict INCOMPLETE"' in html and "no end.json" in html
     assert "PN-42" in html and "2031-05-17" in html  # from meta.json's config
+
+
+def test_health_table_names_a_rejoin_as_rejoining_the_profile(passed: Path) -> None:
+    """A rejoin is the stand brought back onto the profile after missed setpoints (or an
+    underrun), not a reconnection: the health table and the warnings say so."""
+    report = json.loads((passed / "report.json").read_text())
+    report["stats"] = {**report["stats"], "rejoins": 2}
+    html = render_html(build_context(passed, report=report, trace=False))
+    row = re.search(r"<th>(rejoins[^<]*)</th><td class=\"([^\"]*)\">([^<]*)</td>", html)
+    assert row is not None, html
+    label, cls, value = row.groups()
+    assert label == "rejoins (the stand rejoined the profile after missed setpoints or an " \
+        "underrun)"
+    assert "warn" in cls and value.strip() == "2"
+    assert "2 rejoin(s): the stand rejoined the profile after missed setpoints" in html
+    assert "reconnect" not in html.lower()
+
+
+def test_psd_limit_line_is_drawn_against_the_sigma_axis(passed: Path) -> None:
+    """The σ limit (deg) is drawn on the axis of σ accumulated over frequency (deg), not on,
+    nor beside, the PSD's density axis (deg²/Hz)."""
+    from benchctl.report.figures import psd_figure
+
+    analysis = json.loads((passed / "report.json").read_text())["axes"]["roll"]["analysis"]
+    fig = psd_figure(analysis, 0.4, "roll")
+    assert fig is not None
+    axes = fig.get_axes()
+    assert len(axes) == 2  # two panels, no twin axis sharing one panel
+    by_label = {a.get_ylabel(): a for a in axes}
+    psd_ax, sigma_ax = by_label["PSD, deg²/Hz"], by_label["cumulative σ, deg"]
+    limits = [ln for a in axes for ln in a.get_lines() if ln.get_label().startswith("σ limit")]
+    assert len(limits) == 1 and limits[0].axes is sigma_ax
+    assert list(limits[0].get_ydata()) == [0.4, 0.4]
+    lo, hi = sigma_ax.get_ylim()
+    assert lo <= 0.4 < hi and sigma_ax.get_yscale() == "linear"
+    cum = [ln for ln in sigma_ax.get_lines() if ln.get_label() == "cumulative σ"]
+    assert len(cum) == 1 and max(cum[0].get_ydata()) < hi
+    assert psd_ax.get_yscale() == "log"
+    assert all(not ln.get_label().startswith("σ limit") for ln in psd_ax.get_lines())
+    # each panel's legend names only what is on it
+    assert "σ limit 0.4°" in [t.get_text() for t in sigma_ax.get_legend().get_texts()]
+    assert "σ limit 0.4°" not in [t.get_text() for t in psd_ax.get_legend().get_texts()]
+
+
+@pytest.fixture(scope="module")
+def passed_pdf(passed: Path, tmp_path_factory: pytest.TempPathFactory) -> list[str]:
+    """The passing run's report printed by headless Chromium: each page's text."""
+    return pdf_text(print_pdf(passed / REPORT_HTML, tmp_path_factory.mktemp("pdf")))
+
+
+def test_sign_off_block_printed_whole(passed: Path, passed_pdf: list[str]) -> None:
+    """The printed report ends with a sign-off block — tested by (the operator's name
+    printed), checked by, the date and the remarks, each with room to sign — kept on one page."""
+    html = (passed / REPORT_HTML).read_text(encoding="utf-8")
+    block = html[html.index('<section id="signoff"'):]
+    assert "<th>Tested by</th><td class=\"sign\">O&#34;Brien &lt;b&gt;</td>" in block
+    for text in ("<th>Checked by</th>", "<th>name</th><th>signature</th><th>date</th>",
+                 "Remarks:", load_record(passed)["data"]["recording_sha256"]):
+        assert text in block, text
+    assert block.count('<div class="line"></div>') == 3
+    last = passed_pdf[-1]
+    pos = [last.find(t) for t in ("Sign-off", "Tested by", "Checked by", "Remarks")]
+    assert -1 not in pos and pos == sorted(pos), last  # in that order, all on the last page
+    assert 'O"Brien <b>' in last
+
+
+def test_measurements_table_groups_the_prechecks() -> None:
+    """The prechecks are one row (how many passed, their names); a failed one is also shown
+    on its own row with its detail, and the group row is FAIL; nothing else is grouped."""
+    from benchctl.report.html import measurement_rows
+
+    def pre(name: str, ok: bool) -> dict[str, Any]:
+        return {"name": f"precheck: {name}", "axis": None, "value": ok, "unit": None,
+                "low": None, "high": None, "ci95": None, "outcome": "PASS" if ok else "FAIL",
+                "rule": "check", "decisive": True, "note": f"{name} detail"}
+
+    sigma = {"name": "sigma", "axis": "roll", "value": 0.2, "unit": "deg", "low": None,
+             "high": 0.4, "ci95": [0.19, 0.21], "outcome": "PASS", "rule": "simple",
+             "decisive": True, "note": None}
+    rows = measurement_rows([pre("disk space", True), pre("stand answers", True), sigma])
+    assert [r["name"] for r in rows] == ["prechecks (2)", "sigma"]
+    assert rows[0]["value"] == "2 of 2 passed" and rows[0]["outcome"] == "PASS"
+    assert rows[0]["note"] == "disk space, stand answers" and rows[0]["group"]
+    rows = measurement_rows([pre("disk space", True), pre("static agreement", False)])
+    assert [r["name"] for r in rows] == ["prechecks (2)", "precheck: static agreement"]
+    assert rows[0]["outcome"] == "FAIL" and rows[0]["value"] == "1 of 2 passed"
+    assert rows[1]["note"] == "static agreement detail" and not rows[1]["group"]
+    assert measurement_rows([sigma]) == [{**sigma, "group": False}]
+
+
+# each heading of the printed report and the text that follows it: on the same page
+HEADINGS = (
+    ("Dynamic error of a ship inclinometer", "PASS"),
+    ("Dynamic error σ per axis", "axis"),
+    ("Measurements", "Rule: how the value was judged"),
+    ("Who, what, when, where", "serial"),
+    ("Warnings and the stand's health", "roll"),
+    ("Axis roll", "Above: the error PSD"),
+    ("Gain table", "period, s"),
+    ("Error decomposition", "component"),
+    ("Files", "Recording:"),
+    ("Sign-off", "Tested by"),
+)
+
+
+def test_printed_layout_of_a_one_axis_run(passed_pdf: list[str]) -> None:
+    """Chromium's PDF of a one-axis run: at most 3 A4 pages; the sections in order; no heading
+    left at the foot of a page away from what it heads; page 1 filled (the summary, the
+    measurements and the who/what table begin on it); the last page not the files alone."""
+    pages = passed_pdf
+    assert len(pages) <= 3, len(pages)
+    text = "\n".join(pages)
+    where = [text.find(h) for h, _ in HEADINGS]
+    assert -1 not in where and where == sorted(where), list(zip(HEADINGS, where, strict=True))
+
+    def page_of(s: str, after: int = 0) -> int:
+        pos = text.find(s, after)
+        assert pos >= 0, s
+        return _page_at(pages, pos)
+
+    for heading, follower in HEADINGS:
+        h = text.find(heading)
+        assert page_of(heading) == page_of(follower, h + len(heading)), (heading, follower)
+    # page 1 is the summary, full: σ, the measurements and who/what begin there
+    for h in ("Dynamic error σ per axis", "Measurements", "Who, what, when, where"):
+        assert h in pages[0], h
+    # the last page holds the sign-off, not the files table alone
+    assert "Sign-off" in pages[-1] and "Tested by" in pages[-1]
+
+
+def _page_at(pages: list[str], pos: int) -> int:
+    """The page holding character ``pos`` of the pages' text joined by newlines."""
+    start = 0
+    for i, page in enumerate(pages):
+        end = start + len(page) + 1
+        if pos < end:
+            return i
+        start = end
+    return len(pages) - 1
+
+
+def test_figures_of_the_same_content_drawn_once(passed: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run draws its report twice (before and after its recording closes): the figures of
+    the same analysis are drawn once; other content is drawn anew."""
+    import benchctl.report.figures as figures
+
+    calls: list[str] = []
+    real = figures.psd_svg
+
+    def counting(an: Any, limit: Any = None, title: str = "") -> str | None:
+        calls.append(title)
+        return real(an, limit, title)
+
+    monkeypatch.setattr(figures, "psd_svg", counting)
+    report = json.loads((passed / "report.json").read_text())
+    report["axes"]["roll"]["limit"] = 0.3999  # content not drawn before in this process
+    first = render_html(build_context(passed, report=report, trace=False))
+    again = render_html(build_context(passed, report=report, trace=False))
+    assert len(calls) == 1 and first == again
+    report["axes"]["roll"]["limit"] = 0.3998
+    render_html(build_context(passed, report=report, trace=False))
+    assert len(calls) == 2

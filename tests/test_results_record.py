@@ -29,14 +29,16 @@ from run_sim import ROOT
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
-from benchctl.config import BenchConfig, parse_config
+from benchctl.config import BenchConfig, UnitConfig, parse_config
 from benchctl.errors import AnalysisError, DataError, DeviceTimeout, SafetyAbort, StandFault
 from benchctl.jsonout import dumps, loads_strict, plain
+from benchctl.recording import load_recording
 from benchctl.results.measurements import (
     FAIL,
     INCONCLUSIVE,
     NOT_JUDGED,
     PASS,
+    WARNING,
     Limits,
     axis_measurements,
     decide,
@@ -178,7 +180,28 @@ def test_serial_match() -> None:
     assert serial_match("SN-1", "I1") is False
     assert serial_match("SN-1", None) is None
     m = serial_measurement("SN-1", "I1")
-    assert m.outcome == FAIL and not m.decisive and "I1" in (m.note or "")
+    assert m.outcome == WARNING and not m.decisive and "I1" in (m.note or "")
+    assert serial_measurement("SN-1", "sn-1").outcome == PASS
+    assert serial_measurement("SN-1", None).outcome == NOT_JUDGED
+
+
+def test_informative_measurements_are_never_fail() -> None:
+    """The excitation fidelity beyond its alarm level is informative: a WARNING, never FAIL,
+    and it does not touch the run's outcome."""
+    axis = {"sigma": 0.2, "sigma_ci95": [0.19, 0.21], "mean_error": 0.0, "delay": 0.01,
+            "analysis": {"periods": []},
+            "excitation": {"judgement": "alarm", "rms_error_db": 2.4,
+                           "worst_band": {"error_db": -3.1, "centre_hz": 0.2}}}
+    ms = axis_measurements("roll", axis, Limits(sigma_deg=0.4, excitation_db=1.5))
+    exc = [m for m in ms if m.name.startswith("excitation")]
+    assert [m.outcome for m in exc] == [WARNING, WARNING]
+    assert all(not m.decisive for m in exc)
+    assert all(m.outcome != FAIL for m in ms if not m.decisive)
+    assert overall(ms) == PASS
+    within = {**axis, "excitation": {"judgement": "ok", "rms_error_db": 0.2,
+                                     "worst_band": {"error_db": 0.4, "centre_hz": 0.2}}}
+    assert [m.outcome for m in axis_measurements("roll", within, Limits(sigma_deg=0.4))
+            if m.name.startswith("excitation")] == [PASS, PASS]
 
 
 @pytest.mark.parametrize(
@@ -295,6 +318,11 @@ def test_record_of_a_passing_run(tmp_path: Path, vclock: VirtualClock) -> None:
     assert rec["unit"] == {"serial": "SN-1", "part_number": "PN-7", "reported_serial": "I1",
                            "serial_match": False}
     assert any("serial mismatch" in w for w in rec["warnings"])
+    _check_data_hashes(res.recording, rec)
+    # unit.serial_check: warn (the default): the mismatch is a WARNING, the run PASSes
+    sm = [m for m in rec["measurements"] if m["name"] == "serial match"]
+    assert len(sm) == 1 and sm[0]["outcome"] == WARNING and sm[0]["decisive"] is False
+    assert all(m["outcome"] != FAIL for m in rec["measurements"])
     assert rec["stand"]["identity"]["serial"] == "S1"
     assert rec["instruments"][0]["identity"]["serial"] == "I1"
     assert rec["run_id"] == res.recording.name and rec["operator"] == "tester"
@@ -345,8 +373,31 @@ def test_record_of_an_operator_stop(tmp_path: Path, vclock: VirtualClock) -> Non
 def test_record_of_an_equipment_fault(tmp_path: Path, vclock: VirtualClock) -> None:
     stand = FakeStand(clock=vclock)
     stand.fault_at = 1.0
-    rec = _aborted(_run(tmp_path, stand, FakeSensor(stand)), "equipment")
+    res = _run(tmp_path, stand, FakeSensor(stand))
+    rec = _aborted(res, "equipment")
     assert "fault code 7" in rec["abort"]["reason"]
+    assert res.recording is not None
+    _check_data_hashes(res.recording, rec)  # an aborted run's recording: hashed as closed
+
+
+def test_recording_hash_changes_with_any_data_file(tmp_path: Path) -> None:
+    from benchctl.results.record import data_hashes
+
+    for name, body in (("meta.json", b"{}"), ("stand.csv", b"t\n1\n"),
+                       ("events.jsonl", b"{}\n"), ("benchctl.log", b"log")):
+        (tmp_path / name).write_bytes(body)
+    a = data_hashes(tmp_path)
+    assert [f["name"] for f in a["files"]] == ["events.jsonl", "meta.json", "stand.csv"]
+    (tmp_path / "benchctl.log").write_bytes(b"more log")  # not a data file
+    assert data_hashes(tmp_path)["recording_sha256"] == a["recording_sha256"]
+    (tmp_path / "stand.csv").write_bytes(b"t\n2\n")
+    assert data_hashes(tmp_path)["recording_sha256"] != a["recording_sha256"]
+    # the CAN log under the name the config gives it (a CAN instrument only)
+    (tmp_path / "frames.asc").write_bytes(b"frame")
+    meta = {"config": {"instrument": {"driver": "canopen", "can_log": "frames.asc"}}}
+    assert "frames.asc" in [f["name"] for f in data_hashes(tmp_path, meta)["files"]]
+    meta["config"]["instrument"]["driver"] = "nmea0183"
+    assert "frames.asc" not in [f["name"] for f in data_hashes(tmp_path, meta)["files"]]
 
 
 def test_record_of_a_failed_precheck(tmp_path: Path, vclock: VirtualClock) -> None:
@@ -354,6 +405,44 @@ def test_record_of_a_failed_precheck(tmp_path: Path, vclock: VirtualClock) -> No
     rec = _aborted(_run(tmp_path, stand, FakeSensor(stand, bias=1.0)), "equipment")
     last = rec["measurements"][-1]
     assert last["name"] == "precheck: static agreement" and last["outcome"] == FAIL
+
+
+def _require_serial(tmp_path: Path) -> BenchConfig:
+    cfg = bench_config(tmp_path)
+    return cfg.model_copy(update={"unit": UnitConfig(serial_check="require")})
+
+
+def test_serial_check_require_refuses_another_unit_before_motion(
+        tmp_path: Path, vclock: VirtualClock) -> None:
+    """unit.serial_check: require — a unit whose reported serial is not the one typed is
+    refused as a failed precheck: aborted (exit 2) before the stand is enabled or moved."""
+    stand = FakeStand(clock=vclock)
+    res = _run(tmp_path, stand, FakeSensor(stand), _require_serial(tmp_path))
+    rec = _aborted(res, "equipment")
+    assert "precheck 'serial match' failed" in res.reason
+    assert "'SN-1' typed, the instrument reports 'I1'" in res.reason
+    assert "enable" not in stand.calls and stand.sent == [] and stand.table is None
+    last = rec["measurements"][-1]
+    assert last["name"] == "precheck: serial match" and last["outcome"] == FAIL
+    assert last["decisive"] is True
+    assert res.recording is not None
+    kinds = [e["kind"] for e in load_recording(res.recording).events]
+    assert "precheck" in kinds and "motion_start" not in kinds
+
+
+def test_serial_check_require_runs_the_unit_named(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
+    cfg = _require_serial(tmp_path)
+    prep = sine_motion(stand.axes, duration_s=DURATION, mode="table", fade_s=FADE)
+    sensor = FakeSensor(stand)
+    res = Session(cfg, prep, RunOptions("i1", "tester"), device_factory=lambda c, p: (
+        stand, sensor), clock=stand.clock).run()
+    assert res.state == "done" and res.exit_code == 0, res.reason
+    assert res.recording is not None
+    rec = load_record(res.recording)
+    names = [m["name"] for m in rec["measurements"]]
+    assert "precheck: serial match" in names and "serial match" not in names
+    assert not any("serial mismatch" in w for w in rec["warnings"])
 
 
 def test_record_of_a_software_error(tmp_path: Path, vclock: VirtualClock) -> None:
@@ -412,6 +501,36 @@ def test_record_of_a_simulated_run_through_the_cli(
     assert len(rec["config_sha256"]) == 64 and rec["software"]["version"] == metadata.version(
         "benchctl")
     assert any(m["name"] == "sigma" and m["axis"] == "roll" for m in rec["measurements"])
+    # the CAN log is a data file of the recording: hashed with the others
+    folder = Path(rec["files"]["recording"])
+    names = [f["name"] for f in rec["data"]["files"]]
+    assert "can.blf" in names and (folder / "can.blf").stat().st_size > 0
+    _check_data_hashes(folder, rec)
+
+
+def _check_data_hashes(folder: Path, rec: dict[str, Any]) -> None:
+    """record.json's ``data``: every data file with its size and SHA-256 as on the disk, sorted
+    by name, and the recording's SHA-256 as the README defines it — recomputed here with
+    sha256sum, as a QA engineer would."""
+    import hashlib
+
+    data = rec["data"]
+    names = [f["name"] for f in data["files"]]
+    assert names == sorted(names)
+    assert {"meta.json", "stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl",
+            "end.json"} <= set(names)
+    assert not {"benchctl.log", "sim.log", "record.json", "report.html"} & set(names)
+    for f in data["files"]:
+        body = (folder / f["name"]).read_bytes()
+        assert f["sha256"] == hashlib.sha256(body).hexdigest() and f["bytes"] == len(body)
+    listing = subprocess.run(["sha256sum", *names], cwd=folder, capture_output=True,
+                             check=True).stdout
+    assert data["recording_sha256"] == hashlib.sha256(listing).hexdigest()
+    # the writer's own hashes (end.json's integrity, taken as it wrote) agree
+    integrity = json.loads((folder / "end.json").read_text())["integrity"]["files"]
+    by_name = {f["name"]: f["sha256"] for f in data["files"]}
+    for name, entry in integrity.items():
+        assert by_name[name] == entry["sha256"], name
 
 
 # ------------------------------------------------------------------------------ CLI and config
@@ -453,6 +572,7 @@ def test_cli_passes_the_rule_and_part_number_and_names_the_abort_kind(
         (("run", "limits"), {"delay": 0.1}, "run.limits.delay"),
         (("stand", "calibration_due"), "31.12.2027", "stand.calibration_due"),
         (("unit",), {"part_number": "PN", "serial": "x"}, "unit.serial"),
+        (("unit", "serial_check"), "block", "unit.serial_check"),
     ],
 )
 def test_config_fields_refused_with_their_path(tmp_path: Path, where: tuple[str, ...],
@@ -466,3 +586,36 @@ def test_config_fields_refused_with_their_path(tmp_path: Path, where: tuple[str,
     target[where[-1]] = value
     with pytest.raises(ConfigError, match=match):
         parse_config(data, tmp_path / "bench.yaml")
+
+
+def test_record_and_report_rewritten_together_or_not_at_all(
+        tmp_path: Path, vclock: VirtualClock, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once the recording is closed, record.json and report.html are written again with the
+    data files' SHA-256; when the record cannot be (a full disk), the earlier pair stays and
+    still names each other: the report's hash in the record is the report's on the disk."""
+    import errno
+    import hashlib
+
+    import benchctl.run.session as session_mod
+
+    calls: list[Path] = []
+    real = session_mod.write_record
+
+    def failing_second(folder: Path, record: dict[str, Any]) -> Path:
+        calls.append(folder)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(folder, record)
+
+    monkeypatch.setattr(session_mod, "write_record", failing_second)
+    stand = FakeStand(clock=vclock)
+    res = _run(tmp_path, stand, FakeSensor(stand))
+    assert res.state == "done" and res.exit_code == 0 and len(calls) == 2, res.reason
+    assert res.recording is not None
+    rec = load_record(res.recording)
+    assert "data" not in rec  # the first record stands
+    html = res.recording / "report.html"
+    assert rec["files"]["report_html"]["sha256"] == hashlib.sha256(html.read_bytes()).hexdigest()
+    assert "The data files' SHA-256 are not in this run's record." in html.read_text(
+        encoding="utf-8")
+    assert not (res.recording / "report.html.prev").exists()

@@ -568,6 +568,7 @@ def _result(
             f"time-domain variance of ε {variance!r} deg² by more than {tol:.3g}"
         )
     sigma = float(np.sqrt(variance))
+    time_variance = variance  # the samples' own: the cross-checks are about it
     dof_f = grid.dof(n)
     duration_eff = n * al.dt
     resp = frf_mod.frequency_response(grid.freq, sp.gxx, sp.gyy, sp.gxy, band_hz)
@@ -584,23 +585,42 @@ def _result(
         mean_removal = la.mean_removal
         ci = la.sigma_ci95
         dof = la.dof
-        if not ci[0] <= sigma <= ci[1]:
+        if n < len(al.mask):
+            # samples missing (gaps, exclusions): the σ over the samples present weighs the
+            # motion's phases unevenly (an error that depends on the motion then reads off);
+            # the lines, fitted on the samples present, estimate the whole period's — the σ
+            # the interval is about. (Without gaps the two coincide.)
+            sample_sigma = sigma
+            variance = max(la.variance - la.mean_removal, 0.0)
+            sigma = float(np.sqrt(variance))
+            if not ci[0] <= sample_sigma <= ci[1]:
+                warnings.append(
+                    f"σ is the line-wise estimate over the whole period(s) ({sigma:.5g}°): "
+                    f"over the {n} samples present it would read {sample_sigma:.5g}°, outside "
+                    f"its interval {ci[0]:.5g} … {ci[1]:.5g}° — the gaps fall unevenly on the "
+                    "motion"
+                )
+        elif not ci[0] <= sigma <= ci[1]:
             warnings.append(
                 f"σ over the samples present ({sigma:.5g}°) lies outside the line-wise "
-                f"interval {ci[0]:.5g} … {ci[1]:.5g}° (line-wise σ {la.sigma:.5g}°): the gaps "
-                "sample the motion unevenly, or the record is not stationary"
+                f"interval {ci[0]:.5g} … {ci[1]:.5g}° (line-wise σ {la.sigma:.5g}°): the "
+                "record is not stationary"
             )
     else:
         mean_removal = _mean_removal(eps, al.mask)
         ci = sigma_interval(float(np.sqrt(variance + mean_removal)), dof)
     ci_rand = sigma_interval(sigma, dof_rand)
     welch = welch_by_runs(eps, al.mask, al.dt, 2 * lag)
-    cross = _welch_check(welch, variance, dof_rand * (welch.n_used / n if welch else 1.0), warnings)
+    cross = _welch_check(
+        welch, time_variance, dof_rand * (welch.n_used / n if welch else 1.0), warnings
+    )
     cross.update(
         {
             "parseval_area": area,
-            "time_variance": variance,
-            "parseval_rel_diff": abs(area - variance) / variance if variance > 0 else 0.0,
+            "time_variance": time_variance,
+            "parseval_rel_diff": (
+                abs(area - time_variance) / time_variance if time_variance > 0 else 0.0
+            ),
         }
     )
     band = None

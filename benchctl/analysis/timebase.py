@@ -521,8 +521,14 @@ def stand_clock(
 
     ``t_stand``: the stand's clock when it took each state (s, wrapping every ``wrap_s``);
     ``[t_lo, t_hi]``: the host times it can have been taken between (each exchange's window).
-    The stand's clock runs at its own rate and offset. The rate is the least-squares line of
-    the windows' centres against the unwrapped clock (windows up to twice the median width).
+    The stand's clock runs at its own rate and offset. Its wraps are counted, and its rate
+    found (the least-squares line of the windows' centres against the unwrapped clock), on the
+    *narrow* windows only (up to twice the median width and under half a wrap): their centres
+    are within a few milliseconds of the states, so a gap of any length between them is counted
+    right. Every other sample gets the wrap that puts it inside its own window; a window so
+    wide (a host stalled mid-exchange for about a wrap or more) that more than one wrap fits,
+    or none does, cannot date its sample: that sample is left out (NaN in the instants,
+    ``info["dropped"]``) — a gap the analysis handles, never a sample a wrap off its time.
     The offset is set where every window allows it: midway between the latest of the windows'
     earliest ends and the earliest of their latest ends (their 99 % and 1 % quantiles) — the
     fastest exchanges bound it, so a busy host or a slow turnaround does not move it;
@@ -533,26 +539,42 @@ def stand_clock(
     """
     lo = np.asarray(t_lo, dtype=float)
     hi = np.asarray(t_hi, dtype=float)
+    raw = np.asarray(t_stand, dtype=float)
     mid = 0.5 * (lo + hi)
-    c = unwrap(np.asarray(t_stand, dtype=float), wrap_s, mid)
-    c0 = float(c[0])
-    x = c - c0
     width = hi - lo
-    tight = width <= 2.0 * float(np.median(width))  # a stalled exchange's centre says little
-    a0, b = _fit_line(x[tight], (mid - mid[0])[tight])
-    a_ls = a0 - b * float(x[tight].mean()) + float(mid[0])
+    # a stalled exchange's centre says little: neither its wraps nor the rate come from it
+    tight = (width <= 2.0 * float(np.median(width))) & (width < 0.5 * wrap_s)
+    if int(tight.sum()) < 2:
+        tight = np.ones(len(raw), dtype=bool)
+    c_t = unwrap(raw[tight], wrap_s, mid[tight])
+    c0 = float(c_t[0])
+    a0, b = _fit_line(c_t - c0, mid[tight] - float(mid[tight][0]))
+    a_ls = a0 - b * float((c_t - c0).mean()) + float(mid[tight][0])
+    # every sample's wrap: the one that puts its instant nearest its window's centre, kept when
+    # that instant is inside the window (with the fit's own scatter as margin) and no other
+    # wrap's is
+    scatter = float(np.std(mid[tight] - (a_ls + b * (c_t - c0))))
+    margin = max(4.0 * scatter, 1e-3)
+    base = raw - c0
+    n_wrap = np.rint(((mid - a_ls) / b - base) / wrap_s) if b > 0 else np.zeros(len(raw))
+    x = base + n_wrap * wrap_s
+    pred = a_ls + b * x
+    step = b * wrap_s
+    fits = (pred >= lo - margin) & (pred <= hi + margin)
+    other = ((pred - step >= lo - margin) | (pred + step <= hi + margin))
+    keep = tight | (fits & ~other)
     q = STAND_WINDOW_QUANTILE
-    low = float(np.quantile(lo - (a_ls + b * x), 1.0 - q))
-    high = float(np.quantile(hi - (a_ls + b * x), q))
+    low = float(np.quantile((lo - (a_ls + b * x))[keep], 1.0 - q))
+    high = float(np.quantile((hi - (a_ls + b * x))[keep], q))
     consistent = low <= high
     off = (0.5 * (low + high) if anchor == "window" else low) if consistent else 0.0
-    t = a_ls + off + b * x
+    t = np.where(keep, a_ls + off + b * x, np.nan)
     room = max(high - low, 0.0)
     n = int(tight.sum())
-    scatter = float(np.std((mid - (a_ls + b * x))[tight]))
     rate_err = scatter * math.sqrt(2.0 / n) if n > 2 else 0.0  # the fitted line's own error
     err = math.hypot(room / math.sqrt(12.0), rate_err) if consistent else scatter
-    info = {"rate": b, "offset_interval_s": room, "consistent": consistent}
+    info = {"rate": b, "offset_interval_s": room, "consistent": consistent,
+            "dropped": int((~keep).sum())}
     return t, err, info
 
 

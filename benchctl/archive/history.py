@@ -72,26 +72,45 @@ def to_text(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+NONE = "—"  # a field the run has no value for (an aborted run's report, a killed run's end)
+
+
+def _v(value: object) -> str:
+    """A field's value for the terminal: ``—`` for none (never ``None``)."""
+    return NONE if value is None or value == "" else str(value)
+
+
+def _file_lines(label: str, f: dict[str, Any] | None, missing: str) -> list[str]:
+    """A file's path and SHA-256 (two lines), or one line saying why there is none."""
+    f = f or {}
+    if not f.get("path"):
+        return [f"{label:<10} {NONE} ({missing})"]
+    return [f"{label:<10} {f['path']}", f"{'':<10} sha256 {_v(f.get('sha256'))}"]
+
+
 def show_text(run: dict[str, Any]) -> str:
-    """One run, for the terminal (every line made safe: ``benchctl.text.visible``)."""
+    """One run, for the terminal (every line made safe: ``benchctl.text.visible``). A field the
+    run has no value for is ``—`` (an aborted run has no report: the line says so)."""
     p = run.get("profile") or {}
     abort = run.get("abort") or {}
+    aborted = run.get("outcome") == "ABORTED"
+    why = "no report: the run was aborted" if aborted else "no report recorded"
     lines = [
         f"run        {run['run_id']}",
-        f"outcome    {run['outcome']}"
-        + (f" ({abort.get('kind')}: {abort.get('reason')})" if abort else "")
+        f"outcome    {_v(run.get('outcome'))}"
+        + (f" ({_v(abort.get('kind'))}: {_v(abort.get('reason'))})" if abort else "")
         + (f", rule {run['decision_rule']}" if run.get("decision_rule") else ""),
-        f"unit       {run['serial']}"
+        f"unit       {_v(run.get('serial'))}"
         + (f" (part {run['part_number']})" if run.get("part_number") else ""),
-        f"station    {run['station']}   operator {run['operator']}",
-        f"start/end  {run.get('start_utc')} → {run.get('end_utc')}",
-        f"profile    {p.get('name')} ({p.get('kind') or '?'}), seed {p.get('seed')}",
-        f"software   {run.get('software_version')}   config sha256 {run.get('config_sha256')}",
-        f"recording  {run['recording']['path']}",
-        f"           sha256 {run['recording']['sha256']}",
-        f"report     {run['report_json']['path']}",
-        f"           sha256 {run['report_json']['sha256']}",
-        f"archived   {run.get('archived_utc')} (from {run.get('source')})",
+        f"station    {_v(run.get('station'))}   operator {_v(run.get('operator'))}",
+        f"start/end  {_v(run.get('start_utc'))} → "
+        + (_v(run.get("end_utc")) if run.get("end_utc") else f"{NONE} (no end recorded)"),
+        f"profile    {_v(p.get('name'))} ({p.get('kind') or '?'}), seed {_v(p.get('seed'))}",
+        f"software   {_v(run.get('software_version'))}   "
+        f"config sha256 {_v(run.get('config_sha256'))}",
+        *_file_lines("recording", run.get("recording"), "no recording folder recorded"),
+        *_file_lines("report", run.get("report_json"), why),
+        f"archived   {_v(run.get('archived_utc'))} (from {_v(run.get('source'))})",
     ]
     ms = run.get("measurements") or []
     if ms:
@@ -110,10 +129,12 @@ def show_text(run: dict[str, Any]) -> str:
                 lim = ""
             ci = m.get("ci95")
             ci_text = f" [{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
-            val = "—" if m.get("value") is None else f"{m['value']:.4g}"
+            v = m.get("value")
+            val = (NONE if v is None else ("yes" if v else "no") if isinstance(v, bool)
+                   else f"{v:.4g}" if isinstance(v, int | float) else str(v))
             unit = f" {m['unit']}" if m.get("unit") else ""
-            lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   {m.get('outcome') or ''}"
-                         .rstrip())
+            lines.append(f"  {name:<{width}}  {val}{ci_text}{unit}{lim}   "
+                         f"{m.get('outcome') or NONE}")
     return terminal_lines(lines)
 
 
@@ -186,9 +207,28 @@ def sigma_plot(series: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
         "axes": list(axes.values()),
         "limits": [{"y": round(y(v), 1), "value": v} for v in limits],
         "yticks": [{"y": round(y(v), 1), "label": f"{v:.3g}"} for v in _ticks(lo, hi)],
-        "xlabels": [{"x": round(x(i), 1), "label": (pts_start(series, r) or r)[:10]}
-                    for i, r in enumerate(runs) if i % label_every == 0],
+        "xlabels": [{"x": round(x(i), 1), "label": label}
+                    for i, label in zip(range(0, len(runs), label_every),
+                                        run_labels([pts_start(series, r) or r
+                                                    for r in runs[::label_every]]),
+                                        strict=True)],
     }
+
+
+def run_labels(starts: Sequence[str]) -> list[str]:
+    """Distinct x labels for runs started at ``starts`` (ISO UTC times, oldest first): the
+    date when the runs are on different days (``2026-11-20``), else the day and time to the
+    minute (``11-20 08:02``), to the second, and as a last resort numbered (``#3``)."""
+    def fmt(s: str, form: int) -> str:
+        if len(s) < 16 or s[10] != "T":  # not a time (a run id): as it is
+            return s[:16]
+        return (s[:10], f"{s[5:10]} {s[11:16]}", f"{s[5:10]} {s[11:19]}")[form]
+
+    for form in range(3):
+        labels = [fmt(s, form) for s in starts]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [f"{fmt(s, 1)} #{i + 1}" for i, s in enumerate(starts)]
 
 
 def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
@@ -198,26 +238,67 @@ def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
     return None
 
 
+VERDICTS = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
+
+
+def _counted(key: dict[str, Any], outcomes: Sequence[str | None]) -> dict[str, Any]:
+    c = {v: sum(o == v for o in outcomes) for v in VERDICTS}
+    judged = c["PASS"] + c["FAIL"] + c["INCONCLUSIVE"]
+    return {**key, "runs": len(outcomes), "pass": c["PASS"], "fail": c["FAIL"],
+            "inconclusive": c["INCONCLUSIVE"], "aborted": c["ABORTED"],
+            "yield": None if judged == 0 else c["PASS"] / judged}
+
+
+def unit_yield(serial: str, rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """A unit's yield over ``rows`` (its runs): runs, pass, fail, inconclusive, aborted and
+    the yield = PASS / (PASS + FAIL + INCONCLUSIVE) (None when none reached a verdict)."""
+    return _counted({"serial": serial}, [r.get("outcome") for r in rows])
+
+
+def unit_yield_per_day(serial: str, rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A unit's yield per UTC day of its runs ``rows`` (as :func:`unit_yield`, a ``day``
+    each), oldest first."""
+    days: dict[str, list[str | None]] = {}
+    for r in rows:
+        day = str(r.get("start_utc") or "")[:10] or "unknown"
+        days.setdefault(day, []).append(r.get("outcome"))
+    return [_counted({"serial": serial, "day": d}, o) for d, o in sorted(days.items())]
+
+
 def yield_plot(days: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """SVG geometry per station: a bar per UTC day, its height the yield (0…100 %), with the
-    day's counts in its title."""
+    """SVG geometry per station (or per unit: entries with a ``serial`` and no ``station``):
+    a bar per UTC day, its height the yield (0…100 %), with the day's counts in its title."""
     out = []
-    stations = sorted({d["station"] for d in days})
+
+    def group(d: dict[str, Any]) -> str:
+        return f"station {d['station']}" if d.get("station") is not None else \
+            f"unit {d.get('serial')}"
+
+    stations = list(dict.fromkeys(group(d) for d in days))  # as given: a unit's first
     pw, ph = W - ML - MR, H - MT - MB
     for st in stations:
-        ds = [d for d in days if d["station"] == st]
+        ds = [d for d in days if group(d) == st]
         bw = pw / max(len(ds), 1)
         bars = []
         for i, d in enumerate(ds):
             yv = d["yield"]
             h = 0.0 if yv is None else ph * float(yv)
+            # the day's aborted runs beside its yield bar: their share of the day's runs
+            share = d["aborted"] / d["runs"] if d["runs"] else 0.0
+            ha = ph * share
+            title = (f"{d['day']}: {d['runs']} run(s): {d['pass']} pass, {d['fail']} fail, "
+                     f"{d['inconclusive']} inconclusive, {d['aborted']} aborted")
             bars.append({
-                "x": round(ML + i * bw + bw * 0.15, 1), "width": round(bw * 0.7, 1),
+                "x": round(ML + i * bw + bw * 0.1, 1), "width": round(bw * 0.5, 1),
                 "y": round(MT + ph - h, 1), "height": round(h, 1),
-                "label": d["day"], "label_x": round(ML + (i + 0.5) * bw, 1),
+                "label": d["day"], "label_x": round(ML + (i + 0.35) * bw, 1),
                 "text": "—" if yv is None else f"{100 * float(yv):.0f} %",
-                "title": f"{d['day']}: {d['pass']} pass, {d['fail']} fail, "
-                         f"{d['inconclusive']} inconclusive, {d['aborted']} aborted",
+                "title": title,
+                "aborted": None if not d["aborted"] else {
+                    "x": round(ML + i * bw + bw * 0.62, 1), "width": round(bw * 0.28, 1),
+                    "y": round(MT + ph - ha, 1), "height": round(max(ha, 1.0), 1),
+                    "text_x": round(ML + i * bw + bw * 0.76, 1),
+                    "text": f"{d['aborted']} ab.", "title": title},
             })
         out.append({
             "station": st, "width": W, "height": H, "left": ML, "right": W - MR, "top": MT,
@@ -234,8 +315,10 @@ TEMPLATE = """<!DOCTYPE html>
 <title>benchctl history{% if serial %} — {{ serial }}{% endif %}</title>
 <style>
 body { font-family: sans-serif; margin: 1.5em; color: #222; }
-table { border-collapse: collapse; font-size: 0.8em; }
+table { border-collapse: collapse; font-size: 0.8em; max-width: 100%; }
 td { white-space: nowrap; }
+td.col-abort_reason, td.col-run_id { white-space: normal; overflow-wrap: anywhere; }
+td.col-abort_reason { min-width: 12em; }
 th, td { border: 1px solid #bbb; padding: 0.2em 0.5em; text-align: left; }
 th { background: #eee; }
 td.PASS { color: #176117; font-weight: bold; } td.FAIL { color: #a11; font-weight: bold; }
@@ -282,7 +365,7 @@ svg text { font-size: 11px; font-family: sans-serif; }
 <p>Filled: PASS; open: not PASS. Bars: σ's 95 % interval.</p>
 {% endif %}
 {% for st in yields %}
-<h2>Yield per day: station {{ st.station }}</h2>
+<h2>Yield per day: {{ st.station }}</h2>
 <svg xmlns="http://www.w3.org/2000/svg" width="{{ st.width }}" height="{{ st.height }}"
  role="img" aria-label="yield per day">
 {% for t in st.yticks %}<line x1="{{ st.left }}" y1="{{ t.y }}" x2="{{ st.right }}" y2="{{ t.y
@@ -293,18 +376,23 @@ svg text { font-size: 11px; font-family: sans-serif; }
 {% for b in st.bars %}<rect class="yield" x="{{ b.x }}" y="{{ b.y }}" width="{{ b.width }}"
  height="{{ b.height }}" fill="#4a8"><title>{{ b.title }}</title></rect><text x="{{ b.label_x
  }}" y="{{ b.y - 3 }}" text-anchor="middle">{{ b.text }}</text>
+{% if b.aborted %}<rect class="aborted" x="{{ b.aborted.x }}" y="{{ b.aborted.y }}"
+ width="{{ b.aborted.width }}" height="{{ b.aborted.height }}" fill="#999"><title>{{
+ b.aborted.title }}</title></rect><text class="aborted" x="{{ b.aborted.text_x }}" y="{{
+ b.aborted.y - 3 }}" text-anchor="middle" fill="#555">{{ b.aborted.text }}</text>{% endif %}
 {% if loop.index0 % st.label_every == 0 %}<text x="{{ b.label_x }}" y="{{ st.bottom + 16 }}"
  text-anchor="middle">{{ b.label }}</text>{% endif %}
 {% endfor %}
 <text x="{{ (st.left + st.right) / 2 }}" y="{{ st.height - 8 }}" text-anchor="middle">day
- (UTC); yield = PASS / (PASS + FAIL + INCONCLUSIVE)</text>
+ (UTC); green: yield = PASS / (PASS + FAIL + INCONCLUSIVE); grey: aborted runs (share of the
+ day's runs)</text>
 </svg>
 {% endfor %}
 <h2>Runs</h2>
 <table>
 <tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}</tr>
-{% for r in rows %}<tr>{% for c in columns %}<td{% if c == 'outcome' %} class="{{ r[c]
-}}"{% endif %}>{{ r[c] }}</td>{% endfor %}</tr>
+{% for r in rows %}<tr>{% for c in columns %}<td class="col-{{ c }}{% if c == 'outcome' %} {{ r[c]
+}}{% endif %}">{{ r[c] }}</td>{% endfor %}</tr>
 {% endfor %}
 </table>
 </body></html>
@@ -335,4 +423,4 @@ def html_page(rows: Sequence[dict[str, Any]], *, archive: str, serial: str | Non
 
 
 __all__ = ["HISTORY_COLUMNS", "flat", "html_page", "show_text", "sigma_plot", "to_csv",
-           "to_text", "yield_plot"]
+           "to_text", "unit_yield", "unit_yield_per_day", "yield_plot"]

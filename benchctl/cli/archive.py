@@ -55,19 +55,45 @@ def open_archive(args: argparse.Namespace, *, create: bool = False) -> Any:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("archive", help="the results archive: send the queue, rebuild")
+    p = sub.add_parser(
+        "archive",
+        help="the results archive: send the queue, rebuild",
+        description=(
+            "The results archive (a SQLite file, or a shared PostgreSQL database) that every "
+            "run is stored in. status: the records queued while the database was out of reach "
+            "and those it refused, set aside with their reasons. sync: send the queue. "
+            "rebuild DIR: store every recording at or below DIR (after restoring a backup, "
+            "or to fill a new shared database). Which archive: --url, else the config's "
+            "archive: section (--config), else archive.sqlite in --out (or ./runs)."
+        ),
+    )
     rs = p.add_subparsers(dest="archive_command", metavar="ACTION")
     rs.required = True
-    st = rs.add_parser("status", help="the queue and the records set aside as refused (opens "
-                       "no database)")
+    text = "the queue and the records set aside as refused (opens no database)"
+    st = rs.add_parser("status", help=text, description=(
+        f"{text[0].upper()}{text[1:]}: one line per queued record, and each refused record "
+        "with the database's reason. Exit 0."))
     add_archive_options(st)
     st.add_argument("--json", action="store_true", help="one JSON object on stdout")
     st.set_defaults(handler=handle_status)
-    sy = rs.add_parser("sync", help="send the records queued while the archive was unreachable")
+    sy = rs.add_parser(
+        "sync", help="send the records queued while the archive was unreachable",
+        description=(
+            "Send the records queued while the archive was unreachable: a record leaves the "
+            "queue once its run is in the database, or when the database refuses it (set "
+            "aside with its reason: archive status); a database that cannot take records now "
+            "(locked, read-only, out of reach) stops the sync with the rest kept in the queue. "
+            "Exit 0, or 2 when a record was refused or the sync stopped."))
     add_archive_options(sy)
     sy.add_argument("--json", action="store_true", help="one JSON object on stdout")
     sy.set_defaults(handler=handle_sync)
-    rb = rs.add_parser("rebuild", help="store every recording under DIR in the archive")
+    rb = rs.add_parser(
+        "rebuild", help="store every recording under DIR in the archive",
+        description=(
+            "Store every recording at or below DIR (a recording, an output folder, a tree of "
+            "them) in the archive, from its record.json (else its meta.json, end.json and "
+            "report.json); a recording left without end.json by a killed run is stored "
+            "ABORTED. Storing a run again replaces its rows."))
     rb.add_argument("dir", type=Path, metavar="DIR", help="a recording or a folder of them")
     add_archive_options(rb)
     rb.add_argument("--json", action="store_true", help="one JSON object on stdout")

@@ -27,7 +27,20 @@ def since_date(text: str) -> datetime:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("history", help="runs in the results archive (a unit's, a station's)")
+    p = sub.add_parser(
+        "history",
+        help="runs in the results archive (a unit's, a station's)",
+        description=(
+            "The runs in the results archive, oldest first: every run, or one unit's (SERIAL), "
+            "one station's (--station), from a date on (--since). As a table, CSV (--csv) or "
+            "one JSON object (--json: the runs, the yield per day, and with SERIAL the unit's "
+            "σ over its runs); --html FILE also writes the history page (σ over the runs with "
+            "its limit, the yield per day, the table of runs; self-contained, prints on A4). "
+            "Which archive: --url, else the config's archive: section (--config), else "
+            "archive.sqlite in --out (or ./runs). Exit 0, or 2 for an archive that cannot be "
+            "read."
+        ),
+    )
     p.add_argument("serial", nargs="?", help="only this unit's runs (and its σ over them)")
     p.add_argument("--since", type=since_date, metavar="DATE", help="runs started from DATE on")
     p.add_argument("--station", metavar="S", help="only runs of station S")
@@ -49,13 +62,16 @@ def handle(args: argparse.Namespace) -> int:
         listed = {r["run_id"] for r in rows}  # the σ series of the runs selected
         series = [s for s in a.sigma_series(args.serial) if s["run_id"] in listed] \
             if args.serial else []
-        stations = {r["station"] for r in rows} if args.serial else None
-        yields = [y for y in a.station_yield(args.station, since=args.since)
-                  if stations is None or y["station"] in stations]
+        # a station's yield where a station is asked for, or no unit: every station's
+        stations = (a.station_yield(args.station, since=args.since)
+                    if args.station is not None or not args.serial else [])
         name = a.name
+    # a unit's yield: its own runs' verdicts (not its stations' days)
+    yields = h.unit_yield_per_day(args.serial, rows) if args.serial else stations
     if args.html is not None:
         page = h.html_page(rows, archive=name, serial=args.serial, sigma_series=series,
-                           yields=yields, station=args.station,
+                           yields=[*yields, *stations] if args.serial else yields,
+                           station=args.station,
                            since=None if args.since is None else args.since.isoformat())
         try:
             args.html.write_text(page, encoding="utf-8")
@@ -65,6 +81,9 @@ def handle(args: argparse.Namespace) -> int:
         out: dict[str, Any] = {"archive": name, "runs": rows, "yield_per_day": yields}
         if args.serial:
             out["sigma"] = series
+            out["yield"] = h.unit_yield(args.serial, rows)
+            if args.station is not None:
+                out["station_yield_per_day"] = stations
         print(dumps(out))
     elif args.csv:
         print(h.to_csv(rows), end="")

@@ -105,8 +105,14 @@ def run(args: argparse.Namespace) -> int:
             f"{args.profile}: axes: moves {', '.join(tables)}, none of the recording's "
             f"{', '.join(wanted)}; expected a profile for the axis measured"
         )
+    # a recording's axis the profile does not move: said, never dropped in silence
+    skipped = {a: _not_moved(a, profile.name, tables) for a in wanted if a not in tables}
     docs: dict[str, dict[str, Any]] = {}
     texts: list[str] = []
+    if args.axis == "all" and len(rec.axes) > 1:
+        texts.append(f"benchctl predict: {src}: axes {', '.join(rec.axes)}; predicted "
+                     f"{', '.join(axes)}"
+                     + (f"; not predicted {', '.join(skipped)}" if skipped else ""))
     for ax in axes:
         res = _measure(rec, str(src), ax, args.recording_timebase)
         la = res.lines
@@ -116,12 +122,22 @@ def run(args: argparse.Namespace) -> int:
         doc = _doc(args, profile, tab, res, pred, ax)
         docs[ax] = doc
         texts.append(_summary(doc, pred))
+    texts += [f"benchctl predict: {src}  [{a}]  not predicted: {why}"
+              for a, why in skipped.items()]
     if args.json:
-        out = docs[axes[0]] if args.axis != "all" else {"axes": docs}
+        out = docs[axes[0]] if args.axis != "all" else {"axes": docs, "not_predicted": skipped}
         sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
     else:
         print("\n".join(texts))
     return 0
+
+
+def _not_moved(axis: str, profile_name: str, tables: dict[str, HarmonicTable]) -> str:
+    """Why a recording's ``axis`` has no prediction: the other profile does not move it."""
+    return (f"the profile {profile_name} moves {', '.join(tables)} only; with {axis} held at "
+            f"zero its error is the instrument's noise and its response to the "
+            f"{', '.join(tables)} motion, which a prediction from {axis}'s own lines does not "
+            "give")
 
 
 def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: AnalysisResult,

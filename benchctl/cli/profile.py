@@ -30,14 +30,32 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("profile", help="show, synthesise or plot a motion profile")
+    p = sub.add_parser(
+        "profile",
+        help="show, synthesise or plot a motion profile",
+        description=(
+            "Look at a motion profile (profiles/*.yaml) before it moves the stand, synthesised "
+            "exactly as a run would: show its figures, write its motion as CSV (synth), or "
+            "plot its spectrum and trace (plot). With --config the motion is checked against "
+            "the stand's limits (angle, rate, acceleration), as a run checks it."
+        ),
+    )
     ps = p.add_subparsers(dest="profile_command", metavar="ACTION")
     ps.required = True
-    show = ps.add_parser("show", help="kind, band, sigma, peaks, crest factor, lines, period")
+    show = ps.add_parser(
+        "show", help="kind, band, sigma, peaks, crest factor, lines, period",
+        description=(
+            "A profile's kind, band, σ, peak angle, rate and acceleration, crest factor, its "
+            "lines and period, and (with --config) whether it fits the stand's limits. Exit 0, "
+            "2 for a bad profile or one over the limits."))
     _common(show)
     show.add_argument("--json", action="store_true", help="one JSON object on stdout")
     show.set_defaults(handler=handle_show)
-    synth = ps.add_parser("synth", help="write the motion as CSV (time_s, <axis>_deg)")
+    synth = ps.add_parser(
+        "synth", help="write the motion as CSV (time_s, <axis>_deg)",
+        description=(
+            "Write the profile's motion, as a run would command it, as CSV (time_s, "
+            "<axis>_deg per axis) at --rate; --table also writes its harmonic table."))
     _common(synth)
     synth.add_argument("--out", type=Path, required=True, metavar="FILE.csv", help="output CSV")
     synth.add_argument(
@@ -45,7 +63,11 @@ def register(sub: Any) -> None:
     )
     synth.add_argument("--json", action="store_true", help="one JSON object on stdout")
     synth.set_defaults(handler=handle_synth)
-    plot = ps.add_parser("plot", help="target vs synthesised spectrum, and a stretch of the trace")
+    plot = ps.add_parser(
+        "plot", help="target vs synthesised spectrum, and a stretch of the trace",
+        description=(
+            "Plot the profile's target spectrum against the synthesised motion's, and the "
+            "first --window seconds of its trace, to an image (PNG)."))
     _common(plot)
     plot.add_argument("--out", type=Path, required=True, metavar="FILE.png", help="output image")
     plot.add_argument(

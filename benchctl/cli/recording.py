@@ -12,14 +12,30 @@ from benchctl.text import terminal_lines
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("recording", help="show or export a recording")
+    p = sub.add_parser(
+        "recording",
+        help="show or export a recording",
+        description=(
+            "A recording folder (what a run writes: meta.json, events.jsonl, end.json and "
+            "the stand, instrument and setpoint streams as CSV): show what it holds, or "
+            "export its streams to CSV files or one MATLAB .mat file."
+        ),
+    )
     rs = p.add_subparsers(dest="recording_command", metavar="ACTION")
     rs.required = True
-    show = rs.add_parser("show", help="metadata, end state and stream sizes of a recording")
+    show = rs.add_parser(
+        "show", help="metadata, end state and stream sizes of a recording",
+        description=(
+            "A recording's metadata (serial, operator, station, profile, devices), its end "
+            "state (done or aborted, and why) and each stream's rows, time span and columns."))
     show.add_argument("path", type=Path, help="recording folder")
     show.add_argument("--json", action="store_true", help="one JSON object on stdout")
     show.set_defaults(handler=handle_show)
-    exp = rs.add_parser("export", help="export the streams to CSV files or one .mat file")
+    exp = rs.add_parser(
+        "export", help="export the streams to CSV files or one .mat file",
+        description=(
+            "Export a recording's streams: one CSV file per stream into a folder (--csv DIR), "
+            "or all of them into one MATLAB .mat file (--mat FILE)."))
     exp.add_argument("path", type=Path, help="recording folder")
     g = exp.add_mutually_exclusive_group(required=True)
     g.add_argument("--csv", type=Path, metavar="DIR", help="one CSV per stream into DIR")

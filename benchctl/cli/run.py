@@ -74,25 +74,28 @@ def ask_value(value: str | None, what: str, option: str,
 
     ``check(text, option)`` returns the value to use or raises ``InputError``
     (``benchctl.text``: a serial, an operator): a given ``value`` it refuses ends the command
-    (exit 2); a line typed on the terminal it refuses is explained and asked for again."""
-    if value:
+    (exit 2); a line typed on the terminal it refuses is explained and asked for again. The
+    input ending at the prompt (Ctrl-D: end of file) ends the command too (exit 2), saying so."""
+    if value is not None:  # given, even empty or blank: checked, never asked for again
         return check(value, option) if check is not None else value
-    if sys.stdin.isatty() and sys.stderr.isatty():
-        while True:
-            sys.stderr.write(f"{what}: ")
-            sys.stderr.flush()
-            line = sys.stdin.readline()
-            if not line:
-                break
-            if not line.strip():
-                continue
-            if check is None:
-                return line.strip()
-            try:
-                return check(line, option)
-            except InputError as e:
-                sys.stderr.write(f"{e}\n")
-    raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
+    if not (sys.stdin.isatty() and sys.stderr.isatty()):
+        raise ConfigError(f"{option} is required (the {what.lower()}); no terminal to ask on")
+    while True:
+        sys.stderr.write(f"{what}: ")
+        sys.stderr.flush()
+        line = sys.stdin.readline()
+        if not line:  # end of file: Ctrl-D on an empty line
+            sys.stderr.write("\n")  # the command's message on a line of its own
+            raise InputError(f"{option}: the input ended (EOF, Ctrl-D) at the prompt for the "
+                             f"{what.lower()}; nothing was run")
+        if not line.strip():
+            continue
+        if check is None:
+            return line.strip()
+        try:
+            return check(line, option)
+        except InputError as e:
+            sys.stderr.write(f"{e}\n")
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -106,8 +109,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
     from benchctl.run.plan import check_setpoints
-    from benchctl.run.report import format_report
-    from benchctl.text import check_operator, check_part_number, check_serial, visible
+    from benchctl.text import check_operator, check_part_number, check_serial
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -143,36 +145,82 @@ def handle(args: argparse.Namespace) -> int:
         part_number=part_number,
         equalise=args.equalise,
     )
-    display = make_display(sys.stderr, quiet=args.quiet)
+    # on a terminal the verdict's banner waits for the summary: the last thing on the screen
+    display = make_display(sys.stderr, quiet=args.quiet, hold_banner=not args.json)
     result = run_test(cfg, args.profile, opts, display=display)
+    if args.json:
+        with contextlib.suppress(OSError):  # the console may be gone: the exit code still tells
+            print(dumps(result.to_dict()))
+        return result.exit_code
+    print_outcome(result, display)
+    return result.exit_code
+
+
+def summary_lines(result: Any) -> list[str]:
+    """The run's summary for stdout: the report's text, or an aborted run's reason, cleanup
+    steps and files."""
+    from benchctl.run.report import format_report
+    from benchctl.text import visible
+
+    if result.report is not None:
+        return str(format_report(result.report)).split("\n")
+    lines = [f"ABORTED: {visible(result.reason)}"]
+    if result.abort is not None:
+        lines.append(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
+    if result.measured is not None:
+        lines.append(f"  {_measured_text(result.measured)}")
+    if result.shutdown:
+        lines.append("  cleanup:")
+        for step in result.shutdown:
+            ok = "ok" if step["ok"] else f"FAILED {step['detail']}"
+            lines.append(f"    {step['step']}: {ok}"
+                         + (f" ({step['detail']})" if step["ok"] and step["detail"] else "")
+                         + (f" (at the {step['when']})" if step.get("when") else ""))
+    if result.recording is not None:
+        closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
+        how = "closed, marked aborted" if closed else "NOT closed: no end.json"
+        lines.append(f"  recording {result.recording} ({how})")
+    if result.log is not None:
+        lines.append(f"  log {result.log}")
+    if result.record is not None:
+        lines.append(f"  record {result.record}")
+    return lines
+
+
+def print_outcome(result: Any, display: Any) -> None:
+    """The summary on stdout, then the verdict's banner the display held back (stderr), so the
+    banner is the last thing on the screen. With both on a terminal the summary is wrapped at
+    words to its width and, with the banner, kept within its height (less detail, and where the
+    rest is: ``_where_in_full``)."""
+    from benchctl.run.display import TtyDisplay, fit_rows, rows_of, terminal_size
+
     # the console may be gone (SIGHUP, a closed pipe): the exit code still tells
     with contextlib.suppress(OSError):
-        if args.json:
-            print(dumps(result.to_dict()))
-        elif result.report is not None:
-            print(format_report(result.report))
-        else:
-            print(f"ABORTED: {visible(result.reason)}")
-            if result.abort is not None:
-                print(f"  abort: {ABORT_WORDS.get(result.abort['kind'], result.abort['kind'])}")
-            if result.measured is not None:
-                print(f"  {_measured_text(result.measured)}")
-            if result.shutdown:
-                print("  cleanup:")
-                for step in result.shutdown:
-                    ok = "ok" if step["ok"] else f"FAILED {step['detail']}"
-                    print(f"    {step['step']}: {ok}"
-                          + (f" ({step['detail']})" if step["ok"] and step["detail"] else "")
-                          + (f" (at the {step['when']})" if step.get("when") else ""))
-            if result.recording is not None:
-                closed = any(s["step"] == "close recording" and s["ok"] for s in result.shutdown)
-                how = "closed, marked aborted" if closed else "NOT closed: no end.json"
-                print(f"  recording {result.recording} ({how})")
-            if result.log is not None:
-                print(f"  log {result.log}")
-            if result.record is not None:
-                print(f"  record {result.record}")
-    return result.exit_code
+        try:
+            lines = summary_lines(result)
+            held = display.held if isinstance(display, TtyDisplay) else []
+            if sys.stdout.isatty():
+                size = terminal_size(sys.stdout)
+                width = max(20, size.columns - 1)  # the last column left: no early fold
+                room = size.lines - 1 - rows_of(held, size.columns)  # a row for the prompt
+                more = _where_in_full(result)
+                lines = fit_rows(lines, width, max(room, 3), more, size.columns)
+            sys.stdout.write("\n".join(lines) + "\n")
+            sys.stdout.flush()
+        finally:
+            if isinstance(display, TtyDisplay):
+                display.show_banner()
+
+
+def _where_in_full(result: Any) -> str:
+    """Where the lines a terminal's summary leaves out are: the recording's report.txt (a
+    finished run), else its end.json (an aborted run: the reason and the cleanup's steps)."""
+    if result.recording is None:
+        return ""
+    for name in ("report.txt", "end.json"):
+        if (Path(result.recording) / name).is_file():
+            return str(Path(result.recording) / name)
+    return ""
 
 
 def _measured_text(m: dict[str, Any]) -> str:

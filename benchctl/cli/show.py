@@ -13,7 +13,19 @@ from benchctl.jsonout import dumps
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("show", help="one run from the results archive")
+    p = sub.add_parser(
+        "show",
+        help="one run from the results archive",
+        description=(
+            "One run from the results archive: its unit, station, operator, times, outcome "
+            "(an aborted run's kind and reason), profile, software, the recording and report "
+            "with their SHA-256, every measurement with its value, interval, limits and "
+            "outcome, and the recording's integrity checked now (when its folder is on this "
+            "computer). --json: the same as one JSON object with the run's whole record. "
+            "RUN is the recording folder's name, or the folder. Exit 0, or 2 for a run not in "
+            "the archive."
+        ),
+    )
     p.add_argument("run", metavar="RUN", help="run id (the recording folder's name) or folder")
     add_archive_options(p)
     p.add_argument("--json", action="store_true",

@@ -37,7 +37,11 @@ def register(sub: Any) -> None:
     )
     acts = p.add_subparsers(dest="action", metavar="ACTION")
     acts.required = True
-    st = acts.add_parser("status", help="the stand's state and its lock's holder")
+    st = acts.add_parser(
+        "status", help="the stand's state and its lock's holder",
+        description=(
+            "The stand's angles, rates, fault, E-stop and servo state, and who holds its "
+            "lock; no lock taken, nothing written, nothing moved."))
     st.add_argument("--config", required=True, type=Path, help="bench config YAML")
     st.add_argument("--json", action="store_true", help="one JSON object on stdout")
     st.set_defaults(handler=handle)

@@ -93,6 +93,7 @@ class ActionResult:
     check: str | None
     status: str  # ok | declined | unanswered | interrupted | failed | skipped
     detail: str = ""
+    duration_s: float = 0.0  # the action's time, its prompt's answer included (JUnit)
 
     def to_dict(self) -> dict[str, Any]:
         return {"phase": self.phase, "index": self.index, "prompt": self.prompt,
@@ -656,6 +657,16 @@ def _action(phase: str, index: int, a: Action, cfg: BenchConfig, asker: Asker | 
     """One setup or cleanup action; never raises for a prompt's answer, a failed check or a
     signal (each is the action's status, and ``consent`` learns of it)."""
     ar = ActionResult(phase, index, a.prompt, a.check, "ok")
+    t0 = clock.monotonic()
+    try:
+        return _act(ar, phase, index, a, cfg, asker, holder, tell, consent, clock)
+    finally:
+        ar.duration_s = clock.monotonic() - t0
+
+
+def _act(ar: ActionResult, phase: str, index: int, a: Action, cfg: BenchConfig,
+         asker: Asker | None, holder: dict[str, Any], tell: Callable[[str], None],
+         consent: Consent, clock: Clock) -> ActionResult:
     if a.prompt is not None:
         answered = _ask(ar, a.prompt, asker, consent)
         if not answered:

@@ -308,8 +308,9 @@ class Recording:
         x_ref = xr[okr][keep]
         if reference_timebase in ("best", "stand"):
             by_clock = self._stand_clock(okr)
-            if by_clock is not None:  # every sample: a long round trip leaves its date exact
-                t_ref, x_ref = by_clock, xr[okr]
+            if by_clock is not None:  # a long round trip leaves its date exact, unless the
+                # stall in it was long enough to hide the stand clock's wrap (left out)
+                t_ref, x_ref = by_clock[0], xr[okr][by_clock[1]]
             elif reference_timebase == "stand":
                 raise DataError(f"{self.path}: the stand's samples carry no usable clock "
                                 "(stand_time_s with its wrap, t_lo, t_hi)")
@@ -337,8 +338,8 @@ class Recording:
 
     def _stand_clock(self, rows: NDArray[np.bool_]) -> Any:
         """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.
-        stand_clock``), or None when the recording has no such clock or it contradicts the
-        exchanges' windows."""
+        stand_clock``) and which of them it could date, or None when the recording has no such
+        clock or it contradicts the exchanges' windows."""
         from benchctl.analysis.timebase import Instants, stand_clock
 
         st = self.streams["stand"]
@@ -355,9 +356,11 @@ class Recording:
                                and np.isfinite(hi).all()):
             return None
         t, err, info = stand_clock(ts, wrap, lo, hi)
-        if not info["consistent"] or np.any(np.diff(t) <= 0):
+        dated = np.isfinite(t)
+        t = t[dated]
+        if not info["consistent"] or t.size < 3 or np.any(np.diff(t) <= 0):
             return None
-        return Instants(t, "stand", err, info)
+        return Instants(t, "stand", err, info), dated
 
     def _stamp_certain(self) -> NDArray[np.bool_]:
         """Stand samples whose stamp is certain: a sample is stamped at the midpoint of its

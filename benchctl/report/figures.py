@@ -27,6 +27,10 @@ FloatArray = NDArray[np.float64]
 _PROLOG = re.compile(r"^.*?(?=<svg\b)", re.S)
 _METADATA = re.compile(r"<metadata>.*?</metadata>\s*", re.S)
 MAX_POINTS = 1500  # a trace is thinned to about this many points per line (file size)
+# the report's figures are drawn at the size they are printed: half the A4 text width (two
+# side by side), their text in points as it will be read on paper
+FIG_W = 3.6  # inches
+TITLE_PT, LABEL_PT, TICK_PT, LEGEND_PT = 7.5, 7.0, 6.5, 6.0
 
 
 def _figure(width_in: float, height_in: float, rows: int = 1) -> tuple[Figure, list[Axes]]:
@@ -42,6 +46,14 @@ def svg_text(fig: Figure) -> str:
     from matplotlib.backends.backend_svg import FigureCanvasSVG
 
     FigureCanvasSVG(fig)
+    for ax in fig.get_axes():
+        ax.tick_params(which="both", labelsize=TICK_PT)
+        ax.xaxis.label.set_fontsize(LABEL_PT)
+        ax.yaxis.label.set_fontsize(LABEL_PT)
+        leg = ax.get_legend()
+        if leg is not None:
+            for t in leg.get_texts():
+                t.set_fontsize(LEGEND_PT)
     buf = io.StringIO()
     fig.savefig(buf, format="svg", metadata={"Date": None})
     text = _METADATA.sub("", _PROLOG.sub("", buf.getvalue(), count=1))
@@ -77,10 +89,12 @@ def _period_marks(axes: Sequence[Axes], periods: Sequence[Mapping[str, Any]]) ->
                        label="gain-table periods" if i == 0 else None)
 
 
-def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
-            title: str = "") -> str | None:
-    """The error PSD (eq. 1) with its pointwise 95 % band and the analysis band, and on a
-    second axis the cumulative σ over frequency against the σ limit."""
+def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
+               title: str = "") -> Figure | None:
+    """The error PSD figure: above, the PSD (eq. 1) with its pointwise 95 % band and the
+    analysis band (deg²/Hz, log); below, on its own axis in deg, σ accumulated over frequency
+    and the σ limit — the limit is drawn against the axis whose unit it has, never beside a
+    density axis it could be read against."""
     from benchctl.analysis.uncertainty import density_interval
 
     psd = analysis.get("psd") or {}
@@ -91,7 +105,8 @@ def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
     if keep.sum() < 2:
         return None
     floor = max(float(np.nanmax(np.abs(s))) * 1e-12, 1e-300)
-    fig, (ax,) = _figure(7.0, 3.6)
+    fig, (ax, ax2) = _figure(FIG_W, 2.9, 2)
+    ax.sharex(ax2)
     dof = psd.get("dof")
     if isinstance(dof, int | float) and dof > 0:
         lo, hi = density_interval(s, float(dof))
@@ -100,26 +115,38 @@ def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
     ax.loglog(f[keep], np.maximum(s[keep], floor), color="tab:blue", label="error PSD (eq. 1)")
     band = analysis.get("band")
     if isinstance(band, Mapping) and band.get("lo") is not None and band.get("hi") is not None:
-        ax.axvspan(max(float(band["lo"]), float(f[keep][0])), float(band["hi"]),
-                   color="tab:green", alpha=0.08, label="analysis band")
-    ax.set_xlabel("frequency, Hz")
+        for a in (ax, ax2):
+            a.axvspan(max(float(band["lo"]), float(f[keep][0])), float(band["hi"]),
+                      color="tab:green", alpha=0.08,
+                      label="analysis band" if a is ax else None)
     ax.set_ylabel("PSD, deg²/Hz")
     ax.grid(True, which="both", alpha=0.3)
+    ax.tick_params(labelbottom=False)
+    ax.legend(loc="lower left", fontsize=LEGEND_PT)
     # cumulative σ(f): √∫₀^f S — where the error's variance sits, against the limit
     df = np.gradient(f)
     cum = np.sqrt(np.maximum(np.cumsum(np.where(np.isfinite(s), s, 0.0) * df), 0.0))
-    ax2 = ax.twinx()
     ax2.plot(f[keep], cum[keep], color="tab:red", lw=1.0, label="cumulative σ")
+    top = float(np.nanmax(cum[keep])) if np.isfinite(cum[keep]).any() else 0.0
     if limit_deg is not None and math.isfinite(limit_deg):
-        ax2.axhline(limit_deg, color="tab:red", ls="--", lw=1.0, label=f"limit {limit_deg:g}°")
-        ax2.set_ylim(0, max(limit_deg, float(np.nanmax(cum))) * 1.15)
+        ax2.axhline(limit_deg, color="black", ls="--", lw=1.0, label=f"σ limit {limit_deg:g}°")
+        top = max(top, limit_deg)
+    ax2.set_ylim(0, top * 1.15 if top > 0 else 1.0)
+    ax2.set_xscale("log")
+    ax2.set_xlabel("frequency, Hz")
     ax2.set_ylabel("cumulative σ, deg")
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="lower left", fontsize=7)
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(loc="upper left", fontsize=LEGEND_PT)
     if title:
-        ax.set_title(title, fontsize=9)
-    return svg_text(fig)
+        ax.set_title(title, fontsize=TITLE_PT)
+    return fig
+
+
+def psd_svg(analysis: Mapping[str, Any], limit_deg: float | None = None,
+            title: str = "") -> str | None:
+    """:func:`psd_figure` as inline SVG (None without a PSD)."""
+    fig = psd_figure(analysis, limit_deg, title)
+    return None if fig is None else svg_text(fig)
 
 
 def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
@@ -133,7 +160,7 @@ def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
         frf.get("coherence"))
     glo, ghi = _pairs(frf.get("gain_ci95"), f.size)
     plo, phi = _pairs(frf.get("phase_ci95_deg"), f.size)
-    fig, (a1, a2, a3) = _figure(7.0, 6.0, 3)
+    fig, (a1, a2, a3) = _figure(FIG_W, 3.4, 3)
     a1.axhline(1.0, color="black", lw=0.8, label="gain = 1")
     a1.fill_between(f, glo, ghi, color="tab:blue", alpha=0.25, label="95 % interval")
     a1.plot(f, gain, ".-", color="tab:blue", label="gain")
@@ -150,9 +177,9 @@ def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
     for ax in (a1, a2, a3):
         ax.set_xlabel("frequency, Hz")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize=7)
+        ax.legend(loc="best", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 
@@ -170,7 +197,7 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     err = np.array([math.nan if b.get("error_db") is None else float(b["error_db"])
                     for b in bands])
     elo, ehi = _pairs([b.get("error_ci95_db") for b in bands], len(bands))
-    fig, (a1, a2) = _figure(7.0, 4.6, 2)
+    fig, (a1, a2) = _figure(FIG_W, 2.9, 2)
     pos = (tgt > 0) | (ach > 0)
     a1.loglog(fc[pos], np.where(tgt[pos] > 0, tgt[pos], np.nan), "s-", color="black", ms=4,
               lw=0.8, label="target (profile)")
@@ -189,6 +216,15 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     a2.axhline(0.0, color="black", lw=0.8)
     a2.set_xscale("log")
     a2.set_ylabel("error, dB")
+    from matplotlib.ticker import FuncFormatter
+
+    def _plain(v: float, _pos: int) -> str:  # 0.2, 0.3, 0.5 (not 2×10⁻¹ …: they overlap)
+        m = v / 10 ** math.floor(math.log10(v)) if v > 0 else 0.0
+        return f"{v:g}" if round(m, 6) in (1.0, 2.0, 3.0, 5.0) else ""
+
+    for ax in (a1, a2):
+        ax.xaxis.set_major_formatter(FuncFormatter(_plain))
+        ax.xaxis.set_minor_formatter(FuncFormatter(_plain))
     lim = max(float(abort) if isinstance(abort, int | float) else 0.0,
               float(np.nanmax(np.abs(np.concatenate([err, elo, ehi])))) if np.isfinite(
                   np.concatenate([err, elo, ehi])).any() else 0.0, 0.5)
@@ -196,9 +232,9 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     for ax in (a1, a2):
         ax.set_xlabel("frequency, Hz")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="best", fontsize=7)
+        ax.legend(loc="best", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 
@@ -214,7 +250,7 @@ def trace_svg(t_ref: FloatArray, x_ref: FloatArray, t_dev: FloatArray, y_dev: Fl
     if t_ref.size < 2 or t_dev.size < 2:
         return None
     err = y_dev - np.interp(t_dev, t_ref, x_ref, left=np.nan, right=np.nan)
-    fig, (a1, a2) = _figure(7.0, 4.2, 2)
+    fig, (a1, a2) = _figure(FIG_W, 2.9, 2)
     tr, xr = _thin(t_ref - t0, x_ref)
     td, yd = _thin(t_dev - t0, y_dev)
     te, ye = _thin(t_dev - t0, err)
@@ -226,10 +262,10 @@ def trace_svg(t_ref: FloatArray, x_ref: FloatArray, t_dev: FloatArray, y_dev: Fl
     for ax in (a1, a2):
         ax.set_xlabel("time from the motion's start, s")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=7)
+        ax.legend(loc="upper right", fontsize=LEGEND_PT)
     if title:
-        a1.set_title(title, fontsize=9)
+        a1.set_title(title, fontsize=TITLE_PT)
     return svg_text(fig)
 
 
-__all__ = ["excitation_svg", "frf_svg", "psd_svg", "svg_text", "trace_svg"]
+__all__ = ["excitation_svg", "frf_svg", "psd_figure", "psd_svg", "svg_text", "trace_svg"]

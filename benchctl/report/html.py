@@ -19,24 +19,31 @@ begun, the time-trace excerpt.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
 from datetime import date
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
-from benchctl.jsonout import loads_strict
+from benchctl.jsonout import dumps, loads_strict
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 REPORT_HTML = "report.html"
 TEMPLATE = "report.html.j2"
 TRACE_EXCERPT_S = 20.0  # the time-trace excerpt's length
+# a rejoin is the stand brought back onto the profile (stream mode: after missed setpoints it
+# held; buffered: after an underrun stopped it), never a reconnection of the link
+REJOIN_LABEL = "rejoins (the stand rejoined the profile after missed setpoints or an underrun)"
 
 
 @cache
@@ -93,6 +100,12 @@ def identity_text(d: Any) -> str:
     return text + (f" ({d['protocol']})" if d.get("protocol") else "")
 
 
+def _in_folder(path: Any, folder: Path) -> str:
+    """``path`` as its name when it is in ``folder`` (the recording), else as it is."""
+    p = Path(str(path or ""))
+    return p.name if p.parent == folder or p.parent.name == folder.name else str(path or "—")
+
+
 def _verdict(report: Mapping[str, Any] | None, record: Mapping[str, Any] | None,
              end: Mapping[str, Any] | None) -> str:
     if record and record.get("outcome"):
@@ -124,7 +137,7 @@ def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
         ("control cycles", _num(cycles, "d"), False),
         ("missed cycles", f"{missed}" + (f" ({100 * missed / cycles:.2g} %)" if cycles else ""),
          bool(missed) and cycles > 0 and missed / cycles > 0.01),
-        ("rejoins (the profile rejoined after a hold or a stop)",
+        (REJOIN_LABEL,
          _num(stats.get("rejoins", 0), "d"),
          bool(stats.get("rejoins"))),
         ("underruns (stand queue empty)", _num(stats.get("underruns", 0), "d"),
@@ -148,7 +161,8 @@ def _health_warnings(stats: Mapping[str, Any]) -> list[str]:
     if missed:
         share = f" ({100 * missed / cycles:.2g} % of {cycles})" if cycles else ""
         out.append(f"{missed} missed control cycle(s){share}")
-    for key, what in (("rejoins", "rejoin(s) of the profile (the stand had held or stopped)"),
+    for key, what in (("rejoins", "rejoin(s): the stand rejoined the profile after missed "
+                                  "setpoints or an underrun"),
                       ("underruns", "stand queue underrun(s)"),
                       ("instrument_lost", "instrument sample(s) lost"),
                       ("instrument_bad_frames", "bad instrument frame(s)")):
@@ -175,6 +189,60 @@ def _analysis_warnings(axis: str, an: Mapping[str, Any]) -> list[str]:
         out.append(f"{axis}: timing (time-stamp jitter × angular rate) contributes "
                    f"{_pct(share)} of σ²")
     return out
+
+
+SHORT_VALUE = 34  # characters: a who/what value this short shares its table row with another
+
+
+def who_rows(who: Sequence[tuple[str, Any]]) -> list[list[tuple[str, str]]]:
+    """The who/what table's rows, in order: two short items side by side, a long one (a
+    SHA-256, an identity, a path) on a row of its own — half the height on paper."""
+    rows: list[list[tuple[str, str]]] = []
+    half: list[tuple[str, str]] = []
+    for k, v in who:
+        text = str(v)
+        if len(text) <= SHORT_VALUE and "SHA-256" not in k:
+            half.append((k, text))
+            if len(half) == 2:
+                rows.append(half)
+                half = []
+            continue
+        if half:
+            rows.append(half)
+            half = []
+        rows.append([(k, text)])
+    if half:
+        rows.append(half)
+    return rows
+
+
+PRECHECK_PREFIX = "precheck: "
+
+
+def measurement_rows(measurements: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The measurements table's rows, compact: the prechecks as one group row where the first
+    one stood (how many passed, their names in its note; its outcome FAIL if any failed), and
+    a failed precheck also on a row of its own, with its detail. Every other measurement on
+    its own row, as recorded."""
+    pre = [m for m in measurements if str(m.get("name") or "").startswith(PRECHECK_PREFIX)]
+    rows: list[dict[str, Any]] = []
+    grouped = False
+    for m in measurements:
+        if m not in pre:
+            rows.append({**m, "group": False})
+            continue
+        if grouped:
+            continue
+        grouped = True
+        ok = [p for p in pre if p.get("outcome") == "PASS"]
+        failed = [p for p in pre if p.get("outcome") != "PASS"]
+        names = ", ".join(str(p.get("name"))[len(PRECHECK_PREFIX):] for p in pre)
+        rows.append({"name": f"prechecks ({len(pre)})", "axis": None,
+                     "value": f"{len(ok)} of {len(pre)} passed", "unit": None, "low": None,
+                     "high": None, "ci95": None, "outcome": "FAIL" if failed else "PASS",
+                     "rule": "check", "decisive": True, "note": names, "group": True})
+        rows.extend({**p, "group": False} for p in failed)
+    return rows
 
 
 def _decomposition(an: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
@@ -221,10 +289,66 @@ def _trace(folder: Path, axes: Sequence[str], window: Sequence[float] | None,
         kd = (td >= lo) & (td <= hi)
         t0 = motion_start if motion_start is not None else float(tr[0])
         svg = trace_svg(np.asarray(tr[kr]), np.asarray(xr[kr]), np.asarray(td[kd]),
-                        np.asarray(yd[kd]), t0, title=f"{axis}: {title}")
+                        np.asarray(yd[kd]), t0, title=f"{axis} time trace — {title}")
         if svg is not None:
             out[axis] = svg
     return out
+
+
+# A run draws its report twice (before its recording closes, and after, with the data files'
+# SHA-256): the figures of the same content are drawn once. Keyed by their content (and the
+# streams' size and time for the trace), the last few kept.
+# (No lock: a report is drawn on one thread; two drawn at once would at worst draw twice.)
+_FIGURES: OrderedDict[str, Any] = OrderedDict()
+FIGURE_CACHE_SIZE = 8
+
+
+def _key(*parts: Any) -> str:
+    return hashlib.sha256(dumps(list(parts)).encode("utf-8")).hexdigest()
+
+
+def _stamp(folder: Path) -> list[Any]:
+    """The streams' sizes and modification times (a trace drawn of other data is not reused)."""
+    out: list[Any] = []
+    for name in ("stand.csv", "instrument.csv"):
+        try:
+            st = (folder / name).stat()
+        except OSError:
+            out.append(None)
+            continue
+        out.append([st.st_size, st.st_mtime_ns])
+    return out
+
+
+def _cached(key: str, make: Callable[[], T]) -> T:
+    hit = _FIGURES.get(key)
+    if hit is not None:
+        value: T = hit
+        return value
+    value = make()
+    _FIGURES[key] = value
+    with contextlib.suppress(KeyError):
+        while len(_FIGURES) > FIGURE_CACHE_SIZE:
+            _FIGURES.popitem(last=False)
+    return value
+
+
+def _figures_of(name: str, an: Mapping[str, Any], lim: Any, exc: Any,
+                title: str) -> dict[str, str | None]:
+    """An axis's PSD, frequency response and excitation figures (SVG), drawn once per content."""
+    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
+
+    limit = lim if isinstance(lim, int | float) else None
+
+    def make() -> dict[str, str | None]:
+        return {
+            "psd_svg": psd_svg(an, limit, f"{name} error PSD — {title}"),
+            "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),
+            "excitation_svg": None if not exc else excitation_svg(
+                exc, f"{name} stand spectrum vs target — {title}"),
+        }
+
+    return dict(_cached(_key("axis", name, an, limit, exc, title), make))
 
 
 def build_context(
@@ -239,8 +363,6 @@ def build_context(
     """The report's content for ``folder``: what is not given is read from the folder
     (``report.json``, ``record.json``, ``meta.json``, ``end.json``); missing files are no error
     (an aborted run has no report.json), but a folder without any of them is."""
-    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
-
     folder = Path(folder)
     report = report if report is not None else _read_json(folder / "report.json")
     record = record if record is not None else _read_json(folder / "record.json")
@@ -329,25 +451,27 @@ def build_context(
             "departures": departure_text(an["departures"])
             if isinstance(an.get("departures"), Mapping) else None,
             "sigma_inconclusive": a.get("sigma_inconclusive"),
-            "psd_svg": psd_svg(an, lim if isinstance(lim, int | float) else None,
-                               f"{name} error PSD — {title}"),
-            "frf_svg": frf_svg(an, f"{name} frequency response — {title}"),
-            "excitation_svg": None if not exc else excitation_svg(
-                exc, f"{name} stand spectrum, achieved vs target — {title}"),
+            **_figures_of(name, an, lim, exc, title),
         })
     window = rep.get("analysis_window") or (end or {}).get("analysis_window")
     motion_start = stats.get("motion_start") if isinstance(stats, Mapping) else None
     traces: dict[str, str] = {}
     if trace:
         names = [a["name"] for a in axes] or list(m.get("axes") or [])
-        traces = _trace(folder, names, window, motion_start, title)
+        traces = _cached(_key("trace", str(folder.resolve()), names, window, motion_start,
+                              title, _stamp(folder)),
+                         lambda: _trace(folder, names, window, motion_start, title))
     abort = rec.get("abort")
     if abort is None and verdict in ("ABORTED", "INCOMPLETE"):
         reason = (end or {}).get("reason") if end else "the run ended without closing its " \
             "recording (no end.json: the process was killed)"
         abort = {"kind": None, "reason": reason}
-    files = [(k, v.get("path"), v.get("sha256")) for k, v in (rec.get("files") or {}).items()
-             if isinstance(v, Mapping)]
+    # the reports by their names in the recording (its path is printed above them)
+    files = [(k, _in_folder(v.get("path"), folder), v.get("sha256"))
+             for k, v in (rec.get("files") or {}).items() if isinstance(v, Mapping)]
+    data = rec.get("data") if isinstance(rec.get("data"), Mapping) else None
+    if data is not None:
+        who.append(("recording SHA-256", str(data.get("recording_sha256") or "—")))
     return {
         "verdict": verdict,
         "serial": serial,
@@ -358,13 +482,18 @@ def build_context(
         "deviations": list(rec.get("deviations") or rep.get("deviations") or []),
         "warnings": list(dict.fromkeys(warnings)),
         "who": who,
+        "who_rows": who_rows(who),
         "axes": axes,
         "traces": traces,
-        "measurements": list(rec.get("measurements") or rep.get("measurements") or []),
+        "measurements": measurement_rows(list(rec.get("measurements")
+                                              or rep.get("measurements") or [])),
         "health": _health(stats),
         "ended": rep.get("ended"),
         "files": files,
+        "data": data,
         "recording": str(folder),
+        "operator": str(rec.get("operator") or rep.get("operator") or m.get("operator") or ""),
+        "run_id": str(rec.get("run_id") or folder.name),
     }
 
 
@@ -390,4 +519,5 @@ def write_html(
     return dest
 
 
-__all__ = ["REPORT_HTML", "build_context", "identity_text", "render_html", "write_html"]
+__all__ = ["REPORT_HTML", "build_context", "identity_text", "measurement_rows", "render_html",
+           "who_rows", "write_html"]

@@ -21,7 +21,9 @@ not finite FAILs. A measurement without limits, or a period the profile does not
 INCONCLUSIVE → INCONCLUSIVE, else PASS. Decisive: σ, the linearity spread, the prechecks, and
 gain/phase/delay/mean error when ``run.limits`` gives limits for them. Informative (recorded,
 never deciding): the excitation fidelity (its alarm stays a warning) and the serial match (a
-mismatch is a warning and a FAIL of that measurement, the run still judged on what it measured).
+mismatch is a warning, the run still judged on what it measured). An informative measurement
+is never FAIL: beyond its limit its outcome is ``WARNING`` (:func:`informative`); a serial
+mismatch blocks a run only under ``unit.serial_check: require``, as a failed precheck.
 σ is INCONCLUSIVE under either rule when the stand's motion departed from the profile for too
 much of the window (:mod:`benchctl.analysis.departures`): never a PASS or FAIL on σ of another
 motion.
@@ -37,7 +39,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 PASS, FAIL, INCONCLUSIVE, NOT_JUDGED = "PASS", "FAIL", "INCONCLUSIVE", "NOT_JUDGED"
-OUTCOMES = (PASS, FAIL, INCONCLUSIVE, NOT_JUDGED)
+# an informative measurement beyond its limit: shown and recorded, never a FAIL (it decides
+# nothing: the excitation fidelity's alarm, a serial mismatch)
+WARNING = "WARNING"
+OUTCOMES = (PASS, FAIL, INCONCLUSIVE, NOT_JUDGED, WARNING)
 RULES = ("simple", "guarded")
 RULE_TEXT = {
     "simple": (
@@ -90,6 +95,12 @@ def decide(
         low is not None and hi is not None and hi < low
     )
     return FAIL if outside else INCONCLUSIVE
+
+
+def informative(outcome: str) -> str:
+    """An informative measurement's outcome: a FAIL is a ``WARNING`` (it decides nothing, so
+    it is never shown as a failure); every other outcome as it is."""
+    return WARNING if outcome == FAIL else outcome
 
 
 def combine(outcomes: Iterable[str]) -> str:
@@ -195,6 +206,8 @@ def _measure(
     used = rule if ci is not None else "simple"
     outcome = decide(_num(value), lim[0], lim[1], ci, used)
     judged = outcome != NOT_JUDGED
+    if not decisive:
+        outcome = informative(outcome)
     return Measurement(name, axis, _num(value), unit, lim[0], lim[1], ci, outcome, used,
                        decisive and judged, note)
 
@@ -314,9 +327,10 @@ def serial_match(typed: str, reported: str | None) -> bool | None:
 
 
 def serial_measurement(typed: str, reported: str | None) -> Measurement:
-    """The serial typed by the operator against the instrument's (informative)."""
+    """The serial typed by the operator against the instrument's (informative: a mismatch is
+    a ``WARNING``)."""
     match = serial_match(typed, reported)
-    outcome = NOT_JUDGED if match is None else PASS if match else FAIL
+    outcome = NOT_JUDGED if match is None else PASS if match else WARNING
     note = ("the instrument reports no serial" if match is None else
             f"typed {typed!r}, instrument reports {reported!r}")
     return Measurement("serial match", None, match, None, None, None, None, outcome, "check",
@@ -331,11 +345,13 @@ __all__ = [
     "PASS",
     "RULES",
     "RULE_TEXT",
+    "WARNING",
     "Limits",
     "Measurement",
     "axis_measurements",
     "combine",
     "decide",
+    "informative",
     "judge",
     "limits_from_config",
     "overall",

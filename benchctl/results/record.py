@@ -87,6 +87,64 @@ def sha256_file(path: Path | str | None) -> str | None:
     return h.hexdigest()
 
 
+# the recording's data files: what the run measured and recorded, each final once the
+# recording is closed (logs and the reports beside them are not data; the CAN log, when the
+# instrument is on CAN, under the name instrument.can_log gives it)
+DATA_FILES = ("meta.json", "stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl",
+              "end.json")
+RECORDING_HASH_DEFINITION = (
+    "SHA-256 of the lines '<sha256>  <name>' (64 lowercase hex digits, two spaces, the file's "
+    "name, a newline), one per data file, sorted by name: the output of sha256sum run on the "
+    "files in that order"
+)
+
+
+def _can_log_name(meta: Mapping[str, Any] | None) -> str | None:
+    cfg = (meta or {}).get("config") or {}
+    inst = cfg.get("instrument") if isinstance(cfg, Mapping) else None
+    if not isinstance(inst, Mapping) or inst.get("driver") == "nmea0183":
+        return None
+    name = inst.get("can_log")
+    return str(name) if isinstance(name, str) and name else None
+
+
+def data_hashes(folder: Path, meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """SHA-256 of each data file of the recording in ``folder`` as it is on the disk, and of
+    the recording as a whole (``RECORDING_HASH_DEFINITION``): ``{algorithm, files: [{name,
+    bytes, sha256}] sorted by name, recording_sha256, definition}``. ``meta`` (``meta.json``'s
+    content) names the CAN log; a data file that is not there is left out."""
+    folder = Path(folder)
+    names = set(DATA_FILES)
+    can = _can_log_name(meta)
+    if can is not None:
+        names.add(can)
+    files = []
+    for name in sorted(names):
+        path = folder / name
+        if not path.is_file() or path.resolve().parent != folder.resolve():
+            continue
+        digest = sha256_file(path)
+        if digest is None:
+            continue
+        files.append({"name": name, "bytes": path.stat().st_size, "sha256": digest})
+    manifest = "".join(f"{f['sha256']}  {f['name']}\n" for f in files)
+    return {
+        "algorithm": "sha256",
+        "files": files,
+        "recording_sha256": hashlib.sha256(manifest.encode("utf-8")).hexdigest(),
+        "definition": RECORDING_HASH_DEFINITION,
+    }
+
+
+def with_data(record: Mapping[str, Any], folder: Path,
+              meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A copy of ``record`` with ``data``: the recording's data files and their hashes as
+    they are now (:func:`data_hashes`) — made once the recording is closed."""
+    out = dict(record)
+    out["data"] = data_hashes(folder, meta)
+    return out
+
+
 def abort_kind(error: BaseException | None, source: str | None = None) -> str:
     """``operator``, ``equipment`` or ``software`` for the first fault of an aborted run (see
     the module notes)."""
@@ -221,15 +279,19 @@ def load_record(path: Path | str) -> dict[str, Any]:
 
 __all__ = [
     "ABORT_KINDS",
+    "DATA_FILES",
+    "RECORDING_HASH_DEFINITION",
     "RECORD_JSON",
     "SCHEMA_ID",
     "abort_kind",
     "build_record",
+    "data_hashes",
     "load_record",
     "record_schema",
     "schema_text",
     "sha256_file",
     "validate_record",
+    "with_data",
     "with_file",
     "write_record",
 ]

@@ -4,10 +4,11 @@ On a terminal: a small block of lines redrawn in place with plain ANSI escapes, 
 than 80 columns (nor than the terminal), so nothing wraps or scrolls: the unit's serial and the
 operator, state, elapsed and remaining time, stand and instrument angles, tracking error, the
 running σ beside its limit, and the stand's health (missed control cycles, rejoins,
-instrument samples) with a warning once it climbs (``health_warning``); at the end a banner
-with the verdict. Without a terminal: plain log lines, one every ``period_s`` and one at each
-state change, and the verdict as one more line. ``NullDisplay`` for ``--json`` scripts that
-want silence.
+instrument samples) with a warning only when the motion is touched (``health_warning``: stream
+mode's missed cycles, underruns, rejoins; buffered mode's missed polls are a count); at the
+end a banner with the verdict. Without a terminal: plain log lines, one every ``period_s``
+and one at each state change, and the verdict as one more line. ``NullDisplay`` for
+``--json`` scripts that want silence.
 
 Every text a display writes — the serial and the operator, messages (a device's identity, a log
 record), reasons, the verdict's detail — goes through ``benchctl.text.visible``: a control
@@ -19,8 +20,11 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import re
 import sys
 import textwrap
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol, TextIO
@@ -50,9 +54,39 @@ class Snapshot:
     limit_deg: float | None = None  # the σ limit (run.limit_sigma_deg)
     cycles: int = 0  # control cycles so far (the missed ones' share)
     rejoins: int = 0  # the stand re-joined the profile after a lost link or a breach
+    #: the stand's mode (stand.mode): in "stream" a missed cycle is a setpoint not sent (the
+    #: motion held); in "buffered" and "table" a missed poll leaves the motion alone (the stand
+    #: plays on its own clock). "" (not said): judged as "stream"
+    mode: str = ""
+    underruns: int = 0  # the stand's trajectory queue ran dry while moving (it stopped itself)
+    #: motion time (``elapsed_s``) from which the running σ is judged against the limit: the
+    #: fade-in and one whole period of the multisine. None: never judged live (no period)
+    sigma_judged_after_s: float | None = None
 
 
 WIDTH = 80  # the live block's widest line (columns)
+ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+#: SGR colours of a verdict's banner head and of a warning (a terminal that supports colour)
+COLOURS = {"PASS": "1;32", "FAIL": "1;31", "ABORTED": "1;31", "INCONCLUSIVE": "1;33",
+           "WARNING": "33", "within": "32", "over": "33"}
+SIGMA_LABEL = "σ (running est.)"  # the live σ: an estimate on the way, not the verdict
+
+
+def colour_wanted(stream: TextIO, environ: Mapping[str, str] | None = None) -> bool:
+    """Colour on ``stream``: a terminal, ``NO_COLOR`` unset or empty (no-color.org) and
+    ``TERM`` not ``dumb``."""
+    env = os.environ if environ is None else environ
+    try:
+        tty = stream.isatty()
+    except (OSError, ValueError):  # closed
+        return False
+    return tty and not env.get("NO_COLOR") and env.get("TERM", "") != "dumb"
+
+
+def paint(text: str, key: str, colour: bool) -> str:
+    """``text`` in the colour ``COLOURS[key]`` when ``colour`` (else as it is)."""
+    code = COLOURS.get(key)
+    return f"\x1b[{code}m{text}\x1b[0m" if colour and code and text else text
 MISSED_WARN_SHARE = 0.01  # missed cycles above this share of the cycles: a warning
 MISSED_WARN_STEP = 10  # … or this many more since the last drawing
 
@@ -65,18 +99,102 @@ class Display(Protocol):
     def close(self) -> None: ...
 
 
+def motion_paced_by_host(snap: Snapshot) -> bool:
+    """Whether the host's missed cycles touch the motion: in stream mode (or a mode not said)
+    each missed cycle is a setpoint the stand did not get; buffered and table modes play on the
+    stand's own clock, and a missed poll only delays a reading."""
+    return snap.mode not in ("buffered", "table")
+
+
 def health_warning(snap: Snapshot, previous_missed: int = 0) -> str:
-    """A warning about the stand's health, or "": any rejoin; missed cycles above
-    ``MISSED_WARN_SHARE`` of the cycles, or climbing by ``MISSED_WARN_STEP`` or more since the
-    last look (``previous_missed``)."""
+    """A warning when the stand's health touches the motion, or "": any rejoin or underrun;
+    in stream mode missed cycles above ``MISSED_WARN_SHARE`` of the cycles, or climbing by
+    ``MISSED_WARN_STEP`` or more since the last look (``previous_missed``). Missed polls in
+    buffered or table mode are only counted on the health line (``format_lines``)."""
     parts = []
-    if snap.cycles and snap.missed_cycles / snap.cycles > MISSED_WARN_SHARE:
-        parts.append(f"missed {100 * snap.missed_cycles / snap.cycles:.1f} % of cycles")
-    elif snap.missed_cycles - previous_missed >= MISSED_WARN_STEP:
-        parts.append(f"+{snap.missed_cycles - previous_missed} missed cycles")
+    if motion_paced_by_host(snap):
+        if snap.cycles and snap.missed_cycles / snap.cycles > MISSED_WARN_SHARE:
+            parts.append(f"missed {100 * snap.missed_cycles / snap.cycles:.1f} % of cycles")
+        elif snap.missed_cycles - previous_missed >= MISSED_WARN_STEP:
+            parts.append(f"+{snap.missed_cycles - previous_missed} missed cycles")
+    if snap.underruns:
+        parts.append(f"{snap.underruns} underrun(s)")
     if snap.rejoins:
         parts.append(f"{snap.rejoins} rejoin(s)")
     return ("WARNING stand health: " + ", ".join(parts)) if parts else ""
+
+
+def health_text(snap: Snapshot) -> str:
+    """The health line's counts: missed cycles (stream mode) or missed polls (buffered, table:
+    a count only), underruns when there were any, rejoins, instrument samples."""
+    missed = ("missed cycles" if motion_paced_by_host(snap) else "missed polls")
+    under = f"  underruns {snap.underruns}" if snap.underruns else ""
+    return (f"{missed} {snap.missed_cycles}{under}  rejoins {snap.rejoins}"
+            f"  instrument samples {snap.instrument_samples}")
+
+
+def wrap_words(text: str, width: int = WIDTH) -> list[str]:
+    """``text`` (lines split at ``\\n``) wrapped at spaces to ``width`` columns: a line that fits
+    is kept as it is; a longer one is broken between words, its continuation indented two more
+    than the line (at most half the width). No word is ever cut: a word longer than the width (a
+    long path) stands whole on a line of its own, for the terminal to fold."""
+    out: list[str] = []
+    for para in text.split("\n"):
+        para = para.rstrip()
+        if len(para) <= width:
+            out.append(para)
+            continue
+        indent = len(para) - len(para.lstrip(" "))
+        pad = " " * min(indent, width // 2)
+        cont = " " * min(indent + 2, width // 2)
+        tokens = re.split(r"( +)", para.strip())  # words, and the gaps between them kept
+        line = pad + tokens[0] if len(pad) + len(tokens[0]) <= width else tokens[0]
+        for gap, word in zip(tokens[1::2], tokens[2::2], strict=True):
+            if len(line) + len(gap) + len(word) <= width:
+                line += gap + word
+            else:
+                out.append(line)
+                line = cont + word if len(cont) + len(word) <= width else word
+        out.append(line)
+    return out
+
+
+def rows_of(lines: list[str], columns: int) -> int:
+    """The terminal rows ``lines`` take on ``columns`` columns (a longer line folds)."""
+    return sum(max(1, -(-len(ANSI.sub("", ln)) // columns)) for ln in lines)
+
+
+def fit_rows(lines: list[str], width: int, rows: int, more: str = "",
+             columns: int | None = None) -> list[str]:
+    """``lines`` wrapped at words to ``width`` (``wrap_words``) and, when they take more than
+    ``rows`` rows, fewer of them: the most indented (the most detailed) go first, from the
+    bottom; the first line, warnings and deviations stay. A last line then says how many were
+    left out and ``more`` (where they are). Rows are counted on ``columns`` (default one more
+    than ``width``): a word longer than a line folds over several."""
+    cols = width + 1 if columns is None else columns
+    blocks = [wrap_words(ln, width) for ln in lines]
+    if rows_of([r for b in blocks for r in b], cols) <= rows:
+        return [r for b in blocks for r in b]
+
+    def rank(i: int) -> int:  # higher goes first
+        head = lines[i].strip()
+        if i == 0 or head.lower().startswith(("warning", "deviation")):
+            return -1
+        return len(lines[i]) - len(lines[i].lstrip(" "))
+
+    def note(n: int) -> list[str]:
+        return wrap_words(f"  … {n} line(s) of detail left out{': ' + more if more else ''}",
+                          width)
+
+    kept = set(range(len(blocks)))
+    dropped = 0
+    for i in sorted((i for i in kept if rank(i) >= 0), key=lambda i: (-rank(i), -i)):
+        if sum(rows_of(blocks[j], cols) for j in kept) + rows_of(note(max(dropped, 1)),
+                                                                cols) <= rows:
+            break
+        kept.discard(i)
+        dropped += 1
+    return [r for j in sorted(kept) for r in blocks[j]] + note(dropped)
 
 
 def fit(text: str, width: int = WIDTH) -> str:
@@ -97,9 +215,42 @@ def _angles(d: dict[str, float], fmt: str = "+7.2f") -> str:
     return "  ".join(f"{a} {v:{fmt}}°" if math.isfinite(v) else f"{a}    —  " for a, v in d.items())
 
 
+def sigma_judgement(snap: Snapshot) -> str:
+    """How the running σ stands: "settling" (not meaningful yet: before the fade-in and one
+    whole period of the multisine), "within" or "over" the limit (judged), or "" (not judged
+    live: no limit, no period, or no estimate yet)."""
+    if snap.limit_deg is None or snap.sigma_judged_after_s is None:
+        return ""
+    if snap.elapsed_s is None or snap.elapsed_s < snap.sigma_judged_after_s:
+        return "settling"
+    values = [v for v in snap.sigma_deg.values() if math.isfinite(v)]
+    if not values:
+        return "settling"
+    return "over" if max(values) > snap.limit_deg else "within"
+
+
+def sigma_text(snap: Snapshot) -> str:
+    """The running σ's line: settling (with the time to go) until it is meaningful, then the
+    values beside the limit and, over it, which axes."""
+    limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
+    judged = sigma_judgement(snap)
+    if judged == "settling":
+        assert snap.sigma_judged_after_s is not None
+        to_go = snap.sigma_judged_after_s - (snap.elapsed_s or 0.0)
+        return (f"  {SIGMA_LABEL} settling: judged after one period,"
+                f" {_mmss(to_go)} to go{limit}")
+    text = f"  {SIGMA_LABEL} {_angles(snap.sigma_deg, '7.3f')}{limit}"
+    if judged == "over":
+        assert snap.limit_deg is not None
+        over = [a for a, v in snap.sigma_deg.items() if math.isfinite(v) and v > snap.limit_deg]
+        text += f" ({', '.join(over)} over)"
+    elif not judged and snap.limit_deg is not None:
+        text += " (not judged live)"
+    return text
+
+
 def format_lines(snap: Snapshot) -> list[str]:
     """The progress block as text lines (the log line joins them)."""
-    limit = "" if snap.limit_deg is None else f"   limit {snap.limit_deg:g}°"
     who = " ".join(p for p in (f"serial {visible(snap.serial)}" if snap.serial else "",
                                f"operator {visible(snap.operator)}" if snap.operator else "")
                    if p)
@@ -110,9 +261,8 @@ def format_lines(snap: Snapshot) -> list[str]:
         f"  stand       {_angles(snap.stand_deg)}",
         f"  instrument  {_angles(snap.instrument_deg)}",
         f"  tracking    {_angles(snap.tracking_error_deg, '+7.3f')}",
-        f"  σ (running) {_angles(snap.sigma_deg, '7.3f')}{limit}",
-        f"  health      missed cycles {snap.missed_cycles}  rejoins {snap.rejoins}"
-        f"  instrument samples {snap.instrument_samples}",
+        sigma_text(snap),
+        f"  health      {health_text(snap)}",
     ]
 
 
@@ -124,11 +274,12 @@ def format_block(snap: Snapshot, width: int = WIDTH, previous_missed: int = 0) -
     return [*lines, fit(("  " + warn) if warn else "", width)]
 
 
-def banner(verdict: str, detail: str = "", width: int = WIDTH) -> list[str]:
-    """The final banner: the verdict framed, its detail lines below, all within ``width``."""
+def banner(verdict: str, detail: str = "", width: int = WIDTH, colour: bool = False) -> list[str]:
+    """The final banner: the verdict framed, its detail lines below, all within ``width``;
+    the verdict's line in its colour when ``colour``."""
     bar = "=" * width
-    head = f" {verdict} ".center(width, "=")
-    body = [fit(visible(ln), width) for ln in detail.split("\n") if ln.strip()]
+    head = paint(f" {verdict} ".center(width, "="), verdict, colour)
+    body = wrap_words("\n".join(visible(ln) for ln in detail.split("\n") if ln.strip()), width)
     return [bar, head, *body, bar]
 
 
@@ -213,9 +364,15 @@ class TtyDisplay:
     break its redrawing); the handler gets them again at ``close``."""
 
     def __init__(
-        self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL
+        self, stream: TextIO, fps: float = 5.0, width: int | None = None, *, clock: Clock = REAL,
+        colour: bool = False, hold_banner: bool = False,
     ) -> None:
         self.stream = stream
+        self.colour = colour
+        #: the verdict's banner kept until ``show_banner`` (the command prints its summary
+        #: first, so that the banner is the last thing on the screen)
+        self.hold_banner = hold_banner
+        self.held: list[str] = []
         self.clock = clock
         self.min_dt = 1.0 / fps
         self._drawn = 0
@@ -228,9 +385,7 @@ class TtyDisplay:
         self._lock = clock.rlock()  # log records may come from the run's other threads
         self._logging: tuple[logging.Handler, list[logging.Handler], _Held] | None = None
         if width is None:
-            import shutil
-
-            width = shutil.get_terminal_size((WIDTH, 24)).columns - 1
+            width = terminal_size(stream).columns - 1
         self.width = max(20, min(WIDTH, width))
 
     def _erase(self) -> None:
@@ -276,6 +431,8 @@ class TtyDisplay:
         elif now < self._warn_until:
             lines[-1] = self._warning
         self._missed_seen = snap.missed_cycles
+        lines[-1] = paint(lines[-1], "WARNING", self.colour)
+        lines[-3] = paint(lines[-3], sigma_judgement(snap), self.colour)  # the σ line
         self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()
         self._drawn = len(lines)
@@ -296,7 +453,8 @@ class TtyDisplay:
         with self._lock:
             self._erase()
             lines = textwrap.wrap(f"[{_hms(self.clock)}] {visible(text)}", self.width,
-                                  subsequent_indent=" " * 11, break_on_hyphens=False) or [""]
+                                  subsequent_indent=" " * 11, break_on_hyphens=False,
+                                  break_long_words=False) or [""]
             self.stream.write("\n".join(lines) + "\n")
             if self._snap is not None and not self._done:
                 self._draw(self._snap)
@@ -309,8 +467,20 @@ class TtyDisplay:
             self._erase()
             self._done = True
             self._release_logging()
-            self.stream.write("\n".join(banner(verdict, detail, self.width)) + "\n")
+            lines = banner(verdict, detail, self.width, self.colour)
+            if self.hold_banner:
+                self.held = lines
+            else:
+                self.stream.write("\n".join(lines) + "\n")
             self.stream.flush()
+
+    def show_banner(self) -> None:
+        """The banner held back (``hold_banner``), now: below whatever came since."""
+        with self._lock:
+            lines, self.held = self.held, []
+            if lines:
+                self.stream.write("\n".join(lines) + "\n")
+                self.stream.flush()
 
     def close(self) -> None:
         with self._lock:
@@ -320,15 +490,30 @@ class TtyDisplay:
             self.stream.flush()
 
 
+def terminal_size(stream: TextIO) -> os.terminal_size:
+    """The terminal's columns and rows: ``COLUMNS``/``LINES`` when set, else ``stream``'s
+    terminal, else 80×24."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (OSError, ValueError, AttributeError):
+        size = os.terminal_size((WIDTH, 24))
+    env = os.environ
+    cols = int(env["COLUMNS"]) if env.get("COLUMNS", "").isdigit() else size.columns
+    rows = int(env["LINES"]) if env.get("LINES", "").isdigit() else size.lines
+    return os.terminal_size((cols or WIDTH, rows or 24))
+
+
 def make_display(
-    stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL
+    stream: TextIO | None = None, quiet: bool = False, *, clock: Clock = REAL,
+    hold_banner: bool = False,
 ) -> Display:
-    """A TTY display when ``stream`` is a terminal, plain log lines otherwise."""
+    """A TTY display when ``stream`` is a terminal (in colour unless ``NO_COLOR`` is set or
+    ``TERM`` is ``dumb``: ``colour_wanted``), plain log lines without colour otherwise."""
     s = stream if stream is not None else sys.stderr
     if quiet:
         return NullDisplay()
     if s.isatty():
-        return TtyDisplay(s, clock=clock)
+        return TtyDisplay(s, clock=clock, colour=colour_wanted(s), hold_banner=hold_banner)
     return LogDisplay(s, clock=clock)
 
 

@@ -8,6 +8,8 @@ failed one into ``PrecheckFailed`` (a ``SafetyAbort``: the run aborts, exit code
 - each device answers and identifies itself (done at connect, recorded in meta.json);
 - the stand is ready (no fault, no E-stop) and at rest; a latched fault or E-stop is named
   with the command that clears it (``benchctl stand reset``);
+- under ``unit.serial_check: require``, the serial typed is the one the instrument reports
+  (``check_serial``; an instrument that reports none cannot show it is the unit named);
 - the instrument streams at its expected rate (± ``run.instrument_rate_tolerance``), reports
   every axis of the profile, and its static reading agrees with the stand's within
   ``instrument.static_tolerance_deg``.
@@ -49,6 +51,28 @@ def require(result: CheckResult) -> CheckResult:
     if not result.ok:
         raise PrecheckFailed(f"precheck '{result.name}' failed: {result.detail}")
     return result
+
+
+def check_serial(typed: str, reported: str | None) -> CheckResult:
+    """The serial typed against the one the instrument reports, as a precheck (``unit.
+    serial_check: require``): a mismatch, or no serial reported, refuses the run."""
+    from benchctl.results.measurements import serial_match
+
+    values = {"typed": typed, "reported": reported}
+    match = serial_match(typed, reported)
+    if match is None:
+        return CheckResult("serial match", False,
+                           f"serial {typed!r} typed, but the instrument reports no serial to "
+                           "check it against (unit.serial_check: require; set it to warn for "
+                           "an instrument that reports none)", values)
+    if not match:
+        return CheckResult("serial match", False,
+                           f"serial {typed!r} typed, the instrument reports {reported!r}: the "
+                           "unit mounted is not the one named (unit.serial_check: require) — "
+                           "mount that unit, or run again with the serial of the unit mounted",
+                           values)
+    return CheckResult("serial match", True,
+                       f"serial {typed!r} typed, the instrument reports {reported!r}", values)
 
 
 def check_disk(out_dir: Path, min_free_mb: float, *, quiet: bool = False) -> CheckResult:

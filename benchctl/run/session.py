@@ -42,6 +42,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
@@ -71,6 +72,7 @@ from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
 from benchctl.results.measurements import (
+    WARNING,
     Measurement,
     axis_measurements,
     limits_from_config,
@@ -82,6 +84,7 @@ from benchctl.results.record import (
     abort_kind,
     build_record,
     sha256_file,
+    with_data,
     with_file,
     write_record,
 )
@@ -308,6 +311,19 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
             "table; expected mode 'stream' for this profile"
         )
+    if cfg.stand.mode == "table":
+        from benchctl.devices.modbus.regmap import load_register_map
+
+        axes_map = load_register_map(cfg.stand.register_map).axes
+        for a, tab in (motion.tables or {}).items():
+            room = axes_map[a].table_max_lines if a in axes_map else 0
+            if tab is not None and tab.n_lines > room:
+                raise LimitError(
+                    f"{profile_path} on {src} (field stand.mode = 'table'): the {a} table has "
+                    f"{tab.n_lines} lines over {duration:g} s, the stand's table takes at most "
+                    f"{room} (register map {cfg.stand.register_map}); expected mode 'buffered' "
+                    "or 'stream', or a profile with fewer lines"
+                )
     # raises LimitError naming needed vs allowed, before anything opens
     try:
         result = check_motion(
@@ -569,7 +585,19 @@ class Session:
             limit_deg=self.cfg.run.limit_sigma_deg,
             cycles=self.loop.cycles,
             rejoins=self.loop.rejoins,
+            mode=self.prep.plan.mode,
+            underruns=self.loop.underruns,
+            sigma_judged_after_s=self._sigma_judged_after(),
         )
+
+    def _sigma_judged_after(self) -> float | None:
+        """Motion time from which the running σ is judged live: the fade-in and one whole
+        period of a periodic multisine (every line excited once); None without a period."""
+        plan = self.prep.plan
+        periods = [t.period_s for t in (plan.tables or {}).values()]
+        if not periods or None in periods or getattr(self.prep.motion, "segments", None):
+            return None
+        return plan.fade_in_s + max(float(p) for p in periods if p is not None)
 
     def _base_meta(self) -> dict[str, Any]:
         cfg = self.cfg
@@ -612,6 +640,8 @@ class Session:
             )
         )
         w.update_meta(devices=ids)
+        if cfg.unit.serial_check == "require":  # the unit named must be the one mounted
+            self._precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
         status = stand.read_status()
         if status.fault or status.estop:  # latched: the check names the command that clears it
             self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
@@ -1085,33 +1115,26 @@ class Session:
         meta = self.writer.meta if self.writer is not None else self.meta
         dut = (meta.get("devices") or {}).get("instrument")
         sm = serial_measurement(self.opts.serial, reported_serial(dut))
-        out.append(sm)
-        if sm.outcome == "FAIL":
+        if self.cfg.unit.serial_check != "require":  # else its precheck says it, decisive
+            out.append(sm)
+        if sm.outcome == WARNING:
             warnings.append(f"serial mismatch: {sm.note}")
             log.warning("serial mismatch: %s", sm.note)
         return out, warnings
 
     def _write_record(self, outcome: str, exit_code: int, *, report: Report | None = None,
-                      abort: dict[str, Any] | None = None, strict: bool = False) -> Path | None:
+                      abort: dict[str, Any] | None = None, strict: bool = False,
+                      closed: bool = False, rewrite: bool = False) -> Path | None:
         """record.json into the recording (a record that cannot be written is a warning; the
         recording stays the source of truth) — except, with ``strict`` (a run that has not
-        ended), a full disk: raised as ``RecordingError``, the run's abort."""
+        ended), a full disk: raised as ``RecordingError``, the run's abort. ``closed``: the
+        recording is closed, its data files final — their SHA-256 go into the record
+        (``data``) and the report. ``rewrite``: a record and report are there already; they
+        are replaced together or not at all (the pair that stays names each other's hash)."""
+        if rewrite:
+            return self._rewrite_record(outcome, exit_code, report=report, abort=abort)
         try:
-            if report is not None:
-                measurements: list[Measurement] = report.measurements
-                deviations, warnings = report.deviations, report.warnings
-            else:
-                measurements = precheck_measurements(self.prechecks)
-                deviations, warnings = self._deviations(), []
-            rj, rt = self.path / REPORT_JSON, self.path / REPORT_TXT
-            meta = self.writer.meta if self.writer is not None else self.meta  # + devices
-            rec = build_record(
-                meta, recording=self.path, outcome=outcome, measurements=measurements,
-                decision_rule=self.rule, abort=abort, deviations=deviations,
-                warnings=warnings, report_json=rj if rj.exists() else None,
-                report_txt=rt if rt.exists() else None, log=self.log_path,
-                exit_code=exit_code, clock=self.clock,
-            )
+            rec = self._record(outcome, exit_code, report=report, abort=abort, closed=closed)
             html = _write_html(self.path, report, rec, strict=strict)
             if html is not None:
                 rec = with_file(rec, "report_html", html)
@@ -1122,6 +1145,53 @@ class Session:
                 raise full from None
             log.warning("record.json not written: %s", describe(full or e), exc_info=e)
             return None
+
+    def _record(self, outcome: str, exit_code: int, *, report: Report | None,
+                abort: dict[str, Any] | None, closed: bool) -> dict[str, Any]:
+        """The record of this run (``closed``: with the data files' SHA-256)."""
+        if report is not None:
+            measurements: list[Measurement] = report.measurements
+            deviations, warnings = report.deviations, report.warnings
+        else:
+            measurements = precheck_measurements(self.prechecks)
+            deviations, warnings = self._deviations(), []
+        rj, rt = self.path / REPORT_JSON, self.path / REPORT_TXT
+        meta = self.writer.meta if self.writer is not None else self.meta  # + devices
+        rec = build_record(
+            meta, recording=self.path, outcome=outcome, measurements=measurements,
+            decision_rule=self.rule, abort=abort, deviations=deviations,
+            warnings=warnings, report_json=rj if rj.exists() else None,
+            report_txt=rt if rt.exists() else None, log=self.log_path,
+            exit_code=exit_code, clock=self.clock,
+        )
+        return with_data(rec, self.path, meta) if closed else rec
+
+    def _rewrite_record(self, outcome: str, exit_code: int, *, report: Report | None,
+                        abort: dict[str, Any] | None) -> Path | None:
+        """The record and report.html written again once the recording is closed (with the
+        data files' SHA-256), both or neither: the earlier report is kept aside (a rename, no
+        room needed) and put back should either write fail, so the record.json and
+        report.html that stay always name each other."""
+        html, prev = self.path / "report.html", self.path / "report.html.prev"
+        done: Path | None = None
+        try:
+            rec = self._record(outcome, exit_code, report=report, abort=abort, closed=True)
+            if html.exists():
+                os.replace(html, prev)
+            drawn = _write_html(self.path, report, rec)
+            if drawn is not None:
+                done = write_record(self.path, with_file(rec, "report_html", drawn))
+        except Exception as e:
+            log.warning("record.json and report.html not written again (the earlier ones "
+                        "stand, without the data files' SHA-256): %s", describe(e), exc_info=e)
+        finally:
+            if prev.exists():
+                with contextlib.suppress(OSError):
+                    if done is None:
+                        os.replace(prev, html)
+                    else:
+                        prev.unlink()
+        return done
 
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
                     window: tuple[float, float]) -> None:
@@ -1250,6 +1320,10 @@ class Session:
                     stats=report.stats,
                     report=[f.name for f in files],
                 )
+                # the data files are final now: the record and the report again, with their
+                # SHA-256 (the record above stands should this one not be written)
+                record = self._write_record(report.verdict, report.exit_code, report=report,
+                                            closed=True, rewrite=True) or record
                 self.display.message(f"{report.verdict}: recording closed")
                 self.display.verdict(report.verdict, _banner_detail(report, self.path))
                 _archive(self.cfg, self.out_dir, self.path, self.run_archive)  # never fails
@@ -1324,7 +1398,8 @@ class Session:
         for s in steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
                                  + (f" (at the {s['when']})" if s.get("when") else ""))
-        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort, report=self.report)
+        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort, report=self.report,
+                                    closed=True)
         html = self.path / "report.html"
         self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
                              + (_measured_line(measured) + "\n" if measured else "")

@@ -77,6 +77,10 @@ IDENTITY = {
 _HISTORY_S = 4.0
 _MOVING_DEG_S = 1e-3
 _MAX_CATCHUP_TICKS = 1000
+#: an underrun's stop: the share of the acceleration limit its target decelerates at
+TRAJ_STOP_SHARE = 0.9
+#: stream interpolation: a setpoint after a longer pause than this is reached over this long
+STREAM_INTERP_MAX_S = 0.1
 #: the physics not advanced for longer than this: nothing of the simulator ran (held up)
 SIM_HOLDUP_S = 0.1
 
@@ -197,6 +201,11 @@ class SimStand:
         self._state = {a: AxisState() for a in self.axes}
         self._target = dict.fromkeys(self.axes, 0.0)  # the servo's active position setpoint
         self._stream_target = dict.fromkeys(self.axes, 0.0)
+        #: stream setpoints interpolated (sim.stand.stream_interpolation): the target moves
+        #: linearly from _stream_from (at _stream_t) to _stream_target over _stream_T
+        self._stream_from: dict[str, float] | None = None
+        self._stream_t = 0.0
+        self._stream_T = 0.0
         self._mode: Literal["stream", "table", "stopping", "trajectory", "traj_stop"] = "stream"
         self._enabled = False
         self._fault_code = 0
@@ -211,7 +220,10 @@ class SimStand:
         self._held_s = 0.0  # this simulator's own hold-ups since the last heartbeat
         self._comm = _CommFaults()
         self._traj = _TrajectoryQueue(len(self.axes))
-        self._peaks = {a: [0.0, 0.0] for a in self.axes}  # |rate|, |accel| while following
+        # |rate|, |accel| while following: its own queue or table ("profile"), or setpoints
+        # streamed by the host ("stream", whose timing is the host's)
+        self._peaks = {a: [0.0, 0.0] for a in self.axes}
+        self._peaks_stream = {a: [0.0, 0.0] for a in self.axes}
         self._traj_period = 0.0  # the period register as last written
         self._traj_stop: dict[str, tuple[float, float]] = {}  # axis -> (angle, rate) of a stop
         self._pending_faults = sorted(sim_cfg.faults, key=lambda f: f.after_s)
@@ -404,6 +416,7 @@ class SimStand:
             for a, v in angle_deg.items():
                 self._state[a] = AxisState(float(v), 0.0)
                 self._target[a] = self._stream_target[a] = float(v)
+            self._stream_from = None
             row = [self._state[a].angle_deg for a in self.axes]
             self._hist[:] = row  # the true angle's recent history too
 
@@ -597,6 +610,7 @@ class SimStand:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._table_value(a, self._table_end) for a in self.axes}
         traj_target = self._trajectory_tick(t) if self._mode == "trajectory" else None
         if self._mode == "traj_stop":
@@ -616,12 +630,19 @@ class SimStand:
                 brake_step(self.model, s, min(self.model.accel_limit_deg_s2, self._stop_accel))
                 target[a] = s.angle_deg
             else:
+                streamed = False
                 mode = self._mode
                 if mode == "table":
                     tgt = target[a] = self._table_value(a, t - self._table_start)
                 elif traj_target is not None:
                     tgt = target[a] = float(traj_target[i])
+                elif self._stream_from is not None:
+                    streamed = True
+                    frac = min(1.0, (t - self._stream_t) / self._stream_T)
+                    x0 = self._stream_from[a]
+                    tgt = target[a] = x0 + (self._stream_target[a] - x0) * frac
                 else:
+                    streamed = True
                     tgt = target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
                 # servo_step, inline
@@ -630,7 +651,8 @@ class SimStand:
                 rate = min(max(v_before + acc * dt, -v_max), v_max)
                 s.rate_deg_s = rate
                 s.angle_deg += rate * dt
-                p = self._peaks[a]  # the largest |rate| and |accel| while following
+                # the largest |rate| and |accel| while following
+                p = self._peaks_stream[a] if streamed else self._peaks[a]
                 accel = (rate - v_before) / self._tick_s
                 if rate > p[0] or -rate > p[0]:
                     p[0] = abs(rate)
@@ -646,15 +668,27 @@ class SimStand:
                 self._fault(FAULT_SOFT_LIMIT)
         if self._mode == "stopping" and at_rest:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._state[a].angle_deg for a in self.axes}
 
-    def peaks(self, reset: bool = False) -> dict[str, dict[str, float]]:
+    def peaks(
+        self, reset: bool = False, following: str = "any"
+    ) -> dict[str, dict[str, float]]:
         """The largest |rate| (deg/s) and |acceleration| (deg/s²) each axis made while the servo
-        followed its target (servo on, not braking), since the start or the last reset."""
+        followed its target (servo on, not braking), since the start or the last reset.
+        ``following``: ``"any"`` target; ``"profile"``, its own queue or table only (the motion
+        the stand plays by itself); ``"stream"``, setpoints streamed by the host only (whose
+        timing is the host's: a late or jittered setpoint moves the servo too)."""
         with self._lock:
-            out = {a: {"rate_deg_s": p[0], "accel_deg_s2": p[1]} for a, p in self._peaks.items()}
+            out = {}
+            for a in self.axes:
+                own, st = self._peaks[a], self._peaks_stream[a]
+                p = {"any": [max(own[0], st[0]), max(own[1], st[1])], "profile": own,
+                     "stream": st}[following]
+                out[a] = {"rate_deg_s": p[0], "accel_deg_s2": p[1]}
             if reset:
                 self._peaks = {a: [0.0, 0.0] for a in self.axes}
+                self._peaks_stream = {a: [0.0, 0.0] for a in self.axes}
         return out
 
     @property
@@ -670,6 +704,7 @@ class SimStand:
             return target
         last, before = q.last_two()
         self._mode = "stream"
+        self._stream_from = None
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
         rate = [(x1 - x0) / q.period_s for x1, x0 in zip(last, before, strict=True)]
         # ran dry before its end: an underrun, a controlled stop. The normal end of a queue is
@@ -685,8 +720,11 @@ class SimStand:
 
     def _traj_stop_tick(self) -> list[float]:
         """After an underrun: go on from the last point at its rate, decelerating within the
-        stand's acceleration limit, then hold (lock held)."""
-        dv = self._stop_accel * self._tick_s
+        stand's acceleration limit, then hold (lock held). The servo follows this target, and
+        a second-order servo following a deceleration overshoots it by a few per cent at its
+        start: the target decelerates at ``TRAJ_STOP_SHARE`` of the limit, so the stand's own
+        motion stays within it."""
+        dv = TRAJ_STOP_SHARE * self._stop_accel * self._tick_s
         out = []
         moving = False
         for a in self.axes:
@@ -698,6 +736,7 @@ class SimStand:
             out.append(x)
         if not moving:
             self._mode = "stream"
+            self._stream_from = None
             self._stream_target = {a: self._traj_stop[a][0] for a in self.axes}
         return out
 
@@ -927,8 +966,16 @@ class SimStand:
                 if not math.isfinite(v) or abs(v) > self.cfg.soft_limit_deg:
                     return ExcCodes.ILLEGAL_VALUE
             if self._enabled and self._mode == "stream" and not self._traj.queued:
-                self._stream_target.update(commands)
-                self._target.update(commands)  # in effect from now on
+                if self.cfg.stream_interpolation:
+                    # the drive moves from where its target is now to the new setpoint over
+                    # the interval since the last one (cyclic synchronous position)
+                    last, self._stream_t = self._stream_t, now
+                    self._stream_T = min(max(now - last, self._tick_s), STREAM_INTERP_MAX_S)
+                    self._stream_from = dict(self._target)
+                    self._stream_target.update(commands)
+                else:
+                    self._stream_target.update(commands)
+                    self._target.update(commands)  # in effect from now on
         if touches(m.heartbeat):
             hb = int(value(m.heartbeat))
             if hb != self._hb_value:
@@ -962,6 +1009,7 @@ class SimStand:
                 self.enables += 1
                 self._hb_time, self._held_s = now, 0.0
                 self._mode = "stream"
+                self._stream_from = None
                 self._stream_target = {a: s.angle_deg for a, s in self._state.items()}
         elif self._enabled:
             self._enabled = False

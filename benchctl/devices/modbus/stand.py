@@ -116,6 +116,8 @@ class ModbusStand:
         self._lock = clock.rlock()
         self._last: dict[str, AxisCommand] | None = None  # the last commanded point per axis
         self._t_last = -math.inf  # when it was sent
+        #: a stop was commanded and the stand may still be braking (``ramp_to_zero`` waits)
+        self._stopping = False
         self.on_setpoint: SetpointListener | None = None  # every setpoint sent (ramps included)
         self.on_sample: SampleListener | None = None  # every feedback block decoded
         self._traj_last: dict[str, AxisCommand] | None = None  # the last point queued
@@ -480,11 +482,13 @@ class ModbusStand:
         self.stop()
 
     def stop(self) -> None:
-        """Stop any motion: the stand decelerates within its limits and holds, still enabled."""
+        """Stop any motion: the stand decelerates within its limits and holds, still enabled.
+        Until it is at rest it takes no setpoint (``ramp_to_zero`` waits for that)."""
         self._control("enable", "stop")
         with self._lock:
             self._last = None
             self._t_last = -math.inf
+            self._stopping = True
 
     def estop(self) -> None:
         """Emergency stop (latched in the stand until ``reset_fault``)."""
@@ -536,15 +540,21 @@ class ModbusStand:
         """
         deadline = self._clock() + timeout_s
         s = self.read_sample()
-        if s.status.table_running or s.status.trajectory_running:
-            self.stop()
+        if s.status.table_running or s.status.trajectory_running or self._stopping:
+            # a stop decelerates within the stand's limits and takes no setpoint until it
+            # is at rest: a ramp planned while it brakes would be a step when it has stopped
+            if not self._stopping:
+                self.stop()
             while True:
                 s = self.read_sample()
                 running = s.status.table_running or s.status.trajectory_running
                 if not running and not s.status.moving:
                     break
+                if not s.status.enabled:
+                    break  # a fault or E-stop braked it: nothing left to wait for
                 self._check_deadline(deadline, "stopping the table or trajectory")
                 self._sleep(0.01)
+        self._stopping = False
         if not s.status.enabled:
             self.enable()
         while True:
