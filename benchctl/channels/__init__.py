@@ -49,6 +49,8 @@ class _Pipe:
         self.busy_until = -math.inf  # the line is sending until then
         self.changed = clock.event()
         self.closed = False
+        #: the reading end's handler run by the clock at each write's arrival (``serve``)
+        self.handler: tuple[Callable[[], Any], str] | None = None
 
     def arrived(self, now: float) -> int:
         """Bytes arrived and not yet taken."""
@@ -126,7 +128,13 @@ class Endpoint:
         start = max(self.clock.monotonic() + self.latency_s + extra, self._tx.busy_until)
         self._tx.busy_until = start + n * self.byte_time_s
         self._tx.chunks.append([self._tx.busy_until, bytes(data), 0])  # whole, its last byte in
-        self._tx.changed.set()
+        # the reader wakes when the write has arrived (a reader waiting for it has nothing to
+        # read before then), or the clock runs its handler then
+        if self._tx.handler is not None:
+            fn, name = self._tx.handler
+            self.clock.call_at(self._tx.busy_until, fn, name)  # type: ignore[attr-defined]
+        else:
+            self.clock.set_at(self._tx.changed, self._tx.busy_until)
         return n
 
     @property
@@ -161,6 +169,15 @@ class Endpoint:
         has."""
         return self._wait_arrival(timeout)
 
+    def serve(self, handler: Callable[[], Any], name: str) -> None:
+        """On a virtual clock: the clock runs ``handler`` (in the place of a device thread
+        ``name`` waiting in :meth:`read`) at each write's arrival at this end, instead of waking
+        a reader (:meth:`~benchctl.clock.virtual.VirtualClock.call_at`); it reads what has
+        arrived with ``read(size, 0.0)``, never waiting."""
+        if not getattr(self.clock, "virtual", False):
+            raise TypeError(f"{self.name}: serve() needs a virtual clock")
+        self._rx.handler = (handler, name)
+
     def reset_input(self) -> None:
         self._rx.chunks.clear()
 
@@ -168,6 +185,9 @@ class Endpoint:
         for p in (self._rx, self._tx):
             p.closed = True
             p.changed.set()
+            if p.handler is not None:  # as a reader woken by the close: runs after those ready
+                fn, name = p.handler
+                self.clock.call_at(self.clock.monotonic(), fn, name)  # type: ignore[attr-defined]
 
 
 def link(

@@ -124,6 +124,13 @@ class Clock(Protocol):
         computation itself takes the time)."""
         ...
 
+    def set_at(self, event: EventLike, when: float) -> None:
+        """Set ``event`` (one of this clock's) at ``monotonic()`` time ``when``, or earlier: its
+        waiters must check what they wait for when they wake. The real clock sets it now; the
+        virtual clock at ``when`` (a wait for bytes in flight then wakes once, on their
+        arrival, not also when they were sent)."""
+        ...
+
 
 class RealClock:
     """The operating system's clocks and ``threading``: a run on hardware."""
@@ -169,6 +176,9 @@ class RealClock:
 
     def compute(self, seconds: float) -> None:
         return None
+
+    def set_at(self, event: EventLike, when: float) -> None:
+        event.set()
 
     def __repr__(self) -> str:
         return "RealClock()"

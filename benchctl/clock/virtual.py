@@ -36,6 +36,7 @@ import sys
 import threading
 import time
 import traceback
+import types
 from collections import deque
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
@@ -89,6 +90,18 @@ class _Task:
         self.joiners: list[_Task] = []
 
 
+class _Callback:
+    """A device's work the clock runs itself at a simulated time (:meth:`VirtualClock.call_at`)
+    — in the thread giving up the baton, where a device thread waiting for that moment would
+    have been handed it: the same order, no thread's hand-over."""
+
+    __slots__ = ("fn", "name")
+
+    def __init__(self, fn: Callable[[], Any], name: str) -> None:
+        self.fn = fn
+        self.name = name
+
+
 class VirtualClock:
     """Simulated time (see the module's text).
 
@@ -111,8 +124,11 @@ class VirtualClock:
         self._epoch = epoch.timestamp()
         self.hang_s = hang_s
         self._mu = threading.Lock()
-        self._ready: deque[_Task] = deque()
-        self._timers: list[tuple[float, int, _Task, int, bool]] = []
+        self._ready: deque[_Task | _Callback] = deque()
+        self._in_callback = 0
+        #: (deadline, seq, task, wait id, resume) of a timed wait, or (when, seq, event, 0,
+        #: False) of an event set at a time (set_at), or (when, seq, callback, 0, False)
+        self._timers: list[tuple[float, int, _Task | VEvent | _Callback, int, bool]] = []
         #: host stalls: (start, end) on simulated time, sorted; the host's threads (every thread
         #: not named ``sim-…``) do not run inside one — the run's process stopped, as by SIGSTOP
         self._stalls: list[tuple[float, float]] = []
@@ -146,6 +162,45 @@ class VirtualClock:
     def compute(self, seconds: float) -> None:
         if seconds > 0:
             self._block("compute", self._now + seconds)
+
+    def set_at(self, event: Any, when: float) -> None:
+        """Set ``event`` (a :class:`VEvent` of this clock) at simulated time ``when`` (now if
+        ``when`` is not later), by the clock itself: no thread wakes before then."""
+        if not isinstance(event, VEvent) or event._c is not self:
+            raise TypeError(f"set_at: {event!r} is not an event of this clock")
+        if when <= self._now:
+            event.set()
+            return
+        with self._mu:
+            heapq.heappush(self._timers, (when, next(self._seq), event, 0, False))
+
+    def call_at(self, when: float, fn: Callable[[], Any], name: str) -> None:
+        """Run ``fn`` at simulated time ``when`` (a time already passed: as soon as the threads
+        runnable now have run), by the clock itself, in whichever of its threads gives up the
+        baton then — exactly where a device thread (``name``, ``sim-…``) woken at ``when``
+        would run, without a thread. ``fn`` may use the clock (set events, write to links,
+        take an uncontended lock) but never wait (that raises ``SimulationHang``). An exception
+        in it is reported as one escaping a thread ``name``."""
+        cb = _Callback(fn, name)
+        with self._mu:
+            if when <= self._now:
+                self._ready.append(cb)
+            else:
+                heapq.heappush(self._timers, (when, next(self._seq), cb, 0, False))
+
+    def _run_callback(self, cb: _Callback) -> None:
+        """Run a callback (with ``_mu`` held on entry and on return, released meanwhile)."""
+        self._mu.release()
+        self._in_callback += 1
+        try:
+            cb.fn()
+        except BaseException:
+            exc_type, exc, tb = sys.exc_info()
+            threading.excepthook(threading.ExceptHookArgs(
+                (exc_type, exc, tb, types.SimpleNamespace(name=cb.name))))
+        finally:
+            self._in_callback -= 1
+            self._mu.acquire()
 
     def stall_host(self, start_s: float, duration_s: float) -> None:
         """Stop the host's threads from simulated time ``start_s`` (``monotonic()``'s scale) for
@@ -281,18 +336,31 @@ class VirtualClock:
             heapq.heappush(self._timers, (end, next(self._seq), task, task.wait_id, True))
 
     def _pick(self) -> _Task:
-        if self._ready:
-            return self._ready.popleft()
-        while self._timers:
+        while True:
+            if self._ready:
+                item = self._ready.popleft()
+                if isinstance(item, _Callback):
+                    self._run_callback(item)
+                    continue
+                return item
+            if not self._timers:
+                return self._deadlock()
             deadline, _, task, wid, resume = heapq.heappop(self._timers)
-            if task.blocked and task.wait_id == wid:
-                if deadline > self._now:
-                    self._now = deadline
-                task.blocked = False
-                task.timed_out = task.resume_timed_out if resume else True
-                task.wait_id += 1
-                return task
-        return self._deadlock()
+            if isinstance(task, _Task):
+                if task.blocked and task.wait_id == wid:
+                    if deadline > self._now:
+                        self._now = deadline
+                    task.blocked = False
+                    task.timed_out = task.resume_timed_out if resume else True
+                    task.wait_id += 1
+                    return task
+                continue
+            if deadline > self._now:
+                self._now = deadline
+            if isinstance(task, VEvent):  # an event set at its time: its waiters run
+                task._set_locked()
+            else:  # a callback at its time
+                self._run_callback(task)
 
     def _deadlock(self) -> _Task:
         lines = [f"  {t.name}: waits on {t.waiting_on or '?'}" for t in self._alive if t.blocked]
@@ -311,6 +379,8 @@ class VirtualClock:
 
     def _block(self, what: str, deadline: float | None, *, closing_ok: bool = False) -> bool:
         """Give the baton up until woken (True) or ``deadline`` passes (False)."""
+        if self._in_callback:
+            raise SimulationHang(f"a clock callback waited ({what}): callbacks never wait")
         task = self._me()
         with self._mu:
             if task.kill and not closing_ok:
@@ -394,10 +464,13 @@ class VEvent:
 
     def set(self) -> None:
         with self._c._mu:
-            self._flag = True
-            for t in self._waiters:
-                self._c._wake(t)
-            self._waiters.clear()
+            self._set_locked()
+
+    def _set_locked(self) -> None:
+        self._flag = True
+        for t in self._waiters:
+            self._c._wake(t)
+        self._waiters.clear()
 
     def clear(self) -> None:
         self._flag = False

@@ -51,6 +51,8 @@ from benchctl.recording.format import (
 
 
 def _num(x: float | int | None) -> str:
+    if type(x) is float:  # the usual case, first: what the general path below does with it
+        return repr(x) if math.isfinite(x) else "nan"
     if x is None:
         return ""
     if isinstance(x, numbers.Integral):  # numpy's integers too

@@ -40,12 +40,13 @@ in front of the driver. ``counts["raw"]`` counts the writes done.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import random
 import select
 import struct
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -212,8 +213,15 @@ class SimInstrument:
             self._adapter = SlcanAdapter(self.cfg.bitrate, self._on_host_frame,
                                          clock=self.clock.monotonic)
         self._stop.clear()
-        self._thread = self.clock.thread(run, name=f"sim-instrument-{self.driver}")
-        self._thread.start()
+        name = f"sim-instrument-{self.driver}"
+        if self.channel_name is not None and self.clock.virtual:
+            # on simulated time the loop is run by the clock, at each output instant and each
+            # arrival of the host's bytes, where its thread would have been woken (_Loop)
+            self._thread = _Loop(self, name)
+            self._thread.start()
+        else:
+            self._thread = self.clock.thread(run, name=name)
+            self._thread.start()
         self._ready.wait(5.0)
 
     def stop(self) -> None:
@@ -434,6 +442,8 @@ class SimInstrument:
     def _true_many(self, ts: Any) -> dict[str, Any]:
         """``_true`` at each of ``ts`` in one call (a motion with ``true_angles_many``)."""
         a = self.motion.true_angles_many(ts)  # type: ignore[attr-defined]
+        if all(ax in a for ax in AXES):
+            return a
         zero = np.zeros(len(ts))
         return {ax: a.get(ax, zero) for ax in AXES}
 
@@ -536,6 +546,122 @@ class SimInstrument:
     def error(self) -> BaseException | None:
         """The exception that ended the simulator's thread, if any."""
         return self._start_error
+
+
+class _Loop:
+    """:meth:`SimInstrument._run_channel` without its thread, on a virtual clock: the clock
+    runs the loop (``VirtualClock.call_at``) from each point where the thread would have been
+    woken — its output instant or the arrival of the host's bytes (``Endpoint.serve``) — to
+    the point where it would wait again, with the same waits' arithmetic
+    (``Endpoint.wait_readable``, ``VEvent.wait``): the same outputs at the same instants in the
+    same order, without a hand-over of the baton for each. ``start``/``join`` as the thread's
+    (the first pass runs after the threads already runnable; ``join`` waits for the pass that
+    sees the stop)."""
+
+    def __init__(self, sim: SimInstrument, name: str) -> None:
+        self.sim = sim
+        self.name = name
+        port = sim._port
+        assert isinstance(port, _ChannelPort)
+        self.port = port
+        self.clock: Any = sim.clock
+        self.gen = 0  # the current wait's number: a deadline set for an earlier one is stale
+        self.end = 0.0  # the current wait's end (the next output instant)
+        self.t0 = 0.0
+        self.k = 1
+        self.done = False
+        self.exited = sim.clock.event()
+
+    def start(self) -> None:
+        self.port._ep.serve(lambda: self._wake(None), self.name)
+        self.clock.call_at(self.clock.monotonic(), self._first, self.name)
+
+    def join(self, timeout: float | None = None) -> None:
+        if self.done or getattr(self.clock, "_root", None) is None:
+            return  # ended, or the clock has closed (as it ends its threads)
+        self.exited.wait(timeout)
+
+    def is_alive(self) -> bool:
+        return not self.done
+
+    def _first(self) -> None:
+        sim = self.sim
+        self.t0 = self.clock.monotonic()
+        self.k = 1
+        sim._ready.set()
+        self._run(self._top)
+
+    def _wake(self, gen: int | None) -> None:
+        """Woken: by the host's bytes arriving (``gen`` None) or by the wait's deadline."""
+        if self.done or (gen is not None and gen != self.gen):
+            return
+        self._run(self._waiting)
+
+    def _run(self, phase: Callable[[], bool]) -> None:
+        """From ``phase`` (the loop's head, or its wait's), go on with the loop until it waits
+        again or ends."""
+        sim = self.sim
+        try:
+            blocked = phase()
+            while not blocked:
+                sim._serve_host(self.port)
+                sim._send_raw(self.port)
+                self.k = sim._tick_due(self.k, self.t0, sim.model.period_s,
+                                       self.clock.monotonic())
+                blocked = self._top()
+        except Exception as e:  # a simulator bug must not pass for a silent instrument
+            sim._start_error = e
+            self.port.close()
+            self._exit()
+            raise
+        except BaseException:
+            self._exit()
+            raise
+
+    def _exit(self) -> None:
+        self.done = True
+        self.gen += 1
+        self.exited.set()
+
+    def _top(self) -> bool:
+        """The loop's head, up to its wait: True when it waits, False when the wait is over
+        at once; the loop ended: True (nothing more to do)."""
+        sim = self.sim
+        if sim._stop.is_set():
+            self._exit()
+            return True
+        if "drop" in sim._faults:
+            self.port.close()
+            self._exit()
+            return True
+        next_t = self.t0 + self.k * sim.model.period_s
+        clock = self.clock
+        # port.wait(timeout) → Endpoint._wait_arrival(timeout), as the thread computes it
+        timeout = max(0.0, next_t - clock.monotonic())
+        self.end = clock.monotonic() + max(0.0, timeout)
+        return self._waiting()
+
+    def _waiting(self) -> bool:
+        """``Endpoint._wait_arrival``'s loop from its head: False when the wait is over (the
+        loop goes on), True when it waits (a deadline set; the host's bytes wake it too)."""
+        rx = self.port._ep._rx
+        clock = self.clock
+        self.gen += 1  # whatever deadline was set for the wait before is stale now
+        while True:
+            rx.changed.clear()
+            now = clock.monotonic()
+            if rx.arrived(now):
+                return False
+            nxt = rx.next_arrival()
+            end = self.end
+            if (nxt is None and rx.closed) or now >= end:
+                return False
+            deadline = end if nxt is None else min(nxt, end)
+            timeout = max(0.0, deadline - now)
+            if timeout <= 0:  # VEvent.wait returns at once
+                continue
+            clock.call_at(now + timeout, functools.partial(self._wake, self.gen), self.name)
+            return True
 
 
 class _Motion:

@@ -108,6 +108,7 @@ class InstrumentModel:
         self._tm: float | None = None  # last measurement instant
         self._t0: float | None = None
         self._h_max = 1.0 / cfg.substep_hz
+        self._ramps: dict[int, NDArray[np.float64]] = {}  # 1 … steps, by steps
         ca = cfg.cross_axis
         self._coupling = {a: k for a, k in (("roll", ca.roll_from_pitch),
                                             ("pitch", ca.pitch_from_roll)) if k}
@@ -264,7 +265,9 @@ class InstrumentModel:
         if many is None:
             return np.array([self._input(motion, float(t)) for t in ts]).reshape(len(ts), -1)
         angles = many(ts)
-        u = np.stack([np.asarray(angles[a], dtype=float) for a in self.axes], axis=1)
+        u = np.empty((len(ts), len(self.axes)))  # np.stack(…, axis=1), without its overhead
+        for i, a in enumerate(self.axes):
+            u[:, i] = angles[a]
         if self._coupling:
             zero = np.zeros(len(ts))
             u = u + np.stack(
@@ -308,8 +311,14 @@ class InstrumentModel:
         if h <= 0:
             return self.cfg.gain * (self._c @ self._x)[0]
         pn, cm = self._collapsed(h, steps)
-        inputs = self._inputs(motion, self._tm + np.arange(1, steps + 1, dtype=np.float64) * h)
-        x = pn @ self._x + cm @ np.vstack([self._u[None, :], inputs])
+        ramp = self._ramps.get(steps)
+        if ramp is None:
+            ramp = self._ramps[steps] = np.arange(1, steps + 1, dtype=np.float64)
+        inputs = self._inputs(motion, self._tm + ramp * h)
+        stacked = np.empty((steps + 1, inputs.shape[1]))  # np.vstack([u, inputs])
+        stacked[0] = self._u
+        stacked[1:] = inputs
+        x = pn @ self._x + cm @ stacked
         u0 = inputs[-1]
         self._x, self._u, self._tm = x, u0, tm
         return self.cfg.gain * (self._c @ x)[0]

@@ -39,6 +39,7 @@ estop             the E-stop is pressed: as stand_fault with code 3 and the E-st
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -182,6 +183,17 @@ class SimStand:
             sim_cfg.accel_limit_deg_s2,
             1.0 / sim_cfg.tick_hz,
         )
+        m = self.model  # servo_step's terms, as it computes them
+        self._servo_terms = (
+            m.omega_n * m.omega_n,
+            2.0 * m.damping * m.omega_n,
+            m.accel_limit_deg_s2,
+            m.rate_limit_deg_s,
+            m.tick_s,
+        )
+        self._soft_limit_deg = sim_cfg.soft_limit_deg
+        self._fb_span = self.map.feedback_span()
+        self._watchdog_s = sim_cfg.watchdog_s
         self.requests = 0  # requests served (for tests and figures)
         self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
 
@@ -275,7 +287,7 @@ class SimStand:
 
     def _start_channel(self) -> None:
         """Transport "channel": the link, a server thread and a physics thread on the clock."""
-        from benchctl.sim.stand_wire import StandWire, serve_endpoint
+        from benchctl.sim.stand_wire import StandWire, serve_endpoint, serve_on_arrival
 
         byte_time = 0.0
         if self.framing == "rtu" and self.cfg.rtu_wire_delay:
@@ -286,16 +298,20 @@ class SimStand:
         self.client_endpoint = host
         self.device_endpoint = device
         wire = StandWire(self, self.framing)
-        server = self.clock.thread(
-            serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
-        )
         # on simulated time the physics thread wakes every 50 ticks (each request brings the
         # state to its own instant first): the same states, far fewer hand-overs
         physics = self.clock.thread(
             self._physics_loop, name="sim-stand-physics", args=(50 if self.clock.virtual else 1,)
         )
-        self._threads += [physics, server]
+        self._threads.append(physics)
         physics.start()
+        if self.clock.virtual:  # the server's loop run by the clock at each request's arrival
+            serve_on_arrival(wire, device, self._stop_evt, "sim-stand-modbus")
+            return
+        server = self.clock.thread(
+            serve_endpoint, name="sim-stand-modbus", args=(wire, device, self._stop_evt)
+        )
+        self._threads.append(server)
         server.start()
 
     def stop(self) -> None:
@@ -360,8 +376,9 @@ class SimStand:
             k0 = np.floor(u).astype(np.int64)
             k1 = np.minimum(k0 + 1, k_end)
             w = (u - k0)[:, None]
-            rows = (1.0 - w) * self._hist[k0 % n] + w * self._hist[k1 % n]
-        return {a: rows[:, i].copy() for i, a in enumerate(self.axes)}
+            hist = self._hist  # rows k0 % n and k1 % n
+            rows = (1.0 - w) * hist.take(k0, 0, mode="wrap") + w * hist.take(k1, 0, mode="wrap")
+        return {a: rows[:, i] for i, a in enumerate(self.axes)}
 
     def servo_response(self, f_hz: float) -> complex:
         """Small-signal angle/setpoint response at ``f_hz`` (see ``ServoModel.response``)."""
@@ -434,19 +451,162 @@ class SimStand:
         k_target = int((now - self._t0) / tick)
         if k_target - self._k > _MAX_CATCHUP_TICKS:
             self._k = k_target - _MAX_CATCHUP_TICKS  # a very late thread: skip, never burst
-        while self._k < k_target:
-            self._k += 1
-            self._tick(self._t0 + self._k * tick)
-            self._hist[self._k % self._hist.shape[0]] = [
-                self._state[a].angle_deg for a in self.axes
-            ]
+        if self._k >= k_target:
+            return
+        hist = self._hist
+        n = hist.shape[0]
+        states = [self._state[a] for a in self.axes]
+        idx = range(len(states))
+        t0 = self._t0
+        k = self._k
+        two = len(states) == 2
+        while k < k_target:
+            if two and self._mode == "trajectory" and self._enabled:
+                done = self._follow2(k, k_target, states)
+                if done > k:
+                    k = done
+                    continue
+            k += 1
+            self._k = k
+            t = t0 + k * tick
+            if not (self._mode == "trajectory" and self._enabled and self._follow(t, states)):
+                self._tick(t)
+            r = k % n
+            for j in idx:
+                hist[r, j] = states[j].angle_deg
+
+    def _follow2(self, k: int, k_target: int, states: list[AxisState]) -> int:
+        """:meth:`_follow` for a two-axis stand, tick after tick from tick ``k + 1`` up to
+        ``k_target`` in one call (the state in local variables, written back once): the same
+        arithmetic in the same order. Stops before the first tick ``_follow`` would not take;
+        returns the last tick done (``k``: none)."""
+        pending = self._pending_faults
+        fault_after = pending[0].after_s if pending else None
+        start = self._start_time
+        hb, held, wd = self._hb_time, self._held_s, self._watchdog_s
+        q = self._traj
+        base, t_start, period, points, first = q.base, q.t_start, q.period_s, q.points, q.first
+        wn2, c2, a_max, v_max, dt = self._servo_terms
+        soft = self._soft_limit_deg
+        t0, tick_s, hist = self._t0, self._tick_s, self._hist
+        n = hist.shape[0]
+        s0, s1 = states
+        x0, v0, x1, v1 = s0.angle_deg, s0.rate_deg_s, s1.angle_deg, s1.rate_deg_s
+        a0, a1 = self.axes
+        pk0, pk1 = self._peaks[a0], self._peaks[a1]
+        r0_max, acc0_max, r1_max, acc1_max = pk0[0], pk0[1], pk1[0], pk1[1]
+        tg0 = tg1 = 0.0
+        done = k
+        while done < k_target:
+            kk = done + 1
+            t = t0 + kk * tick_s
+            if fault_after is not None and t - start >= fault_after:
+                break
+            if t - hb - held > wd:
+                break
+            u = base + (t - t_start) / period
+            i = math.floor(u) - first
+            if i < 0 or i + 1 >= len(points):
+                break
+            if i > 0:  # as q.at(u) does: the points before the one being played are dropped
+                del points[:i]
+                first += i
+            w = u - first
+            w0 = 1.0 - w
+            pa, pb = points[0], points[1]
+            t0_ = w0 * pa[0] + w * pb[0]
+            acc = wn2 * (t0_ - x0) - c2 * v0
+            acc = min(max(acc, -a_max), a_max)
+            rate0 = min(max(v0 + acc * dt, -v_max), v_max)
+            y0 = x0 + rate0 * dt
+            if (y0 > soft or -y0 > soft) and y0 * rate0 > 0:
+                break  # a soft limit: _tick faults the stand
+            t1_ = w0 * pa[1] + w * pb[1]
+            acc = wn2 * (t1_ - x1) - c2 * v1
+            acc = min(max(acc, -a_max), a_max)
+            rate1 = min(max(v1 + acc * dt, -v_max), v_max)
+            y1 = x1 + rate1 * dt
+            if (y1 > soft or -y1 > soft) and y1 * rate1 > 0:
+                break
+            accel = (rate0 - v0) / tick_s
+            if rate0 > r0_max or -rate0 > r0_max:
+                r0_max = abs(rate0)
+            if accel > acc0_max or -accel > acc0_max:
+                acc0_max = abs(accel)
+            accel = (rate1 - v1) / tick_s
+            if rate1 > r1_max or -rate1 > r1_max:
+                r1_max = abs(rate1)
+            if accel > acc1_max or -accel > acc1_max:
+                acc1_max = abs(accel)
+            x0, v0, x1, v1 = y0, rate0, y1, rate1
+            tg0, tg1 = t0_, t1_
+            r = kk % n
+            hist[r, 0] = x0
+            hist[r, 1] = x1
+            done = kk
+        q.first = first
+        if done > k:
+            s0.angle_deg, s0.rate_deg_s, s1.angle_deg, s1.rate_deg_s = x0, v0, x1, v1
+            self._target[a0], self._target[a1] = tg0, tg1
+            pk0[0], pk0[1], pk1[0], pk1[1] = r0_max, acc0_max, r1_max, acc1_max
+            self._k = done
+        return done
+
+    def _follow(self, t: float, states: list[AxisState]) -> bool:
+        """``_tick(t)`` of a stand following its trajectory queue, when nothing else happens
+        on it (no fault due, the watchdog fed, the queue not run dry, no soft limit reached):
+        the same arithmetic, in one piece (this is most ticks of a run). False, with nothing
+        changed: ``_tick`` takes it."""
+        pending = self._pending_faults
+        if pending and t - self._start_time >= pending[0].after_s:
+            return False
+        if t - self._hb_time - self._held_s > self._watchdog_s:
+            return False
+        q = self._traj
+        u = q.base + (t - q.t_start) / q.period_s
+        points = q.points
+        i = math.floor(u) - q.first
+        if i < 0 or i + 1 >= len(points):
+            return False
+        if i > 0:  # as q.at(u) does: the points before the one being played are dropped
+            del points[:i]
+            q.first += i
+        w = u - q.first
+        w0 = 1.0 - w
+        p0, p1 = points[0], points[1]
+        wn2, c2, a_max, v_max, dt = self._servo_terms
+        soft = self._soft_limit_deg
+        new = []
+        for j, s in enumerate(states):
+            tgt = w0 * p0[j] + w * p1[j]
+            v_before = s.rate_deg_s
+            acc = wn2 * (tgt - s.angle_deg) - c2 * v_before
+            acc = min(max(acc, -a_max), a_max)
+            rate = min(max(v_before + acc * dt, -v_max), v_max)
+            angle = s.angle_deg + rate * dt
+            if (angle > soft or -angle > soft) and angle * rate > 0:
+                return False  # a soft limit: _tick faults the stand
+            new.append((tgt, v_before, rate, angle))
+        target, peaks, tick = self._target, self._peaks, self._tick_s
+        for (tgt, v_before, rate, angle), s, a in zip(new, states, self.axes, strict=True):
+            target[a] = tgt
+            s.rate_deg_s = rate
+            s.angle_deg = angle
+            p = peaks[a]
+            accel = (rate - v_before) / tick
+            if rate > p[0] or -rate > p[0]:
+                p[0] = abs(rate)
+            if accel > p[1] or -accel > p[1]:
+                p[1] = abs(accel)
+        return True
 
     def _tick(self, t: float) -> None:
         """One physics tick at time ``t`` (lock held)."""
-        while self._pending_faults and t - self._start_time >= self._pending_faults[0].after_s:
-            f = self._pending_faults.pop(0)
+        pending = self._pending_faults
+        while pending and t - self._start_time >= pending[0].after_s:
+            f = pending.pop(0)
             self._apply(f.kind, t, f.duration_s, f.code)
-        if self._enabled and t - self._hb_time - self._held_s > self.cfg.watchdog_s:
+        if self._enabled and t - self._hb_time - self._held_s > self._watchdog_s:
             self._fault(FAULT_WATCHDOG)
         if self._mode == "table" and t - self._table_start > self._table_end:
             self._mode = "stream"
@@ -456,36 +616,37 @@ class SimStand:
         if self._mode == "traj_stop":
             traj_target = self._traj_stop_tick()
         at_rest = True
-        m = self.model  # servo_step's terms, as it computes them (this runs 1000 times a second)
-        wn2 = m.omega_n * m.omega_n
-        c2 = 2.0 * m.damping * m.omega_n
-        a_max, v_max, dt = m.accel_limit_deg_s2, m.rate_limit_deg_s, m.tick_s
+        # servo_step's terms, as it computes them (this runs 1000 times a second)
+        wn2, c2, a_max, v_max, dt = self._servo_terms
+        soft = self._soft_limit_deg
+        state, target = self._state, self._target
         for i, a in enumerate(self.axes):
-            s = self._state[a]
+            s = state[a]
             if not self._enabled:
                 brake_step(self.model, s)  # servo off, fault or E-stop: the brakes' own limit
-                self._target[a] = s.angle_deg
+                target[a] = s.angle_deg
             elif self._mode == "stopping":
                 # a commanded stop: decelerate within the stand's acceleration limit
                 brake_step(self.model, s, min(self.model.accel_limit_deg_s2, self._stop_accel))
-                self._target[a] = s.angle_deg
+                target[a] = s.angle_deg
             else:
                 streamed = False
-                if self._mode == "table":
-                    self._target[a] = self._table_value(a, t - self._table_start)
+                mode = self._mode
+                if mode == "table":
+                    tgt = target[a] = self._table_value(a, t - self._table_start)
                 elif traj_target is not None:
-                    self._target[a] = float(traj_target[i])
+                    tgt = target[a] = float(traj_target[i])
                 elif self._stream_from is not None:
                     streamed = True
                     frac = min(1.0, (t - self._stream_t) / self._stream_T)
                     x0 = self._stream_from[a]
-                    self._target[a] = x0 + (self._stream_target[a] - x0) * frac
+                    tgt = target[a] = x0 + (self._stream_target[a] - x0) * frac
                 else:
                     streamed = True
-                    self._target[a] = self._stream_target[a]
+                    tgt = target[a] = self._stream_target[a]
                 v_before = s.rate_deg_s
                 # servo_step, inline
-                acc = wn2 * (self._target[a] - s.angle_deg) - c2 * v_before
+                acc = wn2 * (tgt - s.angle_deg) - c2 * v_before
                 acc = min(max(acc, -a_max), a_max)
                 rate = min(max(v_before + acc * dt, -v_max), v_max)
                 s.rate_deg_s = rate
@@ -497,9 +658,11 @@ class SimStand:
                     p[0] = abs(rate)
                 if accel > p[1] or -accel > p[1]:
                     p[1] = abs(accel)
-            if abs(s.rate_deg_s) > _MOVING_DEG_S:
+            rate = s.rate_deg_s
+            if rate > _MOVING_DEG_S or -rate > _MOVING_DEG_S:
                 at_rest = False
-            if abs(s.angle_deg) > self.cfg.soft_limit_deg and s.angle_deg * s.rate_deg_s > 0:
+            angle = s.angle_deg
+            if (angle > soft or -angle > soft) and angle * rate > 0:
                 self._axis_fault[a] = FAULT_SOFT_LIMIT
                 self._limit = True
                 self._fault(FAULT_SOFT_LIMIT)
@@ -532,7 +695,7 @@ class SimStand:
     def _stop_accel(self) -> float:
         return float(self.limits.accel_deg_s2)
 
-    def _trajectory_tick(self, t: float) -> np.ndarray | None:
+    def _trajectory_tick(self, t: float) -> Sequence[float] | None:
         """The queue's target at ``t`` (lock held); running dry: the normal end or an underrun."""
         q = self._traj
         u = q.base + (t - q.t_start) / q.period_s
@@ -543,10 +706,10 @@ class SimStand:
         self._mode = "stream"
         self._stream_from = None
         self._stream_target = {a: float(last[i]) for i, a in enumerate(self.axes)}
-        rate = (last - before) / q.period_s
+        rate = [(x1 - x0) / q.period_s for x1, x0 in zip(last, before, strict=True)]
         # ran dry before its end: an underrun, a controlled stop. The normal end of a queue is
         # its last point repeated (the motion at rest): nothing left to stop.
-        if np.any(last != before):
+        if last != before:
             q.underruns += 1
             self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
             self._mode = "traj_stop"
@@ -555,7 +718,7 @@ class SimStand:
         q.clear()
         return last
 
-    def _traj_stop_tick(self) -> np.ndarray:
+    def _traj_stop_tick(self) -> list[float]:
         """After an underrun: go on from the last point at its rate, decelerating within the
         stand's acceleration limit, then hold (lock held). The servo follows this target, and
         a second-order servo following a deceleration overshoots it by a few per cent at its
@@ -575,7 +738,7 @@ class SimStand:
             self._mode = "stream"
             self._stream_from = None
             self._stream_target = {a: self._traj_stop[a][0] for a in self.axes}
-        return np.asarray(out)
+        return out
 
     def _table_value(self, axis: str, t_rel: float) -> float:
         table = self._tables.get(axis)
@@ -647,7 +810,7 @@ class SimStand:
             for i in range(tr.push_size(len(m.axes), tr.max_points_per_push)):
                 rw_words[tr.push_address + i] = 0
         blocks += _blocks(rw_words, readonly=False)
-        fb_addr, fb_count = m.feedback_span()
+        fb_addr, fb_count = self._fb_span
         blocks += _blocks({fb_addr + i: 0 for i in range(fb_count)}, readonly=True)
         return blocks
 
@@ -687,6 +850,18 @@ class SimStand:
         regs: list[int],
         values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
+        return self._act(fc, start, address, count, regs, values)
+
+    def _act(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        regs: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
+        """A request's action on the registers (``_action``, the register model's hook)."""
         now = self.clock.monotonic()
         self._regs, self._regs_start = regs, start
         with self._lock:
@@ -710,7 +885,7 @@ class SimStand:
         and, where the map has ``sample_time``, the stand's clock then (lock held)."""
         m = self.map
         since = max(0.0, now - (self._t0 + self._k * self._tick_s)) if self._clock_on else 0.0
-        fb_addr, fb_count = m.feedback_span()
+        fb_addr, fb_count = self._fb_span
         if address >= fb_addr + fb_count or address + count <= fb_addr:
             return
         bits = {
@@ -950,12 +1125,13 @@ class SimStand:
 
 
 class _TrajectoryQueue:
-    """The stand's trajectory queue: points k = first … next_index−1, one per period."""
+    """The stand's trajectory queue: points k = first … next_index−1, one per period (each a
+    tuple of the axes' angles: the physics reads two of them on every tick)."""
 
     def __init__(self, n_axes: int) -> None:
         self.n_axes = n_axes
         self.period_s = 0.01
-        self.points = np.zeros((0, n_axes))
+        self.points: list[tuple[float, ...]] = []
         self.first = 0  # index of points[0]
         self.base = 0  # index played at t_start
         self.t_start = 0.0
@@ -972,39 +1148,40 @@ class _TrajectoryQueue:
 
     def reset(self, period_s: float) -> None:
         self.period_s = period_s
-        self.points = np.zeros((0, self.n_axes))
+        self.points = []
         self.first = 0
         self.running = False
 
     def clear(self) -> None:
         self.first = self.next_index
-        self.points = np.zeros((0, self.n_axes))
+        self.points = []
         self.running = False
 
     def append(self, pts: np.ndarray) -> None:
-        self.points = np.vstack([self.points, pts])
+        self.points.extend(tuple(float(v) for v in row) for row in pts)
 
     def start(self, now: float) -> None:
         self.base = self.first
         self.t_start = now
         self.running = True
 
-    def at(self, u: float) -> np.ndarray | None:
+    def at(self, u: float) -> tuple[float, ...] | None:
         """Linear interpolation at queue position ``u``; None when u is past the last point.
         Points before the one being played are dropped."""
+        points = self.points
         i = math.floor(u) - self.first
         if i < 0:
-            return self.points[0] if len(self.points) else None
-        if i + 1 >= len(self.points):
+            return points[0] if points else None
+        if i + 1 >= len(points):
             return None
         if i > 0:
-            self.points = self.points[i:]
+            del points[:i]
             self.first += i
-            i = 0
         w = u - self.first
-        return np.asarray((1.0 - w) * self.points[0] + w * self.points[1])
+        w0 = 1.0 - w
+        return tuple([w0 * x0 + w * x1 for x0, x1 in zip(points[0], points[1], strict=True)])
 
-    def last_two(self) -> tuple[np.ndarray, np.ndarray]:
+    def last_two(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         last = self.points[-1]
         before = self.points[-2] if len(self.points) > 1 else last
         return last, before

@@ -33,6 +33,10 @@ _INT_RANGE: dict[str, tuple[int, int]] = {
     "int32": (-0x80000000, 0x7FFFFFFF),
 }
 _FLOAT32_MAX = 3.4028234663852886e38
+_PACK_F = struct.Struct(">f").pack
+_UNPACK_F = struct.Struct(">f").unpack
+_PACK_HH = struct.Struct(">HH").pack
+_UNPACK_HH = struct.Struct(">HH").unpack
 _STATUS_BITS = ("ready", "enabled", "moving", "fault", "estop", "limit", "table_running")
 _CONTROL_BITS = ("enable", "start_table", "stop", "fault_reset", "estop")
 # bits a map only has when the stand has a trajectory queue (``trajectory:`` section)
@@ -177,21 +181,23 @@ class RegisterMap:
     # -- encoding -------------------------------------------------------------------------
     def encode(self, field: Field, value: float | int | str) -> list[int]:
         """Register words for ``value`` (engineering units) in ``field``; out of range raises."""
-        if field.type == "string":
+        ftype = field.type
+        if ftype == "string":
             return _encode_string(field, str(value))
         v = float(value)
         if not math.isfinite(v):
             raise LimitError(f"{self.source}: {field.name}: value {value!r} is not finite")
         raw = (v - field.offset) / field.scale
-        if field.type == "float32":
+        if ftype == "float32":
             if abs(raw) > _FLOAT32_MAX:
                 raise LimitError(f"{self.source}: {field.name}: value {value!r} overflows float32")
-            return self._order(list(struct.unpack(">HH", struct.pack(">f", raw))))
+            words = list(_UNPACK_HH(_PACK_F(raw)))
+            return words if self.word_order == "big" else words[::-1]
         n = round(raw)
-        lo, hi = _INT_RANGE[field.type]
+        lo, hi = _INT_RANGE[ftype]
         if not lo <= n <= hi:
             raise LimitError(
-                f"{self.source}: {field.name}: value {value!r} is raw {n}, outside {field.type} "
+                f"{self.source}: {field.name}: value {value!r} is raw {n}, outside {ftype} "
                 f"range {lo}..{hi}"
             )
         if field.n_registers == 1:
@@ -202,21 +208,22 @@ class RegisterMap:
         """The engineering value of ``field`` from its register words."""
         if len(words) != field.n_registers:
             raise ValueError(f"{field.name}: need {field.n_registers} registers, got {len(words)}")
-        if field.type == "string":
+        ftype = field.type
+        if ftype == "string":
             raw = b"".join(int(w).to_bytes(2, "big") for w in words)
             return raw.rstrip(b"\x00").decode("ascii", errors="replace")
-        if field.type == "float32":
-            hi, lo = self._order(list(words))
-            raw_f = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+        if ftype == "float32":
+            hi, lo = words if self.word_order == "big" else (words[1], words[0])
+            raw_f = _UNPACK_F(_PACK_HH(hi, lo))[0]
             return raw_f * field.scale + field.offset
         if field.n_registers == 1:
             n = int(words[0])
-            if field.type == "int16" and n >= 0x8000:
+            if ftype == "int16" and n >= 0x8000:
                 n -= 0x10000
         else:
             hi, lo = self._order(list(words))
             n = (hi << 16) | lo
-            if field.type == "int32" and n >= 0x80000000:
+            if ftype == "int32" and n >= 0x80000000:
                 n -= 0x100000000
         if field.scale == 1.0 and field.offset == 0.0:
             return n

@@ -126,6 +126,7 @@ class ModbusStand:
         self._table_axes: tuple[str, ...] = ()
         self._closed = False
         self._fb_addr, self._fb_count = regmap.feedback_span()
+        self._read_chunks: dict[tuple[int, int], list[tuple[int, int]]] = {}
 
     # -- connection -----------------------------------------------------------------------
     def connect(self) -> DeviceIdentity:
@@ -783,8 +784,12 @@ class ModbusStand:
                 self.link.write_registers(pdu_address(addr), vals)
 
     def _read(self, addr: int, count: int) -> list[int]:
+        chunks = self._read_chunks.get((addr, count))
+        if chunks is None:  # the same few spans every cycle: worked out once
+            chunks = _chunks({addr + i: 0 for i in range(count)}, self.map.max_read)
+            self._read_chunks[(addr, count)] = chunks
         out: list[int] = []
-        for a, c in _chunks({addr + i: 0 for i in range(count)}, self.map.max_read):
+        for a, c in chunks:
             out += self.link.read_registers(pdu_address(a), c)
         return out
 
