@@ -22,6 +22,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,11 +31,14 @@ import yaml
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 from run_sim import ROOT, LiveBench, live_bench, motion_for, recording_in
 
+import benchctl.run
 from benchctl import exits
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import Interrupted, RecordingError, StandInUse
+from benchctl.jsonout import dumps
 from benchctl.recording import RecordingWriter, load_recording
+from benchctl.run import run_test
 from benchctl.run import session as session_mod
 from benchctl.run.lock import StandLock, endpoint_key, lock_file
 from benchctl.run.session import RunOptions, Session
@@ -601,30 +605,43 @@ def test_benchctl_sim_refuses_an_endpoint_a_run_holds(
     assert "serial RUN-1" in err and "operator busy" in err
 
 
-@pytest.mark.realtime  # two real child runs
 @pytest.mark.slow
-def test_second_real_run_refused_while_the_first_one_finishes_untouched(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_second_run_refused_while_the_first_one_finishes_untouched(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+    vclock: VirtualClock,
 ) -> None:
     """The issue's case: a second run against a stand in use used to connect, and its cleanup
-    disabled the stand under the first run. Now it is refused before connecting."""
-    # buffered, as the default bench: this real-time child shares a loaded machine, and a
-    # streaming stand held up by it departs from the profile (σ then INCONCLUSIVE, exit 3)
+    disabled the stand under the first run. Now it is refused before connecting. On simulated
+    time: the first run in a thread of the clock, the second through the CLI in this thread
+    once the first has moved for 1 s (the lock across two processes:
+    ``test_a_second_run_is_refused_naming_the_holder_until_it_dies``)."""
     with live_bench(tmp_path, run={"lock_dir": str(tmp_path / "locks")},
-                    stand={"mode": "buffered"}) as b:
+                    stand={"mode": "buffered"}, clock=vclock) as b:
         runs = tmp_path / "runs"
-        first = _child(b.config_path, runs, "--json", serial="FIRST-1")
+        first: dict[str, Any] = {}
+
+        def run_first() -> None:
+            first["res"] = run_test(
+                b.cfg, CI_SHORT, RunOptions("FIRST-1", "ci", duration_s=float(DURATION)),
+                clock=vclock,
+            )
+
+        t = vclock.thread(run_first, name="first-run")
+        t.start()
         try:
-            _wait(motion_for(runs, 1.0), 60.0, "the first run's motion")
+            while not motion_for(runs, 1.0, vclock)():
+                assert t.is_alive(), "the first run ended before its motion"
+                vclock.sleep(0.05)
+            monkeypatch.setattr(benchctl.run, "run_test", partial(run_test, clock=vclock))
             assert _run_main(b.config_path) == 2
             err = capsys.readouterr().err
-            assert f"is in use by benchctl run (pid {first.pid}" in err, err
+            assert f"is in use by benchctl run (pid {os.getpid()}" in err, err
             assert "serial FIRST-1" in err and "operator ci" in err
-            code, out, ferr = _finish(first)
         finally:
-            _reap(first)
-        assert code == 0, ferr[-3000:]
-        rep = json.loads(out)
+            t.join()
+        res = first["res"]
+        assert res.exit_code == 0, res.reason
+        rep = json.loads(dumps(res.to_dict()))
         assert rep["verdict"] == "PASS" and rep["state"] == "done"
     assert len(list(runs.glob("*/meta.json"))) == 1  # the second run made no recording
 
