@@ -36,9 +36,6 @@ from benchctl.errors import ConfigError
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.sim.stand import SimStand
 
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
-
 MAP = ROOT / "drivers/stand_generic.yaml"
 WRAP = 0.65536
 
@@ -102,6 +99,8 @@ def test_register_map_sample_time() -> None:
     assert m2.sample_time is None and math.isnan(m2.sample_time_wrap_s)
 
 
+# a real socket and a real pty, the exchanges timed on the host's clock: run alone
+@pytest.mark.realtime
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_simulated_stand_latches_its_clock_inside_each_window(transport: str) -> None:
     limits = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
