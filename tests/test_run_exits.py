@@ -1,7 +1,8 @@
 """Every way out of `benchctl`, the same path, the right exit code, and never a traceback.
 
-- SIGHUP, SIGQUIT, SIGTERM to a REAL `benchctl run` child mid-profile: exit 2, the recording
-  closed ``aborted`` with the reason, the stand ramped to zero and disabled, an archive line.
+- SIGHUP and SIGTERM to a REAL `benchctl run` child mid-profile: exit 2, the recording
+  closed ``aborted`` with the reason, the stand ramped to zero and disabled, an archive line;
+  each exit signal (SIGQUIT and SIGINT too) the run's own signal fault while it lasts.
 - a signal during startup (before the run's own handlers exist): exit 2, one line, no traceback.
 - a full disk: an injected ENOSPC (in-process) and a real EFBIG (RLIMIT_FSIZE on a child): the
   run ends ABORTED (exit 2) "recording: …", the stand ramped and disabled, end.json written.
@@ -42,7 +43,7 @@ from benchctl.run import run_test
 from benchctl.run import session as session_mod
 from benchctl.run.lock import StandLock, endpoint_key, lock_file
 from benchctl.run.session import RunOptions, Session
-from benchctl.run.supervisor import shutdown
+from benchctl.run.supervisor import Supervisor, shutdown
 
 CI_SHORT = ROOT / "profiles/ci_short.yaml"
 # a child inherits an ignored SIGHUP (tests run under nohup), and then rightly keeps ignoring it
@@ -157,13 +158,34 @@ def _run_main(cfg: Path, *extra: str) -> int:
     )
 
 
-@pytest.mark.realtime  # real signals to a real child run
 # ------------------------------------------------------------------------------ signals
-@pytest.mark.slow
+@pytest.mark.realtime  # real signals to this process
 @pytest.mark.parametrize(
     "sig",
-    [pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGQUIT, signal.SIGTERM],
-    ids=["SIGHUP", "SIGQUIT", "SIGTERM"],
+    [signal.SIGINT, signal.SIGTERM, pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGQUIT],
+    ids=["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"],
+)
+def test_each_exit_signal_is_the_runs_signal_fault_while_it_lasts(sig: signal.Signals) -> None:
+    """While a run lasts (``Supervisor.signals``) each exit signal is the fault "signal:
+    interrupted by <name>" — the one path to the cleanup that a real child takes below for
+    SIGTERM and SIGHUP (and every way out takes on simulated time, tests/test_run_e2e.py);
+    the handler there before comes back after."""
+    assert sig in exits.EXIT_SIGNALS  # (else the signal below would end this process)
+    sup = Supervisor()
+    before = signal.getsignal(sig)
+    with sup.signals():
+        assert signal.getsignal(sig) is not before
+        os.kill(os.getpid(), sig)
+        _wait(lambda: sup.faulted, 10.0, "the handler")  # it runs in the main thread
+    assert sup.first is not None and sup.first.reason == f"signal: interrupted by {sig.name}"
+    assert sup.stop_event.is_set()
+    assert signal.getsignal(sig) is before
+
+
+@pytest.mark.realtime  # real signals to a real child run
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "sig", [pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGTERM], ids=["SIGHUP", "SIGTERM"],
 )
 def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: signal.Signals) -> None:
     locks = tmp_path / "locks"
