@@ -159,7 +159,8 @@ def test_a_locked_runs_table_costs_the_run_seconds_not_for_ever(
     with Archive(url):
         pass  # the schema made
     cfg = bench_config(tmp_path)
-    cfg = cfg.model_copy(update={"archive": ArchiveConfig(url=url)})
+    # the run's lock timeout 0.5 s (default 2 s): another session holds the lock for sure
+    cfg = cfg.model_copy(update={"archive": ArchiveConfig(url=url, write_timeout_s=0.5)})
     profile = tmp_path / "sine.yaml"
     profile.write_text(SINE)
     stand = FakeStand(("roll",), clock=vclock)
@@ -215,12 +216,12 @@ def test_a_busy_sqlite_file_is_said_locked(tmp_path: Path,
 
 def test_the_timeouts_reach_the_postgresql_session(pg: PgServer) -> None:
     url = pg.create_database(f"t_{uuid.uuid4().hex[:12]}")
-    with Archive(url, busy_timeout_s=1.5, statement_timeout_s=4.0) as a, \
+    with Archive(url, busy_timeout_s=0.5, statement_timeout_s=1.0) as a, \
             a.engine.connect() as conn:
         from sqlalchemy import text
 
-        assert conn.execute(text("SHOW lock_timeout")).scalar() == "1500ms"
-        assert conn.execute(text("SHOW statement_timeout")).scalar() == "4s"
+        assert conn.execute(text("SHOW lock_timeout")).scalar() == "500ms"
+        assert conn.execute(text("SHOW statement_timeout")).scalar() == "1s"
         with pytest.raises(OperationalError) as e:
             conn.execute(text("SELECT pg_sleep(10)"))
         assert classify(e.value) == "timed out"
