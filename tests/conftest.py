@@ -22,10 +22,16 @@ from pathlib import Path
 import psutil
 import pytest
 from archive_helpers import PgServer
+from hypothesis import settings
 
 from benchctl.clock.virtual import VirtualClock
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# property tests: a bounded example count where a test states none (each states its own above
+# this), and no per-example deadline — it would time the host's load, not the code
+settings.register_profile("benchctl", max_examples=100, deadline=None)
+settings.load_profile("benchctl")
 
 
 def _threads() -> set[threading.Thread]:
