@@ -1,6 +1,17 @@
 """Shared fixtures. Every test is checked for leaked threads, child processes, sockets and ptys."""
 
+# ruff: noqa: E402  (the BLAS setting below must come before anything imports numpy)
+
 from __future__ import annotations
+
+import os
+
+# One BLAS thread per test process, set before numpy is first imported (this file is imported
+# before any test module, in each xdist worker, and child processes inherit it). OpenBLAS
+# otherwise starts a thread per core that spins after each call: with two workers on a 2-core
+# machine they fight over the cores (a least-squares coverage test took 38 s instead of 3 s).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 import threading
 import time
@@ -11,10 +22,16 @@ from pathlib import Path
 import psutil
 import pytest
 from archive_helpers import PgServer
+from hypothesis import settings
 
 from benchctl.clock.virtual import VirtualClock
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# property tests: a bounded example count where a test states none (each states its own above
+# this), and no per-example deadline — it would time the host's load, not the code
+settings.register_profile("benchctl", max_examples=100, deadline=None)
+settings.load_profile("benchctl")
 
 
 def _threads() -> set[threading.Thread]:

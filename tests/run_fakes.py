@@ -8,7 +8,6 @@ its table), so the reference is exact; faults are injected at a motion time.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -360,12 +359,13 @@ def sine_motion(
     return PreparedMotion(None, None, plan, check, meta)
 
 
-def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
+def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0, clock: Clock = REAL) -> bool:
+    """Whether ``cond()`` became true within ``timeout_s`` on ``clock``."""
+    end = clock.monotonic() + timeout_s
+    while clock.monotonic() < end:
         if cond():
             return True
-        time.sleep(0.01)
+        clock.sleep(0.01)
     return cond()
 
 

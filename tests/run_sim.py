@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -189,8 +188,9 @@ def recording_in(runs: Path) -> Path | None:
     return found[0] if found else None
 
 
-def motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
-    """True once the child's recording shows ``seconds`` of motion (from its own events)."""
+def motion_for(runs: Path, seconds: float, clock: Clock = REAL) -> Callable[[], bool]:
+    """True once the recording a run (a child's, or on ``clock`` one in this process) made in
+    ``runs`` shows ``seconds`` of motion on ``clock`` (from its own events)."""
 
     def cond() -> bool:
         rec = recording_in(runs)
@@ -198,7 +198,7 @@ def motion_for(runs: Path, seconds: float) -> Callable[[], bool]:
             return False
         for line in (rec / "events.jsonl").read_text().splitlines():
             if '"motion_start"' in line:
-                return bool(time.monotonic() - json.loads(line)["t_host"] >= seconds)
+                return bool(clock.monotonic() - json.loads(line)["t_host"] >= seconds)
         return False
 
     return cond

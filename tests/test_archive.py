@@ -41,6 +41,7 @@ from benchctl.archive.service import (
 )
 from benchctl.archive.store import Archive, parse_url, utc_naive
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import ArchiveError, DataError
 
 # the fixtures pg (a PostgreSQL server for the module) and url (an empty SQLite or PostgreSQL
@@ -474,14 +475,12 @@ def test_two_processes_writing_at_once_lose_nothing(url: str) -> None:
 # --- a run through the session --------------------------------------------------------------
 
 
-# still on the host's time (not yet moved): beside a second pytest worker
-# its stand missed the 10 s to rest
-@pytest.mark.realtime
 def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(
-        tmp_path: Path) -> None:
-    """run_test with in-process fakes of the stand and the instrument: at its start the
-    killed run left in the output folder is stored ABORTED and the queue is sent; at its end
-    the run itself is stored from its own record.json."""
+        tmp_path: Path, vclock: VirtualClock) -> None:
+    """run_test with in-process fakes of the stand and the instrument, on simulated time (the
+    archive's database on the host's): at its start the killed run left in the output folder
+    is stored ABORTED and the queue is sent; at its end the run itself is stored from its own
+    record.json."""
     from run_fakes import FakeSensor, FakeStand, bench_config
 
     from benchctl.run.session import RunOptions, run_test
@@ -494,10 +493,10 @@ def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(
                           "source": "record.json"})
     profile = tmp_path / "sine.yaml"
     profile.write_text(SINE)
-    stand = FakeStand(("roll",))
+    stand = FakeStand(("roll",), clock=vclock)
     sensor = FakeSensor(stand, gain=1.05)
     res = run_test(cfg, profile, RunOptions("SN-A", "tester"),
-                   device_factory=lambda c, p: (stand, sensor))
+                   device_factory=lambda c, p: (stand, sensor), clock=vclock)
     assert res.state == "done" and res.report is not None, res.reason
     assert res.recording is not None
     with Archive(s.url) as a:
@@ -520,8 +519,9 @@ def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(
     assert run["report_json"]["sha256"] == own["files"]["report_json"]["sha256"]
 
 
-def test_an_aborted_run_is_archived_with_its_abort(tmp_path: Path) -> None:
-    """An E-stop mid-motion: the run is ABORTED (equipment) and so is its archived row."""
+def test_an_aborted_run_is_archived_with_its_abort(tmp_path: Path, vclock: VirtualClock) -> None:
+    """An E-stop mid-motion (simulated time): the run is ABORTED (equipment) and so is its
+    archived row."""
     from run_fakes import FakeSensor, FakeStand, bench_config
 
     from benchctl.run.session import RunOptions, run_test
@@ -529,11 +529,11 @@ def test_an_aborted_run_is_archived_with_its_abort(tmp_path: Path) -> None:
     cfg = bench_config(tmp_path)
     profile = tmp_path / "sine.yaml"
     profile.write_text(SINE)
-    stand = FakeStand(("roll",))
+    stand = FakeStand(("roll",), clock=vclock)
     stand.estop_at = 1.0
     sensor = FakeSensor(stand)
     res = run_test(cfg, profile, RunOptions("SN-E", "tester"),
-                   device_factory=lambda c, p: (stand, sensor))
+                   device_factory=lambda c, p: (stand, sensor), clock=vclock)
     assert res.state == "aborted" and res.recording is not None
     with Archive(settings_for(cfg).url) as a:
         run = a.show(res.recording.name)

@@ -46,6 +46,7 @@ from benchctl.archive.service import (
 )
 from benchctl.archive.store import Archive, classify
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import ArchiveConfig
 
 # the fixtures pg (a PostgreSQL server for the module) and url (an empty SQLite or PostgreSQL
@@ -142,14 +143,13 @@ def _run_in_thread(fn: Callable[[], Any], bound_s: float) -> tuple[bool, Any]:
     return not t.is_alive(), box.get("result")
 
 
-# still on the host's time (not yet moved): beside a second pytest worker
-# its stand loop stalled 4.1 s
-@pytest.mark.realtime
 def test_a_locked_runs_table_costs_the_run_seconds_not_for_ever(
         pg: PgServer, tmp_path: Path, caplog: pytest.LogCaptureFixture,
-        capsys: pytest.CaptureFixture[str]) -> None:
-    """A whole run (in-process fakes of the stand and the instrument) archiving into a
-    PostgreSQL database while another session holds ``runs`` in ACCESS EXCLUSIVE mode."""
+        capsys: pytest.CaptureFixture[str], vclock: VirtualClock) -> None:
+    """A whole run (in-process fakes of the stand and the instrument, on simulated time; the
+    database and its lock on the host's time) archiving into a PostgreSQL database while
+    another session holds ``runs`` in ACCESS EXCLUSIVE mode. The run is in this thread: were
+    it to wait for the lock for ever, the test's timeout would end it."""
     import psycopg
     from run_fakes import FakeSensor, FakeStand, bench_config
 
@@ -159,20 +159,18 @@ def test_a_locked_runs_table_costs_the_run_seconds_not_for_ever(
     with Archive(url):
         pass  # the schema made
     cfg = bench_config(tmp_path)
-    cfg = cfg.model_copy(update={"archive": ArchiveConfig(url=url)})
+    # the run's lock timeout 0.5 s (default 2 s): another session holds the lock for sure
+    cfg = cfg.model_copy(update={"archive": ArchiveConfig(url=url, write_timeout_s=0.5)})
     profile = tmp_path / "sine.yaml"
     profile.write_text(SINE)
-    stand = FakeStand(("roll",))
+    stand = FakeStand(("roll",), clock=vclock)
     holder = psycopg.connect(url.replace("+psycopg", ""), connect_timeout=30)
     try:
         holder.execute("LOCK TABLE runs IN ACCESS EXCLUSIVE MODE")  # a transaction, kept open
         with caplog.at_level(logging.WARNING):
-            finished, res = _run_in_thread(lambda: run_test(
-                cfg, profile, RunOptions("SN-L", "tester"),
-                device_factory=lambda c, p: (stand, FakeSensor(stand))), 90.0)
+            res = run_test(cfg, profile, RunOptions("SN-L", "tester"),
+                           device_factory=lambda c, p: (stand, FakeSensor(stand)), clock=vclock)
             returned = time.time()
-        assert finished, "the run still waits for the database 90 s on"
-        assert not isinstance(res, BaseException), res
         assert res.state == "done" and res.recording is not None, res.reason
         verdict_at = (res.recording / "end.json").stat().st_mtime
         assert returned - verdict_at < 30.0, returned - verdict_at
@@ -218,12 +216,12 @@ def test_a_busy_sqlite_file_is_said_locked(tmp_path: Path,
 
 def test_the_timeouts_reach_the_postgresql_session(pg: PgServer) -> None:
     url = pg.create_database(f"t_{uuid.uuid4().hex[:12]}")
-    with Archive(url, busy_timeout_s=1.5, statement_timeout_s=4.0) as a, \
+    with Archive(url, busy_timeout_s=0.5, statement_timeout_s=1.0) as a, \
             a.engine.connect() as conn:
         from sqlalchemy import text
 
-        assert conn.execute(text("SHOW lock_timeout")).scalar() == "1500ms"
-        assert conn.execute(text("SHOW statement_timeout")).scalar() == "4s"
+        assert conn.execute(text("SHOW lock_timeout")).scalar() == "500ms"
+        assert conn.execute(text("SHOW statement_timeout")).scalar() == "1s"
         with pytest.raises(OperationalError) as e:
             conn.execute(text("SELECT pg_sleep(10)"))
         assert classify(e.value) == "timed out"

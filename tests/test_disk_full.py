@@ -1,12 +1,14 @@
 """A full disk at every phase of a real run is the documented abort.
 
 Each test runs ``benchctl run`` (in-process, through ``benchctl.cli.main``) against the real
-simulators with its output on a small tmpfs of its own, and fills that tmpfs to the last byte at
-one moment of the run: on entering prechecks, running (mid-motion), analysing, and just before
-the report, the record and the archive index are written. Every time: exit 2, the stand at rest
-at zero and disabled (read from the simulated stand), ``end.json`` written (in the room the
-recording kept for it) with the disk-full reason, no ``.tmp`` file left, ``ABORTED`` and every
-cleanup step printed — and once the analysis had measured, its verdict printed and kept.
+simulators on simulated time (the ``vclock`` fixture: the run, its drivers and the simulators
+over in-process links; the disk is real) with its output on a small tmpfs of its own, and fills
+that tmpfs to the last byte at one moment of the run: on entering prechecks, running
+(mid-motion), analysing, and just before the report, the record and the archive index are
+written. Every time: exit 2, the stand at rest at zero and disabled (read from the simulated
+stand), ``end.json`` written (in the room the recording kept for it) with the disk-full reason,
+no ``.tmp`` file left, ``ABORTED`` and every cleanup step printed — and once the analysis had
+measured, its verdict printed and kept.
 
 The tests mount a tmpfs: they need root (CI runs as root) and FAIL, not skip, without it.
 """
@@ -19,19 +21,22 @@ import os
 import subprocess
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 from run_sim import ROLL, LiveBench, live_bench
 
+import benchctl.run
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.run import session as session_mod
 from benchctl.run.state import RunState, StateMachine
 
-# a real tmpfs of a few MB mounted per test, the run's simulators on the host's time
-pytestmark = [pytest.mark.slow, pytest.mark.realtime]
+# a real tmpfs of a few MB mounted per test; the run and its simulators on simulated time
+pytestmark = pytest.mark.slow
 DISK_SIZE = "4m"  # the whole recording of the 20 s profile (~0.6 MB) and its reserve fit
 
 
@@ -115,16 +120,20 @@ def _fill_before(monkeypatch: pytest.MonkeyPatch, disk: Path, name: str,
     monkeypatch.setattr(where, name, wrapped)
 
 
-def _run(bench: LiveBench, tmp_path: Path, out: Path) -> int:
+def _run(bench: LiveBench, tmp_path: Path, out: Path, monkeypatch: pytest.MonkeyPatch) -> int:
+    """``benchctl run`` through the CLI, its run on the simulators' (virtual) clock."""
     profile = tmp_path / "roll.yaml"
     profile.write_text(ROLL)
+    monkeypatch.setattr(benchctl.run, "run_test",
+                        partial(benchctl.run.run_test, clock=bench.stand.clock))
     return main(["run", "--config", str(bench.config_path), "--profile", str(profile),
                  "--out", str(out), "--serial", "DF-1", "--operator", "ci", "--quiet"])
 
 
-def _bench(tmp_path: Path) -> Any:
+def _bench(tmp_path: Path, clock: VirtualClock) -> Any:
     return live_bench(tmp_path, instrument="nmea0183", stand={"mode": "buffered"},
-                      run={"lock_dir": str(tmp_path / "locks"), "min_free_disk_mb": 0.01})
+                      run={"lock_dir": str(tmp_path / "locks"), "min_free_disk_mb": 0.01},
+                      clock=clock)
 
 
 DATA = ("stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl")  # whichever first
@@ -145,9 +154,10 @@ def _check_abort(code: int, out: str, err: str, bench: LiveBench, disk: Path,
         assert "    ramp to zero: ok" in out, out
     # the stand: disabled, at rest at zero
     assert not bench.stand._enabled
-    a = bench.stand.true_angles(time.monotonic())
-    time.sleep(0.2)
-    b = bench.stand.true_angles(time.monotonic())
+    clock = bench.stand.clock
+    a = bench.stand.true_angles(clock.monotonic())
+    clock.sleep(0.2)
+    b = bench.stand.true_angles(clock.monotonic())
     assert all(abs(v) <= 0.05 for v in b.values()), b
     assert all(abs(b[k] - a[k]) < 0.002 for k in a), (a, b)
     # end.json written, valid, with the reason; nothing half-written left behind
@@ -183,13 +193,13 @@ def _check_measured(out: str, end: dict[str, Any], disk: Path) -> None:
 
 def test_disk_full_in_the_prechecks(
     tmp_path: Path, disk: Path, monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    capsys: pytest.CaptureFixture[str], vclock: VirtualClock,
 ) -> None:
     """Full once the devices answered, before the stand is enabled (the files' last pages may
     take a few rows more: the abort may come once it is enabled, then it is ramped)."""
     _fill_before(monkeypatch, disk, "check_stand_ready", session_mod.pc)
-    with _bench(tmp_path) as b:
-        code = _run(b, tmp_path, disk)
+    with _bench(tmp_path, vclock) as b:
+        code = _run(b, tmp_path, disk, monkeypatch)
         out, err = capsys.readouterr()
         end = _check_abort(code, out, err, b, disk, DATA, moved=False)
     assert "measured" not in end and "measured before" not in out
@@ -197,11 +207,11 @@ def test_disk_full_in_the_prechecks(
 
 def test_disk_full_mid_motion(
     tmp_path: Path, disk: Path, monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    capsys: pytest.CaptureFixture[str], vclock: VirtualClock,
 ) -> None:
     _fill_on_state(monkeypatch, disk, RunState.RUNNING)
-    with _bench(tmp_path) as b:
-        code = _run(b, tmp_path, disk)
+    with _bench(tmp_path, vclock) as b:
+        code = _run(b, tmp_path, disk, monkeypatch)
         out, err = capsys.readouterr()
         end = _check_abort(code, out, err, b, disk, DATA, moved=True)
     assert "measured" not in end and "measured before" not in out
@@ -209,11 +219,11 @@ def test_disk_full_mid_motion(
 
 def test_disk_full_while_analysing(
     tmp_path: Path, disk: Path, monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    capsys: pytest.CaptureFixture[str], vclock: VirtualClock,
 ) -> None:
     _fill_on_state(monkeypatch, disk, RunState.ANALYSING)
-    with _bench(tmp_path) as b:
-        code = _run(b, tmp_path, disk)
+    with _bench(tmp_path, vclock) as b:
+        code = _run(b, tmp_path, disk, monkeypatch)
         out, err = capsys.readouterr()
         # the first write to fail: the state change's event, or (the events file's last page had
         # room for it) the report after the analysis
@@ -229,11 +239,11 @@ def test_disk_full_while_analysing(
 )
 def test_disk_full_after_the_verdict_keeps_it(
     tmp_path: Path, disk: Path, monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str], hook: str, file: str,
+    capsys: pytest.CaptureFixture[str], vclock: VirtualClock, hook: str, file: str,
 ) -> None:
     _fill_before(monkeypatch, disk, hook)
-    with _bench(tmp_path) as b:
-        code = _run(b, tmp_path, disk)
+    with _bench(tmp_path, vclock) as b:
+        code = _run(b, tmp_path, disk, monkeypatch)
         out, err = capsys.readouterr()
         end = _check_abort(code, out, err, b, disk, (file,), moved=False)
     _check_measured(out, end, disk)

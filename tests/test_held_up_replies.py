@@ -32,9 +32,14 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from wire import rtu
 
 from benchctl.devices.modbus.link import tcp_link
+
+# real sockets and pseudo-terminals, a child stopped by a real SIGSTOP, timed on the host's
+# clock: run alone (realtime tier)
+pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parent.parent
 REPLY_S = 0.2  # the child's reply timeout
@@ -44,10 +49,6 @@ SETTLE_S = 0.05  # after the request is seen: the child is in its wait for the r
 CHILD = """
 import json, sys, time
 from benchctl.devices.modbus.link import rtu_link, tcp_link
-import pytest
-
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
 kind, where, reply_s = sys.argv[1], sys.argv[2], float(sys.argv[3])
 if kind == "tcp":
     link = tcp_link("127.0.0.1", int(where), timeout_s=reply_s, retries=1)

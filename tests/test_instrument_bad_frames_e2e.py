@@ -76,9 +76,6 @@ def _inject(bench: LiveBench, bad: list[tuple[bytes, str]], stop: EventLike,
         sim.clear_faults()
 
 
-# still on the host's time (not yet moved): beside a second pytest worker
-# its stream rejoined, INCONCLUSIVE
-@pytest.mark.realtime
 @pytest.mark.parametrize(
     ("instrument", "bad"),
     [("nmea0183", NMEA_BAD), ("canopen", SLCAN_BAD)],

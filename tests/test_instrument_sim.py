@@ -1,10 +1,16 @@
-"""Back-to-back: each instrument driver against the simulated instrument over a pseudo-terminal."""
+"""Back-to-back: each instrument driver against the simulated instrument.
+
+On simulated time (the ``vclock`` fixture): the simulator and the driver over an in-process link
+(``simchan://``: pyserial, python-can's slcan bus and the NMEA reader open it as they open a
+pty), the same code on both ends, its rates and timeouts exact. Over a real pseudo-terminal
+(``realtime``): a dropped link, which closes the pty and its symlink and leaves no descriptor
+open (the drivers over real ptys at their full rates: the end-to-end runs of
+tests/test_run_e2e.py)."""
 
 from __future__ import annotations
 
 import math
 import os
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -14,15 +20,14 @@ import can
 import numpy as np
 import pytest
 
+from benchctl.channels import free_name, unregister
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import InstrumentConfig, SimInstrumentConfig
 from benchctl.devices.base import AngleSensor, InstrumentSample
 from benchctl.devices.instrument import open_instrument
 from benchctl.errors import ConfigError, ConnectionLost, DeviceTimeout
 from benchctl.sim.instrument import SimInstrument
-
-# the simulated instrument on a real pty, paced by the host's clock: its rate, its
-# loss-free stream and its no-skip count need the host's time, alone (realtime tier)
-pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
@@ -61,39 +66,55 @@ def instrument_cfg(driver: str, **kw: Any) -> InstrumentConfig:
 
 
 class Collector:
-    def __init__(self) -> None:
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
         self.samples: list[InstrumentSample] = []
         self.errors: list[BaseException] = []
 
     def wait(self, cond: Callable[[], bool], timeout: float = 5.0) -> float:
-        t0 = time.monotonic()
+        """Wait on the collector's clock until ``cond()``; the seconds it took."""
+        clock = self.clock
+        t0 = clock.monotonic()
         while not cond():
-            if time.monotonic() - t0 > timeout:
+            if clock.monotonic() - t0 > timeout:
                 raise AssertionError(f"not within {timeout} s; errors {self.errors}")
-            time.sleep(0.01)
-        return time.monotonic() - t0
+            clock.sleep(0.01)
+        return clock.monotonic() - t0
+
+
+def simulator(model: SimInstrumentConfig, cfg: InstrumentConfig, motion: Any, clock: Clock,
+              link_path: Path | None = None) -> SimInstrument:
+    """The simulated instrument: on a virtual ``clock`` over an in-process link, else a pty."""
+    return SimInstrument(model, cfg, motion, link_path=link_path, clock=clock,
+                         channel=free_name("sim-instrument") if clock.virtual else None)
+
+
+def stop(sim: SimInstrument) -> None:
+    sim.stop()
+    if sim.channel_name is not None:
+        unregister(sim.channel_name)
 
 
 @contextmanager
 def back_to_back(
-    driver: str, model: SimInstrumentConfig, motion: Any = None, *,
+    driver: str, model: SimInstrumentConfig, motion: Any = None, *, clock: Clock,
     log: Path | None = None, **kw: Any,
 ) -> Iterator[tuple[SimInstrument, AngleSensor, Collector]]:
-    sim = SimInstrument(model, instrument_cfg(driver, **kw), motion or SineRoll())
+    sim = simulator(model, instrument_cfg(driver, **kw), motion or SineRoll(), clock)
     sim.inject("silent")  # pyserial flushes input on open: start counting from a clean line
     sim.start()
     dev = None
     try:
-        dev = open_instrument(sim.instrument_config(), can_log_path=log)
+        dev = open_instrument(sim.instrument_config(), can_log_path=log, clock=clock)
         sim.clear_faults()
         dev.connect()
-        col = Collector()
+        col = Collector(clock)
         dev.start(col.samples.append, col.errors.append)
         yield sim, dev, col
     finally:
         if dev is not None:
             dev.close()
-        sim.stop()
+        stop(sim)
     assert sim.error is None
 
 
@@ -110,11 +131,11 @@ def drain(sim: SimInstrument, dev: AngleSensor, col: Collector) -> None:
     [("canopen", {}), ("j1939", {}), ("nmea2000", {}), ("nmea0183", {}),
      ("nmea0183", {"sentence": "XDR"})],
 )
-def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
+def test_rate_gain_bias_noise(driver: str, extra: dict, vclock: VirtualClock) -> None:
     gain, bias, noise, rate = 0.97, 0.3, 0.05, 100.0
     model = SimInstrumentConfig(gain=gain, bias_deg=bias, noise_deg=noise, latency_s=0.01,
                                 rate_hz=rate, seed=11)
-    with back_to_back(driver, model, **extra) as (sim, dev, col):
+    with back_to_back(driver, model, clock=vclock, **extra) as (sim, dev, col):
         col.wait(lambda: len(col.samples) >= 250)
         drain(sim, dev, col)
         s = list(col.samples)
@@ -173,9 +194,11 @@ def test_rate_gain_bias_noise(driver: str, extra: dict) -> None:
         ("nmea0183", "bytes", "decode"),
     ],
 )
-def test_garbled_frames_counted_and_skipped(driver: str, how: str, reason: str) -> None:
+def test_garbled_frames_counted_and_skipped(
+    driver: str, how: str, reason: str, vclock: VirtualClock
+) -> None:
     model = SimInstrumentConfig(rate_hz=200.0, seed=2)
-    with back_to_back(driver, model, Static()) as (sim, dev, col):
+    with back_to_back(driver, model, Static(), clock=vclock) as (sim, dev, col):
         sim.inject("garbled", fraction=0.3, how=how)
         col.wait(lambda: sim.counts["garbled"] >= 40)
         drain(sim, dev, col)
@@ -191,10 +214,20 @@ def test_garbled_frames_counted_and_skipped(driver: str, how: str, reason: str) 
             assert smp.angle_deg["pitch"] == pytest.approx(-0.5, abs=res)
 
 
-@pytest.mark.parametrize("driver", ["nmea2000", "nmea0183"])
-def test_silent_instrument_reported_then_recovers(driver: str) -> None:
+@pytest.mark.parametrize(
+    ("driver", "link_kind"),
+    [("nmea0183", "channel"),
+     # a CAN driver over a real pty: on simulated time python-can's ``BusABC.recv`` times its
+     # wait with the host's ``time.time()``, so the reader's silence check (after each recv)
+     # comes only once 0.1 s of host time has passed, however much simulated time that is
+     pytest.param("nmea2000", "pty", marks=pytest.mark.realtime)],
+)
+def test_silent_instrument_reported_then_recovers(
+    driver: str, link_kind: str, request: pytest.FixtureRequest
+) -> None:
+    clock: Clock = request.getfixturevalue("vclock") if link_kind == "channel" else REAL
     model = SimInstrumentConfig(rate_hz=100.0)
-    with back_to_back(driver, model, silence_timeout_s=0.3) as (sim, _dev, col):
+    with back_to_back(driver, model, clock=clock, silence_timeout_s=0.3) as (sim, _dev, col):
         col.wait(lambda: len(col.samples) >= 10)
         sim.inject("silent")
         took = col.wait(lambda: len(col.errors) >= 1, timeout=3.0)
@@ -207,9 +240,9 @@ def test_silent_instrument_reported_then_recovers(driver: str) -> None:
 
 
 @pytest.mark.parametrize("driver", ["j1939", "nmea0183"])
-def test_stuck_instrument_repeats_its_last_value(driver: str) -> None:
+def test_stuck_instrument_repeats_its_last_value(driver: str, vclock: VirtualClock) -> None:
     model = SimInstrumentConfig(rate_hz=100.0, noise_deg=0.2, seed=4)
-    with back_to_back(driver, model) as (sim, _dev, col):
+    with back_to_back(driver, model, clock=vclock) as (sim, _dev, col):
         col.wait(lambda: len(col.samples) >= 20)
         before = [x.angle_deg["roll"] for x in col.samples]
         assert len(set(before)) > 10  # noisy while alive
@@ -230,20 +263,29 @@ def test_stuck_instrument_repeats_its_last_value(driver: str) -> None:
         assert col.errors == []
 
 
+@pytest.mark.parametrize("link_kind", ["channel", pytest.param("pty", marks=pytest.mark.realtime)])
 @pytest.mark.parametrize("driver", ["canopen", "nmea0183"])
-def test_dropped_link_is_reported(driver: str, tmp_path: Path) -> None:
+def test_dropped_link_is_reported(
+    driver: str, link_kind: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    """On an in-process link (simulated time), and on a real pty (``realtime``): the pty and
+    its stable name (a symlink) gone, no descriptor left open."""
+    clock: Clock = request.getfixturevalue("vclock") if link_kind == "channel" else REAL
     fds_before = len(os.listdir("/proc/self/fd"))
     link = tmp_path / "instrument"
-    sim = SimInstrument(SimInstrumentConfig(), instrument_cfg(driver), Static(), link_path=link)
+    sim = simulator(SimInstrumentConfig(), instrument_cfg(driver), Static(), clock,
+                    link_path=None if clock.virtual else link)
     sim.start()
     try:
-        assert link.is_symlink() and str(link.resolve()) == sim.channel
-        key = "serial_port" if driver == "nmea0183" else "channel"
-        cfg = sim.instrument_config().model_copy(update={key: str(link)})  # the stable name
-        dev = open_instrument(cfg)
+        cfg = sim.instrument_config()
+        if not clock.virtual:
+            assert link.is_symlink() and str(link.resolve()) == sim.channel
+            key = "serial_port" if driver == "nmea0183" else "channel"
+            cfg = cfg.model_copy(update={key: str(link)})  # the stable name
+        dev = open_instrument(cfg, clock=clock)
         try:
             ident = dev.connect()
-            col = Collector()
+            col = Collector(clock)
             dev.start(col.samples.append, col.errors.append)
             col.wait(lambda: len(col.samples) >= 5)
             sim.inject("drop")
@@ -254,44 +296,46 @@ def test_dropped_link_is_reported(driver: str, tmp_path: Path) -> None:
         finally:
             dev.close()
     finally:
-        sim.stop()
+        stop(sim)
     assert len(os.listdir("/proc/self/fd")) == fds_before  # no pty, serial or pipe left open
     if driver == "canopen":
         assert ident.model == "SIM-INCL410" and ident.serial == "1"
         assert ident.firmware == "1.0.0" and ident.extra["resolution_deg"] == "0.01"
 
 
-def test_canopen_connect_fails_cleanly_when_silent_or_wrong_bitrate() -> None:
+def test_canopen_connect_fails_cleanly_when_silent_or_wrong_bitrate(vclock: VirtualClock) -> None:
     for fault, kw in (("silent", {}), (None, {"bitrate": 250000})):
-        sim = SimInstrument(SimInstrumentConfig(), instrument_cfg("canopen"), Static())
+        sim = simulator(SimInstrumentConfig(), instrument_cfg("canopen"), Static(), vclock)
         sim.start()
         try:
             if fault:
                 sim.inject(fault)
             cfg = sim.instrument_config().model_copy(update={"connect_timeout_s": 0.3, **kw})
-            dev = open_instrument(cfg)
+            dev = open_instrument(cfg, clock=vclock)
             try:
                 with pytest.raises(DeviceTimeout, match="SDO"):
                     dev.connect()
             finally:
                 dev.close()
         finally:
-            sim.stop()
+            stop(sim)
 
 
 @pytest.mark.parametrize(("serial_number", "reported"), [(None, "1"), (20260001, "20260001")])
-def test_canopen_serial_number_read_over_sdo(serial_number: int | None, reported: str) -> None:
+def test_canopen_serial_number_read_over_sdo(
+    serial_number: int | None, reported: str, vclock: VirtualClock
+) -> None:
     """The driver reads 1018h sub 4 over SDO: the EDS's default, or the configured number."""
     model = SimInstrumentConfig(serial_number=serial_number)
-    with back_to_back("canopen", model, Static()) as (_, dev, col):
+    with back_to_back("canopen", model, Static(), clock=vclock) as (_, dev, col):
         col.wait(lambda: len(col.samples) >= 5)
         assert dev.identity is not None and dev.identity.serial == reported
 
 
-def test_raw_can_log_blf_readable(tmp_path: Path) -> None:
+def test_raw_can_log_blf_readable(tmp_path: Path, vclock: VirtualClock) -> None:
     log = tmp_path / "can.blf"
     model = SimInstrumentConfig(rate_hz=200.0)
-    with back_to_back("nmea2000", model, Static(), log=log) as (sim, dev, col):
+    with back_to_back("nmea2000", model, Static(), clock=vclock, log=log) as (sim, dev, col):
         col.wait(lambda: len(col.samples) >= 50)
         drain(sim, dev, col)
         n = dev.stats.good

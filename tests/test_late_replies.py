@@ -13,14 +13,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_stand_sim import LIMITS, MAP, SLOW, connect
+from test_stand_sim import SLOW, simulated
 
+from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.modbus.link import ModbusLink
 from benchctl.errors import ProtocolError
-from benchctl.sim.stand import SimStand
-
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
 
 
 class _Reply:
@@ -58,25 +55,22 @@ def test_a_late_reply_is_dropped_and_the_request_sent_again() -> None:
         link.read_registers(200, 2)
 
 
-def test_a_push_sent_again_is_acknowledged_and_not_applied_twice() -> None:
-    with SimStand(SLOW, limits=LIMITS, register_map=MAP, transport="tcp") as sim:
-        stand = connect(sim)
-        try:
-            stand.enable()
-            stand.begin_trajectory()
-            sent: list[tuple[Any, ...]] = []
-            rw = stand.link.read_write_registers
+def test_a_push_sent_again_is_acknowledged_and_not_applied_twice(vclock: VirtualClock) -> None:
+    """On simulated time: the stand over an in-process link carrying Modbus TCP."""
+    with simulated(SLOW, "tcp", vclock) as (_sim, stand):
+        stand.enable()
+        stand.begin_trajectory()
+        sent: list[tuple[Any, ...]] = []
+        rw = stand.link.read_write_registers
 
-            def spy(*a: Any) -> list[int]:
-                sent.append(a)
-                return rw(*a)
+        def spy(*a: Any) -> list[int]:
+            sent.append(a)
+            return rw(*a)
 
-            stand.link.read_write_registers = spy  # type: ignore[method-assign]
-            stand.push_points(0, {"roll": np.zeros(10)}, read=True)
-            again = rw(*sent[0])  # the same push once more, as a client's retry would send it
-            s = stand.push_points(10, {"roll": np.zeros(5)}, read=True)
-            assert s is not None and s.trajectory is not None
-            assert s.trajectory.next_index == 15  # 10 + 5: the repeated 10 not appended again
-            assert len(again) == sent[0][1]  # acknowledged: the feedback block read back
-        finally:
-            stand.close()
+        stand.link.read_write_registers = spy  # type: ignore[method-assign]
+        stand.push_points(0, {"roll": np.zeros(10)}, read=True)
+        again = rw(*sent[0])  # the same push once more, as a client's retry would send it
+        s = stand.push_points(10, {"roll": np.zeros(5)}, read=True)
+        assert s is not None and s.trajectory is not None
+        assert s.trajectory.next_index == 15  # 10 + 5: the repeated 10 not appended again
+        assert len(again) == sent[0][1]  # acknowledged: the feedback block read back

@@ -10,9 +10,11 @@ clear to move keeps its 5° and was never enabled; plan.json and the JUnit XML a
 time, and a signal or an unanswered prompt ends the plan (no further prompt, exit 2).
 
 The plan's step is replaced by a stand-in that touches nothing (the prompts and the cleanup are
-what is tested; a step's own motion is tested with the run). Then the same with a child
-``benchctl plan`` on a pseudo-terminal that receives a real SIGINT or SIGTERM at its setup
-prompt.
+what is tested; a step's own motion is tested with the run). The plan and the simulated stand
+run on simulated time (the ``vclock`` fixture; the stand over an in-process link), the prompts
+on the real terminal and the host's time, as a plan on a simulated bench runs them. Then the
+same with a child ``benchctl plan`` on a pseudo-terminal that receives a real SIGINT or SIGTERM
+at its setup prompt (``realtime``: the stand over TCP).
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ from junitparser import JUnitXml
 from terminal import on_terminal
 
 from benchctl import exits
+from benchctl.channels import free_name, register, unregister
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.plan import parse_plan, run_plan
 from benchctl.plan.record import load_plan_record
@@ -55,12 +60,42 @@ BACK = "Clear to bring the stand back to zero?"
 REMOVE = "Remove the instrument from the stand"
 ANSWERS = ("yes", "no", "ctrl-c", "eof", "sigterm", "timeout")
 PROMPT_S = 10.0  # the plans' prompt_timeout_s: the operator thread answers well within it
+# where the test is that no answer comes (answer "timeout"), the plan's prompt_timeout_s is
+# this shorter one: the operator thread still answers the other prompts well within it
+UNANSWERED_S = 3.0
 
 
-@pytest.fixture(scope="module")
-def stand() -> Iterator[SimStand]:
-    s = SimStand(SimStandConfig(watchdog_s=3.0), limits=StandLimits(**LIMITS),
-                 register_map=ROOT / "drivers/stand_generic.yaml", port=0)
+def _prompt_s(answer: str) -> float:
+    """The plan's prompt_timeout_s for a test whose target prompt gets ``answer``."""
+    return UNANSWERED_S if answer == "timeout" else PROMPT_S
+
+
+def _sim_stand(clock: Clock) -> SimStand:
+    return SimStand(SimStandConfig(watchdog_s=3.0), limits=StandLimits(**LIMITS),
+                    register_map=ROOT / "drivers/stand_generic.yaml",
+                    transport="channel" if clock.virtual else "tcp", port=0, clock=clock)
+
+
+@pytest.fixture
+def stand(vclock: VirtualClock) -> Iterator[SimStand]:
+    """The simulated stand on simulated time, over an in-process link (``_where``)."""
+    s = _sim_stand(vclock)
+    s.start()
+    assert s.client_endpoint is not None
+    url = register(free_name("sim-stand"), s.client_endpoint)
+    _URLS[id(s)] = url
+    try:
+        yield s
+    finally:
+        s.stop()
+        unregister(url)
+        del _URLS[id(s)]
+
+
+@pytest.fixture
+def tcp_stand() -> Iterator[SimStand]:
+    """The simulated stand over TCP on the host's time (for a child process)."""
+    s = _sim_stand(REAL)
     s.start()
     try:
         yield s
@@ -68,10 +103,20 @@ def stand() -> Iterator[SimStand]:
         s.stop()
 
 
+_URLS: dict[int, str] = {}  # a stand on an in-process link: its simchan:// address
+
+
+def _where(stand: SimStand) -> dict[str, Any]:
+    """Where a bench config finds ``stand``."""
+    if stand.transport == "channel":
+        return {"host": _URLS[id(stand)]}
+    return {"host": "127.0.0.1", "port": stand.port}
+
+
 def _bench(tmp_path: Path, stand: SimStand) -> Path:
     data = {
         "station": "consent",
-        "stand": {"driver": "modbus-tcp", "host": "127.0.0.1", "port": stand.port,
+        "stand": {"driver": "modbus-tcp", **_where(stand),
                   "timeout_s": 2.0, "register_map": str(ROOT / "drivers/stand_generic.yaml"),
                   "limits": LIMITS},
         "instrument": {"driver": "canopen", "interface": "slcan", "channel": "/nonexistent/x",
@@ -85,12 +130,12 @@ def _bench(tmp_path: Path, stand: SimStand) -> Path:
 
 
 def _untouched(stand: SimStand, enables_before: int) -> bool:
-    a = stand.true_angles(time.monotonic())
+    a = stand.true_angles(stand.clock.monotonic())
     return stand.enables == enables_before and all(abs(a[k] - v) < 1e-6 for k, v in REST.items())
 
 
 def _at_zero(stand: SimStand) -> bool:
-    return all(abs(v) <= 0.06 for v in stand.true_angles(time.monotonic()).values())
+    return all(abs(v) <= 0.06 for v in stand.true_angles(stand.clock.monotonic()).values())
 
 
 class Operator(threading.Thread):
@@ -142,10 +187,10 @@ def _no_step(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return ran
 
 
-def _matrix_plan(tmp_path: Path, bench: Path) -> Any:
+def _matrix_plan(tmp_path: Path, bench: Path, prompt_s: float) -> Any:
     return parse_plan({
         "name": "consent", "config": str(bench), "operator": "tester",
-        "prompt_timeout_s": PROMPT_S,
+        "prompt_timeout_s": prompt_s,
         "setup": [{"prompt": AREA}],
         "steps": [{"name": "one", "profile": str(ROOT / "profiles/ci_short.yaml")}],
         "cleanup": [{"prompt": BACK, "check": "ramp_to_zero"}, {"prompt": REMOVE}],
@@ -181,7 +226,7 @@ def test_every_prompt_every_answer(
     enables = stand.enables
     bench = _bench(tmp_path, stand)
     ran = _no_step(monkeypatch)
-    plan = _matrix_plan(tmp_path, bench)
+    plan = _matrix_plan(tmp_path, bench, _prompt_s(answer))
     want = _expected(target, answer)
     exits.reset()
     with on_terminal(monkeypatch) as master, exits.exit_signals():
@@ -190,18 +235,19 @@ def test_every_prompt_every_answer(
         t0 = time.monotonic()
         try:
             res = run_plan(plan, serial="SN1", out_dir=tmp_path / "out",
-                           junit=tmp_path / "plan.xml")
+                           junit=tmp_path / "plan.xml", clock=stand.clock)
         finally:
             op.halt.set()
             op.join(timeout=10)
         seconds = time.monotonic() - t0
     assert op.asked == want["asked"]
-    assert seconds < 120  # a prompt never waits beyond its prompt_timeout_s (10 s)
+    assert seconds < 120  # a prompt never waits beyond its prompt_timeout_s (10 s, or 3 s)
     # the stand: touched only when the operator cleared it
     if want["moved"]:
         assert stand.enables > enables and _at_zero(stand)
     else:
-        assert _untouched(stand, enables), (stand.enables, stand.true_angles(time.monotonic()))
+        assert _untouched(stand, enables), (stand.enables,
+                                            stand.true_angles(stand.clock.monotonic()))
     assert res.exit_code == want["code"], res.reason
     assert res.interrupted == want["interrupted"]
     assert ran == ([] if target == AREA and answer != "yes" else [str(plan.steps[0].profile)])
@@ -222,7 +268,7 @@ def test_every_prompt_every_answer(
         sig = "SIGINT" if answer == "ctrl-c" else "SIGTERM"
         assert f"interrupted by {sig} at the prompt" in res.reason
     if answer == "timeout":
-        assert "no answer within 10 s" in actions[target]["detail"]
+        assert f"no answer within {UNANSWERED_S:g} s" in actions[target]["detail"]
 
 
 @pytest.mark.parametrize("answer", ["ctrl-c", "sigterm", "sighup", "no", "eof", "timeout"])
@@ -240,7 +286,7 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
     ran = _no_step(monkeypatch)
     plan = parse_plan({
         "name": "shipped_shape", "config": str(bench), "operator": "tester",
-        "prompt_timeout_s": PROMPT_S,
+        "prompt_timeout_s": _prompt_s(answer),
         "setup": [{"prompt": AREA, "check": "stand_at_rest"}],
         "steps": [{"name": "one", "profile": str(ROOT / "profiles/ci_short.yaml")}],
         "cleanup": [{"check": "ramp_to_zero"}],
@@ -250,7 +296,7 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
         op = Operator(master, AREA, answer)
         op.start()
         try:
-            res = run_plan(plan, serial="SN1", out_dir=tmp_path / "out")
+            res = run_plan(plan, serial="SN1", out_dir=tmp_path / "out", clock=stand.clock)
         finally:
             op.halt.set()
             op.join(timeout=10)
@@ -267,10 +313,11 @@ def test_a_refused_setup_prompt_leaves_a_stand_at_5_degrees_untouched(
 @pytest.mark.realtime  # a real `benchctl plan` child on a pty, a real signal at its prompt
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_at_the_prompt_of_a_benchctl_plan_process(
-    tmp_path: Path, stand: SimStand, sig: signal.Signals
+    tmp_path: Path, tcp_stand: SimStand, sig: signal.Signals
 ) -> None:
     """``benchctl plan`` on a terminal, a real signal at its setup prompt: it ends within
     seconds (exit 2) with plan.json and the JUnit XML written, the stand never enabled."""
+    stand = tcp_stand
     stand.place(REST)
     enables = stand.enables
     bench = _bench(tmp_path, stand)

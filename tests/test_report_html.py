@@ -3,8 +3,8 @@ figures inline, no script, no external resource, printable on A4 — checked as 
 a real browser (the distribution's headless Chromium, installed by .ci/run): it loads without
 an error from the page, holds its figures, and prints to an A4 PDF.
 
-The runs are real sessions against the fake stand and instrument (tests/run_fakes.py): the
-report is the one the run itself wrote."""
+The runs are real sessions against the fake stand and instrument (tests/run_fakes.py), on
+simulated time: the report is the one the run itself wrote."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from browser import browser, page_errors, pdf_pages, pdf_text, print_pdf
 from run_fakes import FakeSensor, FakeStand, sine_motion
 
 from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import parse_config
 from benchctl.report.html import REPORT_HTML, build_context, render_html
 from benchctl.results.record import load_record
@@ -54,19 +55,24 @@ def _config(tmp: Path) -> Any:
     return parse_config(data, tmp / "bench.yaml")
 
 
-def _run(tmp: Path, stand: FakeStand, sensor: FakeSensor) -> RunResult:
-    # table mode: a streaming stand on a busy host holds and rejoins, and a window the
-    # departures spoil is not judged (INCONCLUSIVE); the passing run's report is the subject
-    prep = sine_motion(stand.axes, duration_s=6.0, mode="table", fade_s=0.5)
-    sess = Session(_config(tmp), prep, RunOptions(NASTY_SERIAL, NASTY_OPERATOR),
-                   device_factory=lambda c, p: (stand, sensor))
-    return sess.run()
+def _run(tmp: Path, fault_at: float | None = None, gain: float = 1.0) -> RunResult:
+    """A session on the fakes, on simulated time (a VirtualClock of its own: the runs are
+    module fixtures)."""
+    clock = VirtualClock()
+    with clock.running():
+        stand = FakeStand(clock=clock)
+        stand.fault_at = fault_at
+        sensor = FakeSensor(stand, gain=gain)
+        # table mode: the stand plays the table itself; the passing run's report is the subject
+        prep = sine_motion(stand.axes, duration_s=6.0, mode="table", fade_s=0.5)
+        sess = Session(_config(tmp), prep, RunOptions(NASTY_SERIAL, NASTY_OPERATOR),
+                       device_factory=lambda c, p: (stand, sensor), clock=clock)
+        return sess.run()
 
 
 @pytest.fixture(scope="module")
 def passed(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    stand = FakeStand()
-    res = _run(tmp_path_factory.mktemp("passed"), stand, FakeSensor(stand, gain=1.02))
+    res = _run(tmp_path_factory.mktemp("passed"), gain=1.02)
     assert res.state == "done" and res.reason == "PASS", res.reason
     assert res.recording is not None
     return res.recording
@@ -74,9 +80,7 @@ def passed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def aborted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    stand = FakeStand()
-    stand.fault_at = 1.0
-    res = _run(tmp_path_factory.mktemp("aborted"), stand, FakeSensor(stand))
+    res = _run(tmp_path_factory.mktemp("aborted"), fault_at=1.0)
     assert res.state == "aborted" and res.recording is not None
     return res.recording, res.reason
 

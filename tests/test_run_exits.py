@@ -1,7 +1,8 @@
 """Every way out of `benchctl`, the same path, the right exit code, and never a traceback.
 
-- SIGHUP, SIGQUIT, SIGTERM to a REAL `benchctl run` child mid-profile: exit 2, the recording
-  closed ``aborted`` with the reason, the stand ramped to zero and disabled, an archive line.
+- SIGHUP and SIGTERM to a REAL `benchctl run` child mid-profile: exit 2, the recording
+  closed ``aborted`` with the reason, the stand ramped to zero and disabled, an archive line;
+  each exit signal (SIGQUIT and SIGINT too) the run's own signal fault while it lasts.
 - a signal during startup (before the run's own handlers exist): exit 2, one line, no traceback.
 - a full disk: an injected ENOSPC (in-process) and a real EFBIG (RLIMIT_FSIZE on a child): the
   run ends ABORTED (exit 2) "recording: …", the stand ramped and disabled, end.json written.
@@ -22,6 +23,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,15 +32,18 @@ import yaml
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 from run_sim import ROOT, LiveBench, live_bench, motion_for, recording_in
 
+import benchctl.run
 from benchctl import exits
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import Interrupted, RecordingError, StandInUse
+from benchctl.jsonout import dumps
 from benchctl.recording import RecordingWriter, load_recording
+from benchctl.run import run_test
 from benchctl.run import session as session_mod
 from benchctl.run.lock import StandLock, endpoint_key, lock_file
 from benchctl.run.session import RunOptions, Session
-from benchctl.run.supervisor import shutdown
+from benchctl.run.supervisor import Supervisor, shutdown
 
 CI_SHORT = ROOT / "profiles/ci_short.yaml"
 # a child inherits an ignored SIGHUP (tests run under nohup), and then rightly keeps ignoring it
@@ -153,15 +158,36 @@ def _run_main(cfg: Path, *extra: str) -> int:
     )
 
 
-@pytest.mark.realtime  # real signals to a real child run
 # ------------------------------------------------------------------------------ signals
-@pytest.mark.slow
+@pytest.mark.realtime  # real signals to this process
 @pytest.mark.parametrize(
     "sig",
-    [pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGQUIT, signal.SIGTERM],
-    ids=["SIGHUP", "SIGQUIT", "SIGTERM"],
+    [signal.SIGINT, signal.SIGTERM, pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGQUIT],
+    ids=["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"],
 )
+def test_each_exit_signal_is_the_runs_signal_fault_while_it_lasts(sig: signal.Signals) -> None:
+    """While a run lasts (``Supervisor.signals``) each exit signal is the fault "signal:
+    interrupted by <name>" — the one path to the cleanup that a real child takes below for
+    SIGTERM and SIGHUP (and every way out takes on simulated time, tests/test_run_e2e.py);
+    the handler there before comes back after."""
+    assert sig in exits.EXIT_SIGNALS  # (else the signal below would end this process)
+    sup = Supervisor()
+    before = signal.getsignal(sig)
+    with sup.signals():
+        assert signal.getsignal(sig) is not before
+        os.kill(os.getpid(), sig)
+        _wait(lambda: sup.faulted, 10.0, "the handler")  # it runs in the main thread
+    assert sup.first is not None and sup.first.reason == f"signal: interrupted by {sig.name}"
+    assert sup.stop_event.is_set()
+    assert signal.getsignal(sig) is before
+
+
+@pytest.mark.realtime  # real signals to a real child run
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM], ids=["SIGTERM"])
 def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: signal.Signals) -> None:
+    """SIGTERM to a run against simulators this test reads (SIGHUP: the next test, with the
+    run's own simulators; each exit signal's handler: the test above)."""
     locks = tmp_path / "locks"
     with live_bench(tmp_path, run={"lock_dir": str(locks)}) as b:
         runs = tmp_path / "runs"
@@ -202,8 +228,9 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
 @pytest.mark.slow
 @NOHUP
 def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: Path) -> None:
-    """config/sim.yaml: the run starts its simulators once the recording exists; their output
-    goes to <recording>/sim.log (no pipe), and the child is gone when the run is."""
+    """SIGHUP mid-profile takes the one cleanup path (as SIGTERM above). config/sim.yaml: the
+    run starts its simulators once the recording exists; their output goes to
+    <recording>/sim.log (no pipe), and the child is gone when the run is."""
     cfg = _sim_cfg_file(tmp_path)
     runs = tmp_path / "runs"
     proc = _child(cfg, runs)
@@ -214,13 +241,23 @@ def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: P
     finally:
         _reap(proc)
     assert code == 2 and "interrupted by SIGHUP" in out, (out, err[-3000:])
-    assert "Traceback" not in err
+    assert "ABORTED: signal: interrupted by SIGHUP" in out, out
+    assert "Traceback" not in err and "Traceback" not in out, err[-3000:]
     rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
-    assert r.state == "aborted"
-    steps = _steps(r.end)  # type: ignore[arg-type]
-    assert steps["ramp to zero"] and steps["disable"]
+    assert r.state == "aborted" and r.end is not None
+    assert r.end["reason"] == "signal: interrupted by SIGHUP"
+    steps = _steps(r.end)
+    for step in ("stop loops", "ramp to zero", "disable", "stop instrument", "record shutdown"):
+        assert steps[step], (step, r.end["shutdown"])
+    assert [e["to"] for e in r.events if e["kind"] == "state"][-1] == "aborted"
+    assert abs(r.streams["stand"]["roll_deg"][-1]) <= 0.05  # its final state read: at zero
+    (line,) = _archive(runs)
+    assert line["verdict"] == "ABORTED" and "SIGHUP" in line["reason"]
+    assert line["recording"] == str(rec)
+    assert "interrupted by SIGHUP" in (rec / "benchctl.log").read_text()
+    assert f"  log {rec / 'benchctl.log'}" in out
     # the config recorded is the live one: the simulators' private port
     assert r.meta["config"]["stand"]["port"] != 5020
     sim_log = (rec / "sim.log").read_text()
@@ -601,30 +638,43 @@ def test_benchctl_sim_refuses_an_endpoint_a_run_holds(
     assert "serial RUN-1" in err and "operator busy" in err
 
 
-@pytest.mark.realtime  # two real child runs
 @pytest.mark.slow
-def test_second_real_run_refused_while_the_first_one_finishes_untouched(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_second_run_refused_while_the_first_one_finishes_untouched(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+    vclock: VirtualClock,
 ) -> None:
     """The issue's case: a second run against a stand in use used to connect, and its cleanup
-    disabled the stand under the first run. Now it is refused before connecting."""
-    # buffered, as the default bench: this real-time child shares a loaded machine, and a
-    # streaming stand held up by it departs from the profile (σ then INCONCLUSIVE, exit 3)
+    disabled the stand under the first run. Now it is refused before connecting. On simulated
+    time: the first run in a thread of the clock, the second through the CLI in this thread
+    once the first has moved for 1 s (the lock across two processes:
+    ``test_a_second_run_is_refused_naming_the_holder_until_it_dies``)."""
     with live_bench(tmp_path, run={"lock_dir": str(tmp_path / "locks")},
-                    stand={"mode": "buffered"}) as b:
+                    stand={"mode": "buffered"}, clock=vclock) as b:
         runs = tmp_path / "runs"
-        first = _child(b.config_path, runs, "--json", serial="FIRST-1")
+        first: dict[str, Any] = {}
+
+        def run_first() -> None:
+            first["res"] = run_test(
+                b.cfg, CI_SHORT, RunOptions("FIRST-1", "ci", duration_s=float(DURATION)),
+                clock=vclock,
+            )
+
+        t = vclock.thread(run_first, name="first-run")
+        t.start()
         try:
-            _wait(motion_for(runs, 1.0), 60.0, "the first run's motion")
+            while not motion_for(runs, 1.0, vclock)():
+                assert t.is_alive(), "the first run ended before its motion"
+                vclock.sleep(0.05)
+            monkeypatch.setattr(benchctl.run, "run_test", partial(run_test, clock=vclock))
             assert _run_main(b.config_path) == 2
             err = capsys.readouterr().err
-            assert f"is in use by benchctl run (pid {first.pid}" in err, err
+            assert f"is in use by benchctl run (pid {os.getpid()}" in err, err
             assert "serial FIRST-1" in err and "operator ci" in err
-            code, out, ferr = _finish(first)
         finally:
-            _reap(first)
-        assert code == 0, ferr[-3000:]
-        rep = json.loads(out)
+            t.join()
+        res = first["res"]
+        assert res.exit_code == 0, res.reason
+        rep = json.loads(dumps(res.to_dict()))
         assert rep["verdict"] == "PASS" and rep["state"] == "done"
     assert len(list(runs.glob("*/meta.json"))) == 1  # the second run made no recording
 

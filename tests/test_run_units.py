@@ -13,6 +13,7 @@ import pytest
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion, wait_for
 
 from benchctl.analysis.departures import departures_of
+from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import ConnectionLost, SafetyAbort
 from benchctl.recording import RecordingWriter, load_recording
@@ -209,30 +210,36 @@ def test_writer_setpoint_slot_column_and_meta_update(tmp_path: Path) -> None:
 
 
 def _loop(tmp_path: Path, stand: FakeStand, sensor: FakeSensor, duration: float = 1.0):
+    """The stand loop and what it writes to, on the fake stand's clock (the tests': simulated
+    time, the ``vclock`` fixture)."""
+    clock = stand.clock
     w = RecordingWriter(tmp_path / "rec", stand.axes, {})
-    sup = Supervisor()
-    rec = Recorder(w, sup, stand.axes)
+    sup = Supervisor(clock=clock)
+    rec = Recorder(w, sup, stand.axes, clock=clock)
     rec.attach(stand)
-    sm = StateMachine()
+    sm = StateMachine(clock)
     sm.to(RunState.PRECHECKS)
     prep = sine_motion(stand.axes, duration_s=duration, fade_s=0.25)
     lim = LoopLimits(20.0, 0.5, 1.0, 0.5, 0.1, 100.0, 0.05, rate_deg_s=50.0, accel_deg_s2=1000.0)
-    loop = StandLoop(SerializedStand(stand).as_stand(), rec, sup, sm, prep.plan, lim)
+    loop = StandLoop(SerializedStand(stand, clock=clock).as_stand(), rec, sup, sm, prep.plan, lim,
+                     clock=clock)
     return w, sup, rec, sm, loop
 
 
-def test_stream_loop_rejoins_after_a_stall_without_a_jump(tmp_path: Path) -> None:
+def test_stream_loop_rejoins_after_a_stall_without_a_jump(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
     """A 0.2 s stall at 100 Hz: ~19 slots are missed and counted (never sent late in a burst);
     the stand held its last setpoint, so the loop rejoins the profile from there along a path
     within the limits (an event in the recording), then sends the profile's own slots again."""
-    stand = FakeStand()
+    stand = FakeStand(clock=vclock)
     stand.stall_at, stand.stall_s = 0.3, 0.2
     sensor = FakeSensor(stand)
     w, sup, rec, sm, loop = _loop(tmp_path, stand, sensor)
     start_instrument(sensor, rec)
     loop.start()
     loop.begin_motion()
-    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0)
+    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0, vclock)
     loop.stop()
     sensor.stop()
     w.close("done")
@@ -273,8 +280,8 @@ def test_stream_loop_rejoins_after_a_stall_without_a_jump(tmp_path: Path) -> Non
     assert dep.end_s == pytest.approx(dep.back_s + 0.5)
 
 
-def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_table_loop_plays_and_polls(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
     loop.plan.mode = "table"
@@ -283,7 +290,7 @@ def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
     start_instrument(sensor, rec)
     loop.start()
     loop.begin_motion()
-    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0)
+    assert wait_for(lambda: loop.motion_done.is_set() or sup.faulted, 10.0, vclock)
     loop.stop()
     sensor.stop()
     w.close("done")
@@ -297,15 +304,15 @@ def test_table_loop_plays_and_polls(tmp_path: Path) -> None:
     assert np.max(np.abs(st["roll_deg"][inside] - expect)) < 0.05  # sampled vs stamped instants
 
 
-def test_loop_fault_reaches_the_supervisor_at_once(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_loop_fault_reaches_the_supervisor_at_once(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     stand.fault_at = 0.2
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
     start_instrument(sensor, rec)
     loop.start()
     loop.begin_motion()
-    assert wait_for(lambda: sup.faulted, 5.0)
+    assert wait_for(lambda: sup.faulted, 5.0, vclock)
     t_fault = sup.first.t_host  # type: ignore[union-attr]
     assert t_fault - stand.t_motion < 0.2 + 0.5  # type: ignore[operator]
     loop.stop()

@@ -9,7 +9,9 @@
   answered (sending a reply empties its buffer).
 
 The hold-up is made by holding the simulator's state lock (its physics thread and its request
-handling both wait on it), then advancing its physics as its physics thread does on waking.
+handling both wait on it), then advancing its physics as its physics thread does on waking —
+on simulated time (the stand over an in-process link); several requests in one read of a real
+socket on the host's time (``realtime``).
 """
 
 from __future__ import annotations
@@ -19,60 +21,50 @@ import struct
 import time
 
 import pytest
-from test_stand_sim import LIMITS, MAP, connect
+from test_stand_sim import LIMITS, MAP, simulated
 
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig
 from benchctl.devices.modbus.regmap import load_register_map, pdu_address
 from benchctl.sim.stand import SIM_HOLDUP_S, SimStand
 
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
-
 WATCHDOG_S = 0.6
 
 
-def test_the_watchdog_does_not_count_the_simulators_own_hold_up() -> None:
-    with SimStand(SimStandConfig(watchdog_s=WATCHDOG_S), limits=LIMITS, register_map=MAP) as sim:
-        stand = connect(sim)
-        try:
-            stand.enable()
-            stand.heartbeat()
-            with sim._lock:  # the simulator held up for twice its watchdog, heartbeats waiting
-                time.sleep(2 * WATCHDOG_S)
-                sim._advance(time.monotonic())  # as its physics thread, first on waking
-                assert sim._fault_code == 0, "the simulator's own hold-up counted as silence"
-            stand.heartbeat()
-            assert not stand.read_status().fault
-            # the host's own silence still trips it, in its time
-            t_last = time.monotonic()
-            while not stand.read_status().fault:
-                assert time.monotonic() - t_last < WATCHDOG_S + 2.0, "the watchdog never fired"
-                time.sleep(0.02)
-            assert time.monotonic() - t_last >= WATCHDOG_S - 0.05
-        finally:
-            stand.close()
+def test_the_watchdog_does_not_count_the_simulators_own_hold_up(vclock: VirtualClock) -> None:
+    with simulated(SimStandConfig(watchdog_s=WATCHDOG_S), "tcp", vclock) as (sim, stand):
+        stand.enable()
+        stand.heartbeat()
+        with sim._lock:  # the simulator held up for twice its watchdog, heartbeats waiting
+            vclock.sleep(2 * WATCHDOG_S)
+            sim._advance(vclock.monotonic())  # as its physics thread, first on waking
+            assert sim._fault_code == 0, "the simulator's own hold-up counted as silence"
+        stand.heartbeat()
+        assert not stand.read_status().fault
+        # the host's own silence still trips it, in its time
+        t_last = vclock.monotonic()
+        while not stand.read_status().fault:
+            assert vclock.monotonic() - t_last < WATCHDOG_S + 2.0, "the watchdog never fired"
+            vclock.sleep(0.02)
+        assert vclock.monotonic() - t_last >= WATCHDOG_S - 0.05
 
 
-def test_repeated_hold_ups_do_not_hide_a_silent_host() -> None:
+def test_repeated_hold_ups_do_not_hide_a_silent_host(vclock: VirtualClock) -> None:
     """Only the time the simulator was held up is discounted, not the silence around it."""
-    with SimStand(SimStandConfig(watchdog_s=WATCHDOG_S), limits=LIMITS, register_map=MAP) as sim:
-        stand = connect(sim)
-        try:
-            stand.enable()
-            stand.heartbeat()
-            t_last = time.monotonic()
-            held = 0.0
-            while not stand.read_status().fault:
-                assert time.monotonic() - t_last < 5 * WATCHDOG_S, "a silent host hidden"
-                with sim._lock:
-                    time.sleep(1.5 * SIM_HOLDUP_S)
-                    sim._advance(time.monotonic())
-                held += 1.5 * SIM_HOLDUP_S
-                time.sleep(0.1)
-            silent = time.monotonic() - t_last
-            assert silent - held >= WATCHDOG_S - 0.1  # the host's silence, not less
-        finally:
-            stand.close()
+    with simulated(SimStandConfig(watchdog_s=WATCHDOG_S), "tcp", vclock) as (sim, stand):
+        stand.enable()
+        stand.heartbeat()
+        t_last = vclock.monotonic()
+        held = 0.0
+        while not stand.read_status().fault:
+            assert vclock.monotonic() - t_last < 5 * WATCHDOG_S, "a silent host hidden"
+            with sim._lock:
+                vclock.sleep(1.5 * SIM_HOLDUP_S)
+                sim._advance(vclock.monotonic())
+            held += 1.5 * SIM_HOLDUP_S
+            vclock.sleep(0.1)
+        silent = vclock.monotonic() - t_last
+        assert silent - held >= WATCHDOG_S - 0.1  # the host's silence, not less
 
 
 def _mbap(tid: int, pdu: bytes) -> bytes:
@@ -99,6 +91,7 @@ def _replies(c: socket.socket, n: int, timeout_s: float = 5.0) -> list[tuple[int
     return out
 
 
+@pytest.mark.realtime  # several requests in one read of a real socket
 def test_every_request_of_one_read_is_answered_in_order() -> None:
     m = load_register_map(MAP)
     table = pdu_address(m.axes["roll"].table_address)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,8 @@ from run_sim import ROOT
 
 from benchctl.analysis import analyze
 from benchctl.analysis.timebase import stand_clock
+from benchctl.channels import free_name, register, unregister
+from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandConfig, StandLimits
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.devices.modbus.regmap import load_register_map, parse_register_map
@@ -35,9 +36,6 @@ from benchctl.devices.modbus.stand import open_stand
 from benchctl.errors import ConfigError
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.sim.stand import SimStand
-
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
 
 MAP = ROOT / "drivers/stand_generic.yaml"
 WRAP = 0.65536
@@ -102,18 +100,33 @@ def test_register_map_sample_time() -> None:
     assert m2.sample_time is None and math.isnan(m2.sample_time_wrap_s)
 
 
-@pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_simulated_stand_latches_its_clock_inside_each_window(transport: str) -> None:
+@pytest.mark.parametrize(
+    "transport",
+    # TCP over a real socket, timed on the host's clock (run alone); RTU on simulated time over
+    # an in-process line, its frames taking their bytes' time on the wire
+    [pytest.param("tcp", marks=pytest.mark.realtime), "rtu"],
+)
+def test_simulated_stand_latches_its_clock_inside_each_window(
+    transport: str, request: pytest.FixtureRequest
+) -> None:
+    clock: Clock = REAL if transport == "tcp" else request.getfixturevalue("vclock")
     limits = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
     with SimStand(SimStandConfig(watchdog_s=3.0), limits=limits, register_map=MAP,
-                  transport=transport) as sim:
+                  transport="channel" if clock.virtual else transport,
+                  framing=transport,  # type: ignore[arg-type]
+                  clock=clock) as sim:
         common = {"limits": limits, "register_map": MAP, "timeout_s": 2.0, "retries": 0}
-        if transport == "tcp":
+        url = None
+        if sim.client_endpoint is not None:
+            url = register(free_name("sim-stand"), sim.client_endpoint)
+            cfg = StandConfig.model_validate(
+                {"driver": "modbus-rtu", "serial_port": url, **common})
+        elif transport == "tcp":
             cfg = StandConfig.model_validate({"driver": "modbus-tcp", "port": sim.port, **common})
         else:
             cfg = StandConfig.model_validate(
                 {"driver": "modbus-rtu", "serial_port": sim.serial_port, **common})
-        stand = open_stand(cfg)
+        stand = open_stand(cfg, clock=clock)
         ident = stand.connect()
         try:
             assert float(ident.extra["sample_time_wrap_s"]) == pytest.approx(WRAP)
@@ -122,9 +135,11 @@ def test_simulated_stand_latches_its_clock_inside_each_window(transport: str) ->
                 s = stand.read_sample()
                 assert s.t_stand is not None and s.t_window is not None
                 rows.append((s.t_window[0], s.t_window[1], s.t_stand, s.rtt_s))
-                time.sleep(0.005)
+                clock.sleep(0.005)
         finally:
             stand.close()
+            if url is not None:
+                unregister(url)
     r = np.array(rows)
     # the simulator's clock counts from its start on this host's monotonic clock
     base = sim._t0

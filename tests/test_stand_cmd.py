@@ -29,6 +29,8 @@ import yaml
 from terminal import on_terminal
 
 from benchctl.cli import main
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, SimStandConfig, StandLimits, load_config
 from benchctl.devices.modbus.regmap import pdu_address
 from benchctl.devices.modbus.stand import open_stand
@@ -41,19 +43,19 @@ LIMITS = {"angle_deg": 30.0, "rate_deg_s": 30.0, "accel_deg_s2": 60.0}
 AT_DEG = 4.0
 
 
-def _wait(cond: Callable[[], bool], seconds: float, what: str) -> None:
-    deadline = time.monotonic() + seconds
+def _wait(cond: Callable[[], bool], seconds: float, what: str, clock: Clock = REAL) -> None:
+    deadline = clock.monotonic() + seconds
     while not cond():
-        if time.monotonic() > deadline:
+        if clock.monotonic() > deadline:
             raise AssertionError(f"not within {seconds} s: {what}")
-        time.sleep(0.05)
+        clock.sleep(0.05)
 
 
-def latch_watchdog_at(cfg: BenchConfig, roll_deg: float) -> None:
+def latch_watchdog_at(cfg: BenchConfig, roll_deg: float, clock: Clock = REAL) -> None:
     """Drive the stand to ``roll_deg`` (a raw command: the simulated servo moves within its own
     physics) while heartbeating, then stop heartbeating as a killed host would: the watchdog
     latches its fault and the stand brakes where it is."""
-    drv = open_stand(cfg.stand)
+    drv = open_stand(cfg.stand, clock=clock)
     drv.connect()
     try:
         drv.enable()
@@ -65,9 +67,9 @@ def latch_watchdog_at(cfg: BenchConfig, roll_deg: float) -> None:
             s = drv.read_state()
             return abs(s.angle_deg["roll"] - roll_deg) < 0.01 and not s.status.moving
 
-        _wait(there, 60, f"the stand at roll {roll_deg}°")
+        _wait(there, 60, f"the stand at roll {roll_deg}°", clock)
         # the heartbeat stops here
-        _wait(lambda: drv.read_state().status.fault_code == 2, 60, "the watchdog's fault")
+        _wait(lambda: drv.read_state().status.fault_code == 2, 60, "the watchdog's fault", clock)
     finally:
         drv.close()
 
@@ -278,16 +280,18 @@ def test_home_asks_on_the_terminal_and_a_no_moves_nothing(
 
 
 def test_a_run_refused_by_a_latched_fault_names_the_command_that_clears_it(
-    tmp_path: Path,
+    tmp_path: Path, vclock: VirtualClock
 ) -> None:
+    """On simulated time (the simulators over in-process links)."""
     from run_sim import live_bench
 
     from benchctl.run import RunOptions, run_test
 
-    with live_bench(tmp_path, sim_stand={"watchdog_s": 0.5}) as b:
-        latch_watchdog_at(b.cfg, AT_DEG)
+    with live_bench(tmp_path, sim_stand={"watchdog_s": 0.5}, clock=vclock) as b:
+        latch_watchdog_at(b.cfg, AT_DEG, vclock)
         res = run_test(b.cfg, ROOT / "profiles/ci_short.yaml",
-                       RunOptions(serial="SN1", operator="t", out_dir=tmp_path / "runs"))
+                       RunOptions(serial="SN1", operator="t", out_dir=tmp_path / "runs"),
+                       clock=vclock)
         enables = b.stand.enables
     assert res.state == "aborted" and res.exit_code == 2
     assert "precheck 'stand ready and at rest' failed: fault code 2" in res.reason

@@ -27,7 +27,9 @@ from typing import Any, cast
 import pytest
 from wire import rtu
 
-from benchctl.clock import RealClock
+from benchctl.channels import Endpoint, free_name, register, unregister
+from benchctl.clock import REAL, Clock, RealClock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
@@ -36,8 +38,9 @@ from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, ModbusException, StandFault
 from benchctl.sim.stand import SimStand
 
-# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
+# real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier); the
+# RTU silences (another unit id, a broadcast) on simulated time over an in-process line
+REALTIME = pytest.mark.realtime
 
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
@@ -82,6 +85,15 @@ def tcp_sim() -> Iterator[SimStand]:
 @pytest.fixture(scope="module")
 def rtu_sim() -> Iterator[SimStand]:
     with SimStand(SimStandConfig(), limits=LIMITS, register_map=MAP, transport="rtu") as sim:
+        yield sim
+
+
+@pytest.fixture
+def rtu_line_sim(vclock: VirtualClock) -> Iterator[SimStand]:
+    """The stand on an RTU line of its own on simulated time (an in-process link): what must
+    not be answered is listened for SILENCE_S at no cost."""
+    with SimStand(SimStandConfig(), limits=LIMITS, register_map=MAP, transport="channel",
+                  framing="rtu", clock=vclock) as sim:
         yield sim
 
 
@@ -160,12 +172,14 @@ TCP_CASES = {
 }
 
 
+@REALTIME
 @pytest.mark.parametrize(("request_pdu", "reply_pdu"), TCP_CASES.values(), ids=TCP_CASES.keys())
 def test_tcp_reply_bytes(tcp_sim: SimStand, request_pdu: str, reply_pdu: str) -> None:
     got = tcp_exchange(tcp_sim, mbap(H(request_pdu)))
     assert got.hex(" ") == mbap(H(reply_pdu)).hex(" ")
 
 
+@REALTIME
 @pytest.mark.parametrize(
     ("unit", "request_pdu", "reply_pdu"),
     [
@@ -184,6 +198,7 @@ def test_tcp_other_unit_id_is_gateway_target_failed_to_respond(
     assert tcp_exchange(tcp_sim, mbap(HB_ECHO_READ)) == before  # not acted on
 
 
+@REALTIME
 def test_tcp_fc23_with_a_read_beyond_the_map_writes_nothing(tcp_sim: SimStand) -> None:
     """Both spans are checked before anything is written (pymodbus alone writes, then refuses)."""
     before = tcp_exchange(tcp_sim, mbap(HB_ECHO_READ))
@@ -192,6 +207,7 @@ def test_tcp_fc23_with_a_read_beyond_the_map_writes_nothing(tcp_sim: SimStand) -
     assert tcp_exchange(tcp_sim, mbap(HB_ECHO_READ)) == before
 
 
+@REALTIME
 def test_tcp_fc23_refused_when_the_map_has_no_read_write_multiple(tmp_path: Path) -> None:
     rmap = tmp_path / "no_fc23.yaml"
     text = MAP.read_text()
@@ -203,6 +219,7 @@ def test_tcp_fc23_refused_when_the_map_has_no_read_write_multiple(tmp_path: Path
         assert tcp_exchange(sim, mbap(IDENTITY_READ)) == mbap(IDENTITY_REPLY)
 
 
+@REALTIME
 def test_tcp_requests_on_one_connection_after_refusals(tcp_sim: SimStand) -> None:
     """A refused request leaves the connection usable (pipelined on one socket, tids kept)."""
     with socket.create_connection(("127.0.0.1", tcp_sim.port), timeout=REPLY_S) as sock:
@@ -218,38 +235,68 @@ def test_tcp_requests_on_one_connection_after_refusals(tcp_sim: SimStand) -> Non
 
 
 # -- Modbus RTU over the pty ------------------------------------------------------------------
+class Line:
+    """The master's end of the stand's serial line: its pty (a file descriptor, the host's
+    time) or, on simulated time, the host end of its in-process link."""
+
+    def __init__(self, fd: int | None = None, endpoint: Endpoint | None = None) -> None:
+        self.fd, self.endpoint = fd, endpoint
+        self.clock: Clock = endpoint.clock if endpoint is not None else REAL
+
+    def write(self, data: bytes) -> None:
+        if self.endpoint is not None:
+            self.endpoint.write(data)
+        else:
+            assert self.fd is not None
+            os.write(self.fd, data)
+
+    def read_some(self, within_s: float) -> bytes:
+        """What has come, waiting up to ``within_s`` for a first byte (b"": nothing)."""
+        if self.endpoint is not None:
+            return self.endpoint.read(512, within_s)
+        assert self.fd is not None
+        if not select.select([self.fd], [], [], within_s)[0]:
+            return b""
+        return os.read(self.fd, 512)
+
+
 @contextlib.contextmanager
-def rtu_port(sim: SimStand) -> Iterator[int]:
+def rtu_port(sim: SimStand) -> Iterator[Line]:
+    if sim.client_endpoint is not None:  # an in-process link (simulated time)
+        yield Line(endpoint=sim.client_endpoint)
+        return
     assert sim.serial_port is not None
     fd = os.open(sim.serial_port, os.O_RDWR | os.O_NOCTTY)
     try:
         tty.setraw(fd)
-        yield fd
+        yield Line(fd=fd)
     finally:
         os.close(fd)
 
 
-def rtu_read(fd: int, n: int, within_s: float) -> bytes:
+def rtu_read(line: Line, n: int, within_s: float) -> bytes:
     """Bytes received within ``within_s`` (returns early once ``n`` have come)."""
     buf = b""
-    deadline = time.monotonic() + within_s
+    clock = line.clock
+    deadline = clock.monotonic() + within_s
     while len(buf) < n:
-        left = deadline - time.monotonic()
-        if left <= 0 or not select.select([fd], [], [], left)[0]:
+        left = deadline - clock.monotonic()
+        got = line.read_some(left) if left > 0 else b""
+        if not got:
             break
-        buf += os.read(fd, 512)
+        buf += got
     return buf
 
 
-def rtu_exchange(fd: int, frame: bytes, reply_len: int) -> bytes:
-    os.write(fd, frame)
-    return rtu_read(fd, reply_len, REPLY_S)
+def rtu_exchange(line: Line, frame: bytes, reply_len: int) -> bytes:
+    line.write(frame)
+    return rtu_read(line, reply_len, REPLY_S)
 
 
-def rtu_silent(fd: int, frame: bytes) -> bytes:
+def rtu_silent(line: Line, frame: bytes) -> bytes:
     """Send a frame and return whatever comes back within SILENCE_S (expected: nothing)."""
-    os.write(fd, frame)
-    return rtu_read(fd, 1, SILENCE_S)
+    line.write(frame)
+    return rtu_read(line, 1, SILENCE_S)
 
 
 RTU_CASES = {
@@ -265,6 +312,7 @@ RTU_CASES = {
 }
 
 
+@REALTIME
 @pytest.mark.parametrize(("request_pdu", "reply_pdu"), RTU_CASES.values(), ids=RTU_CASES.keys())
 def test_rtu_reply_bytes(rtu_sim: SimStand, request_pdu: str, reply_pdu: str) -> None:
     want = rtu(H(reply_pdu))
@@ -275,8 +323,8 @@ def test_rtu_reply_bytes(rtu_sim: SimStand, request_pdu: str, reply_pdu: str) ->
 
 
 @pytest.mark.parametrize("unit", [2, 247, 255])
-def test_rtu_other_unit_id_is_silence(rtu_sim: SimStand, unit: int) -> None:
-    with rtu_port(rtu_sim) as fd:
+def test_rtu_other_unit_id_is_silence(rtu_line_sim: SimStand, unit: int) -> None:
+    with rtu_port(rtu_line_sim) as fd:
         before = rtu_exchange(fd, rtu(HB_ECHO_READ), 7)
         assert rtu_silent(fd, rtu(IDENTITY_READ, unit=unit)) == b""
         assert rtu_silent(fd, rtu(H("06 0065 4321"), unit=unit)) == b""
@@ -285,8 +333,8 @@ def test_rtu_other_unit_id_is_silence(rtu_sim: SimStand, unit: int) -> None:
         assert rtu_exchange(fd, rtu(HB_ECHO_READ), 7) == before
 
 
-def test_rtu_broadcast_write_is_acted_on_and_not_answered(rtu_sim: SimStand) -> None:
-    with rtu_port(rtu_sim) as fd:
+def test_rtu_broadcast_write_is_acted_on_and_not_answered(rtu_line_sim: SimStand) -> None:
+    with rtu_port(rtu_line_sim) as fd:
         assert rtu_silent(fd, rtu(H("06 0065 2468"), unit=0)) == b""  # heartbeat 0x2468
         assert rtu_silent(fd, rtu(IDENTITY_READ, unit=0)) == b""  # a broadcast read: ignored
         want = rtu(H("03 02 2468"))
@@ -295,7 +343,10 @@ def test_rtu_broadcast_write_is_acted_on_and_not_answered(rtu_sim: SimStand) -> 
 
 # -- the driver's view: ModbusLink errors -----------------------------------------------------
 def link_to(sim: SimStand, device_id: int = 1) -> ModbusLink:
-    if sim.transport == "tcp":
+    if sim.client_endpoint is not None:  # an in-process RTU line (simulated time)
+        url = register(free_name("sim-stand"), sim.client_endpoint)
+        link = rtu_link(url, device_id=device_id, timeout_s=REPLY_S, retries=0, clock=sim.clock)
+    elif sim.transport == "tcp":
         link = tcp_link("127.0.0.1", sim.port, device_id=device_id, timeout_s=REPLY_S, retries=0)
     else:
         assert sim.serial_port is not None
@@ -304,6 +355,7 @@ def link_to(sim: SimStand, device_id: int = 1) -> ModbusLink:
     return link
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_link_raises_modbus_exception_with_function_and_exception_code(
     request: pytest.FixtureRequest, transport: str
@@ -326,6 +378,7 @@ def test_link_raises_modbus_exception_with_function_and_exception_code(
         link.close()
 
 
+@REALTIME
 def test_link_to_another_unit_tcp_is_exception_0x0b(tcp_sim: SimStand) -> None:
     link = link_to(tcp_sim, device_id=2)
     try:
@@ -338,14 +391,15 @@ def test_link_to_another_unit_tcp_is_exception_0x0b(tcp_sim: SimStand) -> None:
 
 
 def test_link_to_another_unit_rtu_times_out(
-    rtu_sim: SimStand, caplog: pytest.LogCaptureFixture
+    rtu_line_sim: SimStand, caplog: pytest.LogCaptureFixture
 ) -> None:
-    link = link_to(rtu_sim, device_id=2)
+    link = link_to(rtu_line_sim, device_id=2)
     try:
         with pytest.raises(DeviceTimeout):
             link.read_registers(0, 2)
     finally:
         link.close()
+        unregister(link.endpoint.split()[1].rsplit("@", 1)[0])
     caplog.clear()  # the pymodbus *client* logs its own "no response" error; that is expected
 
 

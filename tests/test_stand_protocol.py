@@ -5,6 +5,10 @@ pairs (bytes the driver must send, bytes answered). A test fails on a wrong requ
 unused, and on any byte the driver sends beyond the script (read until the driver closes).
 The frames are written out by hand from the Modbus specification and the register map
 (``drivers/stand_generic.yaml``); RTU CRCs come from a bitwise CRC-16/MODBUS written here.
+
+Over the real socket and pty on the host's time (``realtime``); the replies a driver must wait
+out (a bad CRC, a truncated frame) on simulated time, the peer on an in-process link
+(``simchan://``, the ``vclock`` fixture), where the driver's reply timeout costs nothing.
 """
 
 from __future__ import annotations
@@ -13,7 +17,6 @@ import contextlib
 import os
 import select
 import socket
-import threading
 import time
 import tty
 from collections.abc import Iterator, Sequence
@@ -22,6 +25,10 @@ from pathlib import Path
 import pytest
 from wire import rtu
 
+from benchctl.channels import free_name, register, unregister
+from benchctl.channels import link as channel_link
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
 from benchctl.devices.modbus.regmap import load_register_map
@@ -29,7 +36,7 @@ from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, LimitError, ModbusException, ProtocolError, StandFault
 
 # real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
-pytestmark = pytest.mark.realtime
+REALTIME = pytest.mark.realtime
 
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 H = bytes.fromhex
@@ -68,12 +75,13 @@ def test_crc_helper_matches_the_specification_example() -> None:
 class ScriptedPeer:
     """The device end of a link, playing ordered (expected request, reply or None) pairs."""
 
-    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]]) -> None:
+    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]], clock: Clock = REAL) -> None:
         self.pairs = pairs
+        self.clock = clock
         self.used = 0
         self.errors: list[str] = []
         self.leftover = b""
-        self._thread = threading.Thread(target=self._run, name="scripted-peer")
+        self._thread = clock.thread(self._run, name="scripted-peer")
 
     # transport hooks ---------------------------------------------------------------------
     def _recv(self, n: int, deadline: float) -> bytes:
@@ -88,7 +96,7 @@ class ScriptedPeer:
     def _run(self) -> None:
         try:
             for req, reply in self.pairs:
-                got = self._recv(len(req), time.monotonic() + 5.0)
+                got = self._recv(len(req), self.clock.monotonic() + 5.0)
                 if got != req:
                     self.errors.append(
                         f"pair {self.used}: expected {req.hex(' ')}, got {got.hex(' ')}"
@@ -97,7 +105,8 @@ class ScriptedPeer:
                 self.used += 1
                 if reply:
                     self._send(reply)
-            self.leftover = self._recv(1 << 16, time.monotonic() + 5.0)  # until the driver closes
+            # until the driver closes
+            self.leftover = self._recv(1 << 16, self.clock.monotonic() + 5.0)
         finally:
             self._close()
 
@@ -183,17 +192,55 @@ class PtyPeer(ScriptedPeer):
             os.close(self._slave)
 
 
+class ChannelPeer(ScriptedPeer):
+    """The device end of an in-process link (simulated time): the driver opens ``url``."""
+
+    def __init__(self, pairs: Sequence[tuple[bytes, bytes | None]], clock: Clock,
+                 byte_time_s: float) -> None:
+        super().__init__(pairs, clock)
+        host, self._ep = channel_link(clock, "scripted-peer", byte_time_s=byte_time_s)
+        self.url = register(free_name("scripted-peer"), host)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _recv(self, n: int, deadline: float) -> bytes:
+        buf = b""
+        while len(buf) < n:
+            left = deadline - self.clock.monotonic()
+            chunk = self._ep.read(n - len(buf), left) if left > 0 else b""
+            if not chunk:  # the deadline, or the driver closed the link
+                break
+            buf += chunk
+        return buf
+
+    def _send(self, data: bytes) -> None:
+        self._ep.write(data)
+
+    def _close(self) -> None:
+        self._ep.close()
+        unregister(self.url)
+
+
 @contextlib.contextmanager
 def expected_protocol(
     transport: str,
     pairs: Sequence[tuple[bytes, bytes | None]],
     timeout_s: float = 2.0,  # generous: a loaded machine
     register_map: Path = MAP,
+    clock: Clock = REAL,
 ) -> Iterator[ModbusStand]:
-    """A ``ModbusStand`` wired to a scripted peer; checks the script when the block ends."""
-    peer: TcpPeer | PtyPeer
+    """A ``ModbusStand`` wired to a scripted peer; checks the script when the block ends. On a
+    virtual ``clock`` the peer is on an in-process link, else a socket (tcp) or a pty (rtu)."""
+    peer: TcpPeer | PtyPeer | ChannelPeer
     link: ModbusLink
-    if transport == "tcp":
+    if clock.virtual:
+        peer = ChannelPeer(pairs, clock, 0.0 if transport == "tcp" else 10 / 115200)
+        if transport == "tcp":
+            link = tcp_link(peer.url, 502, timeout_s=timeout_s, retries=0, clock=clock)
+        else:
+            link = rtu_link(peer.url, timeout_s=timeout_s, retries=0, clock=clock)
+    elif transport == "tcp":
         peer = TcpPeer(pairs)
         link = tcp_link("127.0.0.1", peer.port, timeout_s=timeout_s, retries=0)
     else:
@@ -204,6 +251,7 @@ def expected_protocol(
         load_register_map(register_map),
         limits=StandLimitsView(30.0, 20.0, 100.0),
         setpoint_period_s=0.01,
+        clock=clock,
     )
     link.connect()
     peer.start()
@@ -218,6 +266,7 @@ def frame(transport: str, tid: int, pdu: bytes) -> bytes:
     return mbap(tid, pdu) if transport == "tcp" else rtu(pdu)
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_read_sample_decodes_the_feedback_block(transport: str) -> None:
     pairs = [(frame(transport, 1, READ_PDU), frame(transport, 1, READ_REPLY_PDU))]
@@ -230,6 +279,7 @@ def test_read_sample_decodes_the_feedback_block(transport: str) -> None:
     assert s.rtt_s > 0
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_setpoint_is_one_fc16_write_after_reading_the_state(transport: str) -> None:
     pairs = [
@@ -242,6 +292,7 @@ def test_setpoint_is_one_fc16_write_after_reading_the_state(transport: str) -> N
         stand.heartbeat()
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_limit_breach_writes_nothing(transport: str) -> None:
     pairs = [(frame(transport, 1, READ_PDU), frame(transport, 1, READ_REPLY_PDU))]
@@ -252,6 +303,7 @@ def test_limit_breach_writes_nothing(transport: str) -> None:
             stand.send_setpoint({"roll": 2.0})  # 0.5° in one 10 ms period: 50°/s > 20°/s
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_exception_reply_raises_modbus_exception(transport: str) -> None:
     pairs = [
@@ -263,6 +315,7 @@ def test_exception_reply_raises_modbus_exception(transport: str) -> None:
     assert (err.value.function_code, err.value.exception_code) == (16, 6)
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_device_fault_raises_stand_fault_with_code(transport: str) -> None:
     pairs = [(frame(transport, 1, READ_PDU), frame(transport, 1, H("03 34") + FAULTED))]
@@ -271,36 +324,44 @@ def test_device_fault_raises_stand_fault_with_code(transport: str) -> None:
     assert err.value.code == 10
 
 
-def test_rtu_bad_crc_is_a_protocol_error() -> None:
+def test_rtu_bad_crc_is_a_protocol_error(vclock: VirtualClock) -> None:
     good = rtu(READ_REPLY_PDU)
     bad = good[:-2] + bytes([good[-2] ^ 0xFF, good[-1]])
     with (
-        expected_protocol("rtu", [(rtu(READ_PDU), bad)]) as stand,
+        expected_protocol("rtu", [(rtu(READ_PDU), bad)], clock=vclock) as stand,
         pytest.raises(ProtocolError, match="invalid reply"),
     ):
         stand.read_sample()
 
 
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_truncated_reply_is_a_protocol_error(transport: str) -> None:
+def test_truncated_reply_is_a_protocol_error(transport: str, vclock: VirtualClock) -> None:
     whole = frame(transport, 1, READ_REPLY_PDU)
     pairs = [(frame(transport, 1, READ_PDU), whole[:20])]
-    with expected_protocol(transport, pairs) as stand, pytest.raises(ProtocolError) as err:
+    with (
+        expected_protocol(transport, pairs, clock=vclock) as stand,
+        pytest.raises(ProtocolError) as err,
+    ):
         stand.read_sample()
     assert whole[:20].hex(" ") in str(err.value)
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_silence_is_a_device_timeout(transport: str) -> None:
+    """Nothing is ever answered: a short reply timeout (0.5 s) cannot make this pass or fail
+    by the machine's load."""
     t0 = time.monotonic()
+    pairs = [(frame(transport, 1, READ_PDU), None)]
     with (
-        expected_protocol(transport, [(frame(transport, 1, READ_PDU), None)]) as stand,
+        expected_protocol(transport, pairs, timeout_s=0.5) as stand,
         pytest.raises(DeviceTimeout),
     ):
         stand.read_sample()
     assert time.monotonic() - t0 < 5.0
 
 
+@REALTIME
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_setpoint_and_read_is_one_fc23_transaction(transport: str) -> None:
     # FC23: read 26 at 200, write 4 at 300 (8 bytes): roll 1.5, pitch -2.0; reply: 52 bytes read
@@ -314,6 +375,7 @@ def test_setpoint_and_read_is_one_fc23_transaction(transport: str) -> None:
     assert s.angle_deg == {"roll": 1.5, "pitch": -2.0} and t_send <= s.t_host
 
 
+@REALTIME
 def test_setpoint_and_read_without_fc23_is_two_requests(tmp_path: Path) -> None:
     rmap = tmp_path / "no_fc23.yaml"
     rmap.write_text(

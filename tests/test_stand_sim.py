@@ -1,18 +1,29 @@
-"""Back-to-back: the real stand driver against the simulated stand over Modbus TCP and RTU (pty)."""
+"""Back-to-back: the real stand driver against the simulated stand over Modbus TCP and RTU.
+
+On simulated time (the ``vclock`` fixture): the stand simulator and the driver over an
+in-process link carrying Modbus TCP or RTU frames (pymodbus's own client and framing on the
+driver's side, the simulator's wire on the other), its physics, watchdog, stalls and timeouts
+exact. Over a real socket and a real pty (``realtime``): the driver connects and identifies the
+stand, a TCP connection the stand drops is ``ConnectionLost``, and a stopped simulator leaves
+no pty, symlink or descriptor behind.
+"""
 
 from __future__ import annotations
 
 import math
-import threading
-import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import psutil
 import pytest
 
 from benchctl.analysis.timebase import stand_clock
+from benchctl.channels import free_name, register, unregister
+from benchctl.clock import REAL, Clock
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig, SimStandFault, StandConfig, StandLimits
 from benchctl.devices.base import Stand, StandSample
 from benchctl.devices.modbus import ModbusStand, open_stand
@@ -27,29 +38,27 @@ from benchctl.errors import (
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.stand import FAULT_ESTOP, FAULT_SOFT_LIMIT, FAULT_WATCHDOG, SimStand
 
-# the simulated stand over a real socket and a real pty, on the host's clock: its
-# timeouts, stalls and watchdog are timed on the host's time, alone (realtime tier)
-pytestmark = pytest.mark.realtime
-
 MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
 # a slow servo, so its dynamics are plainly visible at 1 Hz: |H| ≈ 0.97, arg H ≈ −43°
 # a 1.5 s watchdog: a test's own polling loop (heartbeat every 100 ms) can stall for half a
 # second beside two CPU-bound processes (seen: fault 2 mid-stream with a 0.5 s watchdog)
 SLOW = SimStandConfig(bandwidth_hz=2.0, damping=0.7, watchdog_s=1.5)
-# generous: replies on a loaded 2-core machine can take a few hundred ms
+# generous: replies on a loaded 2-core machine can take a few hundred ms (real time)
 TIMEOUT_S = 1.0
 
 
-def wait_for(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
+def wait_for(cond: Callable[[], bool], timeout_s: float, what: str, clock: Clock) -> None:
+    deadline = clock.monotonic() + timeout_s
     while not cond():
-        if time.monotonic() > deadline:
+        if clock.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.01)
+        clock.sleep(0.01)
 
 
-def connect(sim: SimStand) -> ModbusStand:
+def connect(sim: SimStand, url: str | None = None) -> ModbusStand:
+    """The driver connected to ``sim``, on its clock: over its in-process link registered as
+    ``url`` (simulated time, the simulator's framing), its socket or its pty."""
     common = {
         "limits": LIMITS,
         "register_map": MAP,
@@ -57,25 +66,66 @@ def connect(sim: SimStand) -> ModbusStand:
         "retries": 0,
         "setpoint_rate_hz": 50.0,
     }
-    if sim.transport == "tcp":
+    if sim.transport == "channel":
+        assert url is not None
+        where = {"serial_port": url} if sim.framing == "rtu" else {"host": url}
+        cfg = StandConfig.model_validate({"driver": f"modbus-{sim.framing}", **where, **common})
+    elif sim.transport == "tcp":
         cfg = StandConfig.model_validate({"driver": "modbus-tcp", "port": sim.port, **common})
     else:
         cfg = StandConfig.model_validate(
             {"driver": "modbus-rtu", "serial_port": sim.serial_port, **common}
         )
-    stand = open_stand(cfg)
+    stand = open_stand(cfg, clock=sim.clock)
     stand.connect()
     return stand
 
 
-@pytest.fixture(params=["tcp", "rtu"])
-def rig(request: pytest.FixtureRequest) -> Iterator[tuple[SimStand, ModbusStand]]:
-    with SimStand(SLOW, limits=LIMITS, register_map=MAP, transport=request.param) as sim:
-        stand = connect(sim)
+@contextmanager
+def sim_stand(cfg: SimStandConfig, framing: Any, clock: Clock) -> Iterator[tuple[SimStand, str]]:
+    """The simulated stand, and where the driver finds it: on a virtual ``clock`` an
+    in-process link carrying ``framing`` frames (its ``simchan://`` URL), on the real one a
+    socket or a pty."""
+    transport: Any = "channel" if clock.virtual else framing
+    with SimStand(cfg, limits=LIMITS, register_map=MAP, transport=transport, framing=framing,
+                  clock=clock) as sim:
+        if sim.client_endpoint is None:
+            yield sim, ""
+            return
+        url = register(free_name("sim-stand"), sim.client_endpoint)
+        try:
+            yield sim, url
+        finally:
+            unregister(url)
+
+
+@contextmanager
+def simulated(cfg: SimStandConfig, framing: Any, clock: Clock,
+              ) -> Iterator[tuple[SimStand, ModbusStand]]:
+    """The simulated stand (``sim_stand``) and the driver connected to it."""
+    with sim_stand(cfg, framing, clock) as (sim, url):
+        stand = connect(sim, url)
         try:
             yield sim, stand
         finally:
             stand.close()
+
+
+@pytest.fixture(params=["tcp", "rtu"])
+def rig(
+    request: pytest.FixtureRequest, vclock: VirtualClock
+) -> Iterator[tuple[SimStand, ModbusStand]]:
+    """On simulated time: Modbus TCP, then RTU frames over an in-process link."""
+    with simulated(SLOW, request.param, vclock) as r:
+        yield r
+
+
+@pytest.fixture(params=[pytest.param("tcp", marks=pytest.mark.realtime),
+                        pytest.param("rtu", marks=pytest.mark.realtime)])
+def real_rig(request: pytest.FixtureRequest) -> Iterator[tuple[SimStand, ModbusStand]]:
+    """On the host's time: Modbus TCP over a socket, then RTU over a pty (``realtime``)."""
+    with simulated(SLOW, request.param, REAL) as r:
+        yield r
 
 
 def stream(
@@ -112,14 +162,15 @@ def stream(
     while j < n and j < max(4 * per_push, capacity - 2 * per_push):  # as much ahead as fits
         push(read=False)
     t0 = stand.start_trajectory()
+    clock = stand.clock
     samples: list[StandSample] = []
     k = 0
     while True:
         k += 1
         due = t0 + k * period
-        now = time.monotonic()
+        now = clock.monotonic()
         if due > now:
-            time.sleep(due - now)
+            clock.sleep(due - now)
         last = samples[-1].trajectory if samples else None
         s = None
         if j < n and last is not None and last.level < 2 * per_push:
@@ -128,7 +179,7 @@ def stream(
         samples.append(s)
         if k % 5 == 0:
             stand.heartbeat()
-        if return_after_s is not None and time.monotonic() - t0 >= return_after_s:
+        if return_after_s is not None and clock.monotonic() - t0 >= return_after_s:
             return t0, samples
         if j >= n and not s.status.trajectory_running:
             return t0, samples
@@ -157,7 +208,16 @@ def fit_phasor(t: np.ndarray, x: np.ndarray, f_hz: float) -> complex:
 
 
 def test_driver_satisfies_the_stand_protocol(rig: tuple[SimStand, ModbusStand]) -> None:
-    _, stand = rig
+    _satisfies_the_stand_protocol(rig[1])
+
+
+def test_driver_over_a_real_socket_and_pty_satisfies_the_stand_protocol(
+    real_rig: tuple[SimStand, ModbusStand],
+) -> None:
+    _satisfies_the_stand_protocol(real_rig[1])
+
+
+def _satisfies_the_stand_protocol(stand: ModbusStand) -> None:
     assert isinstance(stand, Stand)
     ident = stand.identity
     assert ident is not None and ident.vendor == "benchctl" and ident.serial == "SIM-0001"
@@ -220,18 +280,19 @@ def test_harmonic_table_runs_in_the_stand(rig: tuple[SimStand, ModbusStand]) -> 
     )
     stand.upload_table({"roll": roll, "pitch": pitch})
     t_start = stand.start_table()
+    clock = stand.clock
     samples: list[StandSample] = []
-    while time.monotonic() - t_start < 2.7:
+    while clock.monotonic() - t_start < 2.7:
         samples.append(stand.read_sample())
         stand.heartbeat()
-        time.sleep(0.02)
+        clock.sleep(0.02)
     assert any(s.status.table_running for s in samples)
 
     def ended() -> bool:
         stand.heartbeat()  # the watchdog (1.5 s) must not fire while we wait on a busy machine
         return not stand.read_status().table_running
 
-    wait_for(ended, 2.0, "the table to end")
+    wait_for(ended, 2.0, "the table to end", clock)
     stand.heartbeat()
     h = sim.servo_response(f)
     checked = 0
@@ -291,9 +352,10 @@ def test_ramp_to_zero_from_motion_respects_limits(rig: tuple[SimStand, ModbusSta
 def test_setpoint_and_read_in_one_transaction(rig: tuple[SimStand, ModbusStand]) -> None:
     _, stand = rig
     stand.enable()
-    t0 = time.monotonic()
+    clock = stand.clock
+    t0 = clock.monotonic()
     k = 0
-    while time.monotonic() - t0 < 0.6:
+    while clock.monotonic() - t0 < 0.6:
         k += 1
         x = 0.01 * k  # 0.5 °/s at 50 Hz: within the limits even from rest after a host stall
         t_send, s = stand.send_setpoint_and_read({"roll": x})
@@ -301,14 +363,15 @@ def test_setpoint_and_read_in_one_transaction(rig: tuple[SimStand, ModbusStand])
         assert s.setpoint_deg["roll"] == pytest.approx(x, rel=1e-6, abs=1e-6)
         assert t_send <= s.t_host
         stand.heartbeat()
-        time.sleep(0.02)
+        clock.sleep(0.02)
 
 
 def test_two_threads_share_one_driver(rig: tuple[SimStand, ModbusStand]) -> None:
     """A heartbeat thread and a streaming loop interleave their requests on one link."""
     _, stand = rig
     stand.enable()
-    stop = threading.Event()
+    clock = stand.clock
+    stop = clock.event()
     errors: list[BaseException] = []
 
     def beat() -> None:
@@ -319,7 +382,7 @@ def test_two_threads_share_one_driver(rig: tuple[SimStand, ModbusStand]) -> None
                 errors.append(e)
                 return
 
-    hb = threading.Thread(target=beat, name="test-heartbeat")
+    hb = clock.thread(beat, name="test-heartbeat")
     hb.start()
     try:
         _, samples = stream(stand, lambda t: 1.0 * (1 - math.cos(2 * math.pi * t)) / 2, 0.8)
@@ -333,47 +396,61 @@ def test_two_threads_share_one_driver(rig: tuple[SimStand, ModbusStand]) -> None
 
 # -- faults --------------------------------------------------------------------------------
 def expect_within(
-    exc: type[BaseException], fn: Callable[[], object], bound_s: float
+    exc: type[BaseException], fn: Callable[[], object], bound_s: float, clock: Clock
 ) -> BaseException:
-    """``fn`` must raise ``exc`` (repeating until it does) within ``bound_s``."""
-    t0 = time.monotonic()
+    """``fn`` must raise ``exc`` (repeating until it does) within ``bound_s`` on ``clock``."""
+    t0 = clock.monotonic()
     while True:
         try:
             fn()
         except exc as e:
             return e
-        if time.monotonic() - t0 > bound_s:
+        if clock.monotonic() - t0 > bound_s:
             raise AssertionError(f"no {exc.__name__} within {bound_s} s")
-        time.sleep(0.01)
+        clock.sleep(0.01)
 
 
 def test_stall_gives_timeout_then_recovers(rig: tuple[SimStand, ModbusStand]) -> None:
     sim, stand = rig
     stall_s = TIMEOUT_S + 0.5
     sim.inject("stall", duration_s=stall_s)
-    t0 = time.monotonic()
-    expect_within(DeviceTimeout, stand.read_sample, TIMEOUT_S + 1.0)
-    assert time.monotonic() - t0 < TIMEOUT_S + 1.0
-    wait_for(lambda: time.monotonic() - t0 > stall_s + 0.1, stall_s + 2.0, "the stall to end")
+    clock = stand.clock
+    t0 = clock.monotonic()
+    expect_within(DeviceTimeout, stand.read_sample, TIMEOUT_S + 1.0, clock)
+    assert clock.monotonic() - t0 < TIMEOUT_S + 1.0
+    wait_for(lambda: clock.monotonic() - t0 > stall_s + 0.1, stall_s + 2.0, "the stall to end",
+             clock)
     assert stand.read_status().ready
 
 
 def test_modbus_exception_is_typed(rig: tuple[SimStand, ModbusStand]) -> None:
     sim, stand = rig
     sim.inject("modbus_exception", code=6, count=1)
-    err = expect_within(ModbusException, stand.read_sample, 1.0)
+    err = expect_within(ModbusException, stand.read_sample, 1.0, stand.clock)
     assert isinstance(err, ModbusException) and err.exception_code == 6 and err.function_code == 3
     assert stand.read_status().ready  # one exception only
 
 
-def test_dropped_connection(rig: tuple[SimStand, ModbusStand]) -> None:
-    sim, stand = rig
+def _dropped_connection(sim: SimStand, stand: ModbusStand) -> None:
     sim.inject("drop_connection")
-    # TCP: the server closes the socket; RTU: the line goes dead
-    expected = ConnectionLost if sim.transport == "tcp" else DeviceTimeout
-    expect_within(expected, stand.read_sample, TIMEOUT_S + 1.5)
+    # TCP: the server closes the connection; RTU: the line goes dead
+    expected = ConnectionLost if sim.framing == "tcp" else DeviceTimeout
+    expect_within(expected, stand.read_sample, TIMEOUT_S + 1.5, stand.clock)
     sim.clear_faults()
-    wait_for(lambda: _answers(stand), 3.0, "the link to come back")
+    wait_for(lambda: _answers(stand), 3.0, "the link to come back", stand.clock)
+
+
+def test_dropped_rtu_line(vclock: VirtualClock) -> None:
+    with simulated(SLOW, "rtu", vclock) as (sim, stand):
+        _dropped_connection(sim, stand)
+
+
+# over an in-process link the simulator's drop_connection is silence (the link stays open), so
+# a TCP connection that the stand closes is tested on a real socket
+@pytest.mark.realtime  # a real TCP connection closed by the server
+def test_dropped_tcp_connection_over_a_real_socket() -> None:
+    with simulated(SLOW, "tcp", REAL) as (sim, stand):
+        _dropped_connection(sim, stand)
 
 
 def _answers(stand: ModbusStand) -> bool:
@@ -392,7 +469,7 @@ def test_stand_fault_and_estop(rig: tuple[SimStand, ModbusStand], kind: str, cod
         sim.inject(kind, code=code)
     else:
         sim.inject(kind)
-    err = expect_within(StandFault, stand.read_sample, 1.0)
+    err = expect_within(StandFault, stand.read_sample, 1.0, stand.clock)
     assert isinstance(err, StandFault) and err.code == code
     st = stand.read_status()
     assert st.fault and not st.enabled and st.estop == (kind == "estop")
@@ -407,7 +484,7 @@ def test_estop_over_modbus(rig: tuple[SimStand, ModbusStand]) -> None:
     _, stand = rig
     stand.enable()
     stand.estop()
-    err = expect_within(StandFault, stand.read_sample, 1.0)
+    err = expect_within(StandFault, stand.read_sample, 1.0, stand.clock)
     assert isinstance(err, StandFault) and err.code == FAULT_ESTOP
 
 
@@ -417,53 +494,47 @@ def test_watchdog_stops_the_stand_when_heartbeat_stops(rig: tuple[SimStand, Modb
     stream(
         stand, lambda t: 3.0 * (1 - math.cos(2 * math.pi * 0.5 * t)) / 2, 0.5
     )  # moving, heartbeat kept
-    t_last = time.monotonic()  # no heartbeat from here on
-    err = expect_within(StandFault, stand.read_sample, SLOW.watchdog_s + 1.0)
+    clock = stand.clock
+    t_last = clock.monotonic()  # no heartbeat from here on
+    err = expect_within(StandFault, stand.read_sample, SLOW.watchdog_s + 1.0, clock)
     assert isinstance(err, StandFault) and err.code == FAULT_WATCHDOG
     assert (
-        time.monotonic() - t_last >= SLOW.watchdog_s - 0.15
+        clock.monotonic() - t_last >= SLOW.watchdog_s - 0.15
     )  # not before its time (heartbeat at k%5)
-    wait_for(lambda: not stand.read_status().moving, 2.0, "the stand to brake to rest")
+    wait_for(lambda: not stand.read_status().moving, 2.0, "the stand to brake to rest", clock)
     assert not stand.read_status().enabled
 
 
-def test_soft_limit_faults_the_stand() -> None:
+def test_soft_limit_faults_the_stand(vclock: VirtualClock) -> None:
     # tighter than the driver's 20° limit, and a lightly damped servo that overshoots
     cfg = SimStandConfig(soft_limit_deg=3.0, bandwidth_hz=2.0, damping=0.2)
-    with SimStand(cfg, limits=LIMITS, register_map=MAP) as sim:
-        stand = connect(sim)
-        try:
-            stand.enable()
-            with pytest.raises(ModbusException) as exc:  # a setpoint beyond it: illegal value
-                stand.link.write_registers(300, [0x4120, 0x0000])  # roll 10.0°
-            assert exc.value.exception_code == 3
-            move = HarmonicTable(
-                np.array([0.0, 1 / 0.6]), np.array([1.475, -1.475]), np.zeros(2), duration_s=0.3
-            )  # 0 → 2.95° in 0.3 s, smooth
-            with pytest.raises(StandFault) as err:  # the overshoot passes 3°
-                stream(stand, lambda t: float(move.at(min(t, 0.3))), 2.0)
-            assert err.value.code == FAULT_SOFT_LIMIT
-            st = stand.read_status()
-            assert st.limit and st.fault and not st.enabled
-        finally:
-            stand.close()
+    with simulated(cfg, "tcp", vclock) as (_sim, stand):
+        stand.enable()
+        with pytest.raises(ModbusException) as exc:  # a setpoint beyond it: illegal value
+            stand.link.write_registers(300, [0x4120, 0x0000])  # roll 10.0°
+        assert exc.value.exception_code == 3
+        move = HarmonicTable(
+            np.array([0.0, 1 / 0.6]), np.array([1.475, -1.475]), np.zeros(2), duration_s=0.3
+        )  # 0 → 2.95° in 0.3 s, smooth
+        with pytest.raises(StandFault) as err:  # the overshoot passes 3°
+            stream(stand, lambda t: float(move.at(min(t, 0.3))), 2.0)
+        assert err.value.code == FAULT_SOFT_LIMIT
+        st = stand.read_status()
+        assert st.limit and st.fault and not st.enabled
 
 
-def test_scheduled_fault_from_config() -> None:
+def test_scheduled_fault_from_config(vclock: VirtualClock) -> None:
     cfg = SimStandConfig(
         faults=(SimStandFault(kind="modbus_exception", after_s=0.3, duration_s=0.3, code=4),)
     )
-    with SimStand(cfg, limits=LIMITS, register_map=MAP) as sim:
-        stand = connect(sim)
-        try:
-            stand.read_status()
-            err = expect_within(ModbusException, stand.read_status, 2.0)
-            assert isinstance(err, ModbusException) and err.exception_code == 4
-            wait_for(lambda: _answers(stand), 2.0, "the scheduled fault to end")
-        finally:
-            stand.close()
+    with simulated(cfg, "tcp", vclock) as (_sim, stand):
+        stand.read_status()
+        err = expect_within(ModbusException, stand.read_status, 2.0, vclock)
+        assert isinstance(err, ModbusException) and err.exception_code == 4
+        wait_for(lambda: _answers(stand), 2.0, "the scheduled fault to end", vclock)
 
 
+@pytest.mark.realtime  # a real pty and its symlink
 def test_stop_is_idempotent_and_leaves_nothing_behind(tmp_path: Path) -> None:
     link = tmp_path / "stand.pty"
     fds_before = psutil.Process().num_fds()
@@ -508,7 +579,7 @@ def test_trajectory_queue_plays_ahead_and_an_underrun_stops_within_limits(
             not s.status.moving
         )
 
-    wait_for(stopped, 5.0, "the stand to stop after the underrun")
+    wait_for(stopped, 5.0, "the stand to stop after the underrun", stand.clock)
     t = np.array([r[0] for r in rates])
     v = np.array([r[1] for r in rates])
     assert np.max(np.abs(v)) < 12.0

@@ -27,6 +27,7 @@ from benchctl import text
 from benchctl.archive.store import Archive
 from benchctl.cli import main
 from benchctl.cli.plan import summary
+from benchctl.clock.virtual import VirtualClock
 from benchctl.config import parse_config
 from benchctl.devices.base import DeviceIdentity
 from benchctl.errors import ConfigError, InputError
@@ -346,11 +347,11 @@ def test_plan_summary_shows_a_forged_line_as_text() -> None:
     assert "operator x\\r\\nPASS" in out and _no_control(out.replace("\n", ""))
 
 
-def test_run_report_shows_a_forged_line_as_text(tmp_path: Path) -> None:
-    stand = FakeStand()
+def test_run_report_shows_a_forged_line_as_text(tmp_path: Path, vclock: VirtualClock) -> None:
+    stand = FakeStand(clock=vclock)
     res = Session(bench_config(tmp_path), sine_motion(stand.axes, 3.0, "stream", 0.5),
                   RunOptions("SN-1", "ana"),
-                  device_factory=lambda c, p: (stand, FakeSensor(stand))).run()
+                  device_factory=lambda c, p: (stand, FakeSensor(stand)), clock=vclock).run()
     assert res.report is not None, res.reason
     res.report.meta.update(operator="x\r\nPASS", serial=OSC52, station="\x1b[2J")
     res.report.warnings.append("instrument reports 'I1\x1b]0;t\x07'")
@@ -370,15 +371,17 @@ class _HostileSensor(FakeSensor):
         return DeviceIdentity("fake", f"incl {OSC52}", "I1\x1d", "2.0", "fake")
 
 
-def test_device_identities_are_kept_and_shown_safe(tmp_path: Path,
-                                                   capsys: pytest.CaptureFixture[str]) -> None:
+def test_device_identities_are_kept_and_shown_safe(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], vclock: VirtualClock
+) -> None:
     """Identities come from hardware: the run is not refused; they are recorded as reported
     (cut to 256 characters) and shown safe on the terminal."""
-    stand = _HostileStand()
+    stand = _HostileStand(clock=vclock)
     buf = io.StringIO()
     res = Session(bench_config(tmp_path), sine_motion(stand.axes, 3.0, "stream", 0.5),
-                  RunOptions("SN-1", "ana"), display=TtyDisplay(buf, fps=20, width=80),
-                  device_factory=lambda c, p: (stand, _HostileSensor(stand))).run()
+                  RunOptions("SN-1", "ana"),
+                  display=TtyDisplay(buf, fps=20, width=80, clock=vclock),
+                  device_factory=lambda c, p: (stand, _HostileSensor(stand)), clock=vclock).run()
     assert res.state == "done" and res.recording is not None, res.reason
     out = buf.getvalue()
     assert "\x1b]" not in out and "\x07" not in out and "\x9b" not in out
