@@ -4,17 +4,15 @@ real drivers and simulators on the ``vclock`` fixture)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 import yaml
-from run_sim import ROLL, ROOT, LiveBench, live_bench, recording_in
+from run_sim import ROLL, ROOT, LiveBench, live_bench, motion_for, recording_in
 
 from benchctl.cli import main
-from benchctl.clock import Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.results.record import load_record
@@ -51,15 +49,6 @@ class Screen:
         return "\n".join(self.lines)
 
 
-def _motion_lasted(runs: Path, seconds: float, clock: Clock) -> bool:
-    rec = recording_in(runs)
-    if rec is None or not (rec / "events.jsonl").is_file():
-        return False
-    for line in (rec / "events.jsonl").read_text().splitlines():
-        if '"motion_start"' in line:
-            return bool(clock.monotonic() - json.loads(line)["t_host"] >= seconds)
-    return False
-
 
 def _fault_mid_run(tmp_path: Path, vclock: VirtualClock, b: LiveBench,
                    screen: Screen) -> Path:
@@ -69,7 +58,7 @@ def _fault_mid_run(tmp_path: Path, vclock: VirtualClock, b: LiveBench,
     sup = Supervisor(clock=vclock)
 
     def watch() -> None:
-        while not _motion_lasted(runs, 1.5, vclock):
+        while not motion_for(runs, 1.5, vclock)():
             vclock.sleep(0.02)
         b.stand.inject("stand_fault", code=12)
 
@@ -145,7 +134,7 @@ def test_a_ctrl_c_records_the_stand_through_the_shutdown_ramp(
         sup = Supervisor(clock=vclock)
 
         def watch() -> None:
-            while not _motion_lasted(runs, 1.5, vclock):
+            while not motion_for(runs, 1.5, vclock)():
                 vclock.sleep(0.02)
             sup.interrupt_after(0.013)
 

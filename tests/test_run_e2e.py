@@ -194,16 +194,6 @@ WAYS: dict[str, tuple[Callable[[LiveBench, Supervisor], None] | None, str, bool]
 }
 
 
-def _motion_lasted(runs: Path, seconds: float, clock: Clock) -> bool:
-    """True once the run's recording in ``runs`` shows ``seconds`` of motion on ``clock``."""
-    rec = recording_in(runs)
-    if rec is None or not (rec / "events.jsonl").is_file():
-        return False
-    for line in (rec / "events.jsonl").read_text().splitlines():
-        if '"motion_start"' in line:
-            return bool(clock.monotonic() - json.loads(line)["t_host"] >= seconds)
-    return False
-
 
 @pytest.mark.parametrize("way", list(WAYS))
 def test_every_way_out_of_a_run(
@@ -221,7 +211,7 @@ def test_every_way_out_of_a_run(
 
         def watch() -> None:
             assert inject is not None
-            while not _motion_lasted(runs, 1.5, vclock):
+            while not motion_for(runs, 1.5, vclock)():
                 if sup.faulted:
                     return
                 vclock.sleep(0.02)
