@@ -26,18 +26,27 @@ Prints one line per run (seed, what it drew, verdict, the checks) and the totals
 simulated hours, violations by check, the failing seeds. A failing seed replays exactly:
 ``--seed0 S --runs 1``.
 
+The undisturbed runs are the same bytes for the same code and configuration: ``--ref-cache DIR``
+keeps their σ by code version (HEAD and any uncommitted change) and configuration, so a
+campaign in several parts runs each once. ``--summarize F.jsonl ...`` adds up the parts.
+
 Usage: python benchmarks/sim_campaign.py --runs 1000 [--seed0 1] [--jobs 2]
        [--durations 120,300,600,900] [--modes buffered,stream,table] [--keep DIR] [--json F]
+       [--ref-cache DIR]
+       python benchmarks/sim_campaign.py --summarize F.jsonl [F2.jsonl ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import json
 import multiprocessing
+import os
 import random
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -76,6 +85,10 @@ PROFILES = (
 )
 #: slack on the commanded points' finite differences (rounding of the recorded values)
 SLACK = 1.001
+#: the share of runs with lost or garbled frames and replies, device faults, an operator's stop
+FAULTY_SHARE = 0.35
+#: the share of runs whose host stalls may exceed the stand's buffer (up to 3 s)
+LONG_STALL_SHARE = 0.3
 
 
 def _abs_paths(data: dict[str, Any], base: Path) -> None:
@@ -128,11 +141,16 @@ def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) ->
         "profile": rng.choice(PROFILES),
         "duration": rng.choice(durations),
     }
-    faulty = rng.random() < 0.5
+    faulty = rng.random() < FAULTY_SHARE
+    # host stalls: in most runs all shorter than the stand's 1 s buffer (the run must then go
+    # through: check 3), in the rest up to several seconds, rarer (a stall longer than the
+    # stand's watchdog trips it, as on a real stand: the run's way out is then what is checked)
+    long_stalls = rng.random() < LONG_STALL_SHARE
     disturb: dict[str, Any] = {
         "seed": seed,
-        "host_stalls_per_min": round(rng.uniform(0.0, 4.0), 3),
-        "host_stall_s": [0.02, round(rng.uniform(0.1, 3.0), 3)],
+        "host_stalls_per_min": round(rng.uniform(0.0, 1.5 if long_stalls else 4.0), 3),
+        "host_stall_s": [0.02, round(rng.uniform(1.0, 3.0) if long_stalls
+                                     else rng.uniform(0.1, 0.95), 3)],
         "send_jitter_s": round(rng.uniform(0.0, 0.005), 5),
         "slow_reply_p": round(rng.uniform(0.0, 0.02), 4),
         "slow_reply_s": [0.005, round(rng.uniform(0.01, 0.2), 3)],
@@ -330,8 +348,42 @@ def _sigmas(res: Any) -> dict[str, Any] | None:
             for a, v in res.report.axes.items()}
 
 
-def one(args: tuple[int, list[int], str, str | None, tuple[str, ...]]) -> dict[str, Any]:
-    seed, durations, work, keep, modes = args
+def code_version() -> str:
+    """The product's code as it is: HEAD and a hash of any uncommitted change under benchctl/
+    (the key of the reference cache: an undisturbed run is the same bytes for the same code
+    and configuration)."""
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
+                              check=False).stdout
+    head = git("rev-parse", "HEAD").strip() or "unknown"
+    diff = git("diff", "HEAD", "--", "benchctl", "config", "profiles")
+    return head + ("+" + hashlib.sha256(diff.encode()).hexdigest()[:12] if diff else "")
+
+
+def _reference(draw: dict[str, Any], out: Path, cache: str | None,
+               version: str) -> dict[str, Any] | None:
+    """σ and its interval of the configuration's undisturbed run (cached by configuration)."""
+    cfg_path = config_for(draw, out / "u", None)
+    text = cfg_path.read_text().replace(str(out / "u"), "OUT")
+    key = hashlib.sha256(json.dumps([version, text, draw["profile"], draw["duration"]])
+                         .encode()).hexdigest()[:24]
+    hit = Path(cache) / f"{key}.json" if cache else None
+    if hit is not None and hit.is_file():
+        return json.loads(hit.read_text())["sigmas"]
+    ref = _run(load_config(cfg_path), draw, out / "u", None)
+    sigmas = _sigmas(ref.get("result"))
+    if hit is not None:
+        hit.parent.mkdir(parents=True, exist_ok=True)
+        tmp = hit.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"version": version, "sigmas": sigmas,
+                                   "t_sim_s": ref.get("t_sim")}))
+        os.replace(tmp, hit)
+    return sigmas
+
+
+def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None, str]
+        ) -> dict[str, Any]:
+    seed, durations, work, keep, modes, cache, version = args
     draw = draw_run(seed, durations, modes)
     out = Path(work) / f"seed{seed}"
     t0 = time.perf_counter()
@@ -344,9 +396,7 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...]]) -> dict[s
         got = _run(cfg, draw, out / "d", plan)
         reference = None
         if not draw["faulty"] and "refused" not in got and got["result"].state == "done":
-            ref_cfg = load_config(config_for(draw, out / "u", None))
-            ref = _run(ref_cfg, draw, out / "u", None)
-            reference = _sigmas(ref.get("result"))
+            reference = _reference(draw, out, cache, version)
         bad = check_run(draw, got, cfg, reference)
         res = got.get("result")
         line = {
@@ -372,6 +422,7 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...]]) -> dict[s
                 "traceback": traceback.format_exc(),
                 **{k: draw[k] for k in ("mode", "link", "protocol", "profile", "duration")}}
     line["wall_s"] = round(time.perf_counter() - t0, 2)
+    line["version"] = version
     if line["violations"] and keep:
         shutil.copytree(out, Path(keep) / f"seed{seed}", dirs_exist_ok=True)
     shutil.rmtree(out, ignore_errors=True)
@@ -387,12 +438,24 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="write every run's line here (JSON lines)")
     ap.add_argument("--keep", type=Path, help="copy each failing run's recordings here")
     ap.add_argument("--modes", default=",".join(MODES), help="stand modes to draw from")
+    ap.add_argument("--ref-cache", type=Path,
+                    help="keep the undisturbed runs' σ here, by code version and configuration")
+    ap.add_argument("--summarize", type=Path, nargs="+", metavar="JSONL",
+                    help="print the totals of earlier campaigns' --json files and exit")
     a = ap.parse_args()
+    if a.summarize:
+        saved = [json.loads(x) for f in a.summarize for x in f.read_text().splitlines() if x]
+        versions = sorted({str(x.get("version")) for x in saved})
+        print(f"code versions: {', '.join(versions)}")
+        return totals(saved, sum(x.get("wall_s", 0.0) for x in saved), "summed per run")
     durations = [int(x) for x in a.durations.split(",")]
     work = tempfile.mkdtemp(prefix="benchctl-campaign-")
     keep = str(a.keep) if a.keep else None
     modes = tuple(a.modes.split(","))
-    jobs = [(a.seed0 + k, durations, work, keep, modes) for k in range(a.runs)]
+    cache = str(a.ref_cache) if a.ref_cache else None
+    version = code_version()
+    print(f"code version {version}", flush=True)
+    jobs = [(a.seed0 + k, durations, work, keep, modes, cache, version) for k in range(a.runs)]
     t0 = time.perf_counter()
     lines: list[dict[str, Any]] = []
     sink = a.json.open("w") if a.json else None
@@ -412,7 +475,11 @@ def main() -> int:
         if sink is not None:
             sink.close()
         shutil.rmtree(work, ignore_errors=True)
-    wall = time.perf_counter() - t0
+    return totals(lines, time.perf_counter() - t0, "wall")
+
+
+def totals(lines: list[dict[str, Any]], wall: float, what: str) -> int:
+    """Print the campaign's totals; 1 when any run broke a check."""
     failing = sorted(x["seed"] for x in lines if x["violations"])
     by_check: dict[str, int] = {}
     for x in lines:
@@ -423,7 +490,7 @@ def main() -> int:
     verdicts: dict[str, int] = {}
     for x in lines:
         verdicts[str(x.get("verdict"))] = verdicts.get(str(x.get("verdict")), 0) + 1
-    print(f"\nruns {len(lines)}  simulated {hours:.2f} h  wall {wall / 60:.1f} min  "
+    print(f"\nruns {len(lines)}  simulated {hours:.2f} h  {what} {wall / 60:.1f} min  "
           f"(x{hours * 3600 / max(wall, 1e-9):.1f} real time)")
     print(f"verdicts {verdicts}")
     print(f"violations {sum(by_check.values())} {by_check}")
