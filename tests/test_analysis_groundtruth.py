@@ -164,7 +164,8 @@ def test_to_dict_has_the_documented_keys() -> None:
     assert {"linear", "incoherent", "static", "source"} == set(d["components"])
     assert {"source", "period_s", "period_nominal_s", "n_periods", "n_lines", "freq",
             "reference_amplitude", "gain", "gain_ci95", "phase_deg", "phase_ci95_deg",
-            "coherence", "noise", "noise_dof", "noise_method", "linear", "linear_ci95",
+            "coherence", "snr", "reliable", "snr_floor", "n_reliable", "noise", "noise_dof",
+            "noise_method", "linear", "linear_ci95",
             "incoherent", "incoherent_ci95", "mean_removal", "variance", "variance_ci95",
             "sigma", "sigma_ci95", "dof", "dof_parts", "reference_fit"} == set(d["lines"])
     assert {"period_s", "freq", "excited", "gain", "gain_ci95", "phase_deg", "phase_ci95_deg",

@@ -40,14 +40,16 @@ def lag_response(f: np.ndarray) -> np.ndarray:
 
 def measure(
     noise_deg: float, *, seed: int = 1, fs: float = 10.0, tp: float = 40.0, n_periods: int = 3,
-    harmonics: np.ndarray | None = None,
+    harmonics: np.ndarray | None = None, weak: int = 0,
 ) -> tuple[object, np.ndarray]:
     """Line-wise analysis of a flat-ish multisine (lines k/tp) through ``lag_response`` plus
-    white noise; returns it and the measured lines' frequencies."""
+    white noise; returns it and the measured lines' frequencies. ``weak``: the lowest lines
+    this many are 1e-8° high (a profile's band edge)."""
     k = np.arange(1, 25) if harmonics is None else harmonics
     f = k / tp
     rng = np.random.default_rng(seed)
     amp = 2.0 * np.exp(-(((f - 0.17) / 0.15) ** 2)) + 0.3
+    amp[:weak] = 1e-8
     ph = rng.uniform(0, 2 * np.pi, k.size)
     n = round(fs * tp * n_periods)
     t = np.arange(n) / fs
@@ -141,7 +143,56 @@ def test_outside_band_share_exact() -> None:
                                        abs=p.interpolation_bound + 1e-12)
     assert p.sigma_outside_bound == pytest.approx(math.sqrt(p.variance + out_var))
     assert np.all(np.isnan(p.error_gain[~inside])) and np.all(p.contribution[~inside] == 0)
-    assert any("not measured" in w for w in p.warnings)
+    # the outside lines hold 2.8 of 10.1 deg²: σ is only bounded, the bands named; below the
+    # band |1 − H| at most as at the lowest line (noise-free: exactly it), above it 1
+    b_low = abs(complex(lag_response(np.array([f[0]]))[0]) - 1.0)
+    extra = b_low**2 * (1.0**2 + 2.0**2) / 2 + (0.5**2 + 0.25**2) / 2
+    assert p.bounded and p.sigma_bound == pytest.approx(
+        math.sqrt(p.variance_ci95[1] + extra), rel=1e-9)
+    truth = closed_form(ft, at, 0.0)
+    assert p.sigma_bound >= math.sqrt(truth)
+    assert p.outside_bands_hz == [(0.01, 0.02, 2), (0.7, 1.0, 2)]
+    assert any("σ not predicted, only bounded" in w and "0.01 … 0.02 Hz (2 lines)" in w
+               for w in p.warnings)
+
+
+def test_weak_lines_are_reported_but_not_used() -> None:
+    """A recording whose band-edge lines are 1e-8° high (as a sea-state profile's are) measures
+    nothing there: their SNR is reported, they are not in the gain table, and a heavier
+    motion there is bounded, never multiplied by their noise-made gains."""
+    from benchctl.analysis.lines import SNR_FLOOR, periods_from_lines
+
+    la, f = measure(0.01, weak=3)
+    assert la.reliable.tolist() == [False] * 3 + [True] * 21  # type: ignore[attr-defined]
+    assert np.all(la.snr[:3] < 1e-6) and np.all(la.snr[3:] > 1e4)  # type: ignore[attr-defined]
+    # the linear part is the reliable lines' (within the noise), not the weak lines' noise
+    strong = (f >= f[3])
+    amp = 2.0 * np.exp(-(((f - 0.17) / 0.15) ** 2)) + 0.3
+    lin_true = float(np.sum(np.abs(lag_response(f[strong]) - 1) ** 2 * amp[strong] ** 2 / 2))
+    lo, hi = la.linear_ci95  # type: ignore[attr-defined]
+    assert lo <= lin_true <= hi
+    # the gain table: a period on a weak line is not measured, and says why
+    table = periods_from_lines(la, (20.0, 10.0))  # type: ignore[arg-type]
+    assert table[0]["excited"] is False and "below 10: not measured reliably" in table[0]["note"]
+    assert table[1]["excited"] is True
+    # a heavier sea with real motion at the weak lines' frequencies
+    ft = np.concatenate((f[:3], f[8:12]))
+    at = np.concatenate((np.full(3, 5.0), np.full(4, 1.0)))
+    p = predict(response_from_lines(la), noise_from_lines(la), ft, at)  # type: ignore[arg-type]
+    truth = closed_form(ft, at, 0.01)
+    assert p.weak_lines_hz == pytest.approx(f[:3].tolist())
+    assert p.inside.tolist() == [False] * 3 + [True] * 4
+    assert p.bounded and p.sigma_bound >= math.sqrt(truth)
+    assert p.to_dict()["sigma"] is None
+    inside = closed_form(ft[3:], at[3:], 0.01)
+    assert p.sigma == pytest.approx(math.sqrt(inside), rel=0.02)
+    assert p.outside_bands_hz == [(f[0], f[2], 3)]
+    assert any(f"SNR below {SNR_FLOOR:g}" in w for w in p.warnings)
+    # every line weak: no prediction at all
+    flat = response_from_lines(la)  # type: ignore[arg-type]
+    none = MeasuredResponse(flat.freq, flat.harmonics, flat.h, np.full(24, 1.0), flat.dof)
+    with pytest.raises(DataError, match="none of its 24 lines was measured reliably"):
+        predict(none, noise_from_lines(la), ft, at)  # type: ignore[arg-type]
 
 
 def test_holes_in_the_measured_lines_are_not_bridged() -> None:
@@ -264,8 +315,16 @@ def test_cli_json_and_text(recording: tuple[Path, Path], capsys: pytest.CaptureF
     f_in, a_in = np.array([0.15, 0.32]), np.array([3.0, 2.0])
     truth = closed_form(f_in, a_in, NOISE)
     assert d["axis"] == "roll" and d["profile_name"] == "harmonics_b"
-    assert d["sigma"] == pytest.approx(math.sqrt(truth), rel=0.01)
-    assert d["sigma_ci95"][0] <= math.sqrt(truth) <= d["sigma_ci95"][1]
+    # the line at 0.9 Hz (0.5 deg² of 7) lies outside the tested band: with |1 − H| ≤ 1 there
+    # it could add far more than 5 % to σ, so σ is not predicted, only bounded
+    assert d["bounded"] is True and d["sigma"] is None and d["sigma_ci95"] is None
+    assert d["sigma_measured_lines"] == pytest.approx(math.sqrt(truth), rel=0.01)
+    lo, hi = d["sigma_measured_lines_ci95"]
+    assert lo <= math.sqrt(truth) <= hi
+    assert d["sigma_bound"] == pytest.approx(math.sqrt(d["variance_ci95"][1] + 0.5), rel=1e-12)
+    assert d["sigma_bound"] >= math.sqrt(closed_form(np.array([0.15, 0.32, 0.9]),
+                                                     np.array([3.0, 2.0, 1.0]), NOISE))
+    assert d["outside_bands_hz"] == [[0.9, 0.9, 1]]
     assert d["outside_band_share"] == pytest.approx(0.5 / (4.5 + 2.0 + 0.5))
     assert d["lines"]["inside"] == [True, True, False]
     assert d["tested_band_hz"] == pytest.approx([2 / 50, 30 / 50])
@@ -275,8 +334,21 @@ def test_cli_json_and_text(recording: tuple[Path, Path], capsys: pytest.CaptureF
     assert set(json.loads(capsys.readouterr().out)["axes"]) == {"roll"}
     assert main(["predict", str(rec), "--profile", str(prof_b)]) == 0
     text = capsys.readouterr().out
-    assert f"predicted σ = {d['sigma']:.5g}°" in text
+    assert f"predicted σ ≤ {d['sigma_bound']:.5g}° (95 %): a bound, not an estimate" in text
     assert "outside the tested band 7.14 % (0.5 deg², 1 lines)" in text
+    assert "σ not predicted, only bounded: 7.14 % of the target's variance" in text
+    assert "lies at 0.9 … 0.9 Hz (1 line), where H was not excited in the recording" in text
+    # a small line outside (0.1°: 0.005 deg², 2.5 % of σ at most): σ is predicted
+    small = prof_b.with_name("b_small.yaml")
+    small.write_text(PROFILE_B.replace("amplitude_deg: 1.0, freq_hz: 0.9",
+                                       "amplitude_deg: 0.1, freq_hz: 0.9"))
+    assert main(["predict", str(rec), "--profile", str(small), "--json", "--axis", "roll"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["bounded"] is False
+    assert d["sigma"] == pytest.approx(math.sqrt(truth), rel=0.01)
+    assert d["sigma_ci95"][0] <= math.sqrt(truth) <= d["sigma_ci95"][1]
+    assert main(["predict", str(rec), "--profile", str(small)]) == 0
+    assert f"predicted σ = {d['sigma']:.5g}°" in capsys.readouterr().out
 
 
 def test_cli_errors(recording: tuple[Path, Path], tmp_path: Path,

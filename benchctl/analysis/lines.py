@@ -28,7 +28,10 @@ from ``period_s``, or detected in the reference, see :func:`detect_period`):
    ``Σ s_k`` and the variance the mean removal took out (``≈ G_ε(0)/(2T)``, half the noise
    level at the lowest bin). Their sum is σ̂² plus the mean removal's loss over whole periods
    without gaps (with gaps the lines' variance is taken over whole periods, not over the
-   samples present).
+   samples present). Only *reliable* lines (SNR ``|c^x_k|²/(2 s_k)`` ≥ ``SNR_FLOOR``) count in
+   the linear part; a weaker line's power stays in the incoherent part (its Ĥ_k is mostly
+   noise; the sum is unchanged). Weak lines are reported with their SNR and kept out of the
+   gain table (:func:`periods_from_lines`) and of prediction.
 5. **Interval of σ** (:func:`benchctl.analysis.uncertainty.mls_interval`): the linear part
    varies only through its cross term with the noise, ``Σ 2 P_k s_k`` (Gaussian); the noise
    in two parts, the lowest ``LOW_BINS`` DFT bins (with the mean-removal term: a slow drift
@@ -75,6 +78,11 @@ DETECT_FLOOR = 100.0  # … and this many times the median power of the off-grid
 PERIOD_ON_LINE = 0.01  # a traditional period "on" a line: within this share of the line
 # spacing (the period refined from the record differs from the profile's by a few ppm)
 PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
+#: a line is *reliable* when its signal-to-noise ratio ``|c^x_k|²/(2 s_k)`` (= 1/E|Ĥ_k − H_k|²)
+#: is at least this: Ĥ_k within ±0.32 (one standard deviation, complex) of H_k. Weaker lines
+#: (a profile's band edges, lines a few 1e-8° high) are reported with their SNR, but kept out
+#: of the gain table, the linear part and prediction: their Ĥ_k is mostly noise
+SNR_FLOOR = 10.0
 PERIOD_PHASE_TOL = 1e-6  # period refinement: stop when the highest line turns less (rad)
 REFINE_MAX_ITER = 6
 REFINE_SKIP = 1e-14  # no refinement when the lines leave less of the reference's variance
@@ -551,6 +559,9 @@ class LineAnalysis:
     iterations: int
     warnings: list[str] = field(default_factory=list)
     distortion: Distortion | None = None  # an odd multisine over ≥ 2 periods
+    snr: FloatArray = field(default_factory=lambda: np.zeros(0))  # |c^x_k|²/(2 s_k)
+    reliable: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    snr_floor: float = SNR_FLOOR
 
     @property
     def gain(self) -> FloatArray:
@@ -583,6 +594,10 @@ class LineAnalysis:
             "phase_deg": self.phase_deg.tolist(),
             "phase_ci95_deg": self.phase_ci95_deg.tolist(),
             "coherence": self.coherence.tolist(),
+            "snr": self.snr.tolist(),
+            "reliable": [bool(v) for v in self.reliable],
+            "snr_floor": self.snr_floor,
+            "n_reliable": int(np.sum(self.reliable)),
             "noise": self.noise.tolist(),
             "noise_dof": self.noise_dof.tolist(),
             "noise_method": "lpm" if self.noise_lpm.all() else (
@@ -809,13 +824,20 @@ def analyze_lines(
     half = np.degrees(np.minimum(t * sd_phase, np.pi))
     phase_ci = np.column_stack((phase - half, phase + half))
     coherence = np.clip(1.0 - s / np.maximum(np.abs(cy) ** 2 / 2.0, 1e-300), 0.0, 1.0)
+    ref_power = np.abs(cx) ** 2 / 2.0
+    snr = np.where(s > 0.0, ref_power / np.maximum(s, 1e-300), np.inf)
+    reliable = snr >= SNR_FLOOR
+    weak = ~reliable
     p_line = np.abs(e) ** 2 / 2.0
     lin_k = p_line - s
-    linear = float(lin_k.sum())
+    # the linear part from the reliable lines; a weak line's excess over its noise cannot be
+    # told from noise: it stays in the incoherent part (σ̂² is the same either way)
+    linear = float(lin_k[reliable].sum())
     # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2
     level1 = float(s[bins == 1][0]) if np.any(bins == 1) else float(u[1])
     mean_removal = 0.5 * level1
-    incoherent = float(_power(spec, n)) / n_valid + float(s.sum()) + mean_removal
+    incoherent = (float(_power(spec, n)) / n_valid + float(s.sum()) + mean_removal
+                  + float(lin_k[weak].sum()))
     theta = linear + incoherent  # = σ̂² + mean_removal over whole periods without gaps
     # --- intervals: noise per bin (variance units) and its variance
     q = u * (n_valid / n)  # the residual's periodogram in variance units
@@ -834,14 +856,22 @@ def analyze_lines(
     dof = 2.0 * theta**2 / total_var if total_var > 0 else float("inf")
     # linear part: Gaussian; incoherent part: the noise components with the estimation
     # error of the noise at the lines in place of its realisation
-    lin_var = cross + float(np.sum(s**2)) + noise.var_sum
+    s2 = float(np.sum(s**2))
+    s2_rel = float(np.sum(s[reliable] ** 2))
+    lin_var = (max(0.0, float(np.sum(2.0 * lin_k[reliable] * s[reliable]))) + s2_rel
+               + noise.var_sum * (s2_rel / s2 if s2 > 0.0 else 1.0))
     z = 1.959963984540054
     lin_half = z * math.sqrt(max(lin_var, 0.0))
     lin_ci = (max(linear - lin_half, 0.0), max(linear + lin_half, 0.0))
     var_inc = coef**2 * var_bin
-    var_inc[bins] += noise.var_sum * s**2 / max(float(np.sum(s**2)), 1e-300) - (
+    var_inc[bins] += noise.var_sum * s**2 / max(s2, 1e-300) - (
         s**2 / (1.0 + 2.0 / noise.dof))
-    inc_ci = mls_interval(incoherent, _parts(coef * level, var_inc, groups, coef))
+    level_inc = level.copy()
+    if weak.any():  # a weak line's whole power: a χ² with 2 degrees of freedom
+        wb = bins[weak]
+        level_inc[wb] += lin_k[weak]
+        var_inc[wb] += np.maximum(p_line[weak], s[weak]) ** 2
+    inc_ci = mls_interval(incoherent, _parts(coef * level_inc, var_inc, groups, coef))
     inc_ci = (max(inc_ci[0], 0.0), max(inc_ci[1], 0.0))
     dof_parts = {f"{a}-{b - 1}": nu for (a, b), (_, nu) in zip(groups, parts, strict=True)}
     distortion, notes = None, []
@@ -880,6 +910,8 @@ def analyze_lines(
         iterations=fit.iterations,
         warnings=notes,
         distortion=distortion,
+        snr=snr,
+        reliable=reliable,
     )
 
 
@@ -901,7 +933,9 @@ def periods_from_lines(
 
     k = la.lines.harmonics
     tp = la.lines.period_s
-    index = {int(v): i for i, v in enumerate(k)}
+    reliable = la.reliable if la.reliable.size == len(k) else np.ones(len(k), dtype=bool)
+    index = {int(v): i for i, v in enumerate(k) if reliable[i]}
+    weak = {int(v): i for i, v in enumerate(k) if not reliable[i]}
     cvar = 2.0 * la.noise / la.ref_amplitude**2  # complex variance of each H_k
     out: list[dict[str, Any]] = []
     for period in periods_s:
@@ -932,7 +966,13 @@ def periods_from_lines(
                                          min(la.noise_dof[i], la.noise_dof[j]), coh,
                                          a * (1 - a) / 2 * curv))
                 continue
-        out.append(not_excited(period))
+        entry = not_excited(period)
+        if abs(kf - kr) <= PERIOD_ON_LINE and kr in weak:
+            i = weak[kr]
+            entry["snr"] = float(la.snr[i])
+            entry["note"] = (f"the line at {f:.4g} Hz has SNR {la.snr[i]:.3g}, below "
+                             f"{la.snr_floor:g}: not measured reliably")
+        out.append(entry)
     return out
 
 

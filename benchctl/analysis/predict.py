@@ -34,6 +34,20 @@ motion is a table of lines ``A_j`` at ``f_j``, so the exact discrete form is use
   harmonics, ``|H''|`` the curvature of Ĥ per harmonic² over the neighbouring lines, its noise
   subtracted) and added to both ends of the intervals (``interpolation_bound``).
 
+- **Weak lines.** A measured line whose SNR (``1/E|Ĥ_k − H_k|²``) is below ``SNR_FLOOR``
+  (:mod:`benchctl.analysis.lines`) is not used: its Ĥ_k is mostly noise (a profile's band-edge
+  line a few 1e-8° high reads gains like 20 000), and multiplied by a heavier sea's real motion
+  there it would make σ anything. The target's lines there count as not measured.
+- **σ or a bound.** What the lines where H was not measured could add is bounded line by line,
+  ``Σ P_j b_j²``: below the tested band ``b_j`` is the upper 95 % end of ``|1 − Ĥ|`` at its
+  lowest line (|1 − H| not growing toward low frequencies: a lag, a latency, a gain error); in
+  a hole between measured lines the larger of the two sides'; above the band 1 (an instrument
+  that follows the motion no worse than not at all). ``sigma_bound`` = √(upper end of the
+  variance's interval + that). When it exceeds σ by more than ``BOUND_SMALL`` (5 %), σ is not
+  an estimate of the target's σ: the prediction is **bounded** (``bounded``; the JSON form
+  gives ``sigma`` null and the bound), and says where the unmeasured motion lies. Otherwise σ
+  is the measured lines' and its interval's upper end holds the bound.
+
 Pure computation on arrays: :func:`predict`, with :func:`response_from_lines` and
 :func:`noise_from_lines` to take both from a :class:`LineAnalysis`.
 """
@@ -49,6 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 from scipy.special import ndtri
 
+from benchctl.analysis.lines import SNR_FLOOR
 from benchctl.analysis.uncertainty import chi2_ppf, mls_interval
 from benchctl.errors import DataError
 
@@ -64,6 +79,7 @@ INTERP_MAX_STEP = 2  # neighbouring measured lines: harmonics at most this far a
 INTERP_NEAR = 0.2  # … or each within this share of the frequency
 CURVATURE_REACH = 7  # |H''| from the second differences of the lines within ± this many
 OUTSIDE_WARN = 0.01  # warn when this share of the target's variance lies outside the band
+BOUND_SMALL = 0.05  # σ is given as a bound when what was not measured could add more than this
 Z95 = float(ndtri(0.975))
 
 
@@ -154,6 +170,10 @@ class Prediction:
     error_gain: FloatArray  # |Ĥ(f_j) − 1| (NaN outside)
     contribution: FloatArray  # P_j (|D̂_j|² − v_j), deg² (0 outside)
     warnings: list[str] = field(default_factory=list)
+    sigma_bound: float = math.nan  # 95 % upper bound: what was not measured bounded (notes)
+    bounded: bool = False  # the bound exceeds σ by more than BOUND_SMALL: σ is not predicted
+    weak_lines_hz: list[float] = field(default_factory=list)  # measured, SNR < floor: not used
+    outside_bands_hz: list[tuple[float, float, int]] = field(default_factory=list)
 
     @property
     def n_inside(self) -> int:
@@ -163,8 +183,17 @@ class Prediction:
         from benchctl.analysis.result import _clean, _list
 
         return {
-            "sigma": self.sigma,
-            "sigma_ci95": list(self.sigma_ci95),
+            # bounded: σ is not predicted (what was not measured could add more than 5 %);
+            # the measured lines' part stays in sigma_measured_lines
+            "sigma": None if self.bounded else self.sigma,
+            "sigma_ci95": None if self.bounded else list(self.sigma_ci95),
+            "bounded": self.bounded,
+            "sigma_bound": self.sigma_bound,
+            "sigma_measured_lines": self.sigma,
+            "sigma_measured_lines_ci95": list(self.sigma_ci95),
+            "snr_floor": SNR_FLOOR,
+            "weak_lines_hz": list(self.weak_lines_hz),
+            "outside_bands_hz": [list(b) for b in self.outside_bands_hz],
             "variance": self.variance,
             "variance_ci95": list(self.variance_ci95),
             "linear": self.linear,
@@ -278,11 +307,21 @@ def predict(
         )
     if not (np.all(np.isfinite(fq)) and np.all(np.isfinite(amp)) and np.all(fq > 0)):
         raise DataError("target lines: expected finite frequencies > 0 Hz and finite amplitudes")
-    kk = len(response.freq)
-    if kk == 0:
+    if len(response.freq) == 0:
         raise DataError("measured response: no line; a prediction needs H measured at lines")
     if not (math.isfinite(noise.variance) and noise.variance >= 0.0):
         raise DataError(f"noise variance {noise.variance!r}: expected a finite value ≥ 0")
+    # weak lines (SNR = 1/cvar below the floor) are not used: their Ĥ is mostly noise
+    strong = np.asarray(response.cvar, dtype=float) * SNR_FLOOR <= 1.0
+    weak_hz = sorted(float(v) for v in np.asarray(response.freq)[~strong])
+    if not strong.any():
+        raise DataError(
+            f"measured response: none of its {len(response.freq)} lines was measured reliably "
+            f"(each line's SNR below {SNR_FLOOR:g}); a prediction needs H measured at lines"
+        )
+    response = MeasuredResponse(response.freq[strong], response.harmonics[strong],
+                                response.h[strong], response.cvar[strong], response.dof[strong])
+    kk = len(response.freq)
     order = np.argsort(response.freq)
     resp = MeasuredResponse(response.freq[order], response.harmonics[order], response.h[order],
                             np.maximum(response.cvar[order], 0.0), response.dof[order])
@@ -294,16 +333,26 @@ def predict(
     weight = np.zeros(n_t)  # a: weight of the upper line (0 on a line)
     inside = np.zeros(n_t, dtype=bool)
     bound_h = np.zeros(n_t)  # bound on |Ĥ(f_j) − H(f_j)| from the interpolation
+    # what |1 − H| could be where it was not measured (module notes): below the tested band
+    # no more than at its lowest line, in a hole no more than at either side, above it 1
+    d_up = np.abs(resp.h - 1.0) + Z95 * np.sqrt(resp.cvar)
+    out_bound = np.zeros(n_t)
+    basis = np.full(n_t, "", dtype=object)
     for j, f in enumerate(fq):
         tol = ON_LINE * f
         i = int(np.searchsorted(fm, f - tol))
         if i < kk and abs(fm[i] - f) <= tol:
             lo_idx[j], inside[j] = i, True
             continue
-        if i == 0 or i >= kk:
+        if i == 0:
+            out_bound[j], basis[j] = float(d_up[0]), "below"
+            continue
+        if i >= kk:
+            out_bound[j], basis[j] = 1.0, "above"
             continue
         i -= 1  # fm[i] < f < fm[i + 1]
         if not _neighbours(resp, i, float(f)):
+            out_bound[j], basis[j] = float(max(d_up[i], d_up[i + 1])), "hole"
             continue
         a = (f - fm[i]) / (fm[i + 1] - fm[i])
         lo_idx[j], weight[j], inside[j] = i, a, True
@@ -353,20 +402,48 @@ def predict(
         for i in range(kk - 1)
         if not _neighbours(resp, i, 0.5 * float(fm[i] + fm[i + 1]))
     ]
+    # what the lines where H was not measured could add: Σ P_j b_j² (b_j the bound above)
+    extra = float(np.sum(np.where(inside, 0.0, power * out_bound**2)))
+    sigma = math.sqrt(max(variance, 0.0))
+    sigma_bound = math.sqrt(max(var_ci[1], 0.0) + extra)
+    bounded = math.sqrt(max(variance, 0.0) + extra) > (1.0 + BOUND_SMALL) * sigma
+    if not bounded:  # the interval holds what they could add
+        var_ci = (var_ci[0], var_ci[1] + extra)
+    bands = outside_bands(fq, ~inside, power)
+    bases = sorted({str(b) for b in basis[~inside & (power > 0.0)]})
+    assumed = "; ".join({
+        "below": "below the tested band |1 − H| no larger than at its lowest line (a lag, "
+                 "latency or gain error, not an error that grows toward low frequencies)",
+        "hole": "in a hole between measured lines |1 − H| no larger than at either side",
+        "above": "above the tested band |1 − H| ≤ 1",
+    }[b] for b in bases)
+    where = ", ".join(f"{a:.4g} … {b:.4g} Hz ({m} line{'s' if m > 1 else ''})"
+                      for a, b, m in bands)
+    why = (f"not excited in the recording, or measured with SNR below {SNR_FLOOR:g}"
+           if weak_hz else "not excited in the recording")
     warnings: list[str] = []
-    if share > OUTSIDE_WARN:
+    if bounded:
+        warnings.append(
+            f"σ not predicted, only bounded: {100 * share:.3g} % of the target's variance "
+            f"({outside:.4g} deg²) lies at {where}, where H was {why}; from the lines measured "
+            f"σ = {sigma:.4g}°, and with {assumed}: σ ≤ {sigma_bound:.4g}° (95 %). "
+            "Record a profile that excites that band to predict σ"
+        )
+    elif share > OUTSIDE_WARN:
         warnings.append(
             f"{100 * share:.3g} % of the target's variance ({outside:.4g} deg²) lies on lines "
-            f"where H was not measured (tested {fm[0]:.4g} … {fm[-1]:.4g} Hz): left out of σ; "
-            f"with |1 − H| ≤ 1 there σ ≤ {math.sqrt(max(variance, 0.0) + outside):.4g}°"
+            f"where H was not measured (tested {fm[0]:.4g} … {fm[-1]:.4g} Hz): left out of σ "
+            f"and bounded in its interval ({assumed})"
         )
     if linear < 0.0:
         warnings.append(
-            f"the linear part's estimate is negative ({linear:.3g} deg²): the instrument's "
-            "linear error is below the noise of its measurement"
+            f"the linear part is not resolved: its estimate is {linear:.3g} deg² (95 % CI up "
+            f"to {lin_ci[1]:.3g} deg²), below zero by less than its uncertainty — the "
+            "instrument's response error is too small for this recording to measure; σ is "
+            "then mostly the noise carried over"
         )
     return Prediction(
-        sigma=math.sqrt(max(variance, 0.0)),
+        sigma=sigma,
         sigma_ci95=(math.sqrt(var_ci[0]), math.sqrt(max(var_ci[1], 0.0))),
         variance=variance,
         variance_ci95=var_ci,
@@ -389,4 +466,26 @@ def predict(
         error_gain=np.where(inside, np.abs(d), np.nan),
         contribution=contribution,
         warnings=warnings,
+        sigma_bound=sigma_bound,
+        bounded=bounded,
+        weak_lines_hz=weak_hz,
+        outside_bands_hz=bands,
     )
+
+
+def outside_bands(freq: FloatArray, outside: NDArray[np.bool_],
+                  power: FloatArray) -> list[tuple[float, float, int]]:
+    """The target's lines outside the measured band as runs of neighbouring lines
+    ``(lo Hz, hi Hz, count)``, in frequency order; lines of no power are left out."""
+    order = np.argsort(freq)
+    out: list[tuple[float, float, int]] = []
+    run: list[float] = []
+    for i in order:
+        if outside[i] and power[i] > 0.0:
+            run.append(float(freq[i]))
+        elif run:
+            out.append((run[0], run[-1], len(run)))
+            run = []
+    if run:
+        out.append((run[0], run[-1], len(run)))
+    return out

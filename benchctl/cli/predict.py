@@ -161,6 +161,8 @@ def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: Analys
             "linear": la.linear,
             "incoherent": la.incoherent,
             "n_lines": len(la.freq),
+            "n_reliable": int(la.reliable.sum()),
+            "snr_floor": la.snr_floor,
             "period_s": la.lines.period_s,
             "lines_source": la.lines.source,
             "timing_variance": timing,
@@ -168,6 +170,9 @@ def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: Analys
         "assumptions": {
             "noise": "independent of the motion (carried over whole)",
             "outside_band": "excluded from sigma; sigma_outside_bound takes |1 - H| <= 1 there",
+            "weak_lines": "lines measured with SNR below snr_floor are not used (outside)",
+            "bounded": "when what was not measured could add more than 5 % to sigma, sigma "
+                       "is null and sigma_bound the 95 % upper bound",
             "interval": "linear part: delta method over the line estimates; noise: scaled "
                         "chi-square; combined by the modified large-sample method",
         },
@@ -182,9 +187,16 @@ def _summary(doc: dict[str, Any], pred: Prediction) -> str:
         f"benchctl predict: {doc['recording']}  [{doc['axis']}]  →  {doc['profile']} "
         f"({doc['profile_name']}, {doc['duration_s']:g} s)",
         f"  measured: σ = {m['sigma']:.5g}° (linear {m['linear']:.4g} + incoherent "
-        f"{m['incoherent']:.4g} deg²), H at {m['n_lines']} lines over {lo_b:.4g} … "
-        f"{hi_b:.4g} Hz",
-        f"  predicted σ = {pred.sigma:.5g}°   95 % CI {s_lo:.5g} … {s_hi:.5g}°",
+        f"{m['incoherent']:.4g} deg²), H at {m['n_lines'] - len(pred.weak_lines_hz)} lines "
+        f"over {lo_b:.4g} … {hi_b:.4g} Hz"
+        + (f" ({len(pred.weak_lines_hz)} more below SNR {m['snr_floor']:g}, not used)"
+           if pred.weak_lines_hz else ""),
+        (f"  predicted σ ≤ {pred.sigma_bound:.5g}° (95 %): a bound, not an estimate — "
+         f"{100 * pred.outside_share:.3g} % of the motion lies where the recording did not "
+         f"measure H (see the warning); from the lines measured σ = {pred.sigma:.5g}° "
+         f"(95 % CI {s_lo:.5g} … {s_hi:.5g}°)"
+         if pred.bounded else
+         f"  predicted σ = {pred.sigma:.5g}°   95 % CI {s_lo:.5g} … {s_hi:.5g}°"),
         f"    linear Σ|H−1|²A²/2 = {pred.linear:.5g} deg² (95 % CI {pred.linear_ci95[0]:.4g} … "
         f"{pred.linear_ci95[1]:.4g}), noise {pred.noise:.5g} deg² (95 % CI "
         f"{pred.noise_ci95[0]:.4g} … {pred.noise_ci95[1]:.4g}, ν = {pred.noise_dof:.4g}), "
