@@ -88,6 +88,10 @@ class StandConfig(Strict):
     watchdog_s: Seconds | None = None
     limits: StandLimits
     tracking_tolerance_deg: Positive = 0.5  # |measured - commanded| beyond this aborts
+    # the stand's following lag (s): a position servo without velocity feed-forward trails its
+    # setpoint by about this × its rate (2ζ/ω_n for a second-order loop); the tracking check
+    # judges measured − setpoint + following_lag_s × rate. 0: a stand that does not trail
+    following_lag_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
     zero_tolerance_deg: Positive = 0.05  # "at rest" means |angle| below this
     wire_trace: bool = False  # debug-log every frame sent and received
     # the stand's calibration due date (YYYY-MM-DD), into the run's record and report
@@ -288,9 +292,15 @@ class SimDisturbConfig(Strict):
     (``lost_frame_p``) or garbled (``garbled_frame_p``, one byte changed), ``faults`` stand or
     instrument faults at random moments of the motion (kinds drawn from ``fault_kinds``), and
     an operator's Ctrl-C at a random moment with probability ``operator_stop_p``.
+
+    ``from_s``: the host's stalls, the send jitter and the slow, lost and garbled frames act
+    from this many seconds after the simulators start; before it the run is undisturbed (a run
+    disturbed from its motion's start on begins its motion at the same simulated instant as
+    its undisturbed twin, the instrument's samples and noise in step with it).
     """
 
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    from_s: Annotated[float, Field(ge=0, le=86_400, allow_inf_nan=False)] = 0.0
     host_stalls_per_min: Annotated[float, Field(ge=0, le=600, allow_inf_nan=False)] = 0.0
     host_stall_s: tuple[SimSeconds, SimSeconds] = (0.05, 0.3)
     send_jitter_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0

@@ -20,7 +20,13 @@ Checked for every run:
    the stand's buffer (and jitter, and replies slower than usual but within the reply timeout);
    a stream-mode stand holds its last setpoint on every missed slot, by design;
 4. σ: in such a run, without an underrun or a rejoin, σ within the 95 % interval of the same
-   configuration's undisturbed run.
+   configuration's undisturbed run. Such a run's stalls, jitter and slow replies act from its
+   motion's start on (``sim.disturb.from_s``, the undisturbed twin's fade-in): its motion then
+   begins at the same simulated instant, the instrument's samples and noise in step with it,
+   and σ differs only by what the disturbances did (disturbed from the start, the motion
+   began a few milliseconds later, the noise fell on other instants of the motion, and σ moved
+   by its own sampling spread: seeds 1015 and 1029 of the first draw). Faulty runs are
+   disturbed from the start.
 
 Prints one line per run (seed, what it drew, verdict, the checks) and the totals: runs,
 simulated hours, violations by check, the failing seeds. A failing seed replays exactly:
@@ -85,6 +91,8 @@ PROFILES = (
 )
 #: slack on the commanded points' finite differences (rounding of the recorded values)
 SLACK = 1.001
+#: a VirtualClock's monotonic() when it is made
+CLOCK_START = 1000.0
 #: the share of runs with lost or garbled frames and replies, device faults, an operator's stop
 FAULTY_SHARE = 0.35
 #: the share of runs whose host stalls may exceed the stand's buffer (up to 3 s)
@@ -176,6 +184,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
     """One run on its own VirtualClock, the simulators beside it; what the checks need."""
     assert cfg.sim is not None
     clock = VirtualClock(epoch=cfg.sim.epoch_utc)
+    assert clock.monotonic() == CLOCK_START
     with clock.running():
         if plan is not None:
             cfg = plan.with_faults(cfg)
@@ -194,7 +203,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
                                device_factory=lambda c, rec: open_devices(c, rec, clock=clock),
                                supervisor=sup, clock=clock)
             except BenchError as e:  # refused before anything moved (a profile over a limit)
-                return {"refused": str(e), "t_sim": clock.monotonic() - 1000.0}
+                return {"refused": str(e), "t_sim": clock.monotonic() - CLOCK_START}
             now = clock.monotonic()
             true = bench.stand.true_angles(now)
             with bench.stand._lock:
@@ -208,7 +217,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
                 "result": res, "true": true, "moving": moving,
                 "peaks": bench.stand.peaks(
                     following="any" if draw["mode"] == "stream" else "profile"),
-                "enabled": enabled, "t_sim": now - 1000.0,
+                "enabled": enabled, "t_sim": now - CLOCK_START,
             }
         finally:
             bench.stop()
@@ -361,24 +370,43 @@ def code_version() -> str:
 
 
 def _reference(draw: dict[str, Any], out: Path, cache: str | None,
-               version: str) -> dict[str, Any] | None:
-    """σ and its interval of the configuration's undisturbed run (cached by configuration)."""
+               version: str) -> dict[str, Any]:
+    """The configuration's undisturbed run (cached by code version and configuration): σ and
+    its interval per axis (``sigmas``, None unless it ended done), and the simulated second
+    its motion began (``motion_start_s``, None when it did not)."""
     cfg_path = config_for(draw, out / "u", None)
     text = cfg_path.read_text().replace(str(out / "u"), "OUT")
     key = hashlib.sha256(json.dumps([version, text, draw["profile"], draw["duration"]])
                          .encode()).hexdigest()[:24]
     hit = Path(cache) / f"{key}.json" if cache else None
     if hit is not None and hit.is_file():
-        return json.loads(hit.read_text())["sigmas"]
+        doc: dict[str, Any] = json.loads(hit.read_text())
+        return doc
     ref = _run(load_config(cfg_path), draw, out / "u", None)
-    sigmas = _sigmas(ref.get("result"))
+    res = ref.get("result")
+    doc = {"version": version, "t_sim_s": ref.get("t_sim"),
+           "sigmas": _sigmas(res) if res is not None and res.state == "done" else None,
+           "motion_start_s": _motion_start(res)}
     if hit is not None:
         hit.parent.mkdir(parents=True, exist_ok=True)
         tmp = hit.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"version": version, "sigmas": sigmas,
-                                   "t_sim_s": ref.get("t_sim")}))
+        tmp.write_text(json.dumps(doc))
         os.replace(tmp, hit)
-    return sigmas
+    return doc
+
+
+def _motion_start(res: Any) -> float | None:
+    """Seconds of simulated time from the simulators' start to the run's fade-in (its events)."""
+    if res is None or res.recording is None:
+        return None
+    events = Path(res.recording) / "events.jsonl"
+    if not events.is_file():
+        return None
+    for line in events.read_text().splitlines():
+        e = json.loads(line)
+        if e.get("kind") == "state" and e.get("to") == "fade-in":
+            return float(e["t_state"]) - CLOCK_START
+    return None
 
 
 def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None, str]
@@ -388,6 +416,14 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
     out = Path(work) / f"seed{seed}"
     t0 = time.perf_counter()
     try:
+        ref: dict[str, Any] | None = None
+        if not draw["faulty"]:
+            # the undisturbed twin first: disturbed from its motion's start on, the run begins
+            # its motion at the same simulated instant, the instrument's samples (and their
+            # noise) in step with it — σ then differs only by what the disturbances did
+            ref = _reference(draw, out, cache, version)
+            if ref["motion_start_s"] is not None:
+                draw["disturb"]["from_s"] = round(ref["motion_start_s"] + 0.001, 6)
         cfg_path = config_for(draw, out / "d", draw["disturb"])
         cfg = load_config(cfg_path)
         assert cfg.sim is not None and cfg.sim.disturb is not None
@@ -395,8 +431,8 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
         draw["plan_stalls"] = plan.stalls
         got = _run(cfg, draw, out / "d", plan)
         reference = None
-        if not draw["faulty"] and "refused" not in got and got["result"].state == "done":
-            reference = _reference(draw, out, cache, version)
+        if ref is not None and "refused" not in got and got["result"].state == "done":
+            reference = ref["sigmas"]
         bad = check_run(draw, got, cfg, reference)
         res = got.get("result")
         line = {

@@ -411,3 +411,15 @@ def test_figures_of_the_same_content_drawn_once(passed: Path,
     report["axes"]["roll"]["limit"] = 0.3998
     render_html(build_context(passed, report=report, trace=False))
     assert len(calls) == 2
+
+
+def test_health_of_a_run_that_ran_no_cycle() -> None:
+    """A run refused at a precheck has its lateness and round-trip percentiles null: the
+    health table shows a dash (it raised TypeError, and report.html was not written)."""
+    from benchctl.report.html import _health
+
+    rows = dict((what, value) for what, value, _warn in _health(
+        {"cycles": 0, "cycle_lateness_s": {"p50": None, "p99": None},
+         "stand_rtt_s": {"p50": 0.004, "p99": None}}))
+    assert rows["cycle lateness p50 / p99"] == "— / — ms"
+    assert rows["stand round trip p50 / p99"] == "4 / — ms"

@@ -116,3 +116,37 @@ def test_the_simulated_time_config_is_the_default_one_on_a_virtual_clock() -> No
     assert virtual["sim"].pop("clock") == "virtual"
     virtual["sim"].pop("epoch_utc")
     assert virtual == real
+
+
+def _events(rec: Path) -> list[dict[str, Any]]:
+    return [json.loads(x) for x in (rec / "events.jsonl").read_text().splitlines()]
+
+
+def test_disturbed_from_the_motions_start_the_motion_starts_in_step(tmp_path: Path) -> None:
+    """``sim.disturb.from_s`` at the undisturbed twin's fade-in: before it nothing is disturbed,
+    so the motion starts at the same simulated instant and the instrument's samples (its
+    instants and values, noise included) are the twin's; disturbed from the start, the motion
+    starts later and the noise falls on other instants of it."""
+    code, twin = _run(_config(tmp_path / "u"), tmp_path / "u" / "out")
+    assert code == 0
+    fade = next(e["t_state"] for e in _events(twin) if e.get("to") == "fade-in")
+    recs = {}
+    for name, extra in (("late", {"from_s": round(fade - 1000.0 + 0.001, 6)}), ("early", {})):
+        cfg = _config(tmp_path / name, {"seed": 5, **DISTURB, "lost_frame_p": 0.0,
+                                        "garbled_frame_p": 0.0, "lost_reply_p": 0.0, **extra})
+        _code, recs[name] = _run(cfg, tmp_path / name / "out")
+    ev = _events(recs["late"])
+    assert next(e["t_state"] for e in ev if e.get("to") == "fade-in") == fade
+    (d,) = [e for e in ev if e["kind"] == "disturbances"]
+    assert d["host_stalls"] and min(t for t, _d in d["host_stalls"]) >= fade - 1000.0
+    # the instrument's samples — its instants (the adapter's stamps) and values — are the
+    # twin's (the disturbed run goes on a little longer: its stalls delayed the end)
+    def samples(rec: Path) -> list[list[str]]:
+        rows = (rec / "instrument.csv").read_text().splitlines()
+        return [r.split(",")[1:] for r in rows]
+
+    twin_rows, late_rows = samples(twin), samples(recs["late"])
+    assert len(twin_rows) > 1500 and late_rows[:len(twin_rows)] == twin_rows
+    assert _digest(recs["late"], "stand.csv") != _digest(twin, "stand.csv")  # disturbed
+    early = next(e["t_state"] for e in _events(recs["early"]) if e.get("to") == "fade-in")
+    assert early > fade

@@ -142,10 +142,8 @@ def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
          bool(stats.get("rejoins"))),
         ("underruns (stand queue empty)", _num(stats.get("underruns", 0), "d"),
          bool(stats.get("underruns"))),
-        ("cycle lateness p50 / p99", f"{_num(1e3 * lat['p50'], '.3g') if 'p50' in lat else '—'}"
-         f" / {_num(1e3 * lat['p99'], '.3g') if 'p99' in lat else '—'} ms", False),
-        ("stand round trip p50 / p99", f"{_num(1e3 * rtt['p50'], '.3g') if 'p50' in rtt else '—'}"
-         f" / {_num(1e3 * rtt['p99'], '.3g') if 'p99' in rtt else '—'} ms", False),
+        ("cycle lateness p50 / p99", f"{_ms(lat, 'p50')} / {_ms(lat, 'p99')} ms", False),
+        ("stand round trip p50 / p99", f"{_ms(rtt, 'p50')} / {_ms(rtt, 'p99')} ms", False),
         ("instrument samples", _num(stats.get("instrument_samples"), "d"), False),
         ("instrument samples lost", _num(stats.get("instrument_lost", 0), "d"),
          bool(stats.get("instrument_lost"))),
@@ -153,6 +151,12 @@ def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
          bool(stats.get("instrument_bad_frames"))),
     ]
     return rows
+
+
+def _ms(d: Mapping[str, Any], key: str) -> str:
+    """``d[key]`` seconds in milliseconds, or — (absent, or null: no cycle was run)."""
+    v = d.get(key)
+    return _num(1e3 * v, ".3g") if isinstance(v, int | float) else "—"
 
 
 def _health_warnings(stats: Mapping[str, Any]) -> list[str]:

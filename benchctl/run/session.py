@@ -685,6 +685,7 @@ class Session:
             LoopLimits(
                 angle_deg=cfg.stand.limits.angle_deg,
                 tracking_tolerance_deg=cfg.stand.tracking_tolerance_deg,
+                following_lag_s=cfg.stand.following_lag_s,
                 profile_tolerance_deg=cfg.run.profile_tolerance_deg,
                 silence_timeout_s=cfg.instrument.silence_timeout_s,
                 heartbeat_period_s=cfg.stand.heartbeat_period_s,

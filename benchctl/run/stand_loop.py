@@ -101,6 +101,7 @@ class LoopLimits:
     rate_deg_s: float = math.inf
     accel_deg_s2: float = math.inf
     buffer_s: float = 1.0  # buffered mode: how far ahead the queue is kept
+    following_lag_s: float = 0.0  # the stand trails its setpoint by this × its rate
 
     @property
     def kinematic(self) -> Limits:
@@ -362,17 +363,22 @@ class StandLoop:
         if profile_t is None:
             return
         ref = self._ref(profile_t) if self._ref is not None else self.plan.at(profile_t)
+        # a servo trails its setpoint by its following lag × its rate: that is following, not
+        # a stand that does not follow (stand.following_lag_s)
+        lag = self.lim.following_lag_s
         track = {
-            a: s.angle_deg[a] - s.setpoint_deg[a] for a in self.plan.axes if a in s.setpoint_deg
+            a: s.angle_deg[a] - s.setpoint_deg[a] + lag * s.rate_deg_s.get(a, 0.0)
+            for a in self.plan.axes if a in s.setpoint_deg
         }
         dep = {a: s.angle_deg[a] - ref[a] for a in self.plan.axes}
         self.rec.live.tracking_error_deg = track
         self.rec.live.departure_deg = dep
         for a, e in track.items():
             if self._over_tol("track " + a, abs(e) > self.lim.tracking_tolerance_deg, s.t_host):
+                lagged = (f", its following lag {lag:g} s × rate allowed" if lag > 0 else "")
                 raise SafetyAbort(
-                    f"tracking error on {a}: {e:+.3f}° (measured − stand setpoint) beyond "
-                    f"±{self.lim.tracking_tolerance_deg}° (stand.tracking_tolerance_deg)"
+                    f"tracking error on {a}: {e:+.3f}° (measured − stand setpoint{lagged}) "
+                    f"beyond ±{self.lim.tracking_tolerance_deg}° (stand.tracking_tolerance_deg)"
                 )
         for a, e in dep.items():
             over = abs(e) > self.lim.profile_tolerance_deg

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import socket
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
@@ -166,14 +167,24 @@ class SimBench:
         if stall is not None:
             for t, d in plan.stalls:
                 stall(t0 + t, d)
+        start = t0 + plan.spec.from_s
+        clock = self.clock
+
+        def after(f: Callable[[bytes], Any], before: Callable[[bytes], Any]
+                  ) -> Callable[[bytes], Any]:
+            """``f`` from ``start`` on (its draws too), ``before`` until then."""
+            if plan.spec.from_s <= 0.0:
+                return f
+            return lambda data: f(data) if clock.monotonic() >= start else before(data)
+
         host = self.stand.client_endpoint
         device = self.stand.device_endpoint
         if host is not None and device is not None:
-            host.delay = plan.send_delay()
-            device.delay = plan.reply_delay()
+            host.delay = after(plan.send_delay(), lambda _d: 0.0)
+            device.delay = after(plan.reply_delay(), lambda _d: 0.0)
         frames = self.instrument.device_endpoint
         if frames is not None:
-            frames.damage = plan.frame_damage()
+            frames.damage = after(plan.frame_damage(), lambda d: d)
 
     def config(self) -> BenchConfig:
         """The bench config pointed at these simulators (``private``: a run's own)."""

@@ -19,6 +19,10 @@ What each disturbance does:
   (``sim.faults``): the same path a configured fault takes;
 - the operator's stop is the run's SIGINT path, taken at its drawn moment
   (:attr:`Disturbances.operator_stop_s`, for the caller to act on).
+
+Stalls, jitter and the links' disturbances act from ``from_s`` seconds after the simulators
+start (:meth:`benchctl.sim.bench.SimBench.disturb`); the faults and the operator's stop are
+timed from the motion's start.
 """
 
 from __future__ import annotations
@@ -65,7 +69,7 @@ class Disturbances:
     def __post_init__(self) -> None:
         s = self.spec
         rng = self._rng("stalls")
-        t = 0.0
+        t = s.from_s
         if s.host_stalls_per_min > 0:
             rate = s.host_stalls_per_min / 60.0
             while True:
@@ -142,6 +146,7 @@ class Disturbances:
         """The schedule as recorded with the run (``events.jsonl`` / ``meta.json``)."""
         return {
             "seed": self.spec.seed,
+            "from_s": self.spec.from_s,
             "host_stalls": [[t, d] for t, d in self.stalls],
             "faults": [
                 {"target": f.target, "kind": f.kind, "after_motion_s": f.after_motion_s,
