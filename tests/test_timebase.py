@@ -372,3 +372,23 @@ def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "timing: device given" in text and "warning: timing:" in text
+
+
+def test_stamps_on_a_grid_take_the_short_way_to_the_same_slots() -> None:
+    """Stamps that step evenly (a CSV's times, a fitted clock) skip the drop-and-burst search:
+    the same slots and clock as the search finds, one robust fit instead of several."""
+    from benchctl.analysis import timebase as tb
+
+    grid = 1000.0 + np.arange(20_000) * 0.01
+    assert tb._uniform(grid)
+    k, clk = tb.fit_slots(grid)
+    k_full, clk_full = tb.refine_slots(grid, tb.first_slots(grid))
+    assert np.array_equal(k, k_full) and np.array_equal(k, np.arange(grid.size))
+    assert (clk.t0, clk.dt, clk.error_rms) == (clk_full.t0, clk_full.dt, clk_full.error_rms)
+    # one dropped sample or 1 % jitter: not a grid, the full search runs (and finds the drop)
+    dropped = np.delete(grid, 500)
+    assert not tb._uniform(dropped)
+    k, _clk = tb.fit_slots(dropped)
+    assert k[500] - k[499] == 2
+    rng = np.random.default_rng(3)
+    assert not tb._uniform(grid + rng.normal(0.0, 1e-4, grid.size))

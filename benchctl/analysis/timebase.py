@@ -431,7 +431,27 @@ def fit_slots(t: ArrayLike, *, one_sided: bool = False) -> tuple[NDArray[np.int6
     samples to other slots; a lasting jump of about one step is a dropped sample.
     ``one_sided``: the stamps are receipts, only ever late (see ``robust_clock``)."""
     ta = np.asarray(t, dtype=float)
+    if _uniform(ta):  # a grid already (a CSV's times, a fitted clock): one slot per stamp
+        k = np.arange(len(ta), dtype=np.int64)
+        clk = robust_clock(k, ta, one_sided=one_sided)
+        if np.array_equal(_increasing(k + np.rint((ta - clk.at(k)) / clk.dt).astype(np.int64)),
+                          k):
+            return k, clk
     return refine_slots(ta, first_slots(ta), one_sided=one_sided)
+
+
+UNIFORM_TOL = 1e-4  # stamps whose steps all lie within this share of their mean step: a grid
+
+
+def _uniform(t: FloatArray) -> bool:
+    """The stamps step evenly (within ``UNIFORM_TOL`` of a step): no drop, burst or jitter to
+    find — the slots are the stamps' own order (what :func:`first_slots` and
+    :func:`refine_slots` would find, without their passes over the record)."""
+    if len(t) < 3:
+        return False
+    d = np.diff(t)
+    mean = (t[-1] - t[0]) / (len(t) - 1)
+    return bool(mean > 0 and np.max(np.abs(d - mean)) <= UNIFORM_TOL * mean)
 
 
 # ---------------------------------------------------------------------------------- device clocks
