@@ -95,6 +95,8 @@ SLACK = 1.001
 CLOCK_START = 1000.0
 #: the share of runs with lost or garbled frames and replies, device faults, an operator's stop
 FAULTY_SHARE = 0.35
+#: the share of table-mode runs drawn at the shortest duration (a table of at most 64 lines)
+TABLE_SHORT = 0.9
 #: the share of runs whose host stalls may exceed the stand's buffer (up to 3 s)
 LONG_STALL_SHARE = 0.3
 
@@ -149,6 +151,10 @@ def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) ->
         "profile": rng.choice(PROFILES),
         "duration": rng.choice(durations),
     }
+    if draw["mode"] == "table" and rng.random() < TABLE_SHORT:
+        # a stand's table holds 64 lines: at 2 min most profiles fit, at 15 min none does
+        # (refused before anything moves, which the other tenth still checks)
+        draw["duration"] = min(durations)
     faulty = rng.random() < FAULTY_SHARE
     # host stalls: in most runs all shorter than the stand's 1 s buffer (the run must then go
     # through: check 3), in the rest up to several seconds, rarer (a stall longer than the
