@@ -139,8 +139,10 @@ class Aligned:
         )
         if self.bridged:
             text += f" and {self.bridged} samples on a reference bridged across its gaps"
+        share = (f"about {100 * self.timing_variance / variance:.3g} % to σ²" if variance > 0
+                 else f"{self.timing_variance:.3g} deg² to a σ² of 0")
         return (
-            text + f" add about {100 * self.timing_variance / variance:.3g} % to σ² "
+            text + f" add {share} "
             "(σ_ẋ²·jitter²); stamps that jitter about a uniform clock: use a fitted time base "
             "(--timebase fitted, --reference-timebase fitted)"
         )
@@ -163,7 +165,8 @@ class Aligned:
 def check_times(t: FloatArray, name: str) -> None:
     """Raise ``DataError`` unless ``t`` is finite and strictly increasing."""
     if len(t) < MIN_SAMPLES:
-        raise DataError(f"{name}: {len(t)} samples, at least {MIN_SAMPLES} are needed")
+        raise DataError(f"{name}: {len(t)} sample{'s' if len(t) != 1 else ''}, at least "
+                        f"{MIN_SAMPLES} are needed")
     bad = ~np.isfinite(t)
     if bad.any():
         i = int(np.argmax(bad))
@@ -220,7 +223,7 @@ def check_values(v: FloatArray, name: str) -> None:
             f"|angle| ≤ {MAX_ABS_ANGLE_DEG:g} deg"
         )
     if float(np.ptp(v)) == 0.0:
-        raise DataError(f"{name}: the signal is constant ({v[0]!r} deg); nothing to analyse")
+        raise DataError(f"{name}: the signal is constant ({float(v[0])!r} deg); nothing to analyse")
 
 
 def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:

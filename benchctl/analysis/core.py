@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -44,6 +45,7 @@ from benchctl.analysis.align import Aligned, align
 from benchctl.analysis.correlation import Correlations, correlations, demean
 from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
 from benchctl.analysis.lines import (
+    WHOLE_PERIODS_TOL,
     LineAnalysis,
     LinesError,
     LineSet,
@@ -82,6 +84,7 @@ MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
 TIMING_SHARE_WARN = 0.01  # warn when the timing contribution exceeds 1 % of σ²
+TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
 
 
 def default_max_lag(n_grid: int) -> int:
@@ -518,6 +521,11 @@ def _line_analysis(
                 raise LinesError(ex.lines_note or "the departures leave no whole period of a "
                                  "known line set")
             lines, period_s = ex.line_set, None
+        period = (lines.period_s if isinstance(lines, LineSet) else period_s)
+        trimmed = _whole_part(al, period) if period is not None else None
+        if trimmed is not None:
+            al, note = trimmed
+            warnings.append(note)
         ls, x_spectrum = _line_set(al, lines, period_s)
         if ls is None:
             return None
@@ -527,6 +535,27 @@ def _line_analysis(
     except LinesError as e:
         warnings.append(f"no line-wise estimate: {e}")
         return None
+
+
+def _whole_part(al: Aligned, period: float) -> tuple[Aligned, str] | None:
+    """A record just short of (or past) whole periods of ``period``: its first whole periods,
+    and the note that says so; None when it holds whole periods already, or not one."""
+    n = len(al.mask)
+    span = n * al.dt
+    nf = span / period
+    whole = math.floor(nf + WHOLE_PERIODS_TOL)
+    if whole < 1 or abs(nf - round(nf)) <= WHOLE_PERIODS_TOL:
+        return None
+    m = round(whole * period / al.dt)
+    if m < 2 or abs(m * al.dt / period - whole) > WHOLE_PERIODS_TOL / max(whole, 1):
+        return None
+    part = dataclasses.replace(al, t=al.t[:m], x=al.x[:m], y=al.y[:m], mask=al.mask[:m])
+    if int(part.mask.sum()) < 2:
+        return None
+    return part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
+                  f"line-wise estimate is made over its first {whole} whole period"
+                  f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
+                  f"{span - m * al.dt:.4g} s left out of it")
 
 
 def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
@@ -585,7 +614,9 @@ def _result(
         mean_removal = la.mean_removal
         ci = la.sigma_ci95
         dof = la.dof
-        if n < len(al.mask):
+        # the record just short of whole periods: the lines over its whole periods (_whole_part)
+        part = la.n_periods * la.lines.period_s < (len(al.mask) - 1) * al.dt
+        if n < len(al.mask) or part:
             # samples missing (gaps, exclusions): the σ over the samples present weighs the
             # motion's phases unevenly (an error that depends on the motion then reads off);
             # the lines, fitted on the samples present, estimate the whole period's — the σ
@@ -593,7 +624,7 @@ def _result(
             sample_sigma = sigma
             variance = max(la.variance - la.mean_removal, 0.0)
             sigma = float(np.sqrt(variance))
-            if not ci[0] <= sample_sigma <= ci[1]:
+            if not part and not ci[0] <= sample_sigma <= ci[1]:
                 warnings.append(
                     f"σ is the line-wise estimate over the whole period(s) ({sigma:.5g}°): "
                     f"over the {n} samples present it would read {sample_sigma:.5g}°, outside "
@@ -632,7 +663,8 @@ def _result(
             "variance": bv,
             "sigma": float(np.sqrt(max(bv, 0.0))),
         }
-    if al.timing_variance > TIMING_SHARE_WARN * variance:
+    # (an error of exactly zero: only a timing contribution above rounding is worth a word)
+    if al.timing_variance > max(TIMING_SHARE_WARN * variance, TIMING_FLOOR_DEG2):
         warnings.append(al.timing_warning(variance))
     if al.device.gap_count:
         warnings.append(
