@@ -161,10 +161,22 @@ def _check_band(band_hz: tuple[float, float] | None, al: Aligned, resolution: fl
             f"record too short for the band {lo:g} … {hi:g} Hz: {span:.6g} s holds fewer than "
             f"two periods of {lo:g} Hz; expected at least {2.0 / lo:.6g} s"
         )
+    if hi - lo < 1.0 / span:
+        raise DataError(
+            f"band {lo:g} … {hi:g} Hz is narrower than the record's resolution "
+            f"{1.0 / span:.4g} Hz (1/{span:.6g} s); give a wider band or a longer record"
+        )
+
+
+def _check_psd_band(band_hz: tuple[float, float], resolution: float) -> None:
+    """A band-limited σ from the smoothed PSD (no line-wise estimate) needs a band at least as
+    wide as the PSD's resolution (from the lines it needs only the record's, 1/T)."""
+    lo, hi = band_hz
     if hi - lo < resolution:
         raise DataError(
             f"band {lo:g} … {hi:g} Hz is narrower than the resolution {resolution:.4g} Hz of "
-            "the estimate; give a wider band or a longer max lag"
+            "the estimate (no line-wise estimate, whose bins are 1/T apart, to take it from); "
+            "give a wider band or a longer max lag"
         )
 
 
@@ -508,7 +520,7 @@ def _whole_periods(al: Aligned, ex: _Exclusion, lines: LinesMode,
 
 def _line_analysis(
     al: Aligned, lines: LinesMode, period_s: float | None, warnings: list[str],
-    ex: _Exclusion | None = None,
+    ex: _Exclusion | None = None, band_hz: tuple[float, float] | None = None,
 ) -> LineAnalysis | None:
     """The line-wise estimate, or None (with a warning when lines were given but cannot be
     used, or were detected and fail). With departures (``ex``): on the whole periods they do
@@ -529,7 +541,7 @@ def _line_analysis(
         ls, x_spectrum = _line_set(al, lines, period_s)
         if ls is None:
             return None
-        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum)
+        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum, band_hz)
         warnings.extend(la.warnings)
         return la
     except LinesError as e:
@@ -607,7 +619,7 @@ def _result(
     dof_rand = dof_of_variance(
         grid.freq, dec.linear, dec.incoherent, duration_eff, dof_f, motion_random=True
     )
-    la = _line_analysis(al, lines, period_s, warnings, ex)
+    la = _line_analysis(al, lines, period_s, warnings, ex, band_hz)
     if ex is not None:
         warnings[:0] = _exclusion_warnings(ex)
     if la is not None:
@@ -654,14 +666,18 @@ def _result(
             ),
         }
     )
-    band = None
-    if band_hz is not None:
+    band = None if la is None else la.band  # from the lines: no leakage, with its interval
+    if band_hz is not None and band is None:
+        _check_psd_band(band_hz, grid.resolution_hz)
         bv = band_area(grid.freq, sp.gee, band_hz[0], band_hz[1])
         band = {
             "lo": float(band_hz[0]),
             "hi": float(band_hz[1]),
+            "method": "psd",  # the smoothed PSD's area: no interval (replaced by the lines')
             "variance": bv,
             "sigma": float(np.sqrt(max(bv, 0.0))),
+            "variance_ci95": None,
+            "sigma_ci95": None,
         }
     # (an error of exactly zero: only a timing contribution above rounding is worth a word)
     if al.timing_variance > max(TIMING_SHARE_WARN * variance, TIMING_FLOOR_DEG2):

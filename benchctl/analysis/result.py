@@ -89,7 +89,7 @@ class AnalysisResult:
     incoherent: float
     components_source: str
     lines: LineAnalysis | None
-    band: dict[str, float] | None
+    band: dict[str, Any] | None
     gaps: dict[str, Any]
     timing: dict[str, Any]
     cross_checks: dict[str, Any]

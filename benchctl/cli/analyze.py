@@ -420,7 +420,10 @@ def summary(r: AnalysisResult) -> str:
     lines.extend(_cross_axis_block(r))
     if r.band:
         b = r.band
-        lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°")
+        ci = b.get("sigma_ci95")
+        lines.append(f"  band {b['lo']:g} … {b['hi']:g} Hz: σ = {b['sigma']:.5g}°"
+                     + (f"   95 % CI {ci[0]:.5g} … {ci[1]:.5g}° (from the lines' DFT bins)"
+                        if ci else "   (the smoothed PSD's area: no interval without lines)"))
     if r.periods:
         lines.extend(_periods_table(r))
     if r.excitation is not None:
