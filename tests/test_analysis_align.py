@@ -92,7 +92,7 @@ def test_record_too_short_for_lag_or_band() -> None:
         analyze(t, x, t, 0.99 * x, max_lag_s=20.0)
     with pytest.raises(DataError, match="fs/2"):
         analyze(t, x, t, 0.99 * x, band_hz=(0.1, 50.0))
-    with pytest.raises(DataError, match="narrower than the (record.s )?resolution"):
+    with pytest.raises(DataError, match=r"narrower than the (record.s )?resolution"):
         analyze(t, x, t, 0.99 * x, band_hz=(0.2, 0.21))
 
 

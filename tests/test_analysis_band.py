@@ -33,7 +33,7 @@ def record(seed: int, noise: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def truth(lo: float, hi: float, noise: float) -> float:
-    inb = (F >= lo) & (F <= hi)
+    inb = (lo <= F) & (hi >= F)
     return float(np.sum(np.abs(H[inb] - 1) ** 2 / 2) + noise**2 * (hi - lo) / (FS / 2))
 
 
