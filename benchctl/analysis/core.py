@@ -67,6 +67,8 @@ from benchctl.analysis.psd import (
     welch_by_runs,
 )
 from benchctl.analysis.result import AnalysisResult
+from benchctl.analysis.skew import WARN_PPM as SKEW_WARN_PPM
+from benchctl.analysis.skew import Skew, deskewed, estimate_skew
 from benchctl.analysis.timebase import label_of
 from benchctl.analysis.uncertainty import (
     density_interval,
@@ -84,6 +86,7 @@ MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
 TIMING_SHARE_WARN = 0.01  # warn when the timing contribution exceeds 1 % of σ²
+SKEW_PASSES = 3  # a skew is measured again after its correction, at most this many times
 TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
 
 
@@ -422,6 +425,22 @@ def analyze(
     al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                labels=labels)
     al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
+    # the instrument's stamps drifting against the reference's (its own clock fast or slow):
+    # measured from the cross-spectrum's phase turning over the record, taken out (skew.py)
+    motion_period = _known_period(al, lines, period_s)
+    skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
+    if skew is not None and skew.significant:
+        td_stamped, total = td, skew
+        for _ in range(SKEW_PASSES):  # each pass measures what the last one left
+            td = deskewed(td_stamped, total)
+            al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
+                       labels=labels)
+            al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
+            rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
+            if rest is None or abs(rest.ppm) <= rest.se_ppm:
+                break
+            total = total.plus(rest)
+        skew = total
     _check_band(band_hz, al, sp.grid.resolution_hz)
     delay_raw = _delay(sp, al)
     shift = 0.0
@@ -434,7 +453,29 @@ def analyze(
                        reference_timebase=reference_timebase, labels=labels)
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s,
-                   ex)
+                   ex, skew)
+
+
+def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> float | None:
+    """The motion's period: given (a profile's lines, ``period_s``) or detected in the
+    reference ("auto"); None when it is not periodic (or the detection finds no period)."""
+    if isinstance(lines, LineSet):
+        return lines.period_s
+    if period_s is not None:
+        return float(period_s)
+    if lines != "auto":
+        return None
+    power = periodogram(al.x, al.mask)
+    count = detect_period(al.x, al.mask, power)
+    return None if count is None else len(al.mask) * al.dt / count
+
+
+def _skew_fields(skew: Skew | None) -> dict[str, Any]:
+    """The skew for the result's ``timing`` (None fields: the record too short to measure it)."""
+    if skew is None:
+        return {"skew_ppm": None, "skew_ci95_ppm": None, "skew_corrected": False}
+    return {"skew_ppm": skew.ppm, "skew_ci95_ppm": list(skew.ci95_ppm),
+            "skew_corrected": skew.significant, "skew_drift_s": skew.drift_s}
 
 
 def _line_set(
@@ -593,9 +634,18 @@ def _result(
     lines: LinesMode = "off",
     period_s: float | None = None,
     ex: _Exclusion | None = None,
+    skew: Skew | None = None,
 ) -> AnalysisResult:
     grid = sp.grid
     warnings: list[str] = []
+    if skew is not None and skew.significant and abs(skew.ppm) > SKEW_WARN_PPM:
+        lo_p, hi_p = skew.ci95_ppm
+        warnings.append(
+            f"timing: the instrument's stamps drift against the reference's by "
+            f"{skew.ppm:+.4g} ppm (95 % {lo_p:+.4g} … {hi_p:+.4g}; {1e3 * skew.drift_s:+.4g} ms "
+            "over the record): its clock runs fast or slow. Corrected, anchored at the "
+            "record's start (its clock taken as right when the record began); set the "
+            "instrument's clock, or record its stamps with the host's receipt times")
     eps_raw = np.where(al.mask, al.y - al.x, 0.0)
     n = al.n_valid
     mean_error = float(eps_raw.sum() / n)
@@ -751,6 +801,7 @@ def _result(
             "reference_jitter_rms": al.reference.jitter_rms,
             **al.timing_fields(),
             "timing_share": al.timing_variance / variance if variance > 0 else 0.0,
+            **_skew_fields(skew),
         },
         cross_checks=cross,
         uncertainty={
