@@ -69,6 +69,7 @@ from benchctl.errors import (
     is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
+from benchctl.kinematics import profile_peaks
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -389,6 +390,55 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
     return PreparedMotion(profile, motion, plan, check, meta, pretest)
 
 
+# -------------------------------------------------------------------------- mounting check
+def mounting_result(
+    stand_rows: list[tuple[float, dict[str, float]]],
+    samples: list[Any],
+    axes: tuple[str, ...],
+    cfg: BenchConfig,
+) -> pc.CheckResult:
+    """The mounting check's precheck from the tilt's stand samples ((t_host, angles) each) and
+    instrument samples: the stand's measured angles interpolated at the instrument's instants,
+    the response fitted and judged (``benchctl.run.mounting``)."""
+    from benchctl.config import axis_map
+    from benchctl.run import mounting as mt
+
+    mc = cfg.run.mounting_check
+    mapping = axis_map(cfg.instrument.axes)
+    values: dict[str, Any] = {
+        "axes": list(axes), "tilt_deg": mc.tilt_deg, "gain_tolerance": mc.gain_tolerance,
+        "cross_tolerance": mc.cross_tolerance,
+        "instrument_axes": {a: {"output": o, "sign": sg} for a, (o, sg) in mapping.items()},
+    }
+    name = "mounting"
+    ts = np.array([t for t, _ in stand_rows], dtype=float)
+    order = np.argsort(ts, kind="stable")
+    ts = ts[order]
+    readings = sorted({r for s in samples for r in s.angle_deg})
+    ti = np.array([s.t_host for s in samples], dtype=float)
+    inside = (ti >= ts[0]) & (ti <= ts[-1]) if ts.size else np.zeros(ti.size, dtype=bool)
+    try:
+        if ts.size < 2 or not readings:
+            raise DataError(f"mounting check: {ts.size} stand samples and {len(samples)} "
+                            "instrument samples during the tilt: too few to fit")
+        x = {a: np.interp(ti[inside], ts, np.array(
+            [stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)) for a in axes}
+        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples],
+                         dtype=float)[inside] for r in readings}
+        resp = mt.fit_response(x, y)
+    except DataError as e:
+        return pc.CheckResult(name, False, f"{e} (run.mounting_check)", values)
+    values["response"] = resp.to_dict()
+    where = str(cfg.source) if cfg.source is not None else "the bench config"
+    verdict = mt.judge(resp, axes, mapping, mc.gain_tolerance, mc.cross_tolerance, where)
+    values["findings"] = {f.reading: f.kind for f in verdict.findings}
+    if verdict.ok:
+        seen = ", ".join(f"{r} {resp.gain[r][a]:.3f}× the stand's {a}"
+                         for r in readings for a in axes if r == a)
+        return pc.CheckResult(name, True, f"mounted as configured: {seen}", values)
+    return pc.CheckResult(name, False, verdict.detail, values)
+
+
 # -------------------------------------------------------------------------- devices
 DeviceFactory = Callable[[BenchConfig, Path], tuple[Stand, AngleSensor]]
 
@@ -655,6 +705,11 @@ class Session:
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._rate_and_zero()
+        self._mounting_check()
+        if self.prep.plan.mode == "table" and self.prep.pretest is None:
+            assert self.prep.plan.tables is not None
+            stand.upload_table(self.prep.plan.tables)
+            w.event("table_uploaded", axes=list(self.prep.plan.tables))
 
     def _disturbed(self, plan: Disturbances) -> None:
         """Simulated time with seeded disturbances: record and show the seed and the schedule,
@@ -737,10 +792,64 @@ class Session:
             self.display.message("bringing the stand to zero")
             stand.go_to_zero()
         self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
-        if self.prep.plan.mode == "table" and self.prep.pretest is None:
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+
+    def _mounting_check(self) -> None:
+        """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
+        of the profile tilted in turn to a few degrees and back, on a stand loop of its own
+        (the same path as the motion: setpoints or the trajectory queue, every limit and
+        tracking check), recorded like the rest of the run (``mounting_start``,
+        ``mounting_motion_start``: outside the analysis window, which starts at the profile's
+        ``motion_start``). The instrument's response is fitted and judged: a unit mounted
+        reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
+        back at rest at zero — the tilt ends there — then the one cleanup path)."""
+        from benchctl.kinematics import Limits
+        from benchctl.run import mounting as mt
+
+        mc = self.cfg.run.mounting_check
+        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
+        if not mc.enabled:
+            return
+        assert w is not None and rec is not None and stand is not None and self.loop is not None
+        lim = cfg.stand.limits
+        rate = cfg.stand.setpoint_rate_hz
+        period = 1.0 / rate
+        points = mt.tilt_points(self.axes, mc.tilt_deg, mc.hold_s,
+                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
+        n = next(iter(points.values())).size
+        # a stand that plays tables takes setpoints too (its ramp to zero is streamed)
+        mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
+        plan = MotionPlan(self.axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
+                          peaks={a: profile_peaks(v, period) for a, v in points.items()})
+        stand_rows: list[tuple[float, dict[str, float]]] = []
+
+        def tap(s: Any) -> None:
+            stand_rows.append((s.t_host, dict(s.angle_deg)))
+
+        w.event("mounting_start", axes=list(self.axes), tilt_deg=mc.tilt_deg, hold_s=mc.hold_s,
+                duration_s=plan.duration_s, mode=mode)
+        self.display.message(
+            f"mounting check: {' then '.join(self.axes)} tilted to +{mc.tilt_deg:g}° and back "
+            f"({plan.duration_s:.0f} s)")
+        self.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
+        self.loop = loop = self._new_loop(plan, StateMachine(self.clock))
+        loop.motion_event = "mounting_motion_start"
+        rec.collect(True)
+        rec.stand_taps.append(tap)
+        try:
+            loop.start()
+            self._play(loop, "mounting check")
+        finally:
+            rec.stand_taps.remove(tap)
+            samples = rec.collect(False)
+        # the live σ: the profile's motion only; the tilt's loop holds until the next one starts
+        rec.sigma = RunningSigma(self.axes, clock=self.clock)
+        loop.stop()
+        self.loop = self._new_loop(self.prep.plan)
+        self.loop.start()  # hold until the motion (or the pre-test) begins
+        result = mounting_result(stand_rows, samples, self.axes, cfg)
+        w.update_meta(mounting_check=result.values)
+        self._precheck(result)
+
 
     def _equalise(self) -> None:
         """The equalisation pre-test (``run.equalise``): the low-level multisine played and
@@ -842,9 +951,10 @@ class Session:
         self.loop = self._new_loop(self.prep.plan)
         self.loop.start()  # hold until the motion begins
 
-    def _play(self, loop: StandLoop) -> None:
-        """Play ``loop``'s plan to its end, watching it as the motion is watched (faults,
-        stalls, a silent instrument, a time limit)."""
+    def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
+        """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
+        watching it as the motion is watched (faults, stalls, a silent instrument, a time
+        limit)."""
         loop.begin_motion()
         limit = loop.plan.duration_s + 60.0
         t0 = self.clock.monotonic()
@@ -856,9 +966,9 @@ class Session:
             if now - t_wake > 0.1 + HOST_STALL_S:
                 resumed = now
             t_wake = now
-            self._check_loop(loop, now, resumed, "pre-test")
+            self._check_loop(loop, now, resumed, what)
             if now - t0 > limit:
-                raise SafetyAbort(f"pre-test did not finish within {limit:.0f} s")
+                raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
             self.display.update(self._snapshot())
         self.supervisor.check()
 
