@@ -414,7 +414,8 @@ def mounting_result(
     ts = np.array([t for t, _ in stand_rows], dtype=float)
     order = np.argsort(ts, kind="stable")
     ts = ts[order]
-    readings = sorted({r for s in samples for r in s.angle_deg})
+    readings = sorted({r for s in samples for r in s.angle_deg},
+                      key=lambda r: (r not in axes, axes.index(r) if r in axes else 0, r))
     ti = np.array([s.t_host for s in samples], dtype=float)
     inside = (ti >= ts[0]) & (ti <= ts[-1]) if ts.size else np.zeros(ti.size, dtype=bool)
     try:
