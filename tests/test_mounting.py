@@ -16,6 +16,7 @@ reversed or with roll and pitch swapped refused with what was seen and how to fi
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -281,15 +282,17 @@ def _profile(tmp_path: Path, text: str) -> Path:
     return p
 
 
-def _model(**mounting: Any) -> SimInstrumentConfig:
-    return SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0, mounting=mounting)
+def _model(noise_deg: float = 0.01, **mounting: Any) -> SimInstrumentConfig:
+    return SimInstrumentConfig(lag_s=0.05, noise_deg=noise_deg, rate_hz=100.0,
+                               mounting=mounting)
 
 
 def _run(tmp_path: Path, vclock: VirtualClock, text: str, *, mounting: dict[str, Any] | None = None,
-         axes: dict[str, Any] | None = None, **bench: Any) -> tuple[RunResult, LiveBench,
-                                                                    list[dict[str, Any]]]:
+         axes: dict[str, Any] | None = None, noise_deg: float = 0.01,
+         **bench: Any) -> tuple[RunResult, LiveBench, list[dict[str, Any]]]:
     extra = {"axes": axes} if axes is not None else None
-    with live_bench(tmp_path, model=_model(**(mounting or {})), clock=vclock,
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    with live_bench(tmp_path, model=_model(noise_deg, **(mounting or {})), clock=vclock,
                     instrument_extra=extra, **bench) as b:
         res = run_test(b.cfg, _profile(tmp_path, text), RunOptions("M-1", "ci"), clock=vclock)
         assert b.stand_at_rest()
@@ -297,32 +300,42 @@ def _run(tmp_path: Path, vclock: VirtualClock, text: str, *, mounting: dict[str,
     return res, b, load_recording(res.recording).events
 
 
+GAIN_SHOWN = r"(0\.99|1\.00|1\.01)×"  # the gain as shown: the instrument's lag, its wire
+
+
 def _refused(res: RunResult, events: list[dict[str, Any]], message: str) -> None:
-    """Refused by the mounting precheck, before the motion; the stand at rest at zero."""
+    """Refused by the mounting precheck (``message``: a regular expression of its detail),
+    before the motion; the stand at rest at zero."""
     assert res.state == "aborted" and res.exit_code == 2
-    assert res.reason == f"precheck 'mounting' failed: {message}"
+    assert re.fullmatch(f"run: precheck 'mounting' failed: {message}", res.reason), res.reason
     kinds = [e["kind"] for e in events]
     assert "mounting_motion_start" in kinds and "motion_start" not in kinds
     pre = [e for e in events if e["kind"] == "precheck" and e["name"] == "mounting"]
-    assert len(pre) == 1 and not pre[0]["ok"] and pre[0]["detail"] == message
-    assert res.abort is not None and res.abort["stand"]["at_zero"]
-    assert res.abort["stand"]["at_rest"] and res.abort["stand"]["known"]
+    assert len(pre) == 1 and not pre[0]["ok"] and re.fullmatch(message, pre[0]["detail"])
+    assert res.abort is not None and res.abort["kind"] == "equipment"
+    assert res.abort["stand"]["at_zero"] and res.abort["stand"]["at_rest"]
+    assert res.abort["stand"]["known"] and res.abort["stand"]["commands"] == []
     assert res.record is not None
     record = json.loads(res.record.read_text())
     assert record["outcome"] == "ABORTED" and record["exit_code"] == 2
     m = next(m for m in record["measurements"] if m["name"] == "precheck: mounting")
-    assert m["outcome"] == "FAIL" and m["note"] == message
+    assert m["outcome"] == "FAIL" and re.fullmatch(message, m["note"])
+    assert "mounting check:" in (res.recording / "report.html").read_text()  # type: ignore[operator]
 
 
 def test_correct_mount_passes_and_reversed_read_with_sign_measures_the_same_sigma(
-    tmp_path: Path, vclock: VirtualClock
+    tmp_path: Path,
 ) -> None:
     """Table mode over Modbus TCP and CANopen: the correct unit passes the check and the run
     goes on (PASS); the same unit mounted with its roll reversed, read with
-    ``instrument.axes.roll.sign: -1``, passes too, and its σ is the correct one's (same seed)
-    to 0.5 %; the tilt is recorded and left out of the analysis; the tilt's commanded motion
+    ``instrument.axes.roll.sign: -1``, passes too, and its σ is the correct one's (the same
+    simulated time, no noise: a noise drawn alike would enter with the other sign) to 1e-6; the
+    tilt is recorded and left out of the analysis; the tilt's commanded motion
     is within the stand's limits."""
-    good, b, ev = _run(tmp_path / "good", vclock, TWO_AXIS, stand={"mode": "table"})
+    # each run on a simulated time of its own, from the same start: the same instants
+    with (vclock := VirtualClock(hang_s=120.0)).running():
+        good, b, ev = _run(tmp_path / "good", vclock, TWO_AXIS, stand={"mode": "table"},
+                           noise_deg=0.0)
     assert good.state == "done" and good.exit_code == 0, good.reason
     kinds = [e["kind"] for e in ev]
     assert kinds.index("mounting_start") < kinds.index("mounting_motion_start") < kinds.index(
@@ -353,14 +366,15 @@ def test_correct_mount_passes_and_reversed_read_with_sign_measures_the_same_sigm
     assert any(m["name"] == "precheck: mounting" and m["outcome"] == "PASS"
                for m in rec_json["measurements"])
 
-    fixed, _, _ev = _run(tmp_path / "fixed", vclock, TWO_AXIS, stand={"mode": "table"},
-                         mounting={"roll_sign": -1},
-                         axes={"roll": {"sign": -1}, "pitch": {}})
+    with (vclock := VirtualClock(hang_s=120.0)).running():
+        fixed, _, _ev = _run(tmp_path / "fixed", vclock, TWO_AXIS, stand={"mode": "table"},
+                             mounting={"roll_sign": -1}, noise_deg=0.0,
+                             axes={"roll": {"sign": -1}, "pitch": {}})
     assert fixed.state == "done" and fixed.exit_code == 0, fixed.reason
     assert good.report is not None and fixed.report is not None
     for a in ("roll", "pitch"):
         assert fixed.report.axes[a].sigma_deg == pytest.approx(
-            good.report.axes[a].sigma_deg, rel=0.005), a
+            good.report.axes[a].sigma_deg, rel=1e-6), a
     rec_json = json.loads(fixed.record.read_text())  # type: ignore[union-attr]
     assert rec_json["instruments"][0]["axes"]["roll"] == {"output": "roll", "sign": -1}
     del b
@@ -372,15 +386,17 @@ def test_reversed_roll_refused(tmp_path: Path, vclock: VirtualClock) -> None:
     res, b, ev = _run(tmp_path, vclock, ROLL, mounting={"roll_sign": -1}, transport="rtu",
                       instrument="nmea0183", stand={"mode": "buffered", "baudrate": 460800},
                       sim_stand={"baudrate": 460800})
-    _refused(res, ev, "mounting check: roll reads −1.00× the stand's roll: mounted reversed? "
-             f"Remount the unit, or set instrument.axes.roll.sign: -1 in {b.config_path}")
+    _refused(res, ev, f"mounting check: roll reads −{GAIN_SHOWN} the stand's roll: mounted "
+             "reversed\\? Remount the unit, or set instrument\\.axes\\.roll\\.sign: -1 in "
+             + re.escape(str(b.config_path)))
 
 
 def test_swapped_refused(tmp_path: Path, vclock: VirtualClock) -> None:
     """Modbus TCP and CANopen, stream mode, two axes: roll and pitch swapped is refused."""
     res, b, ev = _run(tmp_path, vclock, TWO_AXIS, mounting={"swap_axes": True},
                       stand={"mode": "stream"})
-    _refused(res, ev, "mounting check: roll reads the stand's pitch (1.00×) and not its roll, "
-             "pitch reads the stand's roll (1.00×) and not its pitch: roll and pitch swapped? "
-             "Remount the unit, or set instrument.axes.roll.output: pitch and "
-             f"instrument.axes.pitch.output: roll in {b.config_path}")
+    _refused(res, ev, re.escape("mounting check: roll reads the stand's pitch (")
+             + GAIN_SHOWN + re.escape(") and not its roll, pitch reads the stand's roll (")
+             + GAIN_SHOWN + re.escape(") and not its pitch: roll and pitch swapped? Remount the "
+                                      "unit, or set instrument.axes.roll.output: pitch and "
+                                      f"instrument.axes.pitch.output: roll in {b.config_path}"))
