@@ -802,7 +802,8 @@ class Session:
         ``mounting_motion_start``: outside the analysis window, which starts at the profile's
         ``motion_start``). The instrument's response is fitted and judged: a unit mounted
         reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
-        back at rest at zero — the tilt ends there — then the one cleanup path)."""
+        back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
+        sure — then the one cleanup path)."""
         from benchctl.kinematics import Limits
         from benchctl.run import mounting as mt
 
@@ -842,9 +843,12 @@ class Session:
         finally:
             rec.stand_taps.remove(tap)
             samples = rec.collect(False)
-        # the live σ: the profile's motion only; the tilt's loop holds until the next one starts
+        # the live σ: the profile's motion only
         rec.sigma = RunningSigma(self.axes, clock=self.clock)
         loop.stop()
+        # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
+        # own "moving" off, as a table or a pre-test needs to start
+        stand.go_to_zero()
         self.loop = self._new_loop(self.prep.plan)
         self.loop.start()  # hold until the motion (or the pre-test) begins
         result = mounting_result(stand_rows, samples, self.axes, cfg)
