@@ -534,7 +534,8 @@ class ExcitationConfig(Strict):
 class MountingCheckConfig(Strict):
     """The mounting check (``benchctl.run.mounting``), a precheck before the motion: each axis
     of the profile in turn is tilted slowly to ``tilt_deg`` and back (``hold_s`` held at each
-    end), within the stand's limits, and the instrument's response fitted: the reading of
+    end), within the stand's limits (checked with the profile, before anything opens), and the
+    instrument's response fitted: the reading of
     that axis must follow it with a gain within 1 ± ``gain_tolerance`` and every other
     reading within ± ``cross_tolerance`` of it. A unit mounted reversed (gain −1) or with roll
     and pitch swapped is refused before the test, with what was seen and how to fix it.
@@ -707,16 +708,6 @@ class BenchConfig(Strict):
     @classmethod
     def _station(cls, v: str) -> str:
         return _plain_text(v, STATION_MAX, "station name") or ""
-
-    @model_validator(mode="after")
-    def _tilt_within_limits(self) -> BenchConfig:
-        mc = self.run.mounting_check
-        if mc.enabled and mc.tilt_deg >= self.stand.limits.angle_deg:
-            raise ValueError(
-                f"run.mounting_check.tilt_deg = {mc.tilt_deg:g}°: expected below the stand's "
-                f"angle limit, stand.limits.angle_deg = {self.stand.limits.angle_deg:g}°"
-            )
-        return self
 
 
 _PATH_FIELDS = {

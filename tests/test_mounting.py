@@ -34,7 +34,7 @@ from benchctl.kinematics import Limits, profile_peaks
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run import mounting as mt
-from benchctl.run.session import RunResult, Session
+from benchctl.run.session import RunResult, Session, prepare_motion
 
 IDENTITY = {"roll": ("roll", 1), "pitch": ("pitch", 1)}
 LIMITS = Limits(30.0, 30.0, 60.0)
@@ -224,18 +224,32 @@ def test_config_refuses(tmp_path: Path, instrument: dict[str, Any] | None,
         _cfg(tmp_path, instrument, run)
 
 
-def test_config_tilt_within_the_stand_angle_limit(tmp_path: Path) -> None:
+def test_tilt_beyond_the_stand_angle_limit_refused_before_anything_opens(
+    tmp_path: Path,
+) -> None:
+    """Checked with the profile (``prepare_motion``), before anything opens: a LimitError
+    naming the field, what the tilt needs and what the stand allows."""
     data: dict[str, Any] = {
         "stand": {"driver": "modbus-tcp",
-                  "limits": {"angle_deg": 5.0, "rate_deg_s": 50.0, "accel_deg_s2": 300.0}},
+                  "limits": {"angle_deg": 1.5, "rate_deg_s": 50.0, "accel_deg_s2": 300.0}},
         "instrument": {"driver": "nmea0183", "serial_port": "/dev/null"},
-        "run": {"limit_sigma_deg": 0.4, "mounting_check": {"tilt_deg": 8.0}},
+        "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp_path / "runs")},
     }
-    with pytest.raises(ConfigError, match=r"run\.mounting_check\.tilt_deg = 8°: expected below "
-                       r"the stand's angle limit, stand\.limits\.angle_deg = 5°"):
-        parse_config(data, tmp_path / "bench.yaml")
-    data["run"]["mounting_check"]["enabled"] = False  # off: not checked
-    parse_config(data, tmp_path / "bench.yaml")
+    cfg = parse_config(data, tmp_path / "bench.yaml")
+    opts = RunOptions("M-1", "ci", scale_to_fit=True)  # the profile scaled into the 1.5°
+    with pytest.raises(LimitError, match=r"bench\.yaml: field run\.mounting_check\.tilt_deg = "
+                       r"2°: setpoint roll = .*needs \|angle\| .*allowed 1\.5° \(field "
+                       r"stand\.limits\); expected a smaller tilt, or "
+                       r"run\.mounting_check\.enabled: false"):
+        prepare_motion(cfg, _profile(tmp_path, ROLL), opts)
+    assert not (tmp_path / "runs").exists()
+    data["run"]["mounting_check"] = {"tilt_deg": 1.0}
+    prep = prepare_motion(parse_config(data, tmp_path / "bench.yaml"), tmp_path / "profile.yaml",
+                          opts)
+    assert prep.tilt is not None and float(np.max(prep.tilt.values["roll"])) == 1.0
+    data["run"]["mounting_check"] = {"enabled": False}
+    assert prepare_motion(parse_config(data, tmp_path / "bench.yaml"),
+                          tmp_path / "profile.yaml", opts).tilt is None
 
 
 # ------------------------------------------------------------------------------ on the fakes

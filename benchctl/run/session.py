@@ -212,6 +212,34 @@ class PreparedMotion:
     meta: dict[str, Any]
     # run.equalise: the pre-test (its designs per axis, its checked plan); None: no pre-test
     pretest: Pretest | None = None
+    # run.mounting_check: the tilt, checked against the limits; None: planned when it is run
+    # (a caller's own PreparedMotion) or no check
+    tilt: MotionPlan | None = None
+
+
+def mounting_plan(cfg: BenchConfig, axes: tuple[str, ...], where: str) -> MotionPlan:
+    """The mounting check's tilt of ``axes`` (``benchctl.run.mounting.tilt_points``) as a plan
+    for a stand loop, checked step by step against the stand's limits; ``LimitError`` naming
+    ``where`` and the fields when it does not fit. Setpoints at the stand's setpoint rate,
+    streamed — or queued, on a buffered stand (a stand that plays tables takes setpoints too:
+    its ramp to zero is streamed)."""
+    from benchctl.kinematics import Limits
+    from benchctl.run import mounting as mt
+
+    mc, lim = cfg.run.mounting_check, cfg.stand.limits
+    period = 1.0 / cfg.stand.setpoint_rate_hz
+    try:
+        points = mt.tilt_points(axes, mc.tilt_deg, mc.hold_s,
+                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
+    except LimitError as e:
+        raise LimitError(
+            f"{where}: field run.mounting_check.tilt_deg = {mc.tilt_deg:g}°: {e} (field "
+            "stand.limits); expected a smaller tilt, or run.mounting_check.enabled: false"
+        ) from None
+    n = next(iter(points.values())).size
+    mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
+    return MotionPlan(axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
+                      peaks={a: profile_peaks(v, period) for a, v in points.items()})
 
 
 @dataclass
@@ -378,6 +406,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         "precision_requested": requested,
         "equalise_requested": equalise,
     }
+    tilt = mounting_plan(cfg, axes, f"{src}") if cfg.run.mounting_check.enabled else None
     pretest = None
     if equalise:
         where = "--equalise" if opts.equalise else f"{src}: field run.equalise.enabled = true"
@@ -387,7 +416,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             "duration_s": pretest.plan.duration_s,
             "check": pretest.check,
         }
-    return PreparedMotion(profile, motion, plan, check, meta, pretest)
+    return PreparedMotion(profile, motion, plan, check, meta, pretest, tilt)
 
 
 # -------------------------------------------------------------------------- mounting check
@@ -804,24 +833,13 @@ class Session:
         reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
         back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
         sure — then the one cleanup path)."""
-        from benchctl.kinematics import Limits
-        from benchctl.run import mounting as mt
-
         mc = self.cfg.run.mounting_check
         cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
         if not mc.enabled:
             return
         assert w is not None and rec is not None and stand is not None and self.loop is not None
-        lim = cfg.stand.limits
-        rate = cfg.stand.setpoint_rate_hz
-        period = 1.0 / rate
-        points = mt.tilt_points(self.axes, mc.tilt_deg, mc.hold_s,
-                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
-        n = next(iter(points.values())).size
-        # a stand that plays tables takes setpoints too (its ramp to zero is streamed)
-        mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
-        plan = MotionPlan(self.axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
-                          peaks={a: profile_peaks(v, period) for a, v in points.items()})
+        plan = self.prep.tilt or mounting_plan(cfg, self.axes, str(cfg.source or "the config"))
+        mode = plan.mode
         stand_rows: list[tuple[float, dict[str, float]]] = []
 
         def tap(s: Any) -> None:
