@@ -289,6 +289,25 @@ def test_fakes_reversed_refused_in_stream_mode(tmp_path: Path, vclock: VirtualCl
     assert stand.enabled is False and stand.true_angle() == {"roll": 0.0}
 
 
+def test_fakes_fault_during_the_tilt_takes_the_one_cleanup_path(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
+    """A stand fault 1 s into the tilt (up at about 1°): the run aborts from its prechecks
+    through the one cleanup path — the tilt's loop stopped, the stand ramped to zero and
+    disabled — and the profile never starts."""
+    stand = FakeStand(("roll",), clock=vclock)
+    stand.fault_at = 1.0  # the fake's motion time: from its first setpoint, the tilt's
+    res = _fake_run(tmp_path, stand, FakeSensor(stand), "stream")
+    assert res.state == "aborted" and res.exit_code == 2 and "fault code 7" in res.reason
+    ev = load_recording(res.recording).events  # type: ignore[arg-type]
+    kinds = [e["kind"] for e in ev]
+    assert "mounting_motion_start" in kinds and "motion_start" not in kinds
+    assert [e["to"] for e in ev if e["kind"] == "state"] == ["prechecks", "aborted"]
+    assert stand.ramped and stand.enabled is False and stand.true_angle() == {"roll": 0.0}
+    steps = [s["step"] for s in res.shutdown]
+    assert "ramp to zero" in steps and "stop table" not in steps
+
+
 # ------------------------------------------------------------------------------ whole runs
 def _profile(tmp_path: Path, text: str) -> Path:
     p = tmp_path / "profile.yaml"

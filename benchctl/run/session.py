@@ -1527,8 +1527,9 @@ class Session:
             writer=self.writer,
             state="aborted",
             reason=reason,
-            table_mode=self.prep.plan.mode == "table"
-            and self.loop is not None
+            # the loop's own plan: the mounting check's tilt is streamed even on a table stand
+            table_mode=self.loop is not None
+            and self.loop.plan.mode == "table"
             and self.loop.t_motion_start is not None,
             moved=self.moved,
             extra=extra,
