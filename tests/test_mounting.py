@@ -61,6 +61,25 @@ def test_fit_recovers_exact_gains_cross_and_offsets() -> None:
     assert max(r.residual_deg.values()) < 1e-9
 
 
+def test_fit_sampled_takes_the_instrument_delay_out() -> None:
+    """Readings 90 ms late (the stand at 100 Hz, the instrument at 50 Hz on instants of its
+    own): the delay found on its 5 ms grid, the gains exact again."""
+    x = _stand()
+    ts = np.arange(x["roll"].size) * PERIOD
+    ti = np.arange(0.003, ts[-1], 0.02)
+
+    def late(a: str) -> np.ndarray:
+        return np.interp(ti - 0.09, ts, x[a])
+
+    y = {"roll": 0.98 * late("roll") + 0.2, "pitch": -late("pitch")}
+    r, d = mt.fit_sampled(ts, x, ti, y)
+    assert d == pytest.approx(0.09, abs=1e-9)
+    assert abs(r.gain["roll"]["roll"] - 0.98) < 1e-9 and abs(r.gain["pitch"]["pitch"] + 1) < 1e-9
+    assert abs(r.gain["roll"]["pitch"]) < 1e-9 and abs(r.offset_deg["roll"] - 0.2) < 1e-9
+    r0 = mt.fit_response({a: np.interp(ti, ts, v) for a, v in x.items()}, y)
+    assert r0.gain["roll"]["roll"] < 0.98 - 0.005  # without the delay: lowered on the ramps
+
+
 def test_fit_refuses_a_stand_that_did_not_move() -> None:
     x = _stand()
     with pytest.raises(DataError, match="the stand's pitch did not move"):

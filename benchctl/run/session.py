@@ -442,23 +442,21 @@ def mounting_result(
     name = "mounting"
     ts = np.array([t for t, _ in stand_rows], dtype=float)
     order = np.argsort(ts, kind="stable")
-    ts = ts[order]
     readings = sorted({r for s in samples for r in s.angle_deg},
                       key=lambda r: (r not in axes, axes.index(r) if r in axes else 0, r))
     ti = np.array([s.t_host for s in samples], dtype=float)
-    inside = (ti >= ts[0]) & (ti <= ts[-1]) if ts.size else np.zeros(ti.size, dtype=bool)
     try:
-        if ts.size < 2 or not readings:
-            raise DataError(f"mounting check: {ts.size} stand samples and {len(samples)} "
-                            "instrument samples during the tilt: too few to fit")
-        x = {a: np.interp(ti[inside], ts, np.array(
-            [stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)) for a in axes}
-        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples],
-                         dtype=float)[inside] for r in readings}
-        resp = mt.fit_response(x, y)
+        if not readings:
+            raise DataError("mounting check: no instrument sample during the tilt")
+        x = {a: np.array([stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)
+             for a in axes}
+        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples], dtype=float)
+             for r in readings}
+        resp, delay = mt.fit_sampled(ts[order], x, ti, y)
     except DataError as e:
         return pc.CheckResult(name, False, f"{e} (run.mounting_check)", values)
     values["response"] = resp.to_dict()
+    values["delay_s"] = delay
     where = str(cfg.source) if cfg.source is not None else "the bench config"
     verdict = mt.judge(resp, axes, mapping, mc.gain_tolerance, mc.cross_tolerance, where)
     values["findings"] = {f.reading: f.kind for f in verdict.findings}
