@@ -452,3 +452,24 @@ def test_swapped_refused(tmp_path: Path, vclock: VirtualClock) -> None:
              + GAIN_SHOWN + re.escape(") and not its pitch: roll and pitch swapped? Remount the "
                                       "unit, or set instrument.axes.roll.output: pitch and "
                                       f"instrument.axes.pitch.output: roll in {b.config_path}"))
+
+
+def test_one_axis_stand_checks_the_other_reading_does_not_respond(
+    tmp_path: Path, vclock: VirtualClock
+) -> None:
+    """A roll-only stand (``stand.axes: [roll]``) and a two-axis CANopen unit: mounted right,
+    roll follows and pitch does not respond (the run goes on to its verdict); swapped, roll
+    follows nothing and pitch follows roll — refused, with the mapping that reads it."""
+    stand = {"axes": ["roll"], "mode": "stream"}
+    good, _, ev = _run(tmp_path / "good", vclock, ROLL, stand=stand)
+    assert good.state == "done" and good.exit_code in (0, 3), good.reason
+    pre = next(e for e in ev if e["kind"] == "precheck" and e["name"] == "mounting")
+    assert pre["ok"] and pre["values"]["findings"] == {"roll": "ok", "pitch": "ok"}
+    assert list(pre["values"]["response"]["gain"]["pitch"]) == ["roll"]  # roll tilted only
+    res, b, ev = _run(tmp_path / "swapped", vclock, ROLL, stand=stand,
+                      mounting={"swap_axes": True})
+    _refused(res, ev, re.escape("mounting check: roll does not follow the stand's roll (")
+             + r"−?0\.0\d×" + re.escape(", expected 1 ± 0.3), pitch reads the stand's roll (")
+             + GAIN_SHOWN + re.escape("): roll and pitch swapped? Remount the unit, or set "
+                                      "instrument.axes.roll.output: pitch and "
+                                      f"instrument.axes.pitch.output: roll in {b.config_path}"))
