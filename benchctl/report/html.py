@@ -127,13 +127,6 @@ def _calibration_warning(due: Any, start: Any) -> str | None:
     return None if d >= s else f"the stand's calibration was due on {d} (before this run)"
 
 
-def _ms(summary: Mapping[str, Any], key: str) -> str:
-    """A quantile of a histogram's summary in ms; — when there is none (no sample: a run
-    refused before its motion has no cycle lateness; JSON gives its NaN as null)."""
-    v = summary.get(key)
-    return _num(1e3 * v, ".3g") if isinstance(v, int | float) else "—"
-
-
 def _health(stats: Mapping[str, Any]) -> list[tuple[str, str, bool]]:
     """(what, value, warn) rows of the stand's and instrument's health."""
     lat = stats.get("cycle_lateness_s") or {}
