@@ -12,7 +12,10 @@ Order of things (each state change is an event in the recording):
    (their output in the recording's ``sim.log``);
 3. **prechecks**: disk space, each device answers and identifies itself (identities into the
    metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
-   stand at rest, then the stand is enabled and brought to zero (table mode: the table uploaded);
+   stand at rest, then the stand is enabled and brought to zero, the **mounting check** tilts
+   each axis to a few degrees and back and refuses a unit mounted reversed or with its axes
+   swapped (``run.mounting_check``; ``benchctl.run.mounting``), and (table mode) the table is
+   uploaded;
 4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
 5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
    abort takes, here with nothing to ramp);
@@ -870,7 +873,6 @@ class Session:
         result = mounting_result(stand_rows, samples, self.axes, cfg)
         w.update_meta(mounting_check=result.values)
         self._precheck(result)
-
 
     def _equalise(self) -> None:
         """The equalisation pre-test (``run.equalise``): the low-level multisine played and
