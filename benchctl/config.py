@@ -104,6 +104,49 @@ class StandConfig(Strict):
         return self
 
 
+AxisName = Literal["roll", "pitch"]
+
+
+class InstrumentAxis(Strict):
+    """How one of the stand's axes is read from the instrument (``instrument.axes``): the
+    instrument's ``output`` that measures it (its own axis of that name: ``roll`` or ``pitch``,
+    by default the stand axis's own name) and the ``sign`` applied to it (``-1``: the unit is
+    mounted reversed on that axis). Applied to every sample as it is read, so the recording,
+    the running σ, the analysis and the report all see the stand's axes."""
+
+    output: AxisName
+    sign: Literal[1, -1] = 1
+
+
+def _axes_mapping(v: Any) -> Any:
+    """``instrument.axes`` as a mapping stand axis → ``{output, sign}``: a list of names
+    (``[roll, pitch]``: each output is the stand axis of its own name, sign +1) or a mapping
+    whose entries may leave out ``output`` (the axis's own name) and ``sign`` (+1)."""
+    if isinstance(v, list | tuple):
+        return {a: {"output": a, "sign": 1} if isinstance(a, str) else a for a in v}
+    if isinstance(v, dict):
+        out: dict[Any, Any] = {}
+        for a, m in v.items():
+            if m is None:
+                m = {}
+            if isinstance(m, dict) and "output" not in m:
+                m = {"output": a, **m}
+            out[a] = m
+        return out
+    return v
+
+
+def axis_map(axes: Any) -> dict[str, tuple[str, int]]:
+    """``instrument.axes`` as {stand axis: (instrument output, sign)}; a plain tuple or list of
+    names (a config copied with ``model_copy(update=...)``, which skips validation) is read as
+    the identity."""
+    if isinstance(axes, dict):
+        return {a: (m.output, m.sign) if isinstance(m, InstrumentAxis)
+                else (str(m.get("output", a)), int(m.get("sign", 1)))
+                for a, m in axes.items()}
+    return {str(a): (str(a), 1) for a in axes}
+
+
 class InstrumentConfig(Strict):
     driver: Literal["canopen", "j1939", "nmea2000", "nmea0183"]
     # CAN (canopen, j1939, nmea2000): any python-can interface name and its channel
@@ -130,12 +173,42 @@ class InstrumentConfig(Strict):
     serial_port: str | None = None
     baudrate: Baud = 115200
     sentence: Literal["PASHR", "PHTRO", "XDR"] | None = None
-    # what the run expects of it
-    axes: tuple[Literal["roll", "pitch"], ...] = ("roll", "pitch")
+    # what the run expects of it: the stand's axes it measures, and for each the instrument's
+    # output that measures it and its sign (InstrumentAxis). A list (`[roll, pitch]`) reads
+    # each output as the stand axis of its own name; a mapping (`roll: {output: pitch,
+    # sign: -1}`) maps a unit whose axes are swapped or reversed on the stand
+    axes: dict[AxisName, InstrumentAxis] = Field(
+        default_factory=lambda: {a: InstrumentAxis(output=a) for a in ("roll", "pitch")}
+    )
     expected_rate_hz: DeviceRate = 100.0
     static_tolerance_deg: Positive = 0.5  # at rest, |instrument - stand| must be within this
     silence_timeout_s: Seconds = 1.0  # no sample for this long aborts the run
     wire_trace: bool = False
+
+    @field_validator("axes", mode="before")
+    @classmethod
+    def _axes_before(cls, v: Any) -> Any:
+        return _axes_mapping(v)
+
+    @field_validator("axes")
+    @classmethod
+    def _axes(cls, v: dict[str, InstrumentAxis]) -> dict[str, InstrumentAxis]:
+        if not v:
+            raise ValueError("expected at least one axis")
+        outputs = [m.output for m in v.values()]
+        for o in set(outputs):
+            if outputs.count(o) > 1:
+                users = [a for a, m in v.items() if m.output == o]
+                raise ValueError(
+                    f"axes {users} all read the instrument's output {o!r}: expected each "
+                    "output for one stand axis only"
+                )
+        return v
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The instrument's own outputs the driver decodes (``output`` of each axis)."""
+        return tuple(o for o, _ in axis_map(self.axes).values())
 
     @model_validator(mode="after")
     def _transport(self) -> InstrumentConfig:
@@ -213,6 +286,17 @@ class CrossAxisConfig(Strict):
     pitch_from_roll: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
 
 
+class SimMountingConfig(Strict):
+    """How the simulated unit is mounted on the stand: ``swap_axes`` (its roll output senses
+    the stand's pitch and the other way round), then ``roll_sign``/``pitch_sign`` (−1: that
+    output reads the angle it senses reversed). Applied to the true motion the instrument's
+    model senses, so every protocol sees it; the default is a correct mount."""
+
+    swap_axes: bool = False
+    roll_sign: Literal[1, -1] = 1
+    pitch_sign: Literal[1, -1] = 1
+
+
 class SimInstrumentConfig(Strict):
     """The simulated instrument's own model: what it measures of the true stand motion.
 
@@ -240,6 +324,8 @@ class SimInstrumentConfig(Strict):
     # the serial number it reports where its protocol carries one (CANopen 1018h sub 4, an
     # UNSIGNED32); None: the EDS's default
     serial_number: int | None = Field(default=None, ge=0, lt=2**32)
+    # how the unit sits on the stand (swapped or reversed axes); default: mounted correctly
+    mounting: SimMountingConfig = SimMountingConfig()
 
 
 class SimFault(Strict):
@@ -445,6 +531,35 @@ class ExcitationConfig(Strict):
         return self
 
 
+class MountingCheckConfig(Strict):
+    """The mounting check (``benchctl.run.mounting``), a precheck before the motion: each axis
+    of the profile in turn is tilted slowly to ``tilt_deg`` and back (``hold_s`` held at each
+    end), within the stand's limits (checked with the profile, before anything opens), and the
+    instrument's response fitted: the reading of
+    that axis must follow it with a gain within 1 ± ``gain_tolerance`` and every other
+    reading within ± ``cross_tolerance`` of it. A unit mounted reversed (gain −1) or with roll
+    and pitch swapped is refused before the test, with what was seen and how to fix it.
+    The tolerances are wide on purpose: they separate the mounting errors (−1, 0, the other
+    axis's ±1) from a correct mount; a poor unit's gain and cross-axis sensitivity are the
+    test's to measure (and FAIL). Their sum must stay below 1 (the cases stay apart)."""
+
+    enabled: bool = True
+    tilt_deg: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = 2.0
+    hold_s: Annotated[float, Field(ge=0.2, le=10, allow_inf_nan=False)] = 1.0
+    gain_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.3
+    cross_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.3
+
+    @model_validator(mode="after")
+    def _apart(self) -> MountingCheckConfig:
+        if self.gain_tolerance + self.cross_tolerance >= 1:
+            raise ValueError(
+                f"gain_tolerance = {self.gain_tolerance:g} + cross_tolerance = "
+                f"{self.cross_tolerance:g}: expected a sum below 1 (else a reading that does "
+                "not respond could pass as one that does)"
+            )
+        return self
+
+
 class RunLimits(Strict):
     """Optional limits of further measurements (benchctl.results.measurements): each one set
     makes that measurement decide the verdict with σ; unset, it is recorded, not judged."""
@@ -491,6 +606,9 @@ class RunConfig(Strict):
     # a low-level pre-test and the drive corrected by the stand's measured response (off by
     # default; --equalise turns it on)
     equalise: EqualiseConfig = EqualiseConfig()
+    # before the motion, each axis tilted to a few degrees and back: a unit mounted reversed
+    # or with its axes swapped is refused (on by default)
+    mounting_check: MountingCheckConfig = MountingCheckConfig()
 
 
 _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)

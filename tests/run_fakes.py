@@ -317,9 +317,13 @@ def bench_config(tmp: Path, **run: Any) -> BenchConfig:
             "static_tolerance_deg": 0.2,
         },
         # the fake stand follows each setpoint at once and the fake instrument reads it at
-        # once: after a rejoin nothing settles (the analysis leaves out the hold and the path)
+        # once: after a rejoin nothing settles (the analysis leaves out the hold and the path).
+        # The mounting check is off unless a test turns it on: the fakes time their faults
+        # from the first setpoint sent (the tilt's, with the check on), and these tests count
+        # the recording's setpoints as the profile's (test_mounting.py tests it on the fakes)
         "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp), "precheck_window_s": 0.5,
-                "analysis": {"departure_settle_s": 0.0}, **run},
+                "analysis": {"departure_settle_s": 0.0},
+                "mounting_check": {"enabled": False}, **run},
     }
     return parse_config(data, tmp / "bench.yaml")
 

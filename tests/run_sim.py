@@ -88,10 +88,13 @@ def live_bench(
     stand: dict[str, Any] | None = None,
     sim_stand: dict[str, Any] | None = None,
     clock: Clock = REAL,
+    instrument_extra: dict[str, Any] | None = None,
 ) -> Iterator[LiveBench]:
     """The simulators in this process and a bench config pointed at them. On a virtual
     ``clock`` (the test inside ``clock.running()``, e.g. the ``vclock`` fixture) they run on
-    simulated time over in-process links, and the run must be given the same clock."""
+    simulated time over in-process links, and the run must be given the same clock.
+    ``instrument_extra``: further fields of the config's ``instrument`` section (its
+    ``axes`` mapping…)."""
     model = model or SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0)
     limits = StandLimits(**LIMITS)
     framing: Any = "rtu" if transport == "rtu" else "tcp"
@@ -137,6 +140,7 @@ def live_bench(
                 inst["channel"] = live.channel
             # generous: the simulators share a loaded machine with the test and the run
             inst["silence_timeout_s"] = 3.0
+            inst.update(instrument_extra or {})
             data = {
                 "station": "e2e",
                 "stand": stand_sec,

@@ -259,13 +259,13 @@ class Nmea0183Instrument(SensorReader):
         except UnicodeDecodeError:
             raise BadFrame(BAD_DECODE) from None
         a = parse_line(line.strip(), sentence=self.cfg.sentence)
-        missing = [ax for ax in self.axes if ax not in a.angle_deg]
+        missing = [ax for ax in self.outputs if ax not in a.angle_deg]
         if missing:
             raise BadFrame(BAD_RANGE)
         self._last = a
         self._emit(InstrumentSample(
             t_host=t_host,
-            angle_deg={ax: a.angle_deg[ax] for ax in self.axes},
+            angle_deg={ax: a.angle_deg[ax] for ax in self.outputs},
             device_time_s=a.device_time_s,
         ))
 

@@ -25,13 +25,14 @@ Faults go to ``on_error`` at once:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import struct
 import threading
 from typing import Any
 
 from benchctl.clock import REAL, Clock, ThreadLike
-from benchctl.config import InstrumentConfig
+from benchctl.config import InstrumentConfig, axis_map
 from benchctl.devices.base import (
     DeviceIdentity,
     ErrorCallback,
@@ -85,7 +86,12 @@ class SensorReader:
     def __init__(self, cfg: InstrumentConfig, where: str, *, clock: Clock = REAL) -> None:
         self.cfg = cfg
         self.clock = clock
-        self.axes: tuple[str, ...] = tuple(cfg.axes)
+        # instrument.axes: the stand axis each reading is for, from which output, with which
+        # sign; the driver decodes ``outputs``, ``_emit`` hands on the stand's axes
+        self._axis_map = axis_map(cfg.axes)
+        self._identity_map = all(o == a and s == 1 for a, (o, s) in self._axis_map.items())
+        self.axes: tuple[str, ...] = tuple(self._axis_map)
+        self.outputs: tuple[str, ...] = tuple(o for o, _ in self._axis_map.values())
         self.stats = FrameStats()
         self._where = where
         self._lock = clock.lock()
@@ -165,6 +171,10 @@ class SensorReader:
         """Release the transport (override)."""
 
     def _emit(self, sample: InstrumentSample) -> None:
+        if not self._identity_map:  # the outputs as the stand's axes (instrument.axes)
+            got = sample.angle_deg
+            sample = dataclasses.replace(sample, angle_deg={
+                a: s * got[o] for a, (o, s) in self._axis_map.items() if o in got})
         self.stats.good += 1
         self._first_good.set()
         with self._lock:

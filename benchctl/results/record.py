@@ -230,7 +230,8 @@ def build_record(
         "station": str(meta.get("station") or ""),
         "stand": {"identity": devices.get("stand"),
                   "calibration_due": None if due is None else str(due)[:10]},
-        "instruments": [{"role": "dut", "identity": dut}],
+        "instruments": [{"role": "dut", "identity": dut,
+                         "axes": _instrument_axes(config.get("instrument") or {})}],
         "profile": {
             "name": meta.get("profile_name"),
             "kind": _profile_kind(profile),
@@ -252,6 +253,17 @@ def build_record(
         del record["exit_code"]
     out: dict[str, Any] = plain(record)
     return out
+
+
+def _instrument_axes(instrument: Mapping[str, Any]) -> dict[str, Any] | None:
+    """``instrument.axes`` of the run's config as {stand axis: {output, sign}} (the axis
+    mapping every sample was read with); an older config's list of names is the identity."""
+    from benchctl.config import axis_map
+
+    axes = instrument.get("axes")
+    if not axes:
+        return None
+    return {a: {"output": o, "sign": s} for a, (o, s) in axis_map(axes).items()}
 
 
 def with_file(record: Mapping[str, Any], key: str, path: Path | None) -> dict[str, Any]:

@@ -12,7 +12,11 @@ failed one into ``PrecheckFailed`` (a ``SafetyAbort``: the run aborts, exit code
   (``check_serial``; an instrument that reports none cannot show it is the unit named);
 - the instrument streams at its expected rate (± ``run.instrument_rate_tolerance``), reports
   every axis of the profile, and its static reading agrees with the stand's within
-  ``instrument.static_tolerance_deg``.
+  ``instrument.static_tolerance_deg``;
+- the unit is mounted as ``instrument.axes`` says (``run.mounting_check``: each axis tilted
+  to a few degrees and back, the response fitted; ``benchctl.run.mounting`` and
+  ``Session._mounting_check``): one mounted reversed or with roll and pitch swapped is
+  refused, the message saying what was seen and how to fix it.
 """
 
 from __future__ import annotations

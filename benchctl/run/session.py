@@ -12,7 +12,10 @@ Order of things (each state change is an event in the recording):
    (their output in the recording's ``sim.log``);
 3. **prechecks**: disk space, each device answers and identifies itself (identities into the
    metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
-   stand at rest, then the stand is enabled and brought to zero (table mode: the table uploaded);
+   stand at rest, then the stand is enabled and brought to zero, the **mounting check** tilts
+   each axis to a few degrees and back and refuses a unit mounted reversed or with its axes
+   swapped (``run.mounting_check``; ``benchctl.run.mounting``), and (table mode) the table is
+   uploaded;
 4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
 5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
    abort takes, here with nothing to ramp);
@@ -69,6 +72,7 @@ from benchctl.errors import (
     is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
+from benchctl.kinematics import profile_peaks
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -211,6 +215,34 @@ class PreparedMotion:
     meta: dict[str, Any]
     # run.equalise: the pre-test (its designs per axis, its checked plan); None: no pre-test
     pretest: Pretest | None = None
+    # run.mounting_check: the tilt, checked against the limits; None: planned when it is run
+    # (a caller's own PreparedMotion) or no check
+    tilt: MotionPlan | None = None
+
+
+def mounting_plan(cfg: BenchConfig, axes: tuple[str, ...], where: str) -> MotionPlan:
+    """The mounting check's tilt of ``axes`` (``benchctl.run.mounting.tilt_points``) as a plan
+    for a stand loop, checked step by step against the stand's limits; ``LimitError`` naming
+    ``where`` and the fields when it does not fit. Setpoints at the stand's setpoint rate,
+    streamed — or queued, on a buffered stand (a stand that plays tables takes setpoints too:
+    its ramp to zero is streamed)."""
+    from benchctl.kinematics import Limits
+    from benchctl.run import mounting as mt
+
+    mc, lim = cfg.run.mounting_check, cfg.stand.limits
+    period = 1.0 / cfg.stand.setpoint_rate_hz
+    try:
+        points = mt.tilt_points(axes, mc.tilt_deg, mc.hold_s,
+                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
+    except LimitError as e:
+        raise LimitError(
+            f"{where}: field run.mounting_check.tilt_deg = {mc.tilt_deg:g}°: {e} (field "
+            "stand.limits); expected a smaller tilt, or run.mounting_check.enabled: false"
+        ) from None
+    n = next(iter(points.values())).size
+    mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
+    return MotionPlan(axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
+                      peaks={a: profile_peaks(v, period) for a, v in points.items()})
 
 
 @dataclass
@@ -377,6 +409,7 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
         "precision_requested": requested,
         "equalise_requested": equalise,
     }
+    tilt = mounting_plan(cfg, axes, f"{src}") if cfg.run.mounting_check.enabled else None
     pretest = None
     if equalise:
         where = "--equalise" if opts.equalise else f"{src}: field run.equalise.enabled = true"
@@ -386,7 +419,55 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
             "duration_s": pretest.plan.duration_s,
             "check": pretest.check,
         }
-    return PreparedMotion(profile, motion, plan, check, meta, pretest)
+    return PreparedMotion(profile, motion, plan, check, meta, pretest, tilt)
+
+
+# -------------------------------------------------------------------------- mounting check
+def mounting_result(
+    stand_rows: list[tuple[float, dict[str, float]]],
+    samples: list[Any],
+    axes: tuple[str, ...],
+    cfg: BenchConfig,
+) -> pc.CheckResult:
+    """The mounting check's precheck from the tilt's stand samples ((t_host, angles) each) and
+    instrument samples: the stand's measured angles interpolated at the instrument's instants,
+    the response fitted and judged (``benchctl.run.mounting``)."""
+    from benchctl.config import axis_map
+    from benchctl.run import mounting as mt
+
+    mc = cfg.run.mounting_check
+    mapping = axis_map(cfg.instrument.axes)
+    values: dict[str, Any] = {
+        "axes": list(axes), "tilt_deg": mc.tilt_deg, "gain_tolerance": mc.gain_tolerance,
+        "cross_tolerance": mc.cross_tolerance,
+        "instrument_axes": {a: {"output": o, "sign": sg} for a, (o, sg) in mapping.items()},
+    }
+    name = "mounting"
+    ts = np.array([t for t, _ in stand_rows], dtype=float)
+    order = np.argsort(ts, kind="stable")
+    readings = sorted({r for s in samples for r in s.angle_deg},
+                      key=lambda r: (r not in axes, axes.index(r) if r in axes else 0, r))
+    ti = np.array([s.t_host for s in samples], dtype=float)
+    try:
+        if not readings:
+            raise DataError("mounting check: no instrument sample during the tilt")
+        x = {a: np.array([stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)
+             for a in axes}
+        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples], dtype=float)
+             for r in readings}
+        resp, delay = mt.fit_sampled(ts[order], x, ti, y)
+    except DataError as e:
+        return pc.CheckResult(name, False, f"{e} (run.mounting_check)", values)
+    values["response"] = resp.to_dict()
+    values["delay_s"] = delay
+    where = str(cfg.source) if cfg.source is not None else "the bench config"
+    verdict = mt.judge(resp, axes, mapping, mc.gain_tolerance, mc.cross_tolerance, where)
+    values["findings"] = {f.reading: f.kind for f in verdict.findings}
+    if verdict.ok:
+        seen = ", ".join(f"{r} {resp.gain[r][a]:.3f}× the stand's {a}"
+                         for r in readings for a in axes if r == a)
+        return pc.CheckResult(name, True, f"mounted as configured: {seen}", values)
+    return pc.CheckResult(name, False, verdict.detail, values)
 
 
 # -------------------------------------------------------------------------- devices
@@ -655,6 +736,11 @@ class Session:
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._rate_and_zero()
+        self._mounting_check()
+        if self.prep.plan.mode == "table" and self.prep.pretest is None:
+            assert self.prep.plan.tables is not None
+            stand.upload_table(self.prep.plan.tables)
+            w.event("table_uploaded", axes=list(self.prep.plan.tables))
 
     def _disturbed(self, plan: Disturbances) -> None:
         """Simulated time with seeded disturbances: record and show the seed and the schedule,
@@ -737,10 +823,56 @@ class Session:
             self.display.message("bringing the stand to zero")
             stand.go_to_zero()
         self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
-        if self.prep.plan.mode == "table" and self.prep.pretest is None:
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+
+    def _mounting_check(self) -> None:
+        """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
+        of the profile tilted in turn to a few degrees and back, on a stand loop of its own
+        (the same path as the motion: setpoints or the trajectory queue, every limit and
+        tracking check), recorded like the rest of the run (``mounting_start``,
+        ``mounting_motion_start``: outside the analysis window, which starts at the profile's
+        ``motion_start``). The instrument's response is fitted and judged: a unit mounted
+        reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
+        back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
+        sure — then the one cleanup path)."""
+        mc = self.cfg.run.mounting_check
+        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
+        if not mc.enabled:
+            return
+        assert w is not None and rec is not None and stand is not None and self.loop is not None
+        plan = self.prep.tilt or mounting_plan(cfg, self.axes, str(cfg.source or "the config"))
+        mode = plan.mode
+        stand_rows: list[tuple[float, dict[str, float]]] = []
+
+        def tap(s: Any) -> None:
+            stand_rows.append((s.t_host, dict(s.angle_deg)))
+
+        w.event("mounting_start", axes=list(self.axes), tilt_deg=mc.tilt_deg, hold_s=mc.hold_s,
+                duration_s=plan.duration_s, mode=mode)
+        self.display.message(
+            f"mounting check: {' then '.join(self.axes)} tilted to +{mc.tilt_deg:g}° and back "
+            f"({plan.duration_s:.0f} s)")
+        self.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
+        self.loop = loop = self._new_loop(plan, StateMachine(self.clock))
+        loop.motion_event = "mounting_motion_start"
+        rec.collect(True)
+        rec.stand_taps.append(tap)
+        try:
+            loop.start()
+            self._play(loop, "mounting check")
+        finally:
+            rec.stand_taps.remove(tap)
+            samples = rec.collect(False)
+        # the live σ: the profile's motion only
+        rec.sigma = RunningSigma(self.axes, clock=self.clock)
+        loop.stop()
+        # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
+        # own "moving" off, as a table or a pre-test needs to start
+        stand.go_to_zero()
+        self.loop = self._new_loop(self.prep.plan)
+        self.loop.start()  # hold until the motion (or the pre-test) begins
+        result = mounting_result(stand_rows, samples, self.axes, cfg)
+        w.update_meta(mounting_check=result.values)
+        self._precheck(result)
 
     def _equalise(self) -> None:
         """The equalisation pre-test (``run.equalise``): the low-level multisine played and
@@ -842,9 +974,10 @@ class Session:
         self.loop = self._new_loop(self.prep.plan)
         self.loop.start()  # hold until the motion begins
 
-    def _play(self, loop: StandLoop) -> None:
-        """Play ``loop``'s plan to its end, watching it as the motion is watched (faults,
-        stalls, a silent instrument, a time limit)."""
+    def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
+        """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
+        watching it as the motion is watched (faults, stalls, a silent instrument, a time
+        limit)."""
         loop.begin_motion()
         limit = loop.plan.duration_s + 60.0
         t0 = self.clock.monotonic()
@@ -856,9 +989,9 @@ class Session:
             if now - t_wake > 0.1 + HOST_STALL_S:
                 resumed = now
             t_wake = now
-            self._check_loop(loop, now, resumed, "pre-test")
+            self._check_loop(loop, now, resumed, what)
             if now - t0 > limit:
-                raise SafetyAbort(f"pre-test did not finish within {limit:.0f} s")
+                raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
             self.display.update(self._snapshot())
         self.supervisor.check()
 
@@ -1394,8 +1527,9 @@ class Session:
             writer=self.writer,
             state="aborted",
             reason=reason,
-            table_mode=self.prep.plan.mode == "table"
-            and self.loop is not None
+            # the loop's own plan: the mounting check's tilt is streamed even on a table stand
+            table_mode=self.loop is not None
+            and self.loop.plan.mode == "table"
             and self.loop.t_motion_start is not None,
             moved=self.moved,
             extra=extra,

@@ -190,6 +190,11 @@ class SimInstrument:
             self._setup_canopen()
         #: the true motion for the model: one instant at a time, and all of a step's sub-steps
         #: in one call when the motion source can (the simulated stand can)
+        mount = model_cfg.mounting
+        self._mounting: tuple[bool, dict[str, int]] | None = None
+        if mount.swap_axes or mount.roll_sign != 1 or mount.pitch_sign != 1:
+            self._mounting = (mount.swap_axes,
+                              {"roll": mount.roll_sign, "pitch": mount.pitch_sign})
         self._motion_fn: Any = self._true
         if hasattr(motion, "true_angles_many"):
             self._motion_fn = _Motion(self._true, self._true_many)
@@ -437,15 +442,26 @@ class SimInstrument:
 
     def _true(self, t: float) -> dict[str, float]:
         a = self.motion.true_angles(t)
-        return {ax: float(a.get(ax, 0.0)) for ax in AXES}
+        return self._mounted({ax: float(a.get(ax, 0.0)) for ax in AXES})
 
     def _true_many(self, ts: Any) -> dict[str, Any]:
         """``_true`` at each of ``ts`` in one call (a motion with ``true_angles_many``)."""
         a = self.motion.true_angles_many(ts)  # type: ignore[attr-defined]
-        if all(ax in a for ax in AXES):
+        if not all(ax in a for ax in AXES):
+            zero = np.zeros(len(ts))
+            a = {ax: a.get(ax, zero) for ax in AXES}
+        return self._mounted(a)
+
+    def _mounted(self, a: Any) -> Any:
+        """The stand's true angles as this unit senses them on its own axes, mounted as
+        ``sim.instrument.mounting`` says: swapped (its roll senses the stand's pitch), then
+        each output's sign. A correct mount: ``a`` itself, untouched."""
+        m = self._mounting
+        if m is None:
             return a
-        zero = np.zeros(len(ts))
-        return {ax: a.get(ax, zero) for ax in AXES}
+        swap, signs = m
+        src = {"roll": "pitch", "pitch": "roll"} if swap else {"roll": "roll", "pitch": "pitch"}
+        return {ax: a[src[ax]] if signs[ax] == 1 else -a[src[ax]] for ax in AXES}
 
     # ------------------------------------------------------------------ the loop
     def _serve_host(self, port: PtyPort | _ChannelPort) -> None:

@@ -108,7 +108,7 @@ class CanopenInclinometer(CanInstrument):
         except (KeyError, ValueError) as e:
             raise ConfigError(f"{cfg.eds}: cannot read the TPDO1 mapping: {e}") from e
         self._slopes: dict[str, Any] = {}
-        for axis in cfg.axes:
+        for axis in cfg.outputs:
             var = next((v for v in self._tpdo if v.index in SLOPE_OBJECTS[axis]), None)
             if var is None:
                 raise ConfigError(

@@ -91,7 +91,7 @@ class DbcAngleInstrument(CanInstrument):
         self._db, self._msg = load_dbc(cfg.dbc, self.spec.message)
         self._pgn_id = self._msg.frame_id & FRAME_ID_MASK
         self._signals = {s.name: s for s in self._msg.signals}
-        for axis in cfg.axes:
+        for axis in cfg.outputs:
             name = self.spec.angle_signals[axis]
             if name not in self._signals:
                 raise ConfigError(f"{cfg.dbc}: message {self.spec.message} lacks signal {name!r}")
@@ -117,7 +117,7 @@ class DbcAngleInstrument(CanInstrument):
         raw = self._msg.decode(data, decode_choices=False, scaling=False)
         spec = self.spec
         angles: dict[str, float] = {}
-        for axis in self.axes:
+        for axis in self.outputs:
             status = spec.status_signals.get(axis)
             if status is not None and int(raw[status]) in spec.status_bad:
                 raise BadFrame(BAD_STATUS)
