@@ -355,7 +355,10 @@ class Recording:
         if ts.size < 3 or not (np.isfinite(ts).all() and np.isfinite(lo).all()
                                and np.isfinite(hi).all()):
             return None
-        t, err, info = stand_clock(ts, wrap, lo, hi)
+        # RTU: the stand answers with the state it has as the request is complete, the start
+        # of the window (the reply's wire time ends it); TCP: anywhere in the round trip
+        anchor = "earliest" if self._driver("stand") == "modbus-rtu" else "window"
+        t, err, info = stand_clock(ts, wrap, lo, hi, anchor=anchor)
         dated = np.isfinite(t)
         t = t[dated]
         if not info["consistent"] or t.size < 3 or np.any(np.diff(t) <= 0):
