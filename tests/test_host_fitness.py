@@ -338,6 +338,7 @@ def test_a_poor_host_is_refused_before_the_stand_moves(tmp_path: Path,
     row = next(m for m in rec["measurements"] if m["name"] == "precheck: host latency")
     assert row["outcome"] == "FAIL" and row["note"] == poor
     assert rec["outcome"] == "ABORTED" and rec["abort"]["kind"] == "equipment"
+    assert rec["files"]["report_html"] is not None  # before the loop's first cycle: drawn
     assert rec["warnings"] == []
     ev = next(e for e in load_recording(res.recording).events  # type: ignore[arg-type]
               if e["kind"] == "precheck" and e["name"] == "host latency")
