@@ -11,8 +11,11 @@ Order of things (each state change is an event in the recording):
    time), with the run's log ``benchctl.log``; with a ``sim:`` section the simulators are started
    (their output in the recording's ``sim.log``);
 3. **prechecks**: disk space, each device answers and identifies itself (identities into the
-   metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
-   stand at rest, then the stand is enabled and brought to zero (table mode: the table uploaded);
+   metadata), stand ready and at rest; the stand loop starts (asking for
+   ``run.realtime_priority``, recorded whether granted) and the host's scheduling latency is
+   measured and judged (``benchctl.run.fitness``; not on simulated time); the instrument
+   streams at its rate and agrees with the stand at rest, then the stand is enabled and
+   brought to zero (table mode: the table uploaded);
 4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
 5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
    abort takes, here with nothing to ramp);
