@@ -676,17 +676,14 @@ class Session:
         assert self.writer is not None
         priority = self.cfg.run.realtime_priority
         if priority is None:
-            got = not_requested("run.realtime_priority is not set")
-        elif self.clock.virtual:
+            return
+        if self.clock.virtual:
             got = not_requested("simulated time")
         else:
             loop.realtime_known.wait(REALTIME_ANSWER_S)
             got = loop.realtime or RealtimeResult(
                 priority, False, f"real-time priority {priority}: not granted: the stand loop "
                 f"did not answer within {REALTIME_ANSWER_S:g} s")
-        self.writer.update_meta(realtime_priority=got.to_dict())
-        if priority is None:
-            return
         self.writer.event("realtime_priority", **got.to_dict())
         self.display.message(
             got.detail if got.granted or got.requested is None
@@ -703,13 +700,11 @@ class Session:
                    else None)
         if skipped is not None:
             w.event("host_check", skipped=True, reason=skipped)
-            w.update_meta(host_check={"skipped": True, "reason": skipped})
             self.display.message(skipped)
             return
         check = fitness.host_check(cfg, self.clock, self.supervisor.stop_event,
                                    probe=self.host_probe)
         self.supervisor.check()  # a fault or a signal while it measured
-        w.update_meta(host_check={"skipped": False, "ok": check.ok, "detail": check.detail})
         warning = check.warning()
         if warning is not None:
             self.host_warnings.append(warning)
