@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from benchctl.clock import Clock, EventLike, ThreadLike
@@ -190,9 +191,10 @@ def assess(cfg: BenchConfig, measured: HostLatency) -> HostCheck:
 
 
 def host_check(cfg: BenchConfig, clock: Clock, stop: EventLike, *, window_s: float | None = None,
-               probe: Probe | None = None) -> HostCheck:
-    """Measure the host (``probe``: ``measure_host`` by default) and judge it against
+               probe: Probe | None = None, setter: PrioritySetter | None = None) -> HostCheck:
+    """Measure the host (``probe``: ``measure_host`` by default, its threads asking for
+    ``run.realtime_priority`` through ``setter``, the OS's by default) and judge it against
     ``cfg``; ``window_s`` overrides ``run.host_check.window_s``."""
     window = cfg.run.host_check.window_s if window_s is None else window_s
-    measure: Probe = probe if probe is not None else measure_host
+    measure: Probe = probe if probe is not None else partial(measure_host, setter=setter)
     return assess(cfg, measure(clock, periods_s(cfg), window, stop, cfg.run.realtime_priority))

@@ -703,7 +703,7 @@ class Session:
             self.display.message(skipped)
             return
         check = fitness.host_check(cfg, self.clock, self.supervisor.stop_event,
-                                   probe=self.host_probe)
+                                   probe=self.host_probe, setter=self.priority_setter)
         self.supervisor.check()  # a fault or a signal while it measured
         warning = check.warning()
         if warning is not None:
