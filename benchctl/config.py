@@ -581,6 +581,25 @@ class RunLimits(Strict):
         return self
 
 
+class HostCheckConfig(Strict):
+    """The host fitness check (``benchctl.run.fitness``): before the motion, threads ask to
+    wake every ``period_s`` and every stand-loop period for ``window_s`` and the lateness of
+    each wake is measured (as cyclictest or LinuxCNC's latency test do). The worst lateness ×
+    ``margin`` must fit inside what the stand tolerates — its buffer (``buffered``), a quarter
+    of the setpoint period (``stream``: a later setpoint is a missed slot), and the slack its
+    heartbeat watchdog leaves beyond the longest exchange — else ``on_poor``: ``warn`` (the
+    run goes on, a warning in the record) or ``refuse`` (a failed precheck: exit 2, nothing
+    moves). Not measured on simulated time. ``benchctl host-check`` runs it alone."""
+
+    enabled: bool = True
+    window_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
+    # the fixed wake period measured besides the stand loop's own (cyclictest's 1 ms)
+    period_s: Annotated[float, Field(ge=1e-4, le=1.0, allow_inf_nan=False)] = 0.001
+    # worst lateness × margin must fit inside the stand's tolerance
+    margin: Annotated[float, Field(ge=1, le=1e6, allow_inf_nan=False)] = 4.0
+    on_poor: Literal["warn", "refuse"] = "warn"
+
+
 class RunConfig(Strict):
     limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
     # how σ (and every measurement with an interval) is judged against its limit:
@@ -609,6 +628,13 @@ class RunConfig(Strict):
     # before the motion, each axis tilted to a few degrees and back: a unit mounted reversed
     # or with its axes swapped is refused (on by default)
     mounting_check: MountingCheckConfig = MountingCheckConfig()
+    # the host's scheduling latency measured before the motion and judged against the stand's
+    # buffer and watchdog (benchctl.run.fitness; README, "The host fitness check")
+    host_check: HostCheckConfig = HostCheckConfig()
+    # SCHED_FIFO priority (1–99) the stand loop thread asks for on the real clock (Linux:
+    # CAP_SYS_NICE or an rtprio limit); whether it was granted is recorded, a refusal never
+    # stops the run; None: not asked for
+    realtime_priority: Annotated[int, Field(ge=1, le=99)] | None = None
 
 
 _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)

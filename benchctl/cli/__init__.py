@@ -26,10 +26,10 @@ from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
 from benchctl.text import terminal_lines
 
-# subcommand modules, in the order --help lists them
+# subcommands, in the order --help lists them (each a module here, its "-" a "_")
 SUBCOMMANDS = (
     "run", "plan", "analyze", "report", "predict", "profile", "sim", "stand", "recording",
-    "schema", "archive", "history", "show",
+    "schema", "archive", "history", "show", "host-check",
 )
 
 EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
@@ -52,9 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in SUBCOMMANDS:
         try:
-            module = importlib.import_module(f"benchctl.cli.{name}")
+            module_name = f"benchctl.cli.{name.replace('-', '_')}"  # host-check: host_check
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError as e:
-            if e.name == f"benchctl.cli.{name}":
+            if e.name == module_name:
                 continue  # subcommand not built yet
             raise
         module.register(sub)

@@ -10,6 +10,9 @@ failed one into ``PrecheckFailed`` (a ``SafetyAbort``: the run aborts, exit code
   with the command that clears it (``benchctl stand reset``);
 - under ``unit.serial_check: require``, the serial typed is the one the instrument reports
   (``check_serial``; an instrument that reports none cannot show it is the unit named);
+- the host wakes its threads on time: its scheduling latency against the stand's buffer and
+  watchdog (``benchctl.run.fitness``: the precheck ``host latency``, failed only under
+  ``run.host_check.on_poor: refuse``);
 - the instrument streams at its expected rate (± ``run.instrument_rate_tolerance``), reports
   every axis of the profile, and its static reading agrees with the stand's within
   ``instrument.static_tolerance_deg``;

@@ -11,11 +11,13 @@ Order of things (each state change is an event in the recording):
    time), with the run's log ``benchctl.log``; with a ``sim:`` section the simulators are started
    (their output in the recording's ``sim.log``);
 3. **prechecks**: disk space, each device answers and identifies itself (identities into the
-   metadata), stand ready and at rest, the instrument streams at its rate and agrees with the
-   stand at rest, then the stand is enabled and brought to zero, the **mounting check** tilts
-   each axis to a few degrees and back and refuses a unit mounted reversed or with its axes
-   swapped (``run.mounting_check``; ``benchctl.run.mounting``), and (table mode) the table is
-   uploaded;
+   metadata), stand ready and at rest; the stand loop starts (asking for
+   ``run.realtime_priority``, recorded whether granted) and the host's scheduling latency is
+   measured and judged (``benchctl.run.fitness``; not on simulated time); the instrument
+   streams at its rate and agrees with the stand at rest, then the stand is enabled and
+   brought to zero, the **mounting check** tilts each axis to a few degrees and back and
+   refuses a unit mounted reversed or with its axes swapped (``run.mounting_check``;
+   ``benchctl.run.mounting``), and (table mode) the table is uploaded;
 4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
 5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
    abort takes, here with nothing to ramp);
@@ -93,6 +95,7 @@ from benchctl.results.record import (
     with_file,
     write_record,
 )
+from benchctl.run import fitness
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
@@ -107,6 +110,7 @@ from benchctl.run.precision import (
     relative_halfwidth,
     whole_periods_in,
 )
+from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
 from benchctl.run.recorder import Recorder
 from benchctl.run.report import (
     REPORT_JSON,
@@ -145,6 +149,7 @@ SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
 FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
+REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
 
 
 @dataclass
@@ -580,12 +585,18 @@ class Session:
         run_archive: RunArchive | None = None,  # begun by run_test: the start's archive work
         *,
         clock: Clock | None = None,  # the run's (default: the supervisor's, else the real one)
+        host_probe: fitness.Probe | None = None,  # measures the host (default: measure_host)
+        priority_setter: PrioritySetter | None = None,  # the stand loop's (default: the OS's)
     ) -> None:
         if clock is None:
             clock = supervisor.clock if supervisor is not None else REAL
         #: every time read, wait, lock and thread of the run (``benchctl.clock``)
         self.clock = clock
         self.start_simulators = start_simulators
+        #: the host fitness check's measurement: handed in, it runs on simulated time too
+        self.host_probe = host_probe
+        self.priority_setter = priority_setter
+        self.host_warnings: list[str] = []  # the host check's, into the record's warnings
         self.run_archive = run_archive
         self.log_path: Path | None = None
         self.cfg = cfg
@@ -631,12 +642,13 @@ class Session:
                 )
         self.display.state(str(new), reason)
 
-    def _precheck(self, result: pc.CheckResult) -> None:
+    def _precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
+        """Record and show a precheck (``shown``: its own line instead of the usual one)."""
         assert self.writer is not None
         self.prechecks.append(result.to_dict())
         self.writer.event("precheck", **result.to_dict())
         self.display.message(
-            f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
+            shown or f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
         )
         pc.require(result)
         self.supervisor.check()
@@ -735,12 +747,58 @@ class Session:
         self.loop = self._new_loop(self.prep.plan)
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
+        self._realtime(self.loop)
+        self._host_check()
         self._rate_and_zero()
         self._mounting_check()
         if self.prep.plan.mode == "table" and self.prep.pretest is None:
             assert self.prep.plan.tables is not None
             stand.upload_table(self.prep.plan.tables)
             w.event("table_uploaded", axes=list(self.prep.plan.tables))
+
+    def _realtime(self, loop: StandLoop) -> None:
+        """Record and say whether the stand loop thread got ``run.realtime_priority``."""
+        assert self.writer is not None
+        priority = self.cfg.run.realtime_priority
+        if priority is None:
+            return
+        if self.clock.virtual:
+            got = not_requested("simulated time")
+        else:
+            loop.realtime_known.wait(REALTIME_ANSWER_S)
+            got = loop.realtime or RealtimeResult(
+                priority, False, f"real-time priority {priority}: not granted: the stand loop "
+                f"did not answer within {REALTIME_ANSWER_S:g} s")
+        self.writer.event("realtime_priority", **got.to_dict())
+        self.display.message(
+            got.detail if got.granted or got.requested is None
+            else f"{got.detail}; the run goes on at normal priority"
+        )
+
+    def _host_check(self) -> None:
+        """The host fitness check (``run.host_check``): a precheck, not measured on simulated
+        time (unless a probe is handed in)."""
+        cfg, w = self.cfg, self.writer
+        assert w is not None
+        skipped = (fitness.SKIP_DISABLED if not cfg.run.host_check.enabled
+                   else fitness.SKIP_VIRTUAL if self.host_probe is None and self.clock.virtual
+                   else None)
+        if skipped is not None:
+            w.event("host_check", skipped=True, reason=skipped)
+            self.display.message(skipped)
+            return
+        check = fitness.host_check(cfg, self.clock, self.supervisor.stop_event,
+                                   probe=self.host_probe, setter=self.priority_setter)
+        self.supervisor.check()  # a fault or a signal while it measured
+        warning = check.warning()
+        if warning is not None:
+            self.host_warnings.append(warning)
+            log.warning("%s", warning)
+        result = check.check_result()
+        shown = (check.line if check.ok
+                 else f"{check.line}: the run goes on, with a warning in its record"
+                 if result.ok else f"{check.line}: the run is refused before the stand moves")
+        self._precheck(result, shown)
 
     def _disturbed(self, plan: Disturbances) -> None:
         """Simulated time with seeded disturbances: record and show the seed and the schedule,
@@ -783,6 +841,8 @@ class Session:
             ),
             clock=self.clock,
             host_cost_s=cfg.sim.host_cost_s if cfg.sim is not None and self.clock.virtual else 0.0,
+            realtime_priority=cfg.run.realtime_priority,
+            priority_setter=self.priority_setter,
         )
 
     def _rate_and_zero(self) -> None:
@@ -1248,8 +1308,9 @@ class Session:
         out = precheck_measurements(self.prechecks)
         for axis, v in verdicts.items():
             out.extend(axis_measurements(axis, v.to_dict(full=True), limits, self.rule))
-        warnings = [f"{axis}: {w}" for axis, r in results.items()
-                    for w in getattr(r, "warnings", [])]
+        warnings = [*self.host_warnings]
+        warnings += [f"{axis}: {w}" for axis, r in results.items()
+                     for w in getattr(r, "warnings", [])]
         meta = self.writer.meta if self.writer is not None else self.meta
         dut = (meta.get("devices") or {}).get("instrument")
         sm = serial_measurement(self.opts.serial, reported_serial(dut))
@@ -1292,7 +1353,7 @@ class Session:
             deviations, warnings = report.deviations, report.warnings
         else:
             measurements = precheck_measurements(self.prechecks)
-            deviations, warnings = self._deviations(), []
+            deviations, warnings = self._deviations(), list(self.host_warnings)
         rj, rt = self.path / REPORT_JSON, self.path / REPORT_TXT
         meta = self.writer.meta if self.writer is not None else self.meta  # + devices
         rec = build_record(

@@ -49,6 +49,7 @@ from benchctl.kinematics import (
 )
 from benchctl.run.live import CommandStats, Histogram
 from benchctl.run.plan import MotionPlan
+from benchctl.run.realtime import PrioritySetter, RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
@@ -175,7 +176,16 @@ class StandLoop:
         *,
         clock: Clock = REAL,
         host_cost_s: float = 0.0,
+        realtime_priority: int | None = None,
+        priority_setter: PrioritySetter | None = None,
     ) -> None:
+        #: SCHED_FIFO priority this thread asks for first (``run.realtime_priority``; never on
+        #: simulated time); ``priority_setter``: the OS's by default (``benchctl.run.realtime``)
+        self.realtime_priority = None if clock.virtual else realtime_priority
+        self._priority_setter = priority_setter
+        #: what the request got (None: not asked), set once ``realtime_known`` is
+        self.realtime: RealtimeResult | None = None
+        self.realtime_known = clock.event()
         #: the host computation each cycle is charged on simulated time (``clock.compute``; the
         #: real clock charges nothing: the computation itself takes the time)
         self.host_cost_s = host_cost_s
@@ -296,6 +306,11 @@ class StandLoop:
     # the thread
     def _run(self) -> None:
         self._ident = threading.get_ident()
+        if self.realtime_priority is not None:  # for this thread (pid 0: the calling thread)
+            self.realtime = request_realtime(self.realtime_priority, self._priority_setter)
+            (log.info if self.realtime.granted else log.warning)("stand loop: %s",
+                                                                 self.realtime.detail)
+        self.realtime_known.set()
         self._hold(until_go=True)
         if self._stopping():
             return
