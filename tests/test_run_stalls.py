@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from run_sim import LIMITS, ROLL, live_bench
+from run_sim import FOCUSED, LIMITS, ROLL, live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.jsonout import dumps
@@ -46,7 +46,8 @@ def _run_with_stalls(
     """A REAL child run stopped by SIGSTOP five times (the host's time: ``realtime`` tests)."""
     profile = tmp_path / "p.yaml"
     profile.write_text(ROLL)
-    with live_bench(tmp_path, stand={"mode": mode, **stand}) as b:
+    # (about stalls of the motion: the mounting check's tilt and the host check left out)
+    with live_bench(tmp_path, stand={"mode": mode, **stand}, run=FOCUSED) as b:
         runs = tmp_path / "runs"
         cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(b.config_path)]
         cmd += ["--profile", str(profile), "--serial", "STALL", "--operator", "ci", "--json"]
