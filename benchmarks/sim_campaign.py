@@ -38,8 +38,11 @@ campaign in several parts runs each once. ``--summarize F.jsonl ...`` adds up th
 
 Usage: python benchmarks/sim_campaign.py --runs 1000 [--seed0 1] [--jobs 2]
        [--durations 120,300,600,900] [--modes buffered,stream,table] [--keep DIR] [--json F]
-       [--ref-cache DIR]
+       [--ref-cache DIR] [--append] [--hours H]
        python benchmarks/sim_campaign.py --summarize F.jsonl [F2.jsonl ...]
+
+``--append`` adds to ``--json``'s file and skips the seeds it holds (a campaign stopped and
+resumed); ``--hours H`` stops once the runs done hold H simulated hours.
 """
 
 from __future__ import annotations
@@ -483,13 +486,29 @@ def main() -> int:
     ap.add_argument("--ref-cache", type=Path,
                     help="keep the undisturbed runs' σ here, by code version and configuration")
     ap.add_argument("--summarize", type=Path, nargs="+", metavar="JSONL",
-                    help="print the totals of earlier campaigns' --json files and exit")
+                    help="print the totals of earlier campaigns' --json files (per code "
+                         "version, then all) and exit")
+    ap.add_argument("--append", action="store_true",
+                    help="--json: add to the file, and skip the seeds it holds already (a "
+                         "campaign resumed)")
+    ap.add_argument("--hours", type=float,
+                    help="stop once the runs done hold this many simulated hours")
     a = ap.parse_args()
     if a.summarize:
         saved = [json.loads(x) for f in a.summarize for x in f.read_text().splitlines() if x]
         versions = sorted({str(x.get("version")) for x in saved})
-        print(f"code versions: {', '.join(versions)}")
-        return totals(saved, sum(x.get("wall_s", 0.0) for x in saved), "summed per run")
+        worst = 0
+        if len(versions) > 1:
+            for v in versions:
+                print(f"\n== code version {v}")
+                part = [x for x in saved if str(x.get("version")) == v]
+                worst = max(worst, totals(part, sum(x.get("wall_s", 0.0) for x in part),
+                                          "summed per run"))
+            print("\n== all versions")
+        else:
+            print(f"code version: {', '.join(versions)}")
+        return max(worst, totals(saved, sum(x.get("wall_s", 0.0) for x in saved),
+                                 "summed per run"))
     durations = [int(x) for x in a.durations.split(",")]
     work = tempfile.mkdtemp(prefix="benchctl-campaign-")
     keep = str(a.keep) if a.keep else None
@@ -497,10 +516,17 @@ def main() -> int:
     cache = str(a.ref_cache) if a.ref_cache else None
     version = code_version()
     print(f"code version {version}", flush=True)
-    jobs = [(a.seed0 + k, durations, work, keep, modes, cache, version) for k in range(a.runs)]
+    done: set[int] = set()
+    if a.append and a.json is not None and a.json.is_file():
+        done = {int(json.loads(x)["seed"]) for x in a.json.read_text().splitlines() if x}
+    jobs = [(a.seed0 + k, durations, work, keep, modes, cache, version) for k in range(a.runs)
+            if a.seed0 + k not in done]
     t0 = time.perf_counter()
     lines: list[dict[str, Any]] = []
-    sink = a.json.open("w") if a.json else None
+    sink = a.json.open("a" if a.append else "w") if a.json else None
+
+    def enough() -> bool:
+        return a.hours is not None and sum(x["t_sim_s"] for x in lines) >= 3600.0 * a.hours
     try:
         if a.jobs > 1:
             with multiprocessing.get_context("spawn").Pool(a.jobs) as pool:
@@ -508,11 +534,16 @@ def main() -> int:
                 for line in it:
                     lines.append(line)
                     _print(line, sink)
+                    if enough():
+                        pool.terminate()  # the runs under way are left out, not half-counted
+                        break
         else:
             for j in jobs:
                 line = one(j)
                 lines.append(line)
                 _print(line, sink)
+                if enough():
+                    break
     finally:
         if sink is not None:
             sink.close()
