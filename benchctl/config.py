@@ -9,7 +9,6 @@ was expected; it is always fatal.
 from __future__ import annotations
 
 import datetime
-import math
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -26,7 +25,8 @@ from pydantic import (
     model_validator,
 )
 
-from benchctl.errors import ConfigError, InputError
+from benchctl.errors import ConfigError
+from benchctl.options import MAX_BAND_HZ
 from benchctl.redact import redact
 from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
 from benchctl.text import PART_NUMBER_MAX, STATION_MAX
@@ -45,7 +45,6 @@ Seconds = Annotated[float, Field(gt=0, le=MAX_WAIT_S, allow_inf_nan=False)]
 HostRate = Annotated[float, Field(gt=0, le=MAX_HOST_RATE_HZ, allow_inf_nan=False)]
 DeviceRate = Annotated[float, Field(gt=0, le=MAX_DEVICE_RATE_HZ, allow_inf_nan=False)]
 Baud = Annotated[int, Field(gt=0, le=100_000_000)]
-MAX_BAND_HZ = 1e6
 
 
 class Strict(BaseModel):
@@ -1053,37 +1052,3 @@ def load_config(path: str | Path) -> BenchConfig:
     return parse_config(read_yaml(p, "bench config"), p)
 
 
-# --- command-line options ------------------------------------------------------------------
-#
-# Every numeric option of the CLI is checked against a stated range before anything opens
-# (README, the option tables). The figures live here, beside the config's own bounds.
-
-MAX_RUN_DURATION_S = 86400.0  # run/profile --duration: a day of profile
-MAX_PROFILE_SAMPLES = 20_000_000  # --duration × rate, per axis (a day at 231 Hz)
-MAX_PROFILE_RATE_HZ = 100_000.0  # profile --rate
-MAX_LAG_S = 86400.0  # analyze --max-lag
-MAX_DELAY_S = 3600.0  # analyze --compensate-delay, either sign
-MAX_SEED = 2**63 - 1  # --seed: 0 … 2⁶³−1
-
-
-def check_option(
-    option: str,
-    value: float | None,
-    lo: float,
-    hi: float,
-    *,
-    lo_open: bool = False,
-    unit: str = "",
-    what: str = "",
-) -> None:
-    """``InputError`` unless ``value`` (None: not given) is finite and within ``lo``…``hi``;
-    the message names the option, the value and the range (after ``what`` it expects)."""
-    if value is None:
-        return
-    v = float(value)
-    inside = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
-    if not inside:
-        u = f" {unit}" if unit else ""
-        rel = "<" if lo_open else "≤"
-        lead = f"{what}, " if what else ""
-        raise InputError(f"{option} {value!r}: expected {lead}{lo:g} {rel} value ≤ {hi:g}{u}")

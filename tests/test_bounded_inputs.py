@@ -27,9 +27,10 @@ from hypothesis import strategies as st
 import benchctl.profiles
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
 from benchctl.cli import main
-from benchctl.config import MAX_PROFILE_SAMPLES, load_config, parse_config
+from benchctl.config import load_config, parse_config
 from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.errors import ConfigError, DataError, InputError, LimitError
+from benchctl.options import MAX_PROFILE_SAMPLES
 from benchctl.plan import load_plan, run_plan
 from benchctl.profiles import load_profile
 from benchctl.profiles.loader import read_angle_csv

@@ -66,7 +66,7 @@ def register(subparsers: Any) -> None:
 
 
 def _delay_option(text: str) -> str | float:
-    from benchctl.config import MAX_DELAY_S
+    from benchctl.options import MAX_DELAY_S
 
     if text in ("none", "auto"):
         return text
@@ -84,7 +84,7 @@ def _delay_option(text: str) -> str | float:
 
 def _check_options(args: argparse.Namespace) -> None:
     """The numeric options' ranges (README, the option table), before any file is read."""
-    from benchctl.config import MAX_BAND_HZ, MAX_LAG_S, MAX_RUN_DURATION_S, check_option
+    from benchctl.options import MAX_BAND_HZ, MAX_LAG_S, MAX_RUN_DURATION_S, check_option
 
     check_option("--max-lag", args.max_lag, 0, MAX_LAG_S, lo_open=True, unit="s",
                  what="a positive number of seconds")

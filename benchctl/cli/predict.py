@@ -82,7 +82,7 @@ def _measure(rec: Any, source: str, axis: str, timebase: str) -> AnalysisResult:
 
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis.predict import noise_from_lines, predict, response_from_lines
-    from benchctl.config import MAX_RUN_DURATION_S, check_option
+    from benchctl.options import MAX_RUN_DURATION_S, check_option
     from benchctl.recording import is_recording, load_recording
 
     check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s",

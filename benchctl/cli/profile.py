@@ -78,13 +78,13 @@ def register(sub: Any) -> None:
 
 def _prepare(args: argparse.Namespace) -> tuple[Any, Any, Any, float]:
     """(profile, motion, check or None, rate_hz) after loading, synthesis and the limit check."""
-    from benchctl.config import (
+    from benchctl.config import load_config
+    from benchctl.options import (
         MAX_PROFILE_RATE_HZ,
         MAX_PROFILE_SAMPLES,
         MAX_RUN_DURATION_S,
         MAX_SEED,
         check_option,
-        load_config,
     )
     from benchctl.profiles import check_motion, load_profile, measure_peaks, synthesize
 

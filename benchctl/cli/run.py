@@ -99,13 +99,9 @@ def ask_value(value: str | None, what: str, option: str,
 
 
 def handle(args: argparse.Namespace) -> int:
-    from benchctl.config import (
-        MAX_RUN_DURATION_S,
-        MAX_SEED,
-        check_option,
-        load_config,
-    )
+    from benchctl.config import load_config
     from benchctl.jsonout import dumps
+    from benchctl.options import MAX_RUN_DURATION_S, MAX_SEED, check_option
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
     from benchctl.run.plan import check_setpoints

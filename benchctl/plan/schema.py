@@ -49,13 +49,13 @@ from pydantic import (
 )
 
 from benchctl.config import (
-    MAX_RUN_DURATION_S,
     MAX_WAIT_S,
     field_path,
     read_yaml,
     shown_value,
 )
 from benchctl.errors import ConfigError
+from benchctl.options import MAX_RUN_DURATION_S
 from benchctl.text import OPERATOR_MAX
 from benchctl.text import problem as text_problem
 

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
-from benchctl.config import MAX_RUN_DURATION_S
+from benchctl.options import MAX_RUN_DURATION_S
 
 Axis = Literal["roll", "pitch"]
 # every number finite (.inf, .nan refused); durations and periods at most a day

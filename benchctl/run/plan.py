@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.config import MAX_PROFILE_SAMPLES
 from benchctl.errors import ConfigError
 from benchctl.harmonics import HarmonicTable
 from benchctl.kinematics import profile_peaks
+from benchctl.options import MAX_PROFILE_SAMPLES
 from benchctl.run.state import RunState
 
 
