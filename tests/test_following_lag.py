@@ -17,6 +17,7 @@ from run_sim import live_bench
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimInstrumentConfig
 from benchctl.run import RunOptions, run_test
+from benchctl.run.session import RunResult
 
 pytestmark = pytest.mark.slow
 
@@ -39,7 +40,7 @@ LAG = 2 * 0.8 / (2 * math.pi * 8.0)  # the simulated servo: 2ζ/ω_n
 
 
 def _run(tmp_path: Path, vclock: VirtualClock, stand: dict[str, object],
-         sim_stand: dict[str, object] | None = None) -> object:
+         sim_stand: dict[str, object] | None = None) -> RunResult:
     prof = tmp_path / "fast_sine.yaml"
     prof.write_text(PROFILE)
     with live_bench(tmp_path, model=MODEL, stand={"mode": "buffered", **stand},
@@ -51,14 +52,14 @@ def test_the_servo_lag_alone_aborted_a_profile_within_the_limits(
     tmp_path: Path, vclock: VirtualClock
 ) -> None:
     res = _run(tmp_path, vclock, {})
-    assert res.state == "aborted"  # type: ignore[attr-defined]
-    assert "tracking error on roll" in res.reason  # type: ignore[attr-defined]
-    assert "(measured − stand setpoint)" in res.reason  # type: ignore[attr-defined]
+    assert res.state == "aborted"
+    assert "tracking error on roll" in res.reason
+    assert "(measured − stand setpoint)" in res.reason
 
 
 def test_the_stated_lag_is_allowed_for(tmp_path: Path, vclock: VirtualClock) -> None:
     res = _run(tmp_path, vclock, {"following_lag_s": round(LAG, 4)})
-    assert res.state == "done", res.reason  # type: ignore[attr-defined]
+    assert res.state == "done", res.reason
 
 
 def test_a_stand_that_does_not_follow_still_aborts(tmp_path: Path, vclock: VirtualClock) -> None:
@@ -66,6 +67,6 @@ def test_a_stand_that_does_not_follow_still_aborts(tmp_path: Path, vclock: Virtu
     stated lag, 1.1° beyond what is allowed — not following, and said so."""
     res = _run(tmp_path, vclock, {"following_lag_s": round(LAG, 4)},
                sim_stand={"bandwidth_hz": 8.0 / 3.0})
-    assert res.state == "aborted"  # type: ignore[attr-defined]
-    assert "tracking error on roll" in res.reason  # type: ignore[attr-defined]
-    assert f"its following lag {round(LAG, 4):g} s × rate allowed" in res.reason  # type: ignore[attr-defined]
+    assert res.state == "aborted"
+    assert "tracking error on roll" in res.reason
+    assert f"its following lag {round(LAG, 4):g} s × rate allowed" in res.reason
