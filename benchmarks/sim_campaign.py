@@ -3,8 +3,9 @@
 Each run ``k`` draws from its seed (``--seed0 + k``): the stand mode (buffered, stream, table),
 the link (Modbus TCP or RTU), the instrument protocol (CANopen, J1939, NMEA 2000, NMEA 0183),
 the profile and its duration, and the disturbances (``benchctl.sim.disturb``): host stalls from
-tens of milliseconds to several seconds, send jitter, slow replies, and — in half the runs —
-lost replies, lost and garbled frames, stand and instrument faults and an operator's Ctrl-C.
+tens of milliseconds to several seconds, send jitter, slow replies, and — in a third of the
+runs — up to a few lost replies at random moments, lost and garbled frames, stand and
+instrument faults and an operator's Ctrl-C.
 The simulators and the run share one VirtualClock in this process; the run is the product's own
 (``run_test`` with the drivers on in-process links), the same code a run on hardware takes.
 
@@ -33,8 +34,9 @@ simulated hours, violations by check, the failing seeds. A failing seed replays 
 ``--seed0 S --runs 1``.
 
 The undisturbed runs are the same bytes for the same code and configuration: ``--ref-cache DIR``
-keeps their σ by code version (HEAD and any uncommitted change) and configuration, so a
-campaign in several parts runs each once. ``--summarize F.jsonl ...`` adds up the parts.
+keeps their σ by code version (``code_version``: the files a run executes, the checks and the
+libraries' versions) and configuration, so a campaign in several parts runs each once.
+``--summarize F.jsonl ...`` adds up the parts.
 
 Usage: python benchmarks/sim_campaign.py --runs 1000 [--seed0 1] [--jobs 2]
        [--durations 120,300,600,900] [--modes buffered,stream,table] [--keep DIR] [--json F]
@@ -100,6 +102,10 @@ CLOCK_START = 1000.0
 FAULTY_SHARE = 0.35
 #: the share of table-mode runs drawn at the shortest duration (a table of at most 64 lines)
 TABLE_SHORT = 0.9
+#: the most lost stand replies a faulty run expects (drawn uniformly from 0 to this)
+LOST_REPLIES = 3.0
+#: the stand exchanges per second of a run (a 100 Hz loop, heartbeats, writes), roughly
+EXCHANGES_PER_S = 120.0
 #: the share of runs whose host stalls may exceed the stand's buffer (up to 3 s)
 LONG_STALL_SHARE = 0.3
 
@@ -173,8 +179,11 @@ def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) ->
         "slow_reply_s": [0.005, round(rng.uniform(0.01, 0.2), 3)],
     }
     if faulty:
+        exchanges = draw["duration"] * EXCHANGES_PER_S
         disturb.update({
-            "lost_reply_p": round(rng.uniform(0.0, 0.005), 5),
+            # a lost reply is drawn per exchange: at most a few in the whole run, at random
+            # moments (more would end nearly every faulty run at its first seconds)
+            "lost_reply_p": float(f"{rng.uniform(0.0, LOST_REPLIES) / exchanges:.3g}"),
             "lost_frame_p": round(rng.uniform(0.0, 0.01), 5),
             "garbled_frame_p": round(rng.uniform(0.0, 0.01), 5),
             "faults": rng.choice([0, 1, 1, 2]),
@@ -366,16 +375,45 @@ def _sigmas(res: Any) -> dict[str, Any] | None:
             for a, v in res.report.axes.items()}
 
 
+#: packages outside the campaign's code version: a run never imports them (checked after each)
+OUTSIDE = ("benchctl.cli", "benchctl.web")
+#: the libraries whose versions are part of the code version
+LIBRARIES = ("pymodbus", "python-can", "canopen", "cantools", "pynmea2", "pyserial", "numpy",
+             "scipy", "pydantic", "PyYAML", "matplotlib", "Jinja2")
+
+
 def code_version() -> str:
-    """The product's code as it is: HEAD and a hash of any uncommitted change under benchctl/
-    (the key of the reference cache: an undisturbed run is the same bytes for the same code
-    and configuration)."""
-    def git(*a: str) -> str:
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
-                              check=False).stdout
-    head = git("rev-parse", "HEAD").strip() or "unknown"
-    diff = git("diff", "HEAD", "--", "benchctl", "config", "profiles")
-    return head + ("+" + hashlib.sha256(diff.encode()).hexdigest()[:12] if diff else "")
+    """The code a campaign's runs execute, as it is on disk: a hash of the files under
+    benchctl/ (but the packages in OUTSIDE), config/, profiles/ and drivers/, of this script
+    (the checks), and of the libraries' versions. A commit that changes none of them (tests,
+    documentation, a command-line front end) keeps the version, so a campaign in several
+    parts adds up to one version's figures; the key of the reference cache too (an undisturbed
+    run is the same bytes for the same code and configuration)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as lib_version
+
+    outside = tuple(p.replace(".", "/") + "/" for p in OUTSIDE)
+    listed = subprocess.run(
+        ["git", "ls-files", "-co", "--exclude-standard", "--", "benchctl", "config", "profiles",
+         "drivers"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    h = hashlib.sha256()
+    for rel in sorted({*listed, "benchmarks/sim_campaign.py"}):
+        path = ROOT / rel
+        if rel.startswith(outside) or "__pycache__" in rel or not path.is_file():
+            continue
+        h.update(rel.encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
+    for lib in LIBRARIES:
+        try:
+            h.update(f"{lib}=={lib_version(lib)}".encode())
+        except PackageNotFoundError:
+            h.update(f"{lib} missing".encode())
+    return "code:" + h.hexdigest()[:16]
+
+
+def _outside_imported() -> list[str]:
+    """Modules of the packages outside the code version that this process has imported."""
+    return sorted(m for m in sys.modules if m.startswith(tuple(p + "." for p in OUTSIDE))
+                  or m in OUTSIDE)
 
 
 def _reference(draw: dict[str, Any], out: Path, cache: str | None,
@@ -466,6 +504,11 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
         line = {"seed": seed, "violations": [f"crash: {type(e).__name__}: {e}"], "t_sim_s": 0.0,
                 "traceback": traceback.format_exc(),
                 **{k: draw[k] for k in ("mode", "link", "protocol", "profile", "duration")}}
+    stray = _outside_imported()
+    if stray:
+        line["violations"] = [*line["violations"],
+                              f"harness: the run imported {', '.join(stray)}, outside the code "
+                              "version (OUTSIDE)"]
     line["wall_s"] = round(time.perf_counter() - t0, 2)
     line["version"] = version
     if line["violations"] and keep:
