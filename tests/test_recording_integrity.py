@@ -308,3 +308,49 @@ def test_any_change_to_a_covered_file_is_found(
     found = verify_recording(folder)
     assert found.status == "FAILED"
     assert len(found.problems) == 1 and found.problems[0].startswith(f"{f}: ")
+
+
+def test_rows_are_written_while_meta_json_waits_for_the_disk(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """meta.json's rewrite ends in an fsync, which a busy disk can hold for seconds: the stand
+    loop's and the reader's rows (and events) are written meanwhile, not held behind it; the
+    rewrite then lands and the recording verifies."""
+    import threading
+
+    from benchctl.recording import writer as writer_mod
+
+    w = RecordingWriter(tmp_path / "rec", ("roll",), {"serial": "M-1"})
+    real = writer_mod.atomic_write_bytes
+    entered, release = threading.Event(), threading.Event()
+
+    def slow_disk(path: Path, data: bytes, **kw: Any) -> None:
+        if path.name == "meta.json":
+            entered.set()
+            assert release.wait(60), "the test never released the disk"
+        real(path, data, **kw)
+
+    monkeypatch.setattr(writer_mod, "atomic_write_bytes", slow_disk)
+    meta = threading.Thread(target=w.update_meta, kwargs={"mounting_check": {"ok": True}})
+    meta.start()
+    assert entered.wait(60)
+
+    def rows() -> None:
+        for k in range(200):
+            w.write_stand(StandSample(t_host=float(k), rtt_s=0.002, angle_deg={"roll": 0.1},
+                                      rate_deg_s={"roll": 0.0}, setpoint_deg={"roll": 0.1},
+                                      status=STATUS))
+            w.write_instrument(InstrumentSample(float(k), {"roll": 0.1}, counter=k))
+        w.event("underrun", played=1, queued=1)
+
+    writer = threading.Thread(target=rows)
+    writer.start()
+    writer.join(60)
+    held = meta.is_alive()  # the meta.json write still waits for the disk…
+    release.set()
+    meta.join(60)
+    assert held and not writer.is_alive()  # … and every row went in meanwhile
+    assert w.counts["stand"] == w.counts["instrument"] == 200
+    w.close("done", "PASS")
+    assert json.loads((tmp_path / "rec" / "meta.json").read_text())["mounting_check"] == {
+        "ok": True}
+    assert load_recording(tmp_path / "rec").integrity.status == "verified"

@@ -155,6 +155,7 @@ class RecordingWriter:
         self._closed = False
         self._end_written = False
         self._close_lock = clock.lock()
+        self._meta_lock = clock.lock()  # meta.json's rewrites (update_meta)
         self.counts = {name: 0 for name in STREAM_FILES}
         self.dropped_rows = 0  # stream rows not written after a write failure
         self.dropped_events = 0
@@ -267,14 +268,22 @@ class RecordingWriter:
 
     def update_meta(self, **fields: Any) -> None:
         """Add or replace metadata fields (meta.json is rewritten atomically; on a write failure
-        the old file stays and ``RecordingError`` is raised, as for any first failure)."""
-        with self._lock:
-            self._meta = {**self._meta, **fields}
+        the old file stays and ``RecordingError`` is raised, as for any first failure).
+
+        The rewrite ends in an fsync, which a busy disk can make last seconds: it holds only
+        its own lock, never the one the streams' rows take, so the stand loop and the
+        instrument reader, whose rows are written meanwhile, never wait for the disk."""
+        with self._meta_lock:  # one rewrite at a time, in the order asked
+            with self._lock:
+                self._meta = meta = {**self._meta, **fields}
             try:
-                self._meta_bytes = _atomic_json(self.path / META_FILE, self._meta)
+                data = _atomic_json(self.path / META_FILE, meta)
             except OSError as e:
-                err = self._failed(self.path / META_FILE, e)
+                with self._lock:
+                    err = self._failed(self.path / META_FILE, e)
             else:
+                with self._lock:
+                    self._meta_bytes = data
                 return
         raise self._report(err)
 
