@@ -455,13 +455,25 @@ def _uniform(t: FloatArray) -> bool:
 
 
 # ---------------------------------------------------------------------------------- device clocks
-def unwrap(values: ArrayLike, period: float, t_host: ArrayLike, scale: float = 1.0) -> FloatArray:
+#: one-sided unwrapping (``unwrap``): how far, in periods, the host's elapsed time may fall
+#: short of the true one (receipt jitter); it may exceed it by up to 1 − this (a host stall)
+EARLY_WRAP_SLACK = 0.25
+
+
+def unwrap(values: ArrayLike, period: float, t_host: ArrayLike, scale: float = 1.0,
+           *, one_sided: bool = False) -> FloatArray:
     """A wrapping clock or counter made continuous, counting the wraps by the host's clock.
 
     ``values`` wrap at ``period`` (e.g. 60 000 ms, 253 SIDs, 86 400 s); one unit is ``scale``
     host seconds (for a counter: its sample period). Between consecutive samples the number of
     wraps is the one that brings the elapsed value nearest to the elapsed host time, so gaps
     and host stalls shorter than half a period are counted right.
+
+    ``one_sided``: ``t_host`` are receipt stamps, which a stalled host makes late by the
+    stall's length but never early by more than their jitter: the wraps are then the most
+    that do not put the elapsed value beyond the elapsed host time by more than
+    ``EARLY_WRAP_SLACK`` of a period, so stalls up to three quarters of a period are counted
+    right (a 100 Hz NMEA 2000 SID: 1.9 s, not 1.26 s).
     """
     v = np.asarray(values, dtype=float)
     h = np.asarray(t_host, dtype=float)
@@ -469,7 +481,10 @@ def unwrap(values: ArrayLike, period: float, t_host: ArrayLike, scale: float = 1
         return v.copy()
     dv = np.diff(v)
     dh = np.diff(h) / scale
-    wraps = np.rint((dh - dv) / period)
+    if one_sided:
+        wraps = np.floor((dh - dv) / period + EARLY_WRAP_SLACK)
+    else:
+        wraps = np.rint((dh - dv) / period)
     return np.concatenate(([v[0]], v[0] + np.cumsum(dv + wraps * period)))
 
 
@@ -508,16 +523,24 @@ def clock_slots(c: ArrayLike) -> NDArray[np.int64]:
     return fit_slots(np.asarray(c, dtype=float))[0]
 
 
-def counter_slots(counter: ArrayLike, period: int, t_receipt: ArrayLike) -> NDArray[np.int64]:
-    """Slots from a sample counter wrapping at ``period`` (NMEA 2000 SID: 253); the wraps are
-    counted by the receipt stamps and the step between samples one count apart."""
+def counter_slots(counter: ArrayLike, period: int, t_receipt: ArrayLike,
+                  adapter_time: ArrayLike | None = None) -> NDArray[np.int64]:
+    """Slots from a sample counter wrapping at ``period`` (NMEA 2000 SID: 253). Its wraps are
+    counted by the CAN adapter's timestamps where every sample has one (taken as the frames
+    arrive: a host stall does not delay them), else by the receipt stamps, one-sided (see
+    ``unwrap``); the step between samples is the median of those one count apart."""
     c = np.asarray(counter, dtype=float)
-    tr = np.asarray(t_receipt, dtype=float)
+    witness, one_sided = np.asarray(t_receipt, dtype=float), True
+    if adapter_time is not None:
+        av = np.asarray(adapter_time, dtype=float)
+        if (av.shape == c.shape and np.isfinite(av).all() and np.all(np.diff(av) >= 0)
+                and av[-1] > av[0]):
+            witness, one_sided = av, False
     dc = np.mod(np.diff(c), period)
     one = dc == 1
-    dh = np.diff(tr)
+    dh = np.diff(witness)
     step = float(np.median(dh[one])) if one.any() else float(np.median(dh / np.maximum(dc, 1)))
-    k = unwrap(c, period, tr, scale=step)
+    k = unwrap(c, period, witness, scale=step, one_sided=one_sided)
     return np.asarray(np.rint(k - k[0]), dtype=np.int64)
 
 
@@ -672,7 +695,7 @@ def instrument_timebase(
             if what == "counter" and counter is not None:
                 cv = np.asarray(counter, dtype=float)
                 if np.isfinite(cv).all():
-                    return counter_slots(cv, int(period), tr)
+                    return counter_slots(cv, int(period), tr, adapter_time)
             return None
         if kind == "adapter" and adapter_time is not None:
             av = np.asarray(adapter_time, dtype=float)
