@@ -634,6 +634,10 @@ class RunConfig(Strict):
     # CAP_SYS_NICE or an rtprio limit); whether it was granted is recorded, a refusal never
     # stops the run; None: not asked for
     realtime_priority: Annotated[int, Field(ge=1, le=99)] | None = None
+    # the report's figures drawn at the run's end (analysis_<axis>.png and report.html's
+    # figures, about 1-3 s per axis); false on a bench whose reports nobody opens at the
+    # station (a CI bench, a campaign): report.html says so, `benchctl report REC` draws them
+    figures: bool = True
 
 
 _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)

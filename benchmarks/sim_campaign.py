@@ -143,6 +143,7 @@ def config_for(draw: dict[str, Any], out: Path, disturb: dict[str, Any] | None) 
     if disturb is not None:
         base["sim"]["disturb"] = disturb
     base["run"]["output_dir"] = str(out / "runs")
+    base["run"]["figures"] = False  # the checks read the data, not the report's figures
     _abs_paths(base, ROOT / "config")
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench.yaml"

@@ -153,6 +153,9 @@ def live_bench(
                     "limit_sigma_deg": 0.4,
                     "output_dir": str(tmp_path / "runs"),
                     "precheck_window_s": 0.5,
+                    # no figures (about 1-3 s per axis of every run): the report's own tests
+                    # and the end-to-end ones (run={"figures": True}) draw them
+                    "figures": False,
                     **(run or {}),
                 },
             }

@@ -31,7 +31,7 @@ NASTY_OPERATOR = 'O"Brien <b>'
 SECTIONS = ("verdict", "sigma", "measurements", "identity", "warnings", "files", "signoff")
 
 
-def _config(tmp: Path) -> Any:
+def _config(tmp: Path, figures: bool = True) -> Any:
     data = {
         "station": "test-bench <7>",
         "unit": {"part_number": "PN-42"},
@@ -50,12 +50,14 @@ def _config(tmp: Path) -> Any:
             "silence_timeout_s": 0.5,
             "static_tolerance_deg": 0.2,
         },
-        "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp), "precheck_window_s": 0.5},
+        "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp), "precheck_window_s": 0.5,
+                "figures": figures},
     }
     return parse_config(data, tmp / "bench.yaml")
 
 
-def _run(tmp: Path, fault_at: float | None = None, gain: float = 1.0) -> RunResult:
+def _run(tmp: Path, fault_at: float | None = None, gain: float = 1.0,
+         figures: bool = True) -> RunResult:
     """A session on the fakes, on simulated time (a VirtualClock of its own: the runs are
     module fixtures)."""
     clock = VirtualClock()
@@ -65,7 +67,7 @@ def _run(tmp: Path, fault_at: float | None = None, gain: float = 1.0) -> RunResu
         sensor = FakeSensor(stand, gain=gain)
         # table mode: the stand plays the table itself; the passing run's report is the subject
         prep = sine_motion(stand.axes, duration_s=6.0, mode="table", fade_s=0.5)
-        sess = Session(_config(tmp), prep, RunOptions(NASTY_SERIAL, NASTY_OPERATOR),
+        sess = Session(_config(tmp, figures), prep, RunOptions(NASTY_SERIAL, NASTY_OPERATOR),
                        device_factory=lambda c, p: (stand, sensor), clock=clock)
         return sess.run()
 
@@ -423,3 +425,25 @@ def test_health_of_a_run_that_ran_no_cycle() -> None:
          "stand_rtt_s": {"p50": 0.004, "p99": None}}))
     assert rows["cycle lateness p50 / p99"] == "— / — ms"
     assert rows["stand round trip p50 / p99"] == "4 / — ms"
+
+
+def test_a_run_without_figures_says_so_and_benchctl_report_draws_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``run.figures: false`` (a CI bench, a campaign): no analysis PNG, report.html without
+    figures and saying so (with the command that draws them); the verdict, the tables and
+    the record are as with figures. ``benchctl report`` on the recording then draws them."""
+    res = _run(tmp_path / "nofig", gain=1.02, figures=False)
+    assert res.state == "done" and res.reason == "PASS" and res.recording is not None
+    rec = res.recording
+    assert not list(rec.glob("analysis_*.png"))
+    html = (rec / REPORT_HTML).read_text(encoding="utf-8")
+    _common_checks(html)
+    assert "<svg" not in html and 'class="gain-table"' in html
+    assert "run.figures: false" in html and f"benchctl report {rec}" in html
+    assert load_record(rec)["outcome"] == "PASS"
+    assert main(["report", str(rec)]) == 0
+    capsys.readouterr()
+    html = (rec / REPORT_HTML).read_text(encoding="utf-8")
+    for cls in ("psd", "frf", "trace"):
+        assert f'<figure class="{cls}"><svg' in html, cls
+    assert "run.figures: false" not in html

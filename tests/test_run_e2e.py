@@ -104,7 +104,7 @@ def test_run_end_to_end_sigma_as_stated(
         stand["baudrate"] = sim["baudrate"] = 460800
     with live_bench(
         tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
-        clock=clock,
+        clock=clock, run={"figures": True},
     ) as b:
         res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
         assert res.state == "done" and res.exit_code == 0, res.reason

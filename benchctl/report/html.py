@@ -363,10 +363,12 @@ def build_context(
     meta: Mapping[str, Any] | None = None,
     end: Mapping[str, Any] | None = None,
     trace: bool = True,
+    figures: bool = True,
 ) -> dict[str, Any]:
     """The report's content for ``folder``: what is not given is read from the folder
     (``report.json``, ``record.json``, ``meta.json``, ``end.json``); missing files are no error
-    (an aborted run has no report.json), but a folder without any of them is."""
+    (an aborted run has no report.json), but a folder without any of them is. ``figures``:
+    False leaves the figures out (a run with ``run.figures: false``; the page says so)."""
     folder = Path(folder)
     report = report if report is not None else _read_json(folder / "report.json")
     record = record if record is not None else _read_json(folder / "record.json")
@@ -455,12 +457,13 @@ def build_context(
             "departures": departure_text(an["departures"])
             if isinstance(an.get("departures"), Mapping) else None,
             "sigma_inconclusive": a.get("sigma_inconclusive"),
-            **_figures_of(name, an, lim, exc, title),
+            **(_figures_of(name, an, lim, exc, title) if figures else
+               {"psd_svg": None, "frf_svg": None, "excitation_svg": None}),
         })
     window = rep.get("analysis_window") or (end or {}).get("analysis_window")
     motion_start = stats.get("motion_start") if isinstance(stats, Mapping) else None
     traces: dict[str, str] = {}
-    if trace:
+    if trace and figures:
         names = [a["name"] for a in axes] or list(m.get("axes") or [])
         traces = _cached(_key("trace", str(folder.resolve()), names, window, motion_start,
                               title, _stamp(folder)),
@@ -506,6 +509,7 @@ def build_context(
         "recording": str(folder),
         "operator": str(rec.get("operator") or rep.get("operator") or m.get("operator") or ""),
         "run_id": str(rec.get("run_id") or folder.name),
+        "figures_off": not figures,
     }
 
 
@@ -521,11 +525,13 @@ def write_html(
     report: Mapping[str, Any] | None = None,
     record: Mapping[str, Any] | None = None,
     trace: bool = True,
+    figures: bool = True,
 ) -> Path:
     """Render ``folder``'s report into ``<folder>/report.html`` (a temporary file renamed over
-    it) and return its path."""
+    it) and return its path; ``figures``: see ``build_context``."""
     folder = Path(folder)
-    html = render_html(build_context(folder, report=report, record=record, trace=trace))
+    html = render_html(build_context(folder, report=report, record=record, trace=trace,
+                                     figures=figures))
     dest = folder / REPORT_HTML
     atomic_write_text(dest, html)  # no .tmp left behind when it fails (a full disk)
     return dest

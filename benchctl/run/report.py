@@ -360,16 +360,17 @@ def _write(path: Path, text: str) -> None:
         raise RecordingError.from_oserror(path, e) from None
 
 
-def write_report(rep: Report, results: dict[str, Any] | None = None) -> list[Path]:
-    """report.json, report.txt (and plots) into the recording folder; returns the files.
-    A file that cannot be written (a full disk) raises ``RecordingError`` naming it, and
-    leaves no half-written file behind; a plot that cannot be drawn for another reason is a
-    warning."""
+def write_report(rep: Report, results: dict[str, Any] | None = None, *,
+                 figures: bool = True) -> list[Path]:
+    """report.json, report.txt (and, with ``figures``, plots) into the recording folder;
+    returns the files. A file that cannot be written (a full disk) raises ``RecordingError``
+    naming it, and leaves no half-written file behind; a plot that cannot be drawn for
+    another reason is a warning."""
     folder = rep.recording
     out = [folder / REPORT_JSON, folder / REPORT_TXT]
     _write(out[0], dumps(rep.to_dict(), indent=2) + "\n")
     _write(out[1], format_report(rep) + "\n")
-    for axis, res in (results or {}).items():
+    for axis, res in (results or {}).items() if figures else ():
         dest = folder / f"analysis_{axis}.png"
         v = rep.axes.get(axis)
         if _plot(res, dest, rep.meta, None if v is None else v.limit_deg):

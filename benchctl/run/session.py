@@ -1334,7 +1334,8 @@ class Session:
             return self._rewrite_record(outcome, exit_code, report=report, abort=abort)
         try:
             rec = self._record(outcome, exit_code, report=report, abort=abort, closed=closed)
-            html = _write_html(self.path, report, rec, strict=strict)
+            html = _write_html(self.path, report, rec, strict=strict,
+                               figures=self.cfg.run.figures)
             if html is not None:
                 rec = with_file(rec, "report_html", html)
             return write_record(self.path, rec)
@@ -1377,7 +1378,7 @@ class Session:
             rec = self._record(outcome, exit_code, report=report, abort=abort, closed=True)
             if html.exists():
                 os.replace(html, prev)
-            drawn = _write_html(self.path, report, rec)
+            drawn = _write_html(self.path, report, rec, figures=self.cfg.run.figures)
             if drawn is not None:
                 done = write_record(self.path, with_file(rec, "report_html", drawn))
         except Exception as e:
@@ -1503,7 +1504,7 @@ class Session:
                 report, results = self._analyse(window)
                 self.report = report  # measured: kept (printed, end.json) should an abort follow
                 self.supervisor.check()  # a signal during the analysis still ends the run
-                files = write_report(report, results)
+                files = write_report(report, results, figures=self.cfg.run.figures)
                 record = self._write_record(report.verdict, report.exit_code, report=report,
                                             strict=True)
                 if record is not None:
@@ -1741,7 +1742,7 @@ def _measured_line(m: dict[str, Any]) -> str:
 
 
 def _write_html(folder: Path, report: Report | None, record: dict[str, Any],
-                strict: bool = False) -> Path | None:
+                strict: bool = False, figures: bool = True) -> Path | None:
     """``report.html`` into the recording (``benchctl.report.html``), from the run's report and
     record (an aborted run: what is known); a report that cannot be drawn is a warning, the
     verdict and the record stand without it — except, with ``strict``, a full disk, raised as
@@ -1750,7 +1751,7 @@ def _write_html(folder: Path, report: Report | None, record: dict[str, Any],
         from benchctl.report.html import write_html
 
         return write_html(folder, report=None if report is None else report.to_dict(full=True),
-                          record=record)
+                          record=record, figures=figures)
     except Exception as e:
         full = RecordingError.disk_full(e, folder / "report.html")
         if strict and full is not None:
