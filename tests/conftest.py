@@ -121,3 +121,12 @@ def url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
         return f"sqlite:///{tmp_path / 'archive.sqlite'}"
     srv: PgServer = request.getfixturevalue("pg")
     return srv.create_database(f"t_{uuid.uuid4().hex[:12]}")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The files holding a test marked ``slow`` first, each whole (its module fixtures set up
+    once), the rest after them in their own order: pytest-xdist's workers, each handed a
+    share of the collection and stealing from the other's end, then finish together instead
+    of one of them waiting out a long test that started last."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow_files)

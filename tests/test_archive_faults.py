@@ -143,6 +143,7 @@ def _run_in_thread(fn: Callable[[], Any], bound_s: float) -> tuple[bool, Any]:
     return not t.is_alive(), box.get("result")
 
 
+@pytest.mark.slow
 def test_a_locked_runs_table_costs_the_run_seconds_not_for_ever(
         pg: PgServer, tmp_path: Path, caplog: pytest.LogCaptureFixture,
         capsys: pytest.CaptureFixture[str], vclock: VirtualClock) -> None:

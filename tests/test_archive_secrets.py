@@ -280,6 +280,7 @@ def _assert_nowhere(root: Path, exclude: tuple[Path, ...]) -> list[Path]:
     return seen
 
 
+@pytest.mark.slow
 def test_a_whole_run_plan_sync_and_export_write_and_print_no_password(
         pg: PgServer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:

@@ -375,6 +375,7 @@ def _refused(res: RunResult, events: list[dict[str, Any]], message: str) -> None
     assert "mounting check:" in (res.recording / "report.html").read_text()  # type: ignore[operator]
 
 
+@pytest.mark.slow
 def test_correct_mount_passes_and_reversed_read_with_sign_measures_the_same_sigma(
     tmp_path: Path,
 ) -> None:

@@ -54,6 +54,7 @@ def _run(tmp_path: Path, model: SimInstrumentConfig, clock: VirtualClock) -> dic
     return report
 
 
+@pytest.mark.slow
 def test_cubic_instrument_shows_odd_distortion(tmp_path: Path, vclock: VirtualClock) -> None:
     model = SimInstrumentConfig(lag_s=0.05, noise_deg=0.01, rate_hz=100.0,
                                 cubic_per_deg2=0.005)
@@ -65,6 +66,7 @@ def test_cubic_instrument_shows_odd_distortion(tmp_path: Path, vclock: VirtualCl
         assert d["odd_deg"] > 2 * d["noise_deg"]
 
 
+@pytest.mark.slow
 def test_cross_axis_coupling_found_and_linear_instrument_clean(
     tmp_path: Path, vclock: VirtualClock
 ) -> None:

@@ -95,7 +95,8 @@ def test_run_end_to_end_sigma_as_stated(
     virtual: bool,
 ) -> None:
     """On simulated time over in-process links (the real drivers, the same simulators), and
-    once on the host's time over a real RTU pty and NMEA 0183 pty (``realtime``)."""
+    once on the host's time over a real RTU pty and NMEA 0183 pty (``realtime``: about the
+    links, so without the mounting check's tilt and the host check, FOCUSED)."""
     clock: Clock = request.getfixturevalue("vclock") if virtual else REAL
     profile = _profile(tmp_path, text, "profile")
     stand: dict[str, Any] = {"mode": mode}
@@ -104,7 +105,7 @@ def test_run_end_to_end_sigma_as_stated(
         stand["baudrate"] = sim["baudrate"] = 460800
     with live_bench(
         tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
-        clock=clock, run={"figures": True},
+        clock=clock, run={"figures": True, **({} if virtual else FOCUSED)},
     ) as b:
         res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
         assert res.state == "done" and res.exit_code == 0, res.reason

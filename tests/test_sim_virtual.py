@@ -57,6 +57,7 @@ def _digest(rec: Path, name: str) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+@pytest.mark.slow
 def test_two_runs_with_the_same_inputs_record_the_same_bytes(tmp_path: Path) -> None:
     cfg = _config(tmp_path)
     code1, rec1 = _run(cfg, tmp_path / "a")
@@ -81,6 +82,7 @@ DISTURB = {
 }
 
 
+@pytest.mark.slow
 def test_a_seed_replays_exactly_and_another_seed_differs(tmp_path: Path) -> None:
     recs = {}
     for name, seed in (("a", 11), ("b", 11), ("c", 12)):
@@ -122,6 +124,7 @@ def _events(rec: Path) -> list[dict[str, Any]]:
     return [json.loads(x) for x in (rec / "events.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_disturbed_from_the_motions_start_the_motion_starts_in_step(tmp_path: Path) -> None:
     """``sim.disturb.from_s`` at the undisturbed twin's fade-in: before it nothing is disturbed,
     so the motion starts at the same simulated instant and the instrument's samples (its
