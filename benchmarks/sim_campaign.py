@@ -572,7 +572,10 @@ def main() -> int:
     def enough() -> bool:
         return a.hours is not None and sum(x["t_sim_s"] for x in lines) >= 3600.0 * a.hours
     try:
-        if a.jobs > 1:
+        # runs in worker processes, even one at a time: the product's signal handling (a
+        # SIGTERM to a run ends it through its cleanup) stays out of the campaign's own process,
+        # so stopping the campaign never records a run it cut short as an abort
+        if a.runs > 1 or a.jobs > 1:
             with multiprocessing.get_context("spawn").Pool(a.jobs) as pool:
                 it = pool.imap_unordered(one, jobs)
                 for line in it:
