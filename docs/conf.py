@@ -8,7 +8,8 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-# docs/cli_parser.py: the CLI parser for sphinx-argparse (reference/cli.md)
+# docs/cli_parser.py (the CLI parser for sphinx-argparse, reference/cli.md) and
+# docs/config_schema.py (the bench config's fields, reference/config.md)
 sys.path.insert(0, str(Path(__file__).parent))
 
 project = "benchctl"
@@ -23,6 +24,7 @@ version = release
 extensions = [
     "myst_parser",  # Markdown pages
     "sphinxarg.ext",  # the CLI reference from benchctl.cli.build_parser()
+    "config_schema",  # the bench config reference from benchctl.config (docs/config_schema.py)
 ]
 source_suffix = {".md": "markdown"}
 root_doc = "index"
