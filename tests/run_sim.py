@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from repo_paths import ROOT
 
 from benchctl.channels import free_name, register, unregister
 from benchctl.clock import REAL, Clock
@@ -31,7 +32,6 @@ from benchctl.sim.instrument import SimInstrument
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.stand import SimStand
 
-ROOT = Path(__file__).resolve().parent.parent
 LIMITS = {"angle_deg": 25.0, "rate_deg_s": 40.0, "accel_deg_s2": 200.0}
 #: run settings for a real-time test about something else than the prechecks (a signal, a kill,
 #: a stall): the mounting check's tilt (about 9 s) and the host check (2 s) left out — each has

@@ -25,6 +25,7 @@ from analysis_synthetic import (
     orthogonal_noise,
     second_order,
 )
+from repo_paths import ROOT
 
 from benchctl.analysis import LineSet, analyze
 from benchctl.analysis.lines import chirp_sum, detect_period, fit_lines
@@ -319,7 +320,7 @@ def make_profile_recording(folder: Path) -> tuple[Path, float]:
     from benchctl.profiles import load_profile, synthesize
     from benchctl.recording import RecordingWriter
 
-    root = Path(__file__).resolve().parents[1]
+    root = ROOT
     profile = load_profile(root / "profiles" / "ci_short.yaml")
     table = synthesize(profile, duration_s=70.0).tables["roll"]
     meta = {"serial": "T-2", "profile": profile.to_dict(), "seed": 1, "duration_s": 70.0,

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pytest
 from archive_helpers import SINE, PgServer, age, make_record, make_recording
+from repo_paths import HELPERS
 from sqlalchemy import inspect
 
 from benchctl.archive.ingest import KILLED_REASON, record_of, recording_sha256
@@ -454,7 +455,7 @@ def test_two_processes_writing_at_once_lose_nothing(url: str) -> None:
     them the same run_ids, over 5 shared serials."""
     code = ("import sys; sys.path.insert(0, sys.argv[1]); from archive_helpers import "
             "write_many; print(write_many(sys.argv[2], int(sys.argv[3]), 50, 10))")
-    procs = [subprocess.Popen([sys.executable, "-c", code, str(Path(__file__).parent), url,
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(HELPERS), url,
                                str(w)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for w in (1, 2)]
     outs = [p.communicate(timeout=240) for p in procs]

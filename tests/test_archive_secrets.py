@@ -23,6 +23,7 @@ import yaml
 from archive_helpers import PgServer, make_record, make_recording
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 from benchctl.archive.service import ArchiveSettings, archive_run, queued
 from benchctl.archive.store import Archive, parse_url, shown
@@ -31,7 +32,6 @@ from benchctl.config import load_config
 from benchctl.errors import ArchiveError, ConfigError
 from benchctl.redact import MASK, redact, redact_secret, redact_text
 
-ROOT = Path(__file__).resolve().parent.parent
 SECRET = "Sntl-7f3a9c-pw"  # the sentinel password: found nowhere but in the test's own inputs
 ROLE = "guarded"
 SERIAL = str(yaml.safe_load((ROOT / "config/sim.yaml").read_text())

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.analysis import analyze
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
@@ -34,7 +35,6 @@ from benchctl.errors import ConfigError, DataError, InputError
 from benchctl.profiles import load_profile
 from benchctl.sim import faults
 
-ROOT = Path(__file__).resolve().parent.parent
 SLOW = 30.0  # a generous bound for "refused quickly" (was minutes, or a hang)
 
 

@@ -16,6 +16,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 from benchctl.analysis import analyze
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
@@ -23,7 +24,6 @@ from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError, InputError
 from benchctl.profiles import load_profile
 
-ROOT = Path(__file__).resolve().parent.parent
 BOUND_S = 20.0  # per example: generous (a bad gap once meant minutes, or a hang)
 SETTINGS = settings(
     max_examples=100,

@@ -23,6 +23,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 import benchctl.profiles
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
@@ -38,7 +39,6 @@ from benchctl.run.plan import check_setpoints, make_plan, setpoint_count
 from benchctl.run.session import RunOptions, prepare_motion, run_test
 from benchctl.textfile import MAX_CSV_BYTES, MAX_YAML_BYTES, read_input
 
-ROOT = Path(__file__).resolve().parent.parent
 QUICK_S = 20.0  # a generous bound for "refused at once" (was a hang, or minutes of reading)
 
 # -- the files that are not regular files, or too big -----------------------------------------

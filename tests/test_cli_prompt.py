@@ -16,6 +16,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
+from repo_paths import ROOT
 from terminal import on_terminal
 
 from benchctl import text
@@ -24,8 +25,6 @@ from benchctl.cli.run import ask_value
 from benchctl.errors import InputError
 from benchctl.run.session import RunOptions
 from benchctl.text import check_serial
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 class Tty(io.StringIO):

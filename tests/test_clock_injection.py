@@ -15,6 +15,7 @@ import canopen
 import pytest
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoCommunicationError
+from repo_paths import ROOT
 from run_fakes import bench_config, sine_motion
 
 from benchctl.clock import Clock
@@ -34,7 +35,6 @@ from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, star
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
 
-ROOT = Path(__file__).resolve().parent.parent
 AXES = ("roll",)
 
 

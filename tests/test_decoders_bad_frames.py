@@ -17,7 +17,6 @@ import random
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
 import can
@@ -25,6 +24,7 @@ import pytest
 import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 from wire import read_all, wait_until
 
 from benchctl.config import InstrumentConfig
@@ -40,7 +40,6 @@ from benchctl.devices.reader import BAD_REASONS, BadFrame, LinkLost, SensorReade
 from benchctl.sim.instrument import damage_bytes
 from benchctl.sim.pty_port import PtyPort
 
-ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
 NODE = 10
 PROPS = settings(max_examples=200, deadline=None,

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.analysis.equalise import (
     _peaks,
@@ -34,7 +35,6 @@ from benchctl.run.session import RunOptions, prepare_motion
 from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.sim.servo import AxisState, ServoModel, servo_step
 
-ROOT = Path(__file__).resolve().parent.parent
 T0 = 500.0  # the motion's start on the stand's clock
 TICK = 0.001
 SERVO = ServoModel(0.8, 0.3, 1e4, 1e6, TICK)  # config/sim_resonant.yaml's stand, no limits

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.analysis.excitation import (
     ABORT_CONFIRM,
@@ -34,7 +35,6 @@ from benchctl.errors import ConfigError, DataError
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.servo import ServoModel
 
-ROOT = Path(__file__).resolve().parent.parent
 T0 = 1000.0  # the motion's start on the stand's clock
 FADE = 3.0
 RESONANT = ServoModel(0.8, 0.3, 60.0, 300.0, 1e-3)

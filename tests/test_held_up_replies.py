@@ -30,9 +30,9 @@ import threading
 import time
 import tty
 from collections.abc import Callable
-from pathlib import Path
 
 import pytest
+from repo_paths import ROOT
 from wire import rtu
 
 from benchctl.devices.modbus.link import tcp_link
@@ -41,7 +41,6 @@ from benchctl.devices.modbus.link import tcp_link
 # clock: run alone (realtime tier)
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parent.parent
 REPLY_S = 0.2  # the child's reply timeout
 HOLD_S = 2 * REPLY_S  # how long the child is stopped, the reply arriving meanwhile
 SETTLE_S = 0.05  # after the request is seen: the child is in its wait for the reply

@@ -20,6 +20,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
 from benchctl.cli import main
@@ -43,8 +44,6 @@ from benchctl.run.session import RunOptions, RunResult, Session
 from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop
 from benchctl.run.state import StateMachine
 from benchctl.run.supervisor import Supervisor
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 # ------------------------------------------------------------------ the figures (pure)

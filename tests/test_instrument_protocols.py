@@ -14,6 +14,7 @@ from pathlib import Path
 
 import can
 import pytest
+from repo_paths import ROOT
 from wire import read_all, wait_until
 
 from benchctl.config import InstrumentConfig
@@ -25,7 +26,6 @@ from benchctl.errors import ConfigError
 from benchctl.sim.pty_port import PtyPort
 from benchctl.sim.slcan import SlcanAdapter, frame_line, parse_frame
 
-ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
 
 

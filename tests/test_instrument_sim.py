@@ -19,6 +19,7 @@ from typing import Any
 import can
 import numpy as np
 import pytest
+from repo_paths import ROOT
 
 from benchctl.channels import free_name, unregister
 from benchctl.clock import REAL, Clock
@@ -29,7 +30,6 @@ from benchctl.devices.instrument import open_instrument
 from benchctl.errors import ConfigError, ConnectionLost, DeviceTimeout
 from benchctl.sim.instrument import SimInstrument
 
-ROOT = Path(__file__).resolve().parent.parent
 DRIVERS = ROOT / "drivers"
 
 ROLL_OFFSET, ROLL_AMP, ROLL_F = 2.0, 5.0, 0.5

@@ -14,14 +14,13 @@ from typing import Any
 import pytest
 import yaml
 from junitparser import Error, Failure, JUnitXml, Skipped
+from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.errors import ConfigError, DataError, InputError, LimitError
 from benchctl.plan import load_plan, parse_plan, run_plan
 from benchctl.plan.record import load_plan_record
 from benchctl.plan.runner import terminal_asker
-
-ROOT = Path(__file__).resolve().parent.parent
 
 # a bench config whose stand is not there: nothing in these tests may reach it
 BENCH = {

@@ -38,6 +38,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from junitparser import JUnitXml
+from repo_paths import ROOT
 from terminal import on_terminal
 
 from benchctl import exits
@@ -51,7 +52,6 @@ from benchctl.sim.stand import SimStand
 
 pytestmark = pytest.mark.timeout(600)
 
-ROOT = Path(__file__).resolve().parent.parent
 LIMITS = {"angle_deg": 25.0, "rate_deg_s": 40.0, "accel_deg_s2": 200.0}
 REST = {"roll": 5.0, "pitch": -3.0}  # where an earlier session left the stand
 

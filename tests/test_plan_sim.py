@@ -29,6 +29,7 @@ from typing import Any
 import pytest
 import yaml
 from junitparser import Error, Failure, JUnitXml, Properties, Skipped
+from repo_paths import ROOT
 from run_sim import live_bench
 
 from benchctl.cli import main
@@ -43,7 +44,6 @@ from benchctl.results.record import load_record
 # test that uses it
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
-ROOT = Path(__file__).resolve().parent.parent
 SERIAL = "0001"  # the tests' simulated instrument reports serial 1: the serial match passes
 # plans/ci_short.yaml runs on config/sim.yaml, whose simulated instrument reports its own
 PLAN_SERIAL = str(yaml.safe_load((ROOT / "config/sim.yaml").read_text())

@@ -14,6 +14,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.config import SimInstrumentConfig, SimStandConfig, load_config
@@ -36,7 +37,6 @@ from benchctl.run.state import RunState
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.servo import ServoModel
 
-ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = settings(max_examples=200, deadline=None)
 
 # ------------------------------------------------------------------ the stop rule

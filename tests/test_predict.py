@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import ROOT
 
 from benchctl.analysis.lines import LineSet, analyze_lines
 from benchctl.analysis.predict import (
@@ -29,7 +30,6 @@ from benchctl.cli import main
 from benchctl.errors import DataError
 from benchctl.profiles import load_profile, synthesize
 
-ROOT = Path(__file__).resolve().parents[1]
 GAIN, LAG, LATENCY = 0.995, 0.08, 0.01  # the simulated MEMS inclinometer of config/sim.yaml
 
 

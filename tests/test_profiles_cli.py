@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.cli import main
 
-ROOT = Path(__file__).resolve().parent.parent
 CI = str(ROOT / "profiles" / "ci_short.yaml")
 
 

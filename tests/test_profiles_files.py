@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 from scipy import integrate
 
 from benchctl.config import StandLimits
 from benchctl.errors import ConfigError, DataError
 from benchctl.profiles import check_motion, load_profile, parse_profile, roll, synthesize
 
-ROOT = Path(__file__).resolve().parent.parent
 LIBRARY = sorted((ROOT / "profiles").glob("*.yaml"))
 SIM_LIMITS = StandLimits(angle_deg=30, rate_deg_s=30, accel_deg_s2=60)
 

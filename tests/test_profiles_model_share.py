@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.profiles import load_profile, synthesize
 from benchctl.profiles.design import total_variance
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _write(tmp_path: Path, text: str) -> Path:

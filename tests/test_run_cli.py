@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
@@ -45,7 +46,7 @@ def _write(tmp_path: Path, data: dict[str, Any]) -> Path:
 
 
 def _run(tmp_path: Path, cfg: Path, *extra: str, profile: str = "profiles/ci_short.yaml") -> int:
-    root = Path(__file__).resolve().parent.parent
+    root = ROOT
     return main(
         [
             "run",
@@ -100,7 +101,7 @@ def test_serial_and_operator_required_without_a_terminal(
 ) -> None:
     cfg = _write(tmp_path, _cfg(tmp_path))
     monkeypatch.setattr("sys.stdin.isatty", lambda: False, raising=False)
-    root = Path(__file__).resolve().parent.parent
+    root = ROOT
     code = main(["run", "--config", str(cfg), "--profile", str(root / "profiles/ci_short.yaml")])
     assert code == 2
     assert "--serial is required" in capsys.readouterr().err

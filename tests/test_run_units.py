@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from repo_paths import ROOT
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion, wait_for
 
 from benchctl.analysis.departures import departures_of
@@ -425,7 +426,7 @@ def test_buffered_mode_needs_a_stand_with_a_queue(tmp_path: Path) -> None:
     from benchctl.run import RunOptions
     from benchctl.run.session import prepare_motion
 
-    root = Path(__file__).resolve().parent.parent
+    root = ROOT
     raw = yaml.safe_load((root / "drivers/stand_generic.yaml").read_text())
     raw.pop("trajectory")
     raw["control_bits"].pop("start_trajectory")

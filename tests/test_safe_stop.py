@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 from benchctl.clock import RealClock
 from benchctl.devices.base import StandLimitsView
@@ -34,7 +34,7 @@ from benchctl.kinematics import (
     profile_peaks,
 )
 
-MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+MAP = ROOT / "drivers" / "stand_generic.yaml"
 LIM = Limits(angle_deg=30.0, rate_deg_s=30.0, accel_deg_s2=60.0)
 T = 0.01
 

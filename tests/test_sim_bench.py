@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import load_config, parse_config
@@ -18,8 +19,6 @@ from benchctl.devices.modbus.stand import open_stand
 from benchctl.errors import StandFault
 from benchctl.sim.bench import SimBench
 from benchctl.sim.launch import start_simulators
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _config(tmp_path: Path, name: str = "sim.yaml", **sim_extra: object) -> Path:

@@ -18,6 +18,7 @@ import threading
 from typing import Any
 
 import pytest
+from repo_paths import ROOT
 
 from benchctl import channels
 from benchctl.clock import REAL
@@ -152,13 +153,11 @@ def _stands(framing: str, clock: VirtualClock, *, general_physics: bool = False,
     """Two identical stands, one answering through the fast path, one through pymodbus's (or,
     ``general_physics``: both through the fast path, the second ticking its physics through
     the general ``_tick`` only)."""
-    from pathlib import Path
-
     from benchctl.config import SimStandConfig, StandLimits
     from benchctl.sim.stand import SimStand
     from benchctl.sim.stand_wire import StandWire
 
-    root = Path(__file__).resolve().parent.parent
+    root = ROOT
     out: list[Any] = []
     for _ in range(2):
         st = SimStand(SimStandConfig(**{"bandwidth_hz": 8, "damping": 0.8, "watchdog_s": 3600,
@@ -400,12 +399,10 @@ def _instrument_trace(driver: str, threaded: bool, monkeypatch: Any) -> list[Any
     """What the host end of a simulated instrument's link receives over 3 s of simulated time
     (each read with its instant), with the host's own bytes, raw bytes and faults meanwhile,
     then what it gets as the instrument stops; its loop as a thread or run by the clock."""
-    from pathlib import Path
-
     from benchctl.config import InstrumentConfig, SimInstrumentConfig
     from benchctl.sim import instrument as sim_instrument
 
-    root = Path(__file__).resolve().parent.parent / "drivers"
+    root = ROOT / "drivers"
     base: dict[str, Any] = {"driver": driver}
     if driver == "nmea0183":
         base["serial_port"] = "set-by-the-simulator"

@@ -14,10 +14,10 @@ from typing import Any
 
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.cli import main
 
-ROOT = Path(__file__).resolve().parent.parent
 DATA = ("stand.csv", "instrument.csv", "setpoints.csv")
 
 

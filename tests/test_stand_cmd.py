@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 import yaml
+from repo_paths import ROOT
 from terminal import on_terminal
 
 from benchctl.cli import main
@@ -38,7 +39,6 @@ from benchctl.sim.stand import SimStand
 
 pytestmark = pytest.mark.timeout(600)
 
-ROOT = Path(__file__).resolve().parent.parent
 LIMITS = {"angle_deg": 30.0, "rate_deg_s": 30.0, "accel_deg_s2": 60.0}
 AT_DEG = 4.0
 

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import pytest
+from repo_paths import ROOT
 from wire import rtu
 
 from benchctl.channels import Endpoint, free_name, register, unregister
@@ -42,7 +43,7 @@ from benchctl.sim.stand import SimStand
 # RTU silences (another unit id, a broadcast) on simulated time over an in-process line
 REALTIME = pytest.mark.realtime
 
-MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+MAP = ROOT / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
 REPLY_S = 5.0  # generous: the machine is loaded
 SILENCE_S = 1.0  # how long "no reply" is listened for

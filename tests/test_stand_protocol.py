@@ -23,6 +23,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
+from repo_paths import ROOT
 from wire import rtu
 
 from benchctl.channels import free_name, register, unregister
@@ -38,7 +39,7 @@ from benchctl.errors import DeviceTimeout, LimitError, ModbusException, Protocol
 # real sockets and pseudo-terminals, timed on the host's clock: run alone (realtime tier)
 REALTIME = pytest.mark.realtime
 
-MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+MAP = ROOT / "drivers" / "stand_generic.yaml"
 H = bytes.fromhex
 
 # Feedback block 200..225 (26 registers): status ready|enabled, fault 0, heartbeat echo 7, pad,

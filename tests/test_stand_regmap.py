@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 import yaml
+from repo_paths import ROOT
 
 from benchctl.devices.modbus.regmap import (
     Field,
@@ -17,7 +18,7 @@ from benchctl.devices.modbus.regmap import (
 )
 from benchctl.errors import ConfigError, LimitError
 
-MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+MAP = ROOT / "drivers" / "stand_generic.yaml"
 
 
 @pytest.fixture

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import psutil
 import pytest
+from repo_paths import ROOT
 
 from benchctl.analysis.timebase import stand_clock
 from benchctl.channels import free_name, register, unregister
@@ -38,7 +39,7 @@ from benchctl.errors import (
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.stand import FAULT_ESTOP, FAULT_SOFT_LIMIT, FAULT_WATCHDOG, SimStand
 
-MAP = Path(__file__).resolve().parent.parent / "drivers" / "stand_generic.yaml"
+MAP = ROOT / "drivers" / "stand_generic.yaml"
 LIMITS = StandLimits(angle_deg=20.0, rate_deg_s=30.0, accel_deg_s2=200.0)
 # a slow servo, so its dynamics are plainly visible at 1 Hz: |H| ≈ 0.97, arg H ≈ −43°
 # a 1.5 s watchdog: a test's own polling loop (heartbeat every 100 ms) can stall for half a

@@ -21,6 +21,7 @@ from archive_helpers import make_record, make_recording
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from junitparser import JUnitXml
+from repo_paths import ROOT
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
 from benchctl import text
@@ -38,7 +39,6 @@ from benchctl.run.display import LogDisplay, Snapshot, TtyDisplay
 from benchctl.run.report import format_report
 from benchctl.run.session import RunOptions, Session, recording_dir
 
-ROOT = Path(__file__).resolve().parent.parent
 OSC52 = "\x1b]52;c;cm0gLXJmIH4K\x07"  # a clipboard write: "rm -rf ~"
 HOSTILE = ["x\r\nPASS", OSC52, "\x1b[2J\x1b[H", "\x1b]0;owned\x07", "A\x1dB", "\x9b31m",
            "=HYPERLINK(\"http://x\",\"y\")", "\u202eevil", "a\u2028b", "\x00", "-2+3", "@SUM(1)"]

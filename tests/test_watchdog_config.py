@@ -15,10 +15,10 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from repo_paths import ROOT
 
 from benchctl.config import ConfigError, exchange_bound_s, load_config, parse_config
 
-ROOT = Path(__file__).resolve().parent.parent
 SIM = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())
 HARDWARE = yaml.safe_load((ROOT / "config" / "hardware_example.yaml").read_text())
 SOURCE = ROOT / "config" / "bench.yaml"  # where the data claims to come from (paths resolve)
