@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-#: the folder of the helper modules (this one, run_sim, wire, …), for a child process's sys.path
+#: the folder of the helper modules (this one, wire, run_fakes, …), for a child process's sys.path
 HELPERS = Path(__file__).resolve().parent
 
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from run_sim import ROLL, ROOT, LiveBench, live_bench, motion_for, recording_in
+from live_bench import ROLL, ROOT, LiveBench, live_bench, motion_for, recording_in
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from run_sim import ROLL, LiveBench, live_bench
+from live_bench import ROLL, LiveBench, live_bench
 
 import benchctl.run
 from benchctl.cli import main

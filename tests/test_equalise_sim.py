@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROOT, live_bench
+from live_bench import ROOT, live_bench
 
 from benchctl.analysis.steps import motion_start
 from benchctl.clock.virtual import VirtualClock

@@ -8,7 +8,7 @@ report.json, report.txt and `benchctl analyze` all carry it.
 
 The fades matter on the resonant stand: its free response after the fade-in (time constant
 1/(ζω_n) ≈ 0.66 s, ringing near 0.76 Hz) leaks into the upper lines. With ci_short's 3 s fades
-that is ≤ 0.04 dB; with 2 s fades (tests/run_sim.py ROLL) up to 0.25 dB at 0.5 Hz — the same
+that is ≤ 0.04 dB; with 2 s fades (benchmarks/live_bench.py ROLL) up to 0.25 dB at 0.5 Hz — the same
 in a noise-free replay of the servo model, and inside the line's reported interval.
 """
 
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROOT, live_bench
+from live_bench import ROOT, live_bench
 
 from benchctl.analysis.steps import motion_start
 from benchctl.cli import main

@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 import pytest
-from run_sim import live_bench
+from live_bench import live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimInstrumentConfig

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from run_sim import ROOT, LiveBench, live_bench
+from live_bench import ROOT, LiveBench, live_bench
 
 from benchctl.clock import EventLike
 from benchctl.clock.virtual import VirtualClock

@@ -7,7 +7,7 @@ reversed or with roll and pitch swapped refused with what was seen and how to fi
   stand's limits;
 - the config: ``instrument.axes`` as a list or as a mapping with outputs and signs, the
   check's fields validated;
-- whole runs on simulated time over the real protocols (``tests/run_sim.py``, the ``vclock``
+- whole runs on simulated time over the real protocols (``benchmarks/live_bench.py``, the ``vclock``
   fixture): a correct mount passes and the run proceeds; a reversed roll and a swapped unit are
   refused before the motion, the stand back at rest at zero; a reversed unit read with
   ``instrument.axes.roll.sign: -1`` measures the σ of the correctly mounted one.
@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from live_bench import ROLL, TWO_AXIS, LiveBench, live_bench
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
-from run_sim import ROLL, TWO_AXIS, LiveBench, live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimInstrumentConfig, axis_map, parse_config
@@ -403,7 +403,7 @@ def test_correct_mount_passes_and_reversed_read_with_sign_measures_the_same_sigm
     t_motion = next(e["t_host"] for e in ev if e["kind"] == "motion_start")
     sp = rec.streams["setpoints"]
     tilt = (sp["t_send"] >= t_tilt) & (sp["t_send"] < t_motion)
-    for a in ("roll", "pitch"):  # the commanded tilt: within the limits (tests/run_sim.py)
+    for a in ("roll", "pitch"):  # the commanded tilt: within the limits (benchmarks/live_bench.py)
         v = sp[f"{a}_deg"][tilt]
         assert v.size > 300 and np.nanmax(np.abs(v)) == pytest.approx(2.0)
         rate, acc = profile_peaks(v[np.isfinite(v)], 0.01)

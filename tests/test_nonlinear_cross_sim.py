@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from live_bench import live_bench
 
 from benchctl.analysis import analyze_recording
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import CrossAxisConfig, SimInstrumentConfig
 from benchctl.run import RunOptions, run_test
-from tests.run_sim import live_bench
 
 # T_p 18 s, two whole periods; roll on k ≡ 1, pitch on k ≡ 3 (mod 4) of 1/18 Hz, 0.06–1 Hz
 PROFILE = """

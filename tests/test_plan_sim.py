@@ -6,8 +6,8 @@
   case per measurement and the counts that the records imply, each step's record.json valid and
   judged by the step's limits, plan.json valid and equal to the --json output, the runs in the
   archive that ``benchctl history`` reads. One plan run shared by these checks.
-- on an in-process bench (``tests/run_sim.py``): a σ limit the instrument cannot meet → FAIL,
-  exit 1, ``on_fail: stop`` skips the next step, cleanup runs; an instrument that falls silent
+- on an in-process bench (``benchmarks/live_bench.py``): a σ limit the instrument cannot meet →
+  FAIL, exit 1, ``on_fail: stop`` skips the next step, cleanup runs; an instrument that falls silent
   mid-plan → that step ABORTED (an ``<error>``), its record stored ABORTED, the next step
   skipped, cleanup ran and left the stand at rest, exit 2; a step timeout ends the step through
   the run's abort path (record ABORTED with the timeout's reason), exit 2. These on simulated
@@ -29,8 +29,8 @@ from typing import Any
 import pytest
 import yaml
 from junitparser import Error, Failure, JUnitXml, Properties, Skipped
+from live_bench import live_bench
 from repo_paths import ROOT
-from run_sim import live_bench
 
 from benchctl.cli import main
 from benchctl.cli.plan import summary

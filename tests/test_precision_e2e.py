@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from run_sim import live_bench
+from live_bench import live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.run import RunOptions, run_test

@@ -6,7 +6,7 @@ latency, 0.05° white noise). Profile A is a flat multisine over 0.025–0.6 Hz 
 k/40 s); profile B is ``sea_state_4_small_vessel`` shortened to 50 s (lines k/30 s over
 0.067–0.5 Hz), which lies inside A's tested band, so nothing of it is outside. The prediction
 from A alone is compared with the σ B's run measures (its verdict, the published σ) and with
-the model's stated σ for B (tests/run_sim.py: ``expected_sigma``).
+the model's stated σ for B (benchmarks/live_bench.py: ``expected_sigma``).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 import pytest
-from run_sim import ROOT, expected_sigma, live_bench
+from live_bench import ROOT, expected_sigma, live_bench
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock

@@ -24,8 +24,8 @@ import pytest
 import yaml
 from hypothesis import given
 from hypothesis import strategies as st
+from live_bench import ROOT
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
-from run_sim import ROOT
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock

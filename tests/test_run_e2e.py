@@ -2,7 +2,8 @@
 
 - Modbus TCP + CANopen over slcan: a two-axis profile in table mode; Modbus RTU + NMEA 0183 over
   a pty: a roll profile streamed. The simulated instrument states its transfer function, so the
-  σ to expect is known (tests/run_sim.py: ``expected_sigma``): measured within 5 %, inside its CI.
+  σ to expect is known (benchmarks/live_bench.py: ``expected_sigma``): measured within 5 %,
+  inside its CI.
 - Every way out, on simulated time (the run in this process on the ``vclock`` fixture), by the
   operator's signal (what its handler does) or by the simulators' fault knobs: exit code 2, the
   recording closed ``aborted`` with the reason and readable by ``benchctl analyze``, the stand
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import (
+from live_bench import (
     FOCUSED,
     ROLL,
     ROOT,

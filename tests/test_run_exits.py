@@ -29,8 +29,8 @@ from typing import Any
 
 import pytest
 import yaml
+from live_bench import FOCUSED, ROOT, LiveBench, live_bench, motion_for, recording_in
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
-from run_sim import FOCUSED, ROOT, LiveBench, live_bench, motion_for, recording_in
 
 import benchctl.run
 from benchctl import exits

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from run_sim import FOCUSED, LIMITS, ROLL, live_bench
+from live_bench import FOCUSED, LIMITS, ROLL, live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.jsonout import dumps

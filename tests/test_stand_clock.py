@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from run_sim import ROOT
+from live_bench import ROOT
 
 from benchctl.analysis import analyze
 from benchctl.analysis.timebase import stand_clock

@@ -283,7 +283,7 @@ def test_a_run_refused_by_a_latched_fault_names_the_command_that_clears_it(
     tmp_path: Path, vclock: VirtualClock
 ) -> None:
     """On simulated time (the simulators over in-process links)."""
-    from run_sim import live_bench
+    from live_bench import live_bench
 
     from benchctl.run import RunOptions, run_test
 

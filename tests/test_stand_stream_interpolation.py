@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from run_sim import LIMITS, live_bench
+from live_bench import LIMITS, live_bench
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.modbus.stand import open_stand

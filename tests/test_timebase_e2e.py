@@ -6,7 +6,7 @@ measures the simulated stand, on simulated time over in-process links, while the
 stopped for 0.1–0.3 s five times (``VirtualClock.stall_host``: every thread of the run stops as
 by SIGSTOP, the simulators run on): the reader then reads a burst of frames late. The run's
 line-wise σ must stay within 2 % of the same run unstalled and of the simulated instrument's
-stated σ (``run_sim.expected_sigma``) — the instants come from the adapter's timestamps —, and
+stated σ (``live_bench.expected_sigma``) — the instants come from the adapter's timestamps —, and
 so must the σ from the receipt stamps alone (the fitted time base).
 
 The stalls are drawn as before (seed 3: 1–2 s apart, 0.1–0.3 s long, from the moment the
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from run_sim import ROLL, ROOT, LiveBench, expected_sigma, live_bench
+from live_bench import ROLL, ROOT, LiveBench, expected_sigma, live_bench
 
 from benchctl.analysis import AnalysisResult, analyze
 from benchctl.analysis.lines import line_set_from_recording

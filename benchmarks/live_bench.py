@@ -1,4 +1,5 @@
-"""A live bench for the run layer's end-to-end tests: the real simulators (a Modbus server on
+"""A live simulated bench, for the run layer's end-to-end tests and the benchmarks that measure
+the same bench (benchmarks/rtu_vs_tcp.py): the real simulators (a Modbus server on
 TCP or RTU over a pty, an instrument on a pty speaking CANopen over slcan or NMEA 0183), and a
 bench config file pointing the real drivers at them. The test process hosts the simulators, so
 a test can read the true stand state and inject faults while ``benchctl run`` (in-process or as
@@ -16,7 +17,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from repo_paths import ROOT
 
 from benchctl.channels import free_name, register, unregister
 from benchctl.clock import REAL, Clock
@@ -32,6 +32,8 @@ from benchctl.sim.instrument import SimInstrument
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.stand import SimStand
 
+#: the repository: its drivers/ (the register map, the EDS)
+ROOT = Path(__file__).resolve().parents[1]
 LIMITS = {"angle_deg": 25.0, "rate_deg_s": 40.0, "accel_deg_s2": 200.0}
 #: run settings for a real-time test about something else than the prechecks (a signal, a kill,
 #: a stall): the mounting check's tilt (about 9 s) and the host check (2 s) left out — each has
