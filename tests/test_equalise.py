@@ -234,8 +234,9 @@ def test_equalise_refuses_a_profile_without_lines(tmp_path: Path) -> None:
                        RunOptions("s", "o", equalise=True))
 
 
-# ---- the pre-test in the session, against in-process fakes (tests/run_fakes.py), on simulated
-# time: a loaded host cannot stall the stand loop ("stand loop stalled: no cycle for 4.1 s")
+# ---- the pre-test in the session, against in-process fakes (tests/helpers/run_fakes.py), on
+# simulated time: a loaded host cannot stall the stand loop ("stand loop stalled: no cycle for
+# 4.1 s")
 def _fake_session(
     tmp_path: Path, clock: VirtualClock, mode: str = "stream"
 ) -> tuple[Any, Any, Any]:

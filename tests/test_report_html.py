@@ -3,8 +3,8 @@ figures inline, no script, no external resource, printable on A4 — checked as 
 a real browser (the distribution's headless Chromium, installed by .ci/run): it loads without
 an error from the page, holds its figures, and prints to an A4 PDF.
 
-The runs are real sessions against the fake stand and instrument (tests/run_fakes.py), on
-simulated time: the report is the one the run itself wrote."""
+The runs are real sessions against the fake stand and instrument (tests/helpers/run_fakes.py),
+on simulated time: the report is the one the run itself wrote."""
 
 from __future__ import annotations
 
