@@ -59,8 +59,9 @@ EXACT_REL = 0.002  # the table's gains against the model's exact gain
 # beside the two intervals, as in test_run_e2e (SYSTEMATIC there): the simulated bench shows a
 # reproducible 0.06 % low gain on the slow small step (7 s × 2°) that its noise-based interval
 # (± 0.03 %) does not cover — the bench's, not the fit's: the same fit is exact to 1e-4 on
-# noise-free synthetic steps (tests/test_analysis_steps.py). It is there on simulated time too
-# (−6.0e-4, the host's load out of the picture), so it is not the host's timing under load
+# noise-free synthetic steps (tests/unit/analysis/test_analysis_steps.py). It is there on
+# simulated time too (−6.0e-4, the host's load out of the picture), so it is not the host's
+# timing under load
 SYSTEMATIC = 0.001
 
 
