@@ -5,7 +5,7 @@ On simulated time (the ``vclock`` fixture): the simulator and the driver over an
 pty), the same code on both ends, its rates and timeouts exact. Over a real pseudo-terminal
 (``realtime``): a dropped link, which closes the pty and its symlink and leaves no descriptor
 open (the drivers over real ptys at their full rates: the end-to-end runs of
-tests/test_run_e2e.py)."""
+tests/e2e/test_run_e2e.py)."""
 
 from __future__ import annotations
 

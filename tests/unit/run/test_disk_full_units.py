@@ -1,5 +1,5 @@
-"""The pieces of the disk-full abort, without a run (tests/test_disk_full.py runs them whole on a
-tmpfs): a disk-full OSError from any thread is the documented reason, not an unexpected error;
+"""The pieces of the disk-full abort, without a run (tests/e2e/test_disk_full.py runs them whole on
+a tmpfs): a disk-full OSError from any thread is the documented reason, not an unexpected error;
 a whole-file write that fails leaves no ``.tmp``; an index line is appended whole or not at
 all; the run's log file closes quietly on a full disk."""
 

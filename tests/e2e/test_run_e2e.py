@@ -81,7 +81,7 @@ def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
         pytest.param("rtu", "nmea0183", "buffered", ROLL, False, marks=pytest.mark.realtime),
     ],
     # stream mode's σ is not compared with the profile's here: a busy host makes a streaming
-    # stand hold and rejoin, so its true motion is not the profile's (tests/test_run_stalls.py)
+    # stand hold and rejoin, so its true motion is not the profile's (tests/e2e/test_run_stalls.py)
     ids=["tcp-canopen-table-2axis", "rtu-nmea0183-buffered-roll",
          "rtu-nmea0183-buffered-roll-ptys"],
 )
@@ -176,7 +176,7 @@ def _analyze_reads(rec: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, A
 def _signal(name: str) -> Callable[[LiveBench, Supervisor], None]:
     """What the run's signal handler does with ``name`` (``Supervisor.signals``): on simulated
     time the operator's signal is this call at a simulated moment (the real signals to a real
-    child: tests/test_run_exits.py, ``realtime``)."""
+    child: tests/e2e/test_run_exits.py, ``realtime``)."""
 
     def send(b: LiveBench, sup: Supervisor) -> None:
         sup.fault(SafetyAbort(f"interrupted by {name}"), "signal")

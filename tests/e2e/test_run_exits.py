@@ -171,7 +171,7 @@ def _run_main(cfg: Path, *extra: str) -> int:
 def test_each_exit_signal_is_the_runs_signal_fault_while_it_lasts(sig: signal.Signals) -> None:
     """While a run lasts (``Supervisor.signals``) each exit signal is the fault "signal:
     interrupted by <name>" — the one path to the cleanup that a real child takes below for
-    SIGTERM and SIGHUP (and every way out takes on simulated time, tests/test_run_e2e.py);
+    SIGTERM and SIGHUP (and every way out takes on simulated time, tests/e2e/test_run_e2e.py);
     the handler there before comes back after."""
     assert sig in exits.EXIT_SIGNALS  # (else the signal below would end this process)
     sup = Supervisor()
