@@ -1,4 +1,4 @@
-"""σ of one instrument over the simulated stand on Modbus RTU and on Modbus TCP (issue #9).
+"""σ of one instrument over the simulated stand on Modbus RTU and on Modbus TCP.
 
 The same bench as the suite's end-to-end tests (`benchmarks/live_bench.py`: an instrument of
 50 ms lag and 0.01° noise on CANopen over slcan, the 20 s `ROLL` profile, buffered mode), run in

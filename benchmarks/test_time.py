@@ -1,5 +1,5 @@
 """How long a test has to be: the motion time for σ within ±5 % (95 %) against the paper's
-15 minutes (issue 10 item 3).
+15 minutes.
 
 For each simulated instrument — the default bench's (config/sim.yaml ``sim.instrument``) and a
 slower, noisier, drifting one (``SLOW``) — two real `benchctl run --json` child processes

@@ -1,5 +1,4 @@
-"""The stand's own clock dates the reference (issue 9, item 4: "or by the stand's own time if
-its map offers one").
+"""The stand's own clock dates the reference, where the stand's register map offers one.
 
 - ``analysis.timebase.stand_clock``: a wrapping 10 µs clock at its own rate and offset, read in
   exchanges whose windows are late by random amounts (and sometimes by a stall), gives the

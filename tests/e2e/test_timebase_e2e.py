@@ -1,4 +1,4 @@
-"""Time bases end to end: a stalled host does not bias σ (issue 9, item 4).
+"""Time bases end to end: a stalled host does not bias σ.
 
 A real run (``run_test``, what ``benchctl run --json`` prints) of the default bench
 (config/sim.yaml's instrument model: CANopen over slcan at 100 Hz, buffered Modbus TCP stand)

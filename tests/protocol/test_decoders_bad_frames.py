@@ -1,4 +1,4 @@
-"""A bad frame is a counted bad frame, always (issue 8, item 5).
+"""A bad frame is a counted bad frame, always.
 
 Every decoder turns any input into a sample or a counted bad frame (``FrameStats.count_bad``),
 never an exception that would end a run; a real link failure is still a lost link.

@@ -1,4 +1,4 @@
-"""Line-wise estimation (issue 9, items 1–2): exact synthetic multisines over whole periods.
+"""Line-wise estimation: exact synthetic multisines over whole periods.
 
 Tolerances: noise-free, line-wise gain within 0.05 % and phase within 0.05° of the exact
 response at every line (observed: 1e-12 on the DFT path, 1e-9 with gaps or jittered

@@ -91,7 +91,7 @@ def test_coverage_coloured_gaussian_error() -> None:
     assert abs(cov - 0.95) < TOL, cov
 
 
-# ---------------------------------------------------------------- issue 9, item 3: per kind
+# ---------------------------------------------------------------- the interval per kind of error
 # The interval of σ for errors of different make-up, on multisine records over whole periods
 # (the line-wise interval: the linear part's cross term, the noise in groups of DFT bins with
 # their own degrees of freedom, the mean removal's loss added back). Records: 900 s at 4 Hz

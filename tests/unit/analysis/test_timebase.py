@@ -1,4 +1,4 @@
-"""Time bases (issue 9, item 4): instants that do not bias σ.
+"""Time bases: instants that do not bias σ.
 
 - slcan adapter timestamps: parsed from any frame line (property), unwrapped across the
   adapter's 60 000 ms (or 16-bit) wrap whatever the gaps and host delays (property);

@@ -1,4 +1,4 @@
-"""The results archive (issue 11 items 3 and 4) on both backends: SQLite (a file in tmp) and a
+"""The results archive on both backends: SQLite (a file in tmp) and a
 real PostgreSQL server started for this module in a temporary folder (``archive_helpers.
 PgServer``: the distribution's initdb/pg_ctl; a machine without them FAILS these tests).
 

@@ -1,4 +1,4 @@
-"""report.html (issue 11 item 2): one self-contained HTML file per run, Jinja2-autoescaped, SVG
+"""report.html: one self-contained HTML file per run, Jinja2-autoescaped, SVG
 figures inline, no script, no external resource, printable on A4 — checked as text here and in
 a real browser (the distribution's headless Chromium, installed by .ci/run): it loads without
 an error from the page, holds its figures, and prints to an A4 PDF.

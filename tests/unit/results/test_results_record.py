@@ -1,4 +1,4 @@
-"""Measurements, decision rules, outcomes and the run's record (issue 11 items 1, 5, 8).
+"""Measurements, decision rules, outcomes and the run's record.
 
 - decision rules: examples, and properties (guarded never PASSes with the upper bound over the
   limit, never FAILs with the lower bound within it; simple and guarded agree when the

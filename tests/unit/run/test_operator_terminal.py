@@ -1,4 +1,4 @@
-"""The operator's terminal (issue 11 item 7): the live block fits 80 columns and never scrolls,
+"""The operator's terminal: the live block fits 80 columns and never scrolls,
 shows serial and operator, the limit beside the running σ, the stand's health with a warning as
 it climbs, and a final banner with the verdict; log lines without a terminal as before;
 ``benchctl analyze`` says when a recording is aborted or incomplete (text and JSON)."""
