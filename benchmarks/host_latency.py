@@ -1,5 +1,5 @@
 """The host fitness check's figures on this machine: unloaded, then beside N CPU-bound child
-processes (issue 20, item 4).
+processes.
 
 The same measurement a run makes before its motion (``benchctl.run.fitness.measure_host``, the
 real clock): one thread per period (1 ms and 10 ms, the default stand loop's) asks to wake on

@@ -1,8 +1,8 @@
-"""σ of one instrument over the simulated stand on Modbus RTU and on Modbus TCP (issue #9).
+"""σ of one instrument over the simulated stand on Modbus RTU and on Modbus TCP.
 
-The same bench as the suite's end-to-end tests (`tests/run_sim.py`: an instrument of 50 ms lag
-and 0.01° noise on CANopen over slcan, the 20 s `ROLL` profile, buffered mode), run in this
-process `--pairs` times on each transport (RTU at `--baud`, 115 200 Bd by default). Printed per
+The same bench as the suite's end-to-end tests (`benchmarks/live_bench.py`: an instrument of
+50 ms lag and 0.01° noise on CANopen over slcan, the 20 s `ROLL` profile, buffered mode), run in
+this process `--pairs` times on each transport (RTU at `--baud`, 115 200 Bd by default). Printed per
 run: σ, its line-wise value, the delay estimate and the reference's time base; then the RTU σ
 against the TCP σ of the same pair (goal: within 0.5 %), and the instrument model's stated σ.
 
@@ -13,17 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+# benchmarks/live_bench.py: this script's folder is on sys.path when it is run
+from live_bench import ROLL, expected_sigma, live_bench
 
-from run_sim import ROLL, expected_sigma, live_bench  # noqa: E402
-
-from benchctl.run import RunOptions, run_test  # noqa: E402
-from benchctl.run.session import prepare_motion  # noqa: E402
+from benchctl.run import RunOptions, run_test
+from benchctl.run.session import prepare_motion
 
 
 def one(tmp: Path, transport: str, baud: int) -> tuple[float, float]:

@@ -1,4 +1,4 @@
-"""A whole `benchctl run` against the simulators at real time: the figures of issue #5.
+"""A whole `benchctl run` against the simulators at real time: its timing, losses and memory.
 
 The simulated stand (Modbus TCP on loopback) and instrument (CANopen over slcan on a pty) run in
 this process; `benchctl run --json` runs as a child process, exactly as an operator starts it,

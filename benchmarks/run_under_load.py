@@ -1,4 +1,4 @@
-"""The default simulated test, repeatedly, on a loaded machine with host stalls: issue #8's figures.
+"""The default simulated test, repeatedly, on a loaded machine with host stalls: aborts, σ, limits.
 
 The simulators are built from `config/sim.yaml`'s own `sim:` section (the default bench) and run
 in THIS process, so the stand's true motion is measured here; `benchctl run --json` runs as a

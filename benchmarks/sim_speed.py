@@ -16,7 +16,7 @@ time. Printed per run:
 baseline commit), its runs interleaved with this tree's so that both see the same load; then
 the ratio of the medians, and whether the two recorded the same bytes (``stand.csv``,
 ``instrument.csv``, ``setpoints.csv`` and ``events.jsonl`` but for the recording's path and the
-software version, as tests/test_sim_virtual.py compares two runs). The machine's load average
+software version, as tests/sim/test_sim_virtual.py compares two runs). The machine's load average
 is printed before and after: this is a measurement on a shared machine.
 
 Usage: python benchmarks/sim_speed.py [--profile profiles/paper_vessel_roll_short120.yaml]
@@ -43,7 +43,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOLS = {"canopen": "sim.yaml", "j1939": "sim_j1939.yaml", "nmea2000": "sim_nmea2000.yaml",
              "nmea0183": "sim_nmea0183.yaml"}
-#: --disturb-seed: tests/test_sim_virtual.py's disturbances (stalls, jitter, slow and lost
+#: --disturb-seed: tests/sim/test_sim_virtual.py's disturbances (stalls, jitter, slow and lost
 #: replies, lost and garbled frames)
 DISTURB = {
     "host_stalls_per_min": 30, "host_stall_s": [0.05, 0.6], "send_jitter_s": 0.002,

@@ -1,5 +1,5 @@
 """How long a test has to be: the motion time for σ within ±5 % (95 %) against the paper's
-15 minutes (issue 10 item 3).
+15 minutes.
 
 For each simulated instrument — the default bench's (config/sim.yaml ``sim.instrument``) and a
 slower, noisier, drifting one (``SLOW``) — two real `benchctl run --json` child processes
@@ -39,10 +39,10 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 LONG = ROOT / "profiles/paper_vessel_roll.yaml"
 SHORT = ROOT / "profiles/paper_vessel_roll_short.yaml"
-# the second instrument: a slower, noisier MEMS sensor (tests/test_precision.py checks the short
-# profiles' σ against the long one's for it too); "drift": the same with a slow drift, whose
-# ramp makes σ itself grow with the record's length ((drift·T)²/12 in σ²): no shorter test can
-# have the 15-minute σ then
+# the second instrument: a slower, noisier MEMS sensor (tests/unit/run/test_precision.py checks
+# the short profiles' σ against the long one's for it too); "drift": the same with a slow drift,
+# whose ramp makes σ itself grow with the record's length ((drift·T)²/12 in σ²): no shorter test
+# can have the 15-minute σ then
 SLOW = {"gain": 0.98, "lag_s": 0.25, "latency_s": 0.02, "bias_deg": 0.1, "noise_deg": 0.2,
         "seed": 11}
 MODELS: dict[str, dict[str, Any]] = {"default": {}, "slow": SLOW,

@@ -23,10 +23,9 @@ import psutil
 import pytest
 from archive_helpers import PgServer
 from hypothesis import settings
+from repo_paths import ROOT
 
 from benchctl.clock.virtual import VirtualClock
-
-ROOT = Path(__file__).resolve().parent.parent
 
 # property tests: a bounded example count where a test states none (each states its own above
 # this), and no per-example deadline — it would time the host's load, not the code

@@ -1,0 +1,155 @@
+"""The simulated bench on simulated time: the whole run in one process on a VirtualClock.
+
+Two runs with the same inputs write the same bytes (the recorded data, and the event log once
+the two fields that cannot be fixed — the recording's path and the software version — are set
+aside); a seeded disturbance replays exactly; the stamps are simulated time from the config's
+epoch, never the host's."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from repo_paths import ROOT
+
+from benchctl.cli import main
+
+DATA = ("stand.csv", "instrument.csv", "setpoints.csv")
+
+
+def _config(tmp_path: Path, disturb: dict[str, Any] | None = None) -> Path:
+    data = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text())
+    data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
+    data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
+    data["run"]["output_dir"] = str(tmp_path / "runs")
+    if disturb is not None:
+        data["sim"]["disturb"] = disturb
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _run(cfg: Path, out: Path, *extra: str) -> tuple[int, Path]:
+    code = main([
+        "run", "--config", str(cfg), "--profile", str(ROOT / "profiles/ci_short.yaml"),
+        "--serial", "20260001", "--operator", "ci", "--out", str(out), "--duration", "20",
+        *extra,
+    ])
+    (rec,) = [p.parent for p in out.glob("*/meta.json")]
+    return code, rec
+
+
+def _digest(rec: Path, name: str) -> str:
+    data = (rec / name).read_bytes()
+    if name == "events.jsonl":  # the two fields that cannot be fixed: where, and which version
+        lines = []
+        for line in data.decode().splitlines():
+            ev = json.loads(line)
+            ev.pop("recording", None)
+            ev.pop("software_version", None)
+            lines.append(json.dumps(ev, sort_keys=True))
+        data = "\n".join(lines).encode()
+    return hashlib.sha256(data).hexdigest()
+
+
+@pytest.mark.slow
+def test_two_runs_with_the_same_inputs_record_the_same_bytes(tmp_path: Path) -> None:
+    cfg = _config(tmp_path)
+    code1, rec1 = _run(cfg, tmp_path / "a")
+    code2, rec2 = _run(cfg, tmp_path / "b")
+    assert code1 == code2 == 0
+    for name in (*DATA, "events.jsonl"):
+        assert _digest(rec1, name) == _digest(rec2, name), name
+    meta = json.loads((rec1 / "meta.json").read_text())
+    # simulated time from the config's epoch: no stamp of the host's
+    assert meta["start_utc"].startswith("2026-01-01T00:00:0")
+    assert rec1.name.startswith("20260101T0000")
+    ev = [json.loads(x) for x in (rec1 / "events.jsonl").read_text().splitlines()]
+    assert all(e["utc"].startswith("2026-01-01T00:0") for e in ev)
+    disk = next(e for e in ev if e.get("name") == "disk space")
+    assert "free_mb" not in disk["values"]  # the host's free space stays out of the data
+
+
+DISTURB = {
+    "host_stalls_per_min": 30, "host_stall_s": [0.05, 0.6], "send_jitter_s": 0.002,
+    "slow_reply_p": 0.02, "slow_reply_s": [0.005, 0.3], "lost_reply_p": 0.002,
+    "lost_frame_p": 0.002, "garbled_frame_p": 0.002,
+}
+
+
+@pytest.mark.slow
+def test_a_seed_replays_exactly_and_another_seed_differs(tmp_path: Path) -> None:
+    recs = {}
+    for name, seed in (("a", 11), ("b", 11), ("c", 12)):
+        cfg = _config(tmp_path / name, {"seed": seed, **DISTURB})
+        _code, recs[name] = _run(cfg, tmp_path / name / "out")
+    for name in (*DATA, "events.jsonl"):
+        assert _digest(recs["a"], name) == _digest(recs["b"], name), name
+    assert _digest(recs["a"], "stand.csv") != _digest(recs["c"], "stand.csv")
+    ev = [json.loads(x) for x in (recs["a"] / "events.jsonl").read_text().splitlines()]
+    (d,) = [e for e in ev if e["kind"] == "disturbances"]
+    assert d["seed"] == 11 and d["host_stalls"]  # recorded, to be replayed
+    meta = json.loads((recs["a"] / "meta.json").read_text())
+    assert meta["disturbances"]["seed"] == 11
+
+
+def test_a_virtual_config_refuses_a_callers_real_time_supervisor(tmp_path: Path) -> None:
+    from benchctl.config import load_config
+    from benchctl.errors import ConfigError
+    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.supervisor import Supervisor
+
+    cfg = load_config(_config(tmp_path))
+    with pytest.raises(ConfigError, match=r"sim\.clock = virtual"):
+        run_test(cfg, ROOT / "profiles/ci_short.yaml",
+                 RunOptions(serial="x", operator="y"), supervisor=Supervisor())
+
+
+def test_the_simulated_time_config_is_the_default_one_on_a_virtual_clock() -> None:
+    """config/sim_virtual.yaml is config/sim.yaml with sim.clock: virtual (and its epoch): the
+    second README command runs the first one's bench."""
+    real = yaml.safe_load((ROOT / "config/sim.yaml").read_text())
+    virtual = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text())
+    assert virtual["sim"].pop("clock") == "virtual"
+    virtual["sim"].pop("epoch_utc")
+    assert virtual == real
+
+
+def _events(rec: Path) -> list[dict[str, Any]]:
+    return [json.loads(x) for x in (rec / "events.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+def test_disturbed_from_the_motions_start_the_motion_starts_in_step(tmp_path: Path) -> None:
+    """``sim.disturb.from_s`` at the undisturbed twin's fade-in: before it nothing is disturbed,
+    so the motion starts at the same simulated instant and the instrument's samples (its
+    instants and values, noise included) are the twin's; disturbed from the start, the motion
+    starts later and the noise falls on other instants of it."""
+    code, twin = _run(_config(tmp_path / "u"), tmp_path / "u" / "out")
+    assert code == 0
+    fade = next(e["t_state"] for e in _events(twin) if e.get("to") == "fade-in")
+    recs = {}
+    for name, extra in (("late", {"from_s": round(fade - 1000.0 + 0.001, 6)}), ("early", {})):
+        cfg = _config(tmp_path / name, {"seed": 5, **DISTURB, "lost_frame_p": 0.0,
+                                        "garbled_frame_p": 0.0, "lost_reply_p": 0.0, **extra})
+        _code, recs[name] = _run(cfg, tmp_path / name / "out")
+    ev = _events(recs["late"])
+    assert next(e["t_state"] for e in ev if e.get("to") == "fade-in") == fade
+    (d,) = [e for e in ev if e["kind"] == "disturbances"]
+    assert d["host_stalls"] and min(t for t, _d in d["host_stalls"]) >= fade - 1000.0
+    # the instrument's samples — its instants (the adapter's stamps) and values — are the
+    # twin's (the disturbed run goes on a little longer: its stalls delayed the end)
+    def samples(rec: Path) -> list[list[str]]:
+        rows = (rec / "instrument.csv").read_text().splitlines()
+        return [r.split(",")[1:] for r in rows]
+
+    twin_rows, late_rows = samples(twin), samples(recs["late"])
+    assert len(twin_rows) > 1500 and late_rows[:len(twin_rows)] == twin_rows
+    assert _digest(recs["late"], "stand.csv") != _digest(twin, "stand.csv")  # disturbed
+    early = next(e["t_state"] for e in _events(recs["early"]) if e.get("to") == "fade-in")
+    assert early > fade
