@@ -530,18 +530,28 @@ def counter_slots(counter: ArrayLike, period: int, t_receipt: ArrayLike,
     arrive: a host stall does not delay them), else by the receipt stamps, one-sided (see
     ``unwrap``); the step between samples is the median of those one count apart."""
     c = np.asarray(counter, dtype=float)
-    witness, one_sided = np.asarray(t_receipt, dtype=float), True
-    if adapter_time is not None:
-        av = np.asarray(adapter_time, dtype=float)
-        if (av.shape == c.shape and np.isfinite(av).all() and np.all(np.diff(av) >= 0)
-                and av[-1] > av[0]):
-            witness, one_sided = av, False
+    av = adapter_clock(adapter_time)
+    if av is not None and av.shape == c.shape:
+        witness, one_sided = av, False
+    else:
+        witness, one_sided = np.asarray(t_receipt, dtype=float), True
     dc = np.mod(np.diff(c), period)
     one = dc == 1
     dh = np.diff(witness)
     step = float(np.median(dh[one])) if one.any() else float(np.median(dh / np.maximum(dc, 1)))
     k = unwrap(c, period, witness, scale=step, one_sided=one_sided)
     return np.asarray(np.rint(k - k[0]), dtype=np.int64)
+
+
+def adapter_clock(adapter_time: ArrayLike | None) -> FloatArray | None:
+    """The CAN adapter's timestamps as a clock, or None when a sample lacks one or they run
+    backwards or stand still throughout (at 1 ms they may repeat from frame to frame)."""
+    if adapter_time is None:
+        return None
+    av = np.asarray(adapter_time, dtype=float)
+    if av.size < 2 or not np.isfinite(av).all() or np.any(np.diff(av) < 0) or av[-1] <= av[0]:
+        return None
+    return av
 
 
 def valid_clock(c: FloatArray | None) -> bool:
@@ -697,10 +707,9 @@ def instrument_timebase(
                 if np.isfinite(cv).all():
                     return counter_slots(cv, int(period), tr, adapter_time)
             return None
-        if kind == "adapter" and adapter_time is not None:
-            av = np.asarray(adapter_time, dtype=float)
-            if np.isfinite(av).all() and np.all(np.diff(av) >= 0) and av[-1] > av[0]:
-                return clock_slots(av)
+        if kind == "adapter":
+            av = adapter_clock(adapter_time)
+            return None if av is None else clock_slots(av)
         return None
 
     order = ("device", "adapter", "fitted") if prefer == "best" else (prefer,)

@@ -370,7 +370,8 @@ def write_report(rep: Report, results: dict[str, Any] | None = None, *,
     out = [folder / REPORT_JSON, folder / REPORT_TXT]
     _write(out[0], dumps(rep.to_dict(), indent=2) + "\n")
     _write(out[1], format_report(rep) + "\n")
-    for axis, res in (results or {}).items() if figures else ():
+    plotted = (results or {}) if figures else {}
+    for axis, res in plotted.items():
         dest = folder / f"analysis_{axis}.png"
         v = rep.axes.get(axis)
         if _plot(res, dest, rep.meta, None if v is None else v.limit_deg):
