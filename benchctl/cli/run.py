@@ -65,6 +65,14 @@ def register(sub: Any) -> None:
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default run.output_dir)")
     p.add_argument("--json", action="store_true", help="print one JSON object (report) on stdout")
     p.add_argument("--quiet", action="store_true", help="no live progress on stderr")
+    p.add_argument(
+        "--live",
+        type=Path,
+        metavar="SOCKET",
+        help="also publish the live progress (state, angles, σ, messages, verdict) as JSON "
+        "datagrams to this Unix socket, never waiting on it (benchctl serve starts its runs "
+        "with it)",
+    )
     p.set_defaults(handler=handle)
 
 
@@ -106,6 +114,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.run.display import make_display
     from benchctl.run.plan import check_setpoints
     from benchctl.text import check_operator, check_part_number, check_serial
+    from benchctl.web.live import live_display
 
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
@@ -143,7 +152,7 @@ def handle(args: argparse.Namespace) -> int:
     )
     # on a terminal the verdict's banner waits for the summary: the last thing on the screen
     display = make_display(sys.stderr, quiet=args.quiet, hold_banner=not args.json)
-    result = run_test(cfg, args.profile, opts, display=display)
+    result = run_test(cfg, args.profile, opts, display=live_display(display, args.live))
     if args.json:
         with contextlib.suppress(OSError):  # the console may be gone: the exit code still tells
             print(dumps(result.to_dict()))
