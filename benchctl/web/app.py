@@ -1,0 +1,239 @@
+"""The station panel's web application (FastAPI): the station page, its live events
+(server-sent events) and the few requests that change anything — start, stop, put away a
+verdict — each checked against cross-site use (``benchctl.web.security``).
+
+Everything the browser loads comes from this package (``templates/``, ``static/``); the
+Content-Security-Policy header forbids anything else, so a page that tried would fail loudly.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import jinja2
+from fastapi import FastAPI, Request, Response
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
+from starlette.responses import StreamingResponse
+
+from benchctl import __version__
+from benchctl.config import load_config
+from benchctl.errors import InputError
+from benchctl.text import check_operator, check_serial
+from benchctl.web.i18n import script_texts, translations
+from benchctl.web.security import Guard
+from benchctl.web.settings import PanelSettings
+from benchctl.web.station import Station
+
+HERE = Path(__file__).parent
+COOKIE = "benchctl_panel"
+KEEPALIVE_S = 15.0
+#: the panel's pages: nothing from anywhere but the panel, no inline script or style
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; "
+       "connect-src 'self'; form-action 'self'; frame-ancestors 'none'; base-uri 'none'")
+#: a run's report (benchctl.report: one self-contained file, its styles inline)
+REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; "
+              "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+OPEN_PATHS = ("/login", "/static/")
+
+
+class SerialIn(BaseModel):
+    serial: str
+
+
+class StartIn(BaseModel):
+    serial: str
+    operator: str
+    profile: str
+
+
+def _error(status: int, text: str) -> JSONResponse:
+    return JSONResponse({"error": text}, status_code=status)
+
+
+def create_app(settings: PanelSettings) -> FastAPI:
+    """The panel for one station (``settings``); its runs start as child processes."""
+    cfg = load_config(settings.config)
+    pattern = cfg.unit.serial_pattern
+    pattern_where = f"unit.serial_pattern of {settings.config}"
+    profiles = {str(i): p for i, p in enumerate(settings.profiles)}
+    guard = Guard(settings.token_scrypt, require_token=settings.require_token,
+                  origins=settings.origins)
+    station = Station(settings)
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(HERE / "templates"), autoescape=True,
+        extensions=["jinja2.ext.i18n"], undefined=jinja2.StrictUndefined,
+    )
+    env.install_gettext_translations(translations(settings.lang), newstyle=True)  # type: ignore[attr-defined]
+    texts = script_texts(settings.lang)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        yield
+        await station.close()
+
+    app = FastAPI(title="benchctl station panel", version=__version__, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, openapi_url=None)
+    app.state.station = station
+    app.state.guard = guard
+    app.mount("/static", StaticFiles(directory=HERE / "static"), name="static")
+
+    def page(name: str, request: Request, **values: Any) -> HTMLResponse:
+        session = request.cookies.get(COOKIE)
+        html = env.get_template(name).render(
+            lang=settings.lang, csrf=guard.csrf_token(session), station=cfg.station,
+            version=__version__, **values)
+        return HTMLResponse(html)
+
+    @app.middleware("http")
+    async def checks(request: Request,
+                     call_next: Callable[[Request], Awaitable[Response]]) -> Response:
+        host = request.headers.get("host", "")
+        path = request.url.path
+        if not guard.host_allowed(host):
+            return _headers(Response(f"host {host!r} not served: open the panel by its own "
+                                     "address", status_code=400, media_type="text/plain"))
+        if request.method not in ("GET", "HEAD"):
+            if not guard.origin_ok(request.headers.get("origin"),
+                                   request.headers.get("referer"), host):
+                return _headers(_error(403, "cross-site request refused (Origin)"))
+            if path.startswith("/api/") and not guard.csrf_ok(
+                    request.cookies.get(COOKIE), request.headers.get("x-csrf-token")):
+                return _headers(_error(403, "cross-site request refused (CSRF token)"))
+        if not path.startswith(OPEN_PATHS) and not guard.authenticated(
+                request.cookies.get(COOKIE)):
+            if path.startswith("/api/"):
+                return _headers(_error(401, "log in first"))
+            return _headers(RedirectResponse("/login", status_code=303))
+        response = await call_next(request)
+        return _headers(response, report=path.startswith("/runs/"))
+
+    @app.get("/", response_class=HTMLResponse)
+    async def index(request: Request) -> HTMLResponse:
+        data = {"texts": texts, "csrf": guard.csrf_token(request.cookies.get(COOKIE)),
+                "limit": cfg.run.limit_sigma_deg}
+        return page("station.html.j2", request, profiles=[
+            (key, p.stem) for key, p in profiles.items()],
+            duration=settings.duration_s, serial_pattern=pattern,
+            data=data, auth=guard.require_token)
+
+    @app.get("/login", response_class=HTMLResponse)
+    async def login_page(request: Request) -> HTMLResponse:
+        return page("login.html.j2", request, failed=False)
+
+    @app.post("/login")
+    async def login(request: Request) -> Response:
+        form = await request.form()
+        session = request.cookies.get(COOKIE)
+        if not guard.csrf_ok(session, str(form.get("csrf", ""))):
+            return _error(403, "cross-site request refused (CSRF token)")
+        sid = guard.login(str(form.get("token", "")))
+        if sid is None:
+            refused = page("login.html.j2", request, failed=True)
+            refused.status_code = 401
+            return refused
+        resp = RedirectResponse("/", status_code=303)
+        resp.set_cookie(COOKIE, sid, httponly=True, samesite="strict",
+                        secure=any(o.startswith("https:") for o in guard.origins))
+        return resp
+
+    @app.post("/api/logout")
+    async def logout(request: Request) -> JSONResponse:
+        guard.logout(request.cookies.get(COOKIE))
+        resp = JSONResponse({"ok": True})
+        resp.delete_cookie(COOKIE)
+        return resp
+
+    @app.get("/api/status")
+    async def status() -> JSONResponse:
+        return JSONResponse(station.status())
+
+    @app.post("/api/check-serial")
+    async def check(body: SerialIn) -> JSONResponse:
+        try:
+            serial = check_serial(body.serial, "serial", pattern, pattern_where)
+        except InputError as e:
+            return _error(400, str(e))
+        return JSONResponse({"serial": serial})
+
+    @app.post("/api/start")
+    async def start(body: StartIn) -> JSONResponse:
+        try:
+            serial = check_serial(body.serial, "serial", pattern, pattern_where)
+            operator = check_operator(body.operator, "operator")
+            if body.profile not in profiles:
+                raise InputError(f"profile {body.profile!r}: not one this station offers")
+            if station.busy:
+                return _error(409, "a run is going on at this station: one run per stand")
+            run = await station.start(serial, operator, profiles[body.profile])
+        except InputError as e:
+            return _error(400, str(e))
+        return JSONResponse({"id": run.id})
+
+    @app.post("/api/stop")
+    async def stop() -> JSONResponse:
+        if not station.stop():
+            return _error(409, "no run is going on")
+        return JSONResponse({"ok": True})
+
+    @app.post("/api/dismiss")
+    async def dismiss() -> JSONResponse:
+        if not station.dismiss():
+            return _error(409, "a run is going on")
+        return JSONResponse({"ok": True})
+
+    @app.get("/runs/{run_id}/report")
+    async def report(run_id: int) -> Response:
+        path = station.report_file(run_id)
+        if path is None:
+            return Response("no report for this run", status_code=404, media_type="text/plain")
+        return FileResponse(path, media_type="text/html")
+
+    @app.get("/api/events")
+    async def events(request: Request) -> StreamingResponse:
+        return StreamingResponse(_stream(station, request), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store",
+                                          "X-Accel-Buffering": "no"})
+
+    return app
+
+
+def _sse(event: str, data: dict[str, Any]) -> str:
+    return f"event: {event}\ndata: {json.dumps(data, ensure_ascii=False)}\n\n"
+
+
+async def _stream(station: Station, request: Request) -> AsyncIterator[str]:
+    """One browser's events: the whole state, then each change; the whole state again after
+    the browser fell behind; a comment now and then so proxies keep the line open."""
+    watcher = station.watch()
+    try:
+        yield _sse("status", station.status())
+        while not await request.is_disconnected():
+            try:
+                event, data = await asyncio.wait_for(watcher.queue.get(), KEEPALIVE_S)
+            except TimeoutError:
+                yield ": keepalive\n\n"
+                continue
+            if watcher.stale:
+                watcher.stale = False
+                while not watcher.queue.empty():
+                    watcher.queue.get_nowait()
+                yield _sse("status", station.status())
+                continue
+            yield _sse(event, data)
+    finally:
+        station.unwatch(watcher)
+
+
+def _headers(response: Response, report: bool = False) -> Response:
+    response.headers["Content-Security-Policy"] = REPORT_CSP if report else CSP
+    response.headers["X-Content-Type-Options"] = "nosniff"
+    response.headers["Referrer-Policy"] = "same-origin"
+    response.headers["X-Frame-Options"] = "DENY"
+    return response

@@ -1,0 +1,110 @@
+"""The station panel's own settings: a small YAML file (``benchctl serve --panel FILE``), the
+command line's options over it.
+
+The bench config (``--config``) says nothing about the panel; this file does::
+
+    lang: ru                      # the operator's language: en or ru
+    profiles:                     # what the operator may choose: files, or folders of *.yaml
+      - ../profiles/paper_vessel_roll.yaml
+    duration_s: 120               # each run's duration (default: the profile's own)
+    host: 127.0.0.1               # where the panel listens (loopback by default)
+    port: 8350
+    token_scrypt: "scrypt$16384$8$1$…"   # benchctl serve --hash-token; required off loopback
+    require_token: false          # ask for the token on loopback too (behind a reverse proxy)
+    origins: [https://bench3.example.org]  # the address(es) browsers use, behind a proxy
+    out_dir: ../runs              # the runs' output folder (default: the config's run.output_dir)
+
+Relative paths are taken from the file's folder; a field the file does not know is an error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from benchctl.config import field_path, read_yaml, shown_value
+from benchctl.errors import ConfigError
+
+LANGUAGES = ("en", "ru")
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8350
+
+
+class _PanelFile(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    lang: Literal["en", "ru"] = "en"
+    profiles: list[Path] = Field(default_factory=list)
+    duration_s: float | None = Field(default=None, gt=0)
+    host: str = DEFAULT_HOST
+    port: int = Field(default=DEFAULT_PORT, ge=0, le=65535)
+    token_scrypt: str | None = None
+    require_token: bool = False
+    origins: list[str] = Field(default_factory=list)
+    out_dir: Path | None = None
+
+
+@dataclass(frozen=True)
+class PanelSettings:
+    """Everything ``benchctl serve`` needs besides the bench config."""
+
+    config: Path
+    profiles: tuple[Path, ...]
+    lang: str = "en"
+    duration_s: float | None = None
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
+    token_scrypt: str | None = None
+    require_token: bool = False
+    origins: tuple[str, ...] = ()
+    out_dir: Path | None = None
+    #: the interpreter that runs each child ``benchctl run`` (default: this one)
+    python: str | None = None
+    #: extra environment for the child runs (tests: PYTHONPATH)
+    child_env: dict[str, str] = field(default_factory=dict)
+
+    def with_(self, **changes: object) -> PanelSettings:
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+
+def read_panel_file(path: Path) -> _PanelFile:
+    """The panel settings file, validated (``ConfigError`` naming the file and the field)."""
+    data = read_yaml(path, "panel settings") or {}
+    try:
+        model = _PanelFile.model_validate(data)
+    except ValidationError as e:
+        parts = []
+        for err in e.errors():
+            value = err.get("input")
+            shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
+            parts.append(f"field {field_path(err['loc']) or '(top level)'}{shown}: {err['msg']}")
+        raise ConfigError(f"{path}: invalid panel settings: " + "; ".join(parts)) from None
+    base = path.parent
+    return model.model_copy(update={
+        "profiles": [p if p.is_absolute() else base / p for p in model.profiles],
+        "out_dir": None if model.out_dir is None or model.out_dir.is_absolute()
+        else base / model.out_dir,
+    })
+
+
+def profile_files(entries: list[Path] | tuple[Path, ...]) -> tuple[Path, ...]:
+    """Each entry a profile file, or a folder whose ``*.yaml`` files are profiles (sorted);
+    ``ConfigError`` for one that is neither, or for no profile at all."""
+    out: list[Path] = []
+    for entry in entries:
+        if entry.is_dir():
+            out.extend(sorted(entry.glob("*.yaml")))
+        elif entry.is_file():
+            out.append(entry)
+        else:
+            raise ConfigError(f"{entry}: no such profile file or folder (serve --profile)")
+    if not out:
+        raise ConfigError("no motion profile for the operator to choose: give --profile FILE "
+                          "or --profile FOLDER, or profiles: in the panel settings file")
+    seen: dict[str, Path] = {}
+    for p in out:
+        seen.setdefault(str(p.resolve()), p)
+    return tuple(seen.values())
