@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import urllib.parse
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self';
 REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; "
               "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
 OPEN_PATHS = ("/login", "/static/")
+LOGIN_MAX_BYTES = 4096  # the login form: a token and a CSRF token (urlencoded)
 
 
 class SerialIn(BaseModel):
@@ -129,11 +131,14 @@ def create_app(settings: PanelSettings) -> FastAPI:
 
     @app.post("/login")
     async def login(request: Request) -> Response:
-        form = await request.form()
+        body = await request.body()
+        if len(body) > LOGIN_MAX_BYTES:
+            return _error(413, "request too large")
+        form = urllib.parse.parse_qs(body.decode("utf-8", "replace"))
         session = request.cookies.get(COOKIE)
-        if not guard.csrf_ok(session, str(form.get("csrf", ""))):
+        if not guard.csrf_ok(session, (form.get("csrf") or [""])[0]):
             return _error(403, "cross-site request refused (CSRF token)")
-        sid = guard.login(str(form.get("token", "")))
+        sid = guard.login((form.get("token") or [""])[0])
         if sid is None:
             refused = page("login.html.j2", request, failed=True)
             refused.status_code = 401

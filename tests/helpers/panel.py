@@ -1,0 +1,89 @@
+"""The station panel in tests: an in-process application (FastAPI's TestClient) for the HTTP
+checks, and ``benchctl serve`` as a real child process for the browser tests."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from repo_paths import ROOT
+
+SHORT_PROFILE = ROOT / "profiles/paper_vessel_roll_short120.yaml"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def child_env() -> dict[str, str]:
+    """This checkout first on the child's path (the tests run from a worktree)."""
+    path = os.environ.get("PYTHONPATH", "")
+    return {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{path}" if path else str(ROOT)}
+
+
+def get_json(url: str, timeout: float = 10.0) -> Any:
+    with urllib.request.urlopen(url, timeout=timeout) as r:
+        return json.loads(r.read())
+
+
+def wait_for(what: str, check: Any, timeout_s: float, every_s: float = 0.1) -> Any:
+    """``check()``'s first truthy value within ``timeout_s`` (fails the test after it)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(every_s)
+
+
+@contextlib.contextmanager
+def serve(tmp: Path, *args: str, config: Path = ROOT / "config/sim_virtual.yaml",
+          profile: Path = SHORT_PROFILE, duration_s: float = 30.0) -> Iterator[str]:
+    """``benchctl serve`` on a free loopback port; yields its base URL. At the end the server
+    gets SIGINT and is waited for; the run it started must have ended by then."""
+    port = free_port()
+    cmd = [sys.executable, "-m", "benchctl", "serve", "--config", str(config),
+           "--profile", str(profile), "--duration", repr(duration_s), "--out",
+           str(tmp / "runs"), "--port", str(port), *args]
+    log = (tmp / f"serve-{port}.log").open("wb")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=child_env(),
+                            cwd=tmp)
+    url = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        if proc.poll() is not None:
+            raise AssertionError(f"benchctl serve ended ({proc.returncode}): "
+                                 f"{(tmp / f'serve-{port}.log').read_text()[-2000:]}")
+        try:
+            urllib.request.urlopen(f"{url}/static/panel.css", timeout=2).close()
+            return True
+        except (urllib.error.URLError, OSError):
+            return False
+
+    try:
+        wait_for("benchctl serve to answer", up, 60.0)
+        yield url
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
