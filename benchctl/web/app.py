@@ -41,7 +41,7 @@ CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self';
 #: a run's report (benchctl.report: one self-contained file, its styles inline)
 REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; "
               "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
-OPEN_PATHS = ("/login", "/static/")
+OPEN_PATHS = ("/login", "/static/", "/favicon.ico")
 LOGIN_MAX_BYTES = 4096  # the login form: a token and a CSRF token (urlencoded)
 
 
@@ -192,6 +192,10 @@ def create_app(settings: PanelSettings) -> FastAPI:
         if not station.dismiss():
             return _error(409, "a run is going on")
         return JSONResponse({"ok": True})
+
+    @app.get("/favicon.ico")
+    async def favicon() -> FileResponse:  # asked for by pages without an icon of their own
+        return FileResponse(HERE / "static" / "favicon.svg", media_type="image/svg+xml")
 
     @app.get("/runs/{run_id}/report")
     async def report(run_id: int) -> Response:

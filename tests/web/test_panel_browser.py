@@ -1,0 +1,161 @@
+"""The station panel in a real browser: the distribution's Chromium driven by Playwright
+(``executable_path``: no browser download), ``benchctl serve`` a real child process starting
+real runs. A run to its verdict by keyboard alone (simulated time: a child run that finishes in
+seconds), Stop during a real-time run (ABORTED, the stand at rest), the login page; no page
+logs an error to its console."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from browser import chromium
+from panel import get_json, serve, wait_for
+from playwright.sync_api import Page, sync_playwright
+from repo_paths import ROOT
+
+from benchctl.web.security import hash_token
+
+pytestmark = [pytest.mark.realtime, pytest.mark.slow]
+
+HOSTILE_OPERATOR = '<img src=x onerror="window.pwned=1">'
+TOKEN = "a long enough access token"
+
+
+class Browser:
+    """One headless Chromium, a page, and every console error or uncaught exception of every
+    page it opened."""
+
+    def __init__(self, page: Page, errors: list[str]) -> None:
+        self.page = page
+        self.errors = errors
+
+    def text(self, selector: str) -> str:
+        return str(self.page.text_content(selector) or "")
+
+    def visible(self, selector: str) -> bool:
+        return bool(self.page.is_visible(selector))
+
+    def focused(self) -> str:
+        return str(self.page.evaluate("document.activeElement && document.activeElement.id"))
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[Browser]:
+    errors: list[str] = []
+
+    def watch(page: Page) -> None:
+        page.on("console", lambda m: errors.append(f"console {m.type}: {m.text}")
+                if m.type in ("error", "warning") else None)
+        page.on("pageerror", lambda e: errors.append(f"uncaught: {e}"))
+        page.on("response", lambda r: errors.append(f"HTTP {r.status} {r.url}")
+                if r.status >= 400 else None)
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium(), args=["--no-sandbox"])
+        try:
+            ctx = b.new_context(viewport={"width": 1280, "height": 900})
+            ctx.on("page", watch)
+            page = ctx.new_page()
+            page.set_default_timeout(30_000)
+            yield Browser(page, errors)
+        finally:
+            b.close()
+
+
+def run_status(url: str) -> Any:
+    return get_json(f"{url}/api/status")["run"]
+
+
+def test_a_run_to_its_verdict_by_keyboard_alone(tmp_path: Path, browser: Browser) -> None:
+    page = browser.page
+    with serve(tmp_path) as url:  # config/sim_virtual.yaml: simulated time, 30 s of motion
+        page.goto(url)
+        wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
+        page.keyboard.type("20260001")
+        page.keyboard.press("Enter")  # as a barcode scanner ends its serial
+        wait_for("the serial accepted", lambda: "✓" in browser.text("#serial-status"), 10)
+        assert browser.focused() == "operator"
+        page.keyboard.type(HOSTILE_OPERATOR)
+        page.keyboard.press("Enter")  # the form: Start
+        wait_for("the live view", lambda: browser.visible("#live") or browser.visible(
+            "#verdict"), 30)
+        seen: set[str] = set()
+
+        def verdict_or_values() -> bool:
+            if browser.visible("#live"):
+                seen.add(browser.text("#angles"))
+            return browser.visible("#verdict")
+
+        wait_for("the verdict", verdict_or_values, 120, every_s=0.05)
+        assert len(seen - {""}) >= 2, f"the live values did not change: {seen}"
+        assert browser.text("#verdict-word") == "PASS"
+        axes = browser.text("#verdict-axes")
+        assert "roll" in axes and "0.4" in axes and "…" in axes  # σ, its interval, the limit
+        # the operator's name shown as the text it is, never as markup
+        assert HOSTILE_OPERATOR in browser.text("#verdict-serial")
+        assert page.evaluate("window.pwned === undefined")
+        assert page.locator("img").count() == 0
+        assert browser.focused() == "new-test"
+        page.keyboard.press("Shift+Tab")
+        assert browser.focused() == "report-link"
+        with page.expect_navigation():
+            page.keyboard.press("Enter")  # the report: one key (one tap) away
+        assert "/report" in page.url and "σ" in (page.text_content("body") or "")
+        page.go_back()
+        wait_for("the verdict again", lambda: browser.visible("#verdict"), 30)
+        wait_for("focus on New test", lambda: browser.focused() == "new-test", 10)
+        page.keyboard.press("Enter")
+        wait_for("the form again", lambda: browser.visible("#setup"), 30)
+        wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
+        assert page.input_value("#operator") == HOSTILE_OPERATOR  # remembered
+        assert run_status(url) is None
+    assert browser.errors == []
+
+
+def test_stop_takes_the_ctrl_c_path_and_shows_aborted(tmp_path: Path, browser: Browser) -> None:
+    page = browser.page
+    with serve(tmp_path, config=ROOT / "config/sim.yaml", duration_s=60.0) as url:
+        page.goto(url)
+        page.fill("#serial", "20260001")
+        page.fill("#operator", "demo")
+        page.click("#start")
+        wait_for("the motion", lambda: browser.text("#state").startswith(("fade-in", "running")),
+                 90)
+        values = set()
+        wait_for("the live angles to change",
+                 lambda: values.add(browser.text("#angles")) or len(values) >= 3, 30, 0.2)
+        page.click("#stop")
+        wait_for("the verdict", lambda: browser.visible("#verdict"), 90)
+        assert browser.text("#verdict-word") == "ABORTED"
+        assert "SIGINT" in browser.text("#verdict-reason")  # the same path as Ctrl-C
+        assert "at rest" in browser.text("#verdict-stand")
+        outcome = run_status(url)["outcome"]
+        assert outcome["verdict"] == "ABORTED" and outcome["at_rest"] is True
+        assert outcome["exit_code"] == 2 and outcome["kind"] == "operator"
+        assert browser.text("#verdict-next")  # what to do next
+    assert browser.errors == []
+
+
+def test_login_then_the_station_page_in_russian(tmp_path: Path, browser: Browser) -> None:
+    panel = tmp_path / "panel.yaml"
+    panel.write_text(f'lang: ru\nrequire_token: true\ntoken_scrypt: "{hash_token(TOKEN)}"\n')
+    page = browser.page
+    with serve(tmp_path, "--panel", str(panel)) as url:
+        page.goto(url)
+        assert page.url.endswith("/login")
+        wait_for("the token field focused", lambda: browser.focused() == "token", 10)
+        page.keyboard.type("wrong token")
+        page.keyboard.press("Enter")
+        wait_for("the refusal", lambda: browser.text(".error") == "Неверный ключ.", 10)
+        page.fill("#token", TOKEN)
+        page.keyboard.press("Enter")
+        wait_for("the station page", lambda: browser.visible("#setup"), 30)
+        assert page.evaluate("document.documentElement.lang") == "ru"
+        assert browser.text("#setup-title") == "Новое испытание"
+        assert browser.text("#start") == "Пуск"
+    # the wrong token's 401 is the page's answer (the login form again), not the page's error
+    assert [e for e in browser.errors if "401" not in e] == []
+    assert any(e.startswith("HTTP 401") for e in browser.errors)
