@@ -159,3 +159,39 @@ def test_login_then_the_station_page_in_russian(tmp_path: Path, browser: Browser
     # the wrong token's 401 is the page's answer (the login form again), not the page's error
     assert [e for e in browser.errors if "401" not in e] == []
     assert any(e.startswith("HTTP 401") for e in browser.errors)
+
+
+def test_a_stand_in_use_is_refused_clearly(tmp_path: Path, browser: Browser) -> None:
+    """The run takes the stand's lock, whoever starts it: held here by another 'run' (whose
+    operator's name is hostile), the panel's run is refused before it connects, and the page
+    says so — the holder's details shown as text."""
+    import yaml
+
+    from benchctl.config import load_config
+    from benchctl.run.lock import stand_lock
+
+    data = yaml.safe_load((ROOT / "config/sim.yaml").read_text())
+    del data["sim"]  # a "hardware" config: its stand is locked (nothing is at its address)
+    data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
+    data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
+    locks = tmp_path / "locks"
+    locks.mkdir(mode=0o700)
+    data["run"].update(output_dir=str(tmp_path / "runs"), lock_dir=str(locks))
+    cfg_path = tmp_path / "bench.yaml"
+    cfg_path.write_text(yaml.safe_dump(data))
+    holder = {"command": "benchctl run", "serial": "OTHER-1", "operator": HOSTILE_OPERATOR,
+              "start_utc": "2026-01-01T00:00:00+00:00", "config": str(cfg_path)}
+    page = browser.page
+    with stand_lock(load_config(cfg_path), holder), serve(tmp_path, config=cfg_path) as url:
+        page.goto(url)
+        page.fill("#serial", "20260001")
+        page.fill("#operator", "demo")
+        page.click("#start")
+        wait_for("the refusal", lambda: browser.visible("#verdict"), 60)
+        assert "stand is in use" in browser.text("#verdict-title")
+        reason = browser.text("#verdict-reason")
+        assert "is in use by" in reason and HOSTILE_OPERATOR in reason
+        assert page.evaluate("window.pwned === undefined")
+        assert page.locator("img").count() == 0
+        assert run_status(url)["outcome"]["refused"] is True
+    assert browser.errors == []
