@@ -116,7 +116,7 @@ def outcome(run: Run) -> dict[str, Any]:
         "stand": stand.get("text", ""), "at_rest": stand.get("at_rest"),
         "at_zero": stand.get("at_zero"), "next": nxt, "report": report,
         "measured": res.get("measured"), "deviations": res.get("deviations") or [],
-        "refused": False, "exit_code": run.exit_code,
+        "refused": False, "exit_code": run.exit_code, "recording": recording,
     }
 
 
