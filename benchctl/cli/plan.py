@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.cli.run import ask_value
+from benchctl.errors import InputError
 from benchctl.text import terminal_lines, visible
 
 
@@ -44,6 +45,13 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the plan record (one JSON object, benchctl-plan/1) on stdout")
     p.add_argument("--quiet", action="store_true", help="no live progress of the steps' runs")
+    p.add_argument("--live", type=Path, metavar="SOCKET",
+                   help="also publish the plan's progress (its lines, each step's live state "
+                   "and verdict, its prompts) as JSON datagrams to this Unix socket, never "
+                   "waiting on it (benchctl serve starts its plans with it)")
+    p.add_argument("--answers", type=Path, metavar="DIR",
+                   help="with --live: the operator's prompts are answered on the panel, which "
+                   "writes each answer into this folder (instead of the terminal)")
     p.set_defaults(handler=handle)
 
 
@@ -98,6 +106,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.plan import load_plan, run_plan
     from benchctl.run.display import make_display
     from benchctl.text import check_operator, check_serial
+    from benchctl.web.plan_live import PlanLive
 
     # as benchctl run: the stand loop thread gets the interpreter within its period
     sys.setswitchinterval(0.001)
@@ -106,17 +115,24 @@ def handle(args: argparse.Namespace) -> int:
     serial = ask_value(args.serial, "Serial number of the instrument", "--serial", check_serial)
     operator = ask_value(args.operator or plan.operator, "Operator", "--operator",
                          check_operator)
-    result = run_plan(
-        plan,
-        serial=serial,
-        config=args.config,
-        operator=operator,
-        yes=args.yes,
-        out_dir=args.out,
-        junit=args.junit,
-        display=lambda: make_display(sys.stderr, quiet=args.quiet),
-        say=_say,
-    )
+    if args.answers is not None and args.live is None:
+        raise InputError("--answers DIR needs --live SOCKET (the panel that answers)")
+    live = PlanLive(args.live, args.answers, plan.prompt_timeout_s)
+    try:
+        result = run_plan(
+            plan,
+            serial=serial,
+            config=args.config,
+            operator=operator,
+            yes=args.yes,
+            ask=live.asker(),
+            out_dir=args.out,
+            junit=args.junit,
+            display=lambda: live.display(make_display(sys.stderr, quiet=args.quiet)),
+            say=live.say(_say),
+        )
+    finally:
+        live.close()
     with contextlib.suppress(OSError):
         if args.json:
             print(dumps(result.to_dict()))

@@ -31,11 +31,14 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--config", type=Path, help="bench config YAML (required to serve)")
     p.add_argument("--panel", type=Path, metavar="FILE",
-                   help="panel settings YAML: lang, profiles, duration_s, host, port, "
+                   help="panel settings YAML: lang, profiles, plans, duration_s, host, port, "
                    "token_scrypt, require_token, origins, out_dir (the options below override it)")
     p.add_argument("--profile", type=Path, action="append", metavar="FILE|DIR",
                    help="a profile the operator may choose, or a folder of them (*.yaml); "
                    "repeatable (default: the panel settings' profiles)")
+    p.add_argument("--plan", type=Path, action="append", metavar="FILE",
+                   help="an acceptance plan the operator may start (its prompts become dialogs "
+                   "on the panel); repeatable (default: the panel settings' plans)")
     p.add_argument("--lang", choices=("en", "ru"), help="the operator's language (default en)")
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="port to listen on (default 8350)")
@@ -68,7 +71,7 @@ def _read_token() -> str:
 
 def settings_from(args: argparse.Namespace) -> Any:
     """The panel's settings: its file (``--panel``), the options over it."""
-    from benchctl.web.settings import PanelSettings, profile_files, read_panel_file
+    from benchctl.web.settings import PanelSettings, plan_files, profile_files, read_panel_file
 
     if args.config is None:
         raise InputError("--config is required (the bench config of this station)")
@@ -83,6 +86,7 @@ def settings_from(args: argparse.Namespace) -> Any:
         config=args.config.resolve(),  # the runs' children may start elsewhere
         profiles=tuple(p.resolve() for p in profile_files(args.profile or
                                                           (f.profiles if f else []))),
+        plans=tuple(p.resolve() for p in plan_files(args.plan or (f.plans if f else []))),
         lang=pick(args.lang, "lang", "en"),
         duration_s=duration,
         host=pick(args.host, "host", "127.0.0.1"),

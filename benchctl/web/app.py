@@ -52,7 +52,12 @@ class SerialIn(BaseModel):
 class StartIn(BaseModel):
     serial: str
     operator: str
-    profile: str
+    profile: str  # a key of the page's list: "0", "1"… a profile, "plan-0"… a plan
+
+
+class AnswerIn(BaseModel):
+    id: int
+    yes: bool
 
 
 def _error(status: int, text: str) -> JSONResponse:
@@ -65,6 +70,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
     pattern = cfg.unit.serial_pattern
     pattern_where = f"unit.serial_pattern of {settings.config}"
     profiles = {str(i): p for i, p in enumerate(settings.profiles)}
+    plans = {f"plan-{i}": p for i, p in enumerate(settings.plans)}
     guard = Guard(settings.token_scrypt, require_token=settings.require_token,
                   origins=settings.origins)
     station = Station(settings)
@@ -122,6 +128,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
                 "limit": cfg.run.limit_sigma_deg}
         return page("station.html.j2", request, profiles=[
             (key, p.stem) for key, p in profiles.items()],
+            plans=[(key, p.stem) for key, p in plans.items()],
             duration=settings.duration_s, serial_pattern=pattern,
             data=data, auth=guard.require_token)
 
@@ -172,11 +179,14 @@ def create_app(settings: PanelSettings) -> FastAPI:
         try:
             serial = check_serial(body.serial, "serial", pattern, pattern_where)
             operator = check_operator(body.operator, "operator")
-            if body.profile not in profiles:
+            if body.profile not in profiles and body.profile not in plans:
                 raise InputError(f"profile {body.profile!r}: not one this station offers")
             if station.busy:
                 return _error(409, "a run is going on at this station: one run per stand")
-            run = await station.start(serial, operator, profiles[body.profile])
+            if body.profile in plans:
+                run = await station.start(serial, operator, plans[body.profile], kind="plan")
+            else:
+                run = await station.start(serial, operator, profiles[body.profile])
         except InputError as e:
             return _error(400, str(e))
         return JSONResponse({"id": run.id})
@@ -185,6 +195,12 @@ def create_app(settings: PanelSettings) -> FastAPI:
     async def stop() -> JSONResponse:
         if not station.stop():
             return _error(409, "no run is going on")
+        return JSONResponse({"ok": True})
+
+    @app.post("/api/answer")
+    async def answer(body: AnswerIn) -> JSONResponse:
+        if not station.answer(body.id, body.yes):
+            return _error(409, "no such question is waiting")
         return JSONResponse({"ok": True})
 
     @app.post("/api/dismiss")
@@ -199,7 +215,13 @@ def create_app(settings: PanelSettings) -> FastAPI:
 
     @app.get("/runs/{run_id}/report")
     async def report(run_id: int) -> Response:
-        path = station.report_file(run_id)
+        return _report(station.report_file(run_id))
+
+    @app.get("/runs/{run_id}/steps/{step}/report")
+    async def step_report(run_id: int, step: int) -> Response:
+        return _report(station.report_file(run_id, step))
+
+    def _report(path: Path | None) -> Response:
         if path is None:
             return Response("no report for this run", status_code=404, media_type="text/plain")
         return FileResponse(path, media_type="text/html")

@@ -49,6 +49,8 @@ SCRIPT_TEXTS = {
     "measured_before": _("Measured before the abort (not the run's result):"),
     "ci": _("95 % interval"), "connection_lost": _("connection to the panel lost: retrying…"),
     "serial_ok": _("serial accepted"),
+    "open_report": _("Open the report"),
+    "prompt_timeout": _("Not answered within %(s)s s, the plan ends (no answer is a no)."),
 }
 
 

@@ -13,6 +13,9 @@ Each datagram is one JSON object (UTF-8, at most ``MAX_DATAGRAM`` bytes) with a 
 - ``message``: ``text``
 - ``verdict``: ``verdict``, ``detail``
 - ``close``: ``dropped`` (datagrams dropped so far)
+- a plan's: ``prompt`` (``id``, ``text``, ``timeout_s``: a question waiting for the operator,
+  sent again every few seconds while it waits) and ``prompt_closed`` (``id``, ``why``)
+  (``benchctl.web.prompts``)
 
 and ``seq``, its number from 0 (a gap: dropped datagrams), and ``pid``, the run's process.
 """
@@ -86,11 +89,13 @@ class LivePublisher:
 
 
 class LiveDisplay:
-    """A ``Display`` that calls ``inner`` and then publishes the same call to the panel."""
+    """A ``Display`` that calls ``inner`` and then publishes the same call to the panel;
+    ``owns``: its ``close`` closes the publisher too (a plan's steps share one: not theirs)."""
 
-    def __init__(self, inner: Display, publisher: LivePublisher) -> None:
+    def __init__(self, inner: Display, publisher: LivePublisher, *, owns: bool = True) -> None:
         self.inner = inner
         self.publisher = publisher
+        self.owns = owns
 
     def state(self, state: str, reason: str = "") -> None:
         try:
@@ -120,8 +125,9 @@ class LiveDisplay:
         try:
             self.inner.close()
         finally:
-            self.publisher.send("close", dropped=self.publisher.dropped)
-            self.publisher.close()
+            if self.owns:
+                self.publisher.send("close", dropped=self.publisher.dropped)
+                self.publisher.close()
 
 
 def live_display(inner: Display, path: str | Path | None) -> Display:

@@ -6,6 +6,8 @@ The bench config (``--config``) says nothing about the panel; this file does::
     lang: ru                      # the operator's language: en or ru
     profiles:                     # what the operator may choose: files, or folders of *.yaml
       - ../profiles/paper_vessel_roll.yaml
+    plans:                        # acceptance plans the operator may start (optional)
+      - ../plans/ci_short.yaml
     duration_s: 120               # each run's duration (default: the profile's own)
     host: 127.0.0.1               # where the panel listens (loopback by default)
     port: 8350
@@ -38,6 +40,7 @@ class _PanelFile(BaseModel):
 
     lang: Literal["en", "ru"] = "en"
     profiles: list[Path] = Field(default_factory=list)
+    plans: list[Path] = Field(default_factory=list)
     duration_s: float | None = Field(default=None, gt=0)
     host: str = DEFAULT_HOST
     port: int = Field(default=DEFAULT_PORT, ge=0, le=65535)
@@ -53,6 +56,7 @@ class PanelSettings:
 
     config: Path
     profiles: tuple[Path, ...]
+    plans: tuple[Path, ...] = ()
     lang: str = "en"
     duration_s: float | None = None
     host: str = DEFAULT_HOST
@@ -85,9 +89,18 @@ def read_panel_file(path: Path) -> _PanelFile:
     base = path.parent
     return model.model_copy(update={
         "profiles": [p if p.is_absolute() else base / p for p in model.profiles],
+        "plans": [p if p.is_absolute() else base / p for p in model.plans],
         "out_dir": None if model.out_dir is None or model.out_dir.is_absolute()
         else base / model.out_dir,
     })
+
+
+def plan_files(entries: list[Path] | tuple[Path, ...]) -> tuple[Path, ...]:
+    """Each entry a plan file (``ConfigError`` for one that is not there)."""
+    for entry in entries:
+        if not entry.is_file():
+            raise ConfigError(f"{entry}: no such plan file (serve --plan)")
+    return tuple(entries)
 
 
 def profile_files(entries: list[Path] | tuple[Path, ...]) -> tuple[Path, ...]:

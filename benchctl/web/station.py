@@ -59,8 +59,9 @@ class Run:
     id: int
     serial: str
     operator: str
-    profile: str
+    profile: str  # the profile's (or the plan's) name
     folder: Path  # the panel's own files for this run: the socket, result.json, stderr.txt
+    kind: str = "test"  # test (benchctl run) | plan (benchctl plan)
     proc: subprocess.Popen[bytes] | None = None
     state: str = "starting"
     reason: str = ""
@@ -74,6 +75,8 @@ class Run:
     refused: bool = False
     stop_requested: bool = False
     datagrams: int = 0
+    prompt: dict[str, Any] | None = None  # a plan's question waiting for the operator
+    answered: set[int] = field(default_factory=set)  # its questions answered here
 
     @property
     def ended(self) -> bool:
@@ -82,8 +85,9 @@ class Run:
     def view(self, trace_points: int = STATUS_TRACE_POINTS) -> dict[str, Any]:
         """What a browser is sent: everything it shows of this run."""
         return {
-            "id": self.id, "serial": self.serial, "operator": self.operator,
-            "profile": self.profile, "state": self.state, "reason": self.reason,
+            "id": self.id, "kind": self.kind, "serial": self.serial,
+            "operator": self.operator, "profile": self.profile, "state": self.state,
+            "reason": self.reason, "prompt": self.prompt,
             "snapshot": self.snapshot, "trace": list(self.trace)[-trace_points:],
             "messages": list(self.messages)[-20:], "ended": self.ended,
             "stop_requested": self.stop_requested,
@@ -97,9 +101,11 @@ def outcome(run: Run) -> dict[str, Any]:
     res = run.result
     if res is None:
         return {"verdict": "ABORTED" if run.stop_requested else "ERROR", "axes": [],
-                "reason": run.error or f"the run ended with exit code {run.exit_code}",
+                "steps": [], "reason": run.error or f"ended with exit code {run.exit_code}",
                 "refused": run.refused, "kind": "", "next": [], "report": False,
                 "exit_code": run.exit_code}
+    if run.kind == "plan":
+        return _plan_outcome(run, res)
     axes = []
     for name, a in (res.get("axes") or {}).items():
         ci = a.get("sigma_ci95") or [None, None]
@@ -116,8 +122,21 @@ def outcome(run: Run) -> dict[str, Any]:
         "stand": stand.get("text", ""), "at_rest": stand.get("at_rest"),
         "at_zero": stand.get("at_zero"), "next": nxt, "report": report,
         "measured": res.get("measured"), "deviations": res.get("deviations") or [],
-        "refused": False, "exit_code": run.exit_code, "recording": recording,
+        "refused": False, "exit_code": run.exit_code, "recording": recording, "steps": [],
     }
+
+
+def _plan_outcome(run: Run, res: dict[str, Any]) -> dict[str, Any]:
+    """A plan's verdict screen: its outcome, each step's status and report."""
+    steps = []
+    for s in res.get("steps") or []:
+        rec = s.get("recording")
+        steps.append({"name": s.get("name"), "verdict": s.get("status"),
+                      "reason": s.get("reason", ""),
+                      "report": isinstance(rec, str) and (Path(rec) / "report.html").is_file()})
+    return {"verdict": res.get("outcome", "ERROR"), "axes": [], "steps": steps,
+            "reason": res.get("reason", ""), "kind": "", "stand": "", "next": [],
+            "report": False, "refused": False, "exit_code": run.exit_code, "recording": None}
 
 
 def _point(snap: dict[str, Any]) -> dict[str, Any] | None:
@@ -177,32 +196,40 @@ class Station:
     def busy(self) -> bool:
         return self.run is not None and not self.run.ended
 
-    def command(self, run: Run, profile: Path) -> list[str]:
+    def command(self, run: Run, path: Path) -> list[str]:
+        """The child's command line: ``benchctl run`` of a profile or ``benchctl plan``."""
         s = self.settings
-        cmd = [s.python or sys.executable, "-m", "benchctl", "run", "--config", str(s.config),
-               "--profile", str(profile), "--serial", run.serial, "--operator", run.operator,
-               "--json", "--quiet", "--live", str(run.folder / "live.sock")]
-        if s.duration_s is not None:
-            cmd += ["--duration", repr(s.duration_s)]
+        live = ["--json", "--quiet", "--live", str(run.folder / "live.sock")]
+        cmd = [s.python or sys.executable, "-m", "benchctl"]
+        if run.kind == "plan":
+            cmd += ["plan", str(path), "--config", str(s.config), "--serial", run.serial,
+                    "--operator", run.operator, *live, "--answers", str(run.folder / "answers")]
+        else:
+            cmd += ["run", "--config", str(s.config), "--profile", str(path), "--serial",
+                    run.serial, "--operator", run.operator, *live]
+            if s.duration_s is not None:
+                cmd += ["--duration", repr(s.duration_s)]
         if s.out_dir is not None:
             cmd += ["--out", str(s.out_dir)]
         return cmd
 
-    async def start(self, serial: str, operator: str, profile: Path) -> Run:
-        """Start a run (``InputError`` while one is going on); its datagram socket is bound
-        before the child starts, so nothing it publishes is lost."""
+    async def start(self, serial: str, operator: str, path: Path, kind: str = "test") -> Run:
+        """Start a run of a profile, or a plan (``kind``); ``InputError`` while one is going
+        on. Its datagram socket is bound before the child starts: nothing it publishes is
+        lost."""
         if self.busy:
             raise InputError("a run is going on at this station: one run per stand")
-        run = Run(self._next_id, serial, operator, profile.stem,
-                  self._tmp / f"run-{self._next_id}")
+        run = Run(self._next_id, serial, operator, path.stem,
+                  self._tmp / f"run-{self._next_id}", kind=kind)
         self._next_id += 1
         run.folder.mkdir(mode=0o700)
+        (run.folder / "answers").mkdir(mode=0o700)
         await self._listen(run)
         env = {**os.environ, **self.settings.child_env}
         with (run.folder / "result.json").open("wb") as out, \
                 (run.folder / "stderr.txt").open("wb") as err:
             run.proc = subprocess.Popen(
-                self.command(run, profile), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                self.command(run, path), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
                 env=env, start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
             )
         self.run = run
@@ -244,6 +271,31 @@ class Station:
             self.publish("message", {"text": str(msg.get("text", ""))})
         elif kind == "verdict":
             run.verdict = {"verdict": msg.get("verdict"), "detail": msg.get("detail", "")}
+        elif (kind == "prompt" and isinstance(msg.get("id"), int)
+              and msg["id"] not in run.answered):  # sent again until the plan reads it
+            if run.prompt is None or run.prompt["id"] != msg["id"]:
+                run.prompt = {"id": msg["id"], "text": str(msg.get("text", "")),
+                              "timeout_s": msg.get("timeout_s")}
+                self.publish("prompt", run.prompt)
+        elif (kind == "prompt_closed" and run.prompt is not None
+              and run.prompt["id"] == msg.get("id")):
+            run.prompt = None
+            self.publish("prompt_closed", {"id": msg.get("id"), "why": str(msg.get("why", ""))})
+
+    def answer(self, qid: int, yes: bool) -> bool:
+        """The operator's answer to the plan's question ``qid`` (False: no such question is
+        waiting): written whole (a rename) where the plan looks for it."""
+        run = self.run
+        if run is None or run.ended or run.prompt is None or run.prompt["id"] != qid:
+            return False
+        final = run.folder / "answers" / f"prompt-{qid}.answer"
+        part = final.with_suffix(".part")
+        part.write_text("yes" if yes else "no", encoding="utf-8")
+        os.replace(part, final)
+        run.answered.add(qid)
+        run.prompt = None
+        self.publish("prompt_closed", {"id": qid, "why": "yes" if yes else "no"})
+        return True
 
     async def _wait(self, run: Run) -> None:
         assert run.proc is not None
@@ -265,8 +317,12 @@ class Station:
         run.error = (errors[-1].split(": error: ", 1)[1] if errors
                      else (lines[-1] if lines else ""))
         run.refused = run.result is None and " is in use by " in run.error
-        run.state = "done" if run.result and run.result.get("state") == "done" else (
-            "aborted" if run.result else "refused" if run.refused else "error")
+        if run.kind == "plan" and run.result is not None:
+            run.state = "aborted" if run.result.get("outcome") == "ABORTED" else "done"
+        else:
+            run.state = "done" if run.result and run.result.get("state") == "done" else (
+                "aborted" if run.result else "refused" if run.refused else "error")
+        run.prompt = None
         run.exit_code = code
         self._close_transport()
         self.publish("ended", {"run": run.view()})
@@ -290,11 +346,17 @@ class Station:
         self.publish("status", self.status())
         return True
 
-    def report_file(self, run_id: int) -> Path | None:
+    def report_file(self, run_id: int, step: int | None = None) -> Path | None:
+        """The report of the run ``run_id`` shown (of its plan's step ``step``), if any."""
         run = self.run
         if run is None or run.id != run_id or run.result is None:
             return None
         recording = run.result.get("recording")
+        if run.kind == "plan":
+            steps = run.result.get("steps") or []
+            if step is None or not 0 <= step < len(steps):
+                return None
+            recording = steps[step].get("recording")
         path = Path(recording) / "report.html" if recording else None
         return path if path is not None and path.is_file() else None
 

@@ -195,3 +195,43 @@ def test_a_stand_in_use_is_refused_clearly(tmp_path: Path, browser: Browser) -> 
         assert page.locator("img").count() == 0
         assert run_status(url)["outcome"]["refused"] is True
     assert browser.errors == []
+
+
+def test_a_plan_with_its_prompts_as_dialogs(tmp_path: Path, browser: Browser) -> None:
+    """plans/ci_short.yaml on simulated time: its two setup questions and its cleanup question
+    come up as dialogs (No focused: Enter alone never says yes), answered from the keyboard;
+    the verdict lists the steps, each with its report."""
+    page = browser.page
+    with serve(tmp_path, "--plan", str(ROOT / "plans/ci_short.yaml")) as url:
+        page.goto(url)
+        page.select_option("#profile", label="ci_short")
+        page.fill("#operator", "qa")
+        page.fill("#serial", "SIM-0001")
+        page.click("#start")
+        questions = []
+        for _ in range(3):
+            wait_for("a question", lambda: page.is_visible("#prompt") or browser.visible(
+                "#verdict"), 120)
+            assert not browser.visible("#verdict"), browser.text("#verdict-reason")
+            questions.append(browser.text("#prompt-text"))
+            assert browser.focused() == "prompt-no"
+            page.keyboard.press("Shift+Tab")
+            assert browser.focused() == "prompt-yes"
+            page.keyboard.press("Enter")
+            wait_for("the question answered", lambda: not page.is_visible("#prompt")
+                     or browser.text("#prompt-text") != questions[-1], 30)
+        assert questions == [
+            "Is the instrument under test mounted on the stand and connected?",
+            "Is the area around the stand clear of people?",
+            "Remove the instrument from the stand when the stand is at rest.",
+        ]
+        wait_for("the verdict", lambda: browser.visible("#verdict"), 180)
+        assert browser.text("#verdict-word") == "PASS"
+        steps = browser.text("#verdict-steps")
+        assert "linearity" in steps and "dynamic error" in steps
+        links = page.locator("#verdict-steps a")
+        assert links.count() == 2
+        with page.expect_navigation():
+            links.nth(1).click()
+        assert "/steps/1/report" in page.url and "σ" in (page.text_content("body") or "")
+    assert browser.errors == []

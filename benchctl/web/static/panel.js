@@ -67,7 +67,7 @@
     if (!$("operator").value && status.last_operator) $("operator").value = status.last_operator;
     if (!run) { trace = []; show("setup"); return; }
     trace = (run.trace || []).slice();
-    if (run.ended) { renderVerdict(run); show("verdict"); return; }
+    if (run.ended) { hidePrompt(); renderVerdict(run); show("verdict"); return; }
     text($("live-serial"), run.serial);
     text($("live-operator"), run.operator);
     text($("live-profile"), run.profile);
@@ -78,7 +78,37 @@
     $("stopping").hidden = !run.stop_requested;
     if (run.stop_requested) { text($("stopping"), T.stopping); $("stop").disabled = true; }
     show("live");
+    if (run.prompt) showPrompt(run.prompt); else hidePrompt();
     drawPlot();
+  }
+
+  // ---- a plan's question: a modal dialog, answered Yes or No (No is focused: Enter is no)
+  let promptId = null;
+  function showPrompt(p) {
+    const dialog = $("prompt");
+    promptId = p.id;
+    text($("prompt-text"), p.text);
+    text($("prompt-timeout"), p.timeout_s ? T.prompt_timeout.replace("%(s)s", p.timeout_s) : "");
+    $("prompt-yes").disabled = false;
+    $("prompt-no").disabled = false;
+    if (!dialog.open) dialog.showModal();
+    $("prompt-no").focus();
+  }
+  function hidePrompt(id) {
+    if (id != null && id !== promptId) return;
+    promptId = null;
+    const dialog = $("prompt");
+    if (dialog.open) dialog.close();
+    if (!$("live").hidden && !$("stop").disabled) $("stop").focus();
+  }
+  async function answer(yes) {
+    const id = promptId;
+    if (id == null) return;
+    $("prompt-yes").disabled = true;
+    $("prompt-no").disabled = true;
+    const r = await post("/api/answer", { id: id, yes: yes });
+    if (r.ok) { hidePrompt(id); return; } // the next question may be up already: not that one
+    if (promptId === id) { $("prompt-yes").disabled = false; $("prompt-no").disabled = false; }
   }
 
   function setState(state, reason) {
@@ -156,6 +186,23 @@
       body.appendChild(tr);
     }
     body.parentElement.hidden = !(o.axes || []).length;
+    const steps = $("verdict-steps");
+    clear(steps);
+    (o.steps || []).forEach((s, i) => {
+      const tr = document.createElement("tr");
+      tr.appendChild(el("td", s.name));
+      tr.appendChild(el("td", T[s.verdict] || s.verdict));
+      tr.appendChild(el("td", s.reason));
+      const cell = document.createElement("td");
+      if (s.report) {
+        const a = el("a", T.open_report, "link");
+        a.href = "/runs/" + Number(r.id) + "/steps/" + i + "/report";
+        cell.appendChild(a);
+      }
+      tr.appendChild(cell);
+      steps.appendChild(tr);
+    });
+    $("verdict-steps-table").hidden = !(o.steps || []).length;
     text($("verdict-title"), o.refused ? T.refused_title : o.verdict === "ERROR" ? T.not_started : "");
     text($("verdict-reason"), o.reason ? (o.kind ? o.kind + ": " : "") + o.reason : "");
     text($("verdict-stand"), o.stand || "");
@@ -177,7 +224,7 @@
     }
     const link = $("report-link");
     link.hidden = !o.report;
-    link.href = o.report ? "/runs/" + r.id + "/report" : "/";
+    link.href = o.report ? "/runs/" + Number(r.id) + "/report" : "/";
   }
 
   // ---- the plot: stand and instrument angles over the last PLOT_WINDOW_S seconds
@@ -258,6 +305,10 @@
       text($("stopping"), T.stopping);
       $("stop").disabled = true;
     });
+    source.addEventListener("prompt", (e) => {
+      if (run && !run.ended) showPrompt(JSON.parse(e.data));
+    });
+    source.addEventListener("prompt_closed", (e) => hidePrompt(JSON.parse(e.data).id));
     source.addEventListener("ended", (e) => render({ run: JSON.parse(e.data).run }));
   }
 
@@ -301,6 +352,9 @@
     const r = await post("/api/stop");
     if (!r.ok) $("stop").disabled = false;
   });
+  $("prompt-yes").addEventListener("click", () => answer(true));
+  $("prompt-no").addEventListener("click", () => answer(false));
+  $("prompt").addEventListener("cancel", (e) => e.preventDefault()); // Escape is no answer
   $("new-test").addEventListener("click", async () => {
     const r = await post("/api/dismiss");
     if (r.ok) render({ run: null, last_operator: $("operator").value });
