@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -39,6 +40,18 @@ def get_json(url: str, timeout: float = 10.0) -> Any:
         return json.loads(r.read())
 
 
+def post_json(url: str, path: str, body: dict[str, Any]) -> Any:
+    """A state-changing request as the panel's page makes it (its Origin, its CSRF token)."""
+    page = urllib.request.urlopen(f"{url}/", timeout=10).read().decode()
+    m = re.search(r'"csrf": "([0-9a-f]+)"', page)
+    assert m, "no CSRF token on the station page"
+    req = urllib.request.Request(f"{url}{path}", method="POST", data=json.dumps(body).encode(),
+                                 headers={"Content-Type": "application/json", "Origin": url,
+                                          "X-CSRF-Token": m.group(1)})
+    with urllib.request.urlopen(req, timeout=30) as r:
+        return json.loads(r.read())
+
+
 def wait_for(what: str, check: Any, timeout_s: float, every_s: float = 0.1) -> Any:
     """``check()``'s first truthy value within ``timeout_s`` (fails the test after it)."""
     deadline = time.monotonic() + timeout_s
@@ -53,9 +66,11 @@ def wait_for(what: str, check: Any, timeout_s: float, every_s: float = 0.1) -> A
 
 @contextlib.contextmanager
 def serve(tmp: Path, *args: str, config: Path = ROOT / "config/sim_virtual.yaml",
-          profile: Path = SHORT_PROFILE, duration_s: float = 30.0) -> Iterator[str]:
-    """``benchctl serve`` on a free loopback port; yields its base URL. At the end the server
-    gets SIGINT and is waited for; the run it started must have ended by then."""
+          profile: Path = SHORT_PROFILE, duration_s: float = 30.0,
+          procs: list[subprocess.Popen[bytes]] | None = None) -> Iterator[str]:
+    """``benchctl serve`` on a free loopback port; yields its base URL (its process appended to
+    ``procs``). At the end the server gets SIGINT and is waited for; the run it started must
+    have ended by then."""
     port = free_port()
     cmd = [sys.executable, "-m", "benchctl", "serve", "--config", str(config),
            "--profile", str(profile), "--duration", repr(duration_s), "--out",
@@ -64,6 +79,8 @@ def serve(tmp: Path, *args: str, config: Path = ROOT / "config/sim_virtual.yaml"
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=child_env(),
                             cwd=tmp)
     url = f"http://127.0.0.1:{port}"
+    if procs is not None:
+        procs.append(proc)
 
     def up() -> bool:
         if proc.poll() is not None:

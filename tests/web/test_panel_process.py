@@ -1,0 +1,38 @@
+"""The panel is not in the safety loop: the run is the server's child in a session of its own,
+writing to files, publishing without waiting — so the server killed in the middle of a run
+leaves the run to end as it would have, its verdict and recording whole."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+from pathlib import Path
+
+import psutil
+import pytest
+from panel import post_json, serve, wait_for
+
+pytestmark = pytest.mark.realtime
+
+
+def test_the_server_killed_mid_run_leaves_the_run_to_its_verdict(tmp_path: Path) -> None:
+    procs: list[subprocess.Popen[bytes]] = []
+    with serve(tmp_path, duration_s=60.0, procs=procs) as url:  # simulated time
+        post_json(url, "/api/start", {"serial": "20260001", "operator": "demo",
+                                      "profile": "0"})
+        server = psutil.Process(procs[0].pid)
+        runs = wait_for("the run's process", lambda: server.children(), 30)
+        assert len(runs) == 1 and "run" in runs[0].cmdline()
+        run = runs[0]
+        wait_for("the run's recording", lambda: list((tmp_path / "runs").glob("*_20260001")),
+                 60)
+        procs[0].send_signal(signal.SIGKILL)  # the panel crashes
+        procs[0].wait(30)
+        assert run.is_running()
+        gone, _ = psutil.wait_procs([run], timeout=120)  # no longer ours: no exit code here
+        assert gone, "the run did not end by itself"
+    (rec,) = (tmp_path / "runs").glob("*_20260001")
+    end = json.loads((rec / "end.json").read_text())
+    assert end["state"] == "done" and end["reason"] == "PASS"
+    assert (rec / "report.html").is_file()
