@@ -21,7 +21,7 @@ Relative paths are taken from the file's folder; a field the file does not know 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -65,10 +65,6 @@ class PanelSettings:
     require_token: bool = False
     origins: tuple[str, ...] = ()
     out_dir: Path | None = None
-    #: the interpreter that runs each child ``benchctl run`` (default: this one)
-    python: str | None = None
-    #: extra environment for the child runs (tests: PYTHONPATH)
-    child_env: dict[str, str] = field(default_factory=dict)
 
     def with_(self, **changes: object) -> PanelSettings:
         return replace(self, **changes)  # type: ignore[arg-type]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import logging
 import math
 import os
 import signal
@@ -28,6 +29,8 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.web.settings import PanelSettings
+
+log = logging.getLogger(__name__)
 
 TRACE_POINTS = 3000  # the plot's history (5 min of the run's 10 snapshots a second)
 STATUS_TRACE_POINTS = 600  # sent to a browser that connects mid-run (the last minute)
@@ -200,7 +203,7 @@ class Station:
         """The child's command line: ``benchctl run`` of a profile or ``benchctl plan``."""
         s = self.settings
         live = ["--json", "--quiet", "--live", str(run.folder / "live.sock")]
-        cmd = [s.python or sys.executable, "-m", "benchctl"]
+        cmd = [sys.executable, "-m", "benchctl"]
         if run.kind == "plan":
             cmd += ["plan", str(path), "--config", str(s.config), "--serial", run.serial,
                     "--operator", run.operator, *live, "--answers", str(run.folder / "answers")]
@@ -225,12 +228,11 @@ class Station:
         run.folder.mkdir(mode=0o700)
         (run.folder / "answers").mkdir(mode=0o700)
         await self._listen(run)
-        env = {**os.environ, **self.settings.child_env}
         with (run.folder / "result.json").open("wb") as out, \
                 (run.folder / "stderr.txt").open("wb") as err:
             run.proc = subprocess.Popen(
                 self.command(run, path), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
-                env=env, start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
+                start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
             )
         self.run = run
         self.last_operator = operator
@@ -332,6 +334,8 @@ class Station:
         run = self.run
         if run is None or run.ended or run.proc is None:
             return False
+        if run.stop_requested:  # once: the run is already on its way out
+            return True
         run.stop_requested = True
         with contextlib.suppress(ProcessLookupError):
             run.proc.send_signal(signal.SIGINT)
@@ -368,7 +372,12 @@ class Station:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._waiter
         self._close_transport()
-        if self.run is None or self.run.ended:
-            import shutil
+        run = self.run
+        if run is not None and not run.ended and run.proc is not None:
+            log.warning("the run of %s (pid %d) goes on without the panel and ends by itself; "
+                        "to stop it as Stop would: kill -INT %d", run.serial, run.proc.pid,
+                        run.proc.pid)
+            return
+        import shutil
 
-            shutil.rmtree(self._tmp, ignore_errors=True)
+        shutil.rmtree(self._tmp, ignore_errors=True)

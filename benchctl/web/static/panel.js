@@ -15,7 +15,10 @@
   let shownView = "";
 
   // ---- small helpers
-  function text(el, value) { el.textContent = value == null ? "" : String(value); }
+  function text(el, value) {
+    const v = value == null ? "" : String(value);
+    if (el.textContent !== v) el.textContent = v; // unchanged: not announced again
+  }
   function mmss(s) {
     if (s == null || !isFinite(s)) return "--:--";
     s = Math.max(0, s);
