@@ -1,0 +1,220 @@
+"""What the line view shows, read from the archive and the stations' heartbeats: every
+station's state, today's runs, the yield per station and per part number, and per part number
+and axis the series of σ with its control-chart statistics (``benchctl.web.linestats``).
+
+Days are UTC days, as in the archive (``benchctl history``). "Now" is the database's clock
+(``StationBoard.read``), so the page and the staleness of the heartbeats agree whichever
+computer shows the page. Language-free: the page (``benchctl.web.linepages``) says it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import date, datetime, timedelta
+from typing import Any
+
+from sqlalchemy import and_, func, select
+
+from benchctl.archive.schema import measurements, runs
+from benchctl.archive.store import Archive, iso
+from benchctl.web.linestations import (
+    STALE_AFTER_S,
+    Heartbeat,
+    Presence,
+    StationBoard,
+    presence,
+    transaction,
+)
+from benchctl.web.linestats import ChartStats, Tally, chart_stats, tally
+
+WINDOW_DAYS = 7  # the yields' longer window
+CHART_POINTS = 50  # a control chart's newest points per part number and axis
+
+
+@dataclass(frozen=True)
+class LastRun:
+    """A station's last finished run: from its heartbeat, else the archive."""
+
+    outcome: str | None
+    serial: str | None
+    run_id: str | None
+    end_utc: datetime | None
+
+
+@dataclass(frozen=True)
+class StationLine:
+    """One station's row of the line view."""
+
+    station: str
+    presence: Presence
+    heartbeat: Heartbeat | None
+    age_s: float | None  # of its heartbeat
+    elapsed_s: float | None  # of its run in progress
+    last: LastRun | None
+    today: Tally
+
+
+@dataclass(frozen=True)
+class GroupYield:
+    """The yield of one station or part number, today and over the window."""
+
+    key: str | None  # a station, or a part number (None: none recorded)
+    today: Tally
+    window: Tally
+
+
+@dataclass(frozen=True)
+class ChartPoint:
+    run_id: str
+    serial: str
+    station: str
+    start_utc: datetime | None
+    sigma: float
+    outcome: str | None  # the σ measurement's outcome
+
+
+@dataclass(frozen=True)
+class PartChart:
+    """The control chart of σ for one part number and axis, oldest point first."""
+
+    part_number: str | None
+    axis: str | None
+    points: tuple[ChartPoint, ...]
+    usl: float | None  # the σ limit of the newest run
+    limits_differ: bool  # the runs shown were judged against more than one limit
+    stats: ChartStats
+
+
+@dataclass(frozen=True)
+class LineView:
+    archive: str  # the archive's name, password hidden
+    now_utc: datetime  # the database's clock
+    day: date
+    window_days: int
+    stale_after_s: float
+    stations: tuple[StationLine, ...]
+    runs_today: tuple[dict[str, Any], ...]  # Archive.history's rows
+    yield_by_station: tuple[GroupYield, ...]
+    yield_by_part: tuple[GroupYield, ...]
+    charts: tuple[PartChart, ...]
+
+
+def _day_start(d: date) -> datetime:
+    return datetime(d.year, d.month, d.day)
+
+
+def _verdicts_since(archive: Archive, since: datetime) -> list[Any]:
+    q = (select(runs.c.station, runs.c.part_number, runs.c.outcome, runs.c.start_utc)
+         .where(runs.c.start_utc >= since))
+    with transaction(archive, "read the runs' verdicts") as conn:
+        return list(conn.execute(q))
+
+
+def _yields(rows: Sequence[Any], field: str, today: datetime, end: datetime,
+            keys: Sequence[str | None] = ()) -> tuple[GroupYield, ...]:
+    groups: dict[str | None, tuple[list[str], list[str]]] = {k: ([], []) for k in keys}
+    for r in rows:
+        if r.start_utc is None or r.start_utc >= end:
+            continue
+        t, w = groups.setdefault(getattr(r, field), ([], []))
+        w.append(r.outcome)
+        if r.start_utc >= today:
+            t.append(r.outcome)
+    order = sorted(groups, key=lambda k: (k is None, k or ""))
+    return tuple(GroupYield(k, tally(groups[k][0]), tally(groups[k][1])) for k in order)
+
+
+def _last_runs(archive: Archive) -> dict[str, LastRun]:
+    """Each station's newest run in the archive."""
+    rank = func.row_number().over(partition_by=runs.c.station,
+                                  order_by=(runs.c.start_utc.desc(), runs.c.run_id.desc()))
+    inner = select(runs.c.station, runs.c.outcome, runs.c.serial, runs.c.run_id,
+                   runs.c.end_utc, rank.label("rank")).subquery()
+    q = select(inner).where(inner.c.rank == 1)
+    with transaction(archive, "read the stations' last runs") as conn:
+        return {r.station: LastRun(r.outcome, r.serial, r.run_id, r.end_utc)
+                for r in conn.execute(q)}
+
+
+def _station_lines(heartbeats: Sequence[Heartbeat], last: dict[str, LastRun],
+                   today: dict[str | None, Tally], now: datetime,
+                   stale_after_s: float) -> tuple[StationLine, ...]:
+    by_name = {h.station: h for h in heartbeats}
+    out = []
+    for name in sorted(set(by_name) | set(last)):
+        hb = by_name.get(name)
+        p = presence(hb, now, stale_after_s)
+        age = None if hb is None else max(0.0, (now - hb.updated_utc).total_seconds())
+        elapsed = None
+        if p is Presence.RUNNING and hb is not None and hb.started_utc is not None:
+            elapsed = max(0.0, (now - hb.started_utc).total_seconds())
+        mine = LastRun(hb.last_outcome, hb.last_serial, hb.last_run_id, hb.last_end_utc) \
+            if hb is not None and hb.last_outcome is not None else last.get(name)
+        out.append(StationLine(name, p, hb, age, elapsed, mine, today.get(name, tally([]))))
+    return tuple(out)
+
+
+def sigma_charts(archive: Archive, points: int = CHART_POINTS,
+                 part_number: str | None = None) -> tuple[PartChart, ...]:
+    """Per part number and axis, the newest ``points`` σ of runs that reached a verdict
+    (aborted runs measured nothing to judge), oldest first, with their chart statistics."""
+    key = (runs.c.part_number, measurements.c.axis)
+    rank = func.row_number().over(partition_by=key,
+                                  order_by=(runs.c.start_utc.desc(), runs.c.run_id.desc()))
+    cond = [measurements.c.name == "sigma", measurements.c.value.is_not(None),
+            runs.c.outcome != "ABORTED"]
+    if part_number is not None:
+        cond.append(runs.c.part_number == part_number)
+    inner = (select(runs.c.part_number, measurements.c.axis, runs.c.run_id, runs.c.serial,
+                    runs.c.station, runs.c.start_utc, measurements.c.value,
+                    measurements.c.high, measurements.c.outcome, rank.label("rank"))
+             .join(measurements, measurements.c.run_id == runs.c.run_id)
+             .where(and_(*cond)).subquery())
+    q = select(inner).where(inner.c.rank <= points)
+    series: dict[tuple[str | None, str | None], list[Any]] = {}
+    with transaction(archive, "read the σ per part number") as conn:
+        for r in conn.execute(q):
+            series.setdefault((r.part_number, r.axis), []).append(r)
+    out = []
+    for (part, axis) in sorted(series, key=lambda k: (k[0] is None, k[0] or "", k[1] or "")):
+        rows = sorted(series[(part, axis)], key=lambda r: r.rank, reverse=True)
+        usl = rows[-1].high
+        limits = {r.high for r in rows}
+        values = [float(r.value) for r in rows]
+        out.append(PartChart(
+            part_number=part, axis=axis,
+            points=tuple(ChartPoint(r.run_id, r.serial, r.station, r.start_utc,
+                                    float(r.value), r.outcome) for r in rows),
+            usl=usl, limits_differ=len(limits) > 1,
+            stats=chart_stats(values, usl)))
+    return tuple(out)
+
+
+def line_view(archive: Archive, board: StationBoard, *, day: date | None = None,
+              window_days: int = WINDOW_DAYS, chart_points: int = CHART_POINTS,
+              stale_after_s: float = STALE_AFTER_S) -> LineView:
+    """Everything the line view shows, read now (``day``: today on the database's clock)."""
+    now, beats = board.read()
+    d = now.date() if day is None else day
+    start, end = _day_start(d), _day_start(d) + timedelta(days=1)
+    since = min(start, end - timedelta(days=window_days))
+    rows = _verdicts_since(archive, since)
+    today_runs = [r for r in archive.history(since=start)
+                  if r["start_utc"] is not None and r["start_utc"] < iso(end)]
+    by_station = _yields(rows, "station", start, end)
+    last = _last_runs(archive)
+    return LineView(
+        archive=archive.name, now_utc=now, day=d, window_days=window_days,
+        stale_after_s=stale_after_s,
+        stations=_station_lines(beats, last, {g.key: g.today for g in by_station}, now,
+                                stale_after_s),
+        runs_today=tuple(today_runs),
+        yield_by_station=by_station,
+        yield_by_part=_yields(rows, "part_number", start, end),
+        charts=sigma_charts(archive, chart_points),
+    )
+
+
+__all__ = ["CHART_POINTS", "WINDOW_DAYS", "ChartPoint", "GroupYield", "LastRun", "LineView",
+           "PartChart", "StationLine", "line_view", "sigma_charts"]
