@@ -216,5 +216,30 @@ def line_view(archive: Archive, board: StationBoard, *, day: date | None = None,
     )
 
 
+def history(archive: Archive, serial: str | None = None, *, station: str | None = None,
+            since: datetime | None = None) -> dict[str, Any]:
+    """What ``benchctl history [SERIAL] [--station S] [--since T] --json`` prints, and the
+    arguments of its page (``benchctl.archive.history.html_page``): ``runs``,
+    ``yield_per_day`` (the unit's, or the stations'), with a serial ``sigma`` and ``yield``
+    (and ``station_yield_per_day`` with a station too), and ``page_yields``, the page's bars."""
+    from benchctl.archive import history as h
+
+    rows = archive.history(serial, since=since, station=station)
+    listed = {r["run_id"] for r in rows}
+    series = [s for s in archive.sigma_series(serial) if s["run_id"] in listed] \
+        if serial else []
+    stations = (archive.station_yield(station, since=since)
+                if station is not None or not serial else [])
+    yields = h.unit_yield_per_day(serial, rows) if serial else stations
+    out: dict[str, Any] = {"archive": archive.name, "runs": rows, "yield_per_day": yields}
+    if serial:
+        out["sigma"] = series
+        out["yield"] = h.unit_yield(serial, rows)
+        if station is not None:
+            out["station_yield_per_day"] = stations
+    out["page_yields"] = [*yields, *stations] if serial else yields
+    return out
+
+
 __all__ = ["CHART_POINTS", "WINDOW_DAYS", "ChartPoint", "GroupYield", "LastRun", "LineView",
-           "PartChart", "StationLine", "line_view", "sigma_charts"]
+           "PartChart", "StationLine", "history", "line_view", "sigma_charts"]
