@@ -23,7 +23,7 @@ heartbeats) is **offline**, whatever its row says: its server stopped, crashed o
 network. The age is measured on the database's clock (written by it, read against it), so the
 stations' own clocks need not agree.
 
-The table is created by the first station (or line view) that needs it, under a lock
+The table is created by the first station that publishes, under a lock
 (PostgreSQL: an advisory lock; SQLite: the database's own write lock), so that two stations
 starting together do not trip over each other. It is not part of the archive's migrated
 schema: it holds no results, only what is happening now, and can be dropped at any time.
@@ -42,7 +42,18 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from typing import Any
 
-from sqlalchemy import Column, DateTime, MetaData, String, Table, Text, func, select, text
+from sqlalchemy import (
+    Column,
+    DateTime,
+    MetaData,
+    String,
+    Table,
+    Text,
+    func,
+    inspect,
+    select,
+    text,
+)
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -220,11 +231,14 @@ class StationBoard:
             conn.execute(ins)
 
     def read(self) -> tuple[datetime, list[Heartbeat]]:
-        """The database's time now (naive UTC) and every station's row, by name."""
-        self.ensure_table()
+        """The database's time now (naive UTC) and every station's row, by name (none
+        before a station first published: reading creates nothing, so a reader needs no
+        right to write)."""
         with self._begin("read the stations' heartbeats") as conn:
             now = _as_datetime(conn.execute(select(_now_expr(self.archive.backend)))
                                .scalar_one())
+            if not self._ready and not inspect(conn).has_table(TABLE):
+                return now, []
             rows = conn.execute(select(heartbeats).order_by(heartbeats.c.station)).all()
         return now, [Heartbeat(**dict(r._mapping)) for r in rows]
 

@@ -17,12 +17,14 @@ from line_helpers import (
     age_heartbeat,
     fill_two_stations,
 )
+from sqlalchemy import inspect
 
 from benchctl.archive.store import Archive
 from benchctl.errors import ArchiveError, InputError
 from benchctl.web.linedata import line_view, sigma_charts
 from benchctl.web.linestations import (
     STALE_AFTER_S,
+    TABLE,
     Heartbeat,
     Presence,
     StationBoard,
@@ -168,3 +170,5 @@ def test_a_station_with_runs_but_no_heartbeat(line_archive: Archive) -> None:
     v = line_view(line_archive, StationBoard(line_archive), day=date.fromisoformat(DAY))
     assert {s.station: s.presence for s in v.stations} == {
         "bench-1": Presence.UNKNOWN, "bench-2": Presence.UNKNOWN}
+    # reading made nothing: a reader needs no right to write
+    assert not inspect(line_archive.engine).has_table(TABLE)
