@@ -55,6 +55,21 @@ class _Frame:
                 "bottom": self.height - MB}
 
 
+LABEL_GAP = 12.0  # px between the names of the lines at the chart's right
+
+
+def _named(lines: Sequence[tuple[str, float]], f: _Frame) -> list[dict[str, Any]]:
+    """The lines with their y and their name's y, names pushed apart (top down) so that no
+    two overlap when the lines are close."""
+    out: list[dict[str, Any]] = []
+    last = -math.inf
+    for k, v in sorted(lines, key=lambda kv: f.y(kv[1])):
+        label_y = round(max(f.y(v) + 4, last + LABEL_GAP), 1)
+        out.append({"kind": k, "value": v, "y": f.y(v), "label_y": label_y})
+        last = label_y
+    return out
+
+
 def _range(values: Sequence[float]) -> tuple[float, float]:
     lo, hi = min(values), max(values)
     pad = 0.08 * (hi - lo) if hi > lo else 0.1 * max(abs(hi), 1e-3)
@@ -85,7 +100,7 @@ def individuals_chart(chart: PartChart) -> dict[str, Any]:
             "outcome": p.outcome, "beyond": i in beyond, "run": i in run,
         } for i, p in enumerate(chart.points)],
         "polyline": " ".join(f"{f.x(i)},{f.y(v)}" for i, v in enumerate(values)),
-        "lines": [{"kind": k, "value": v, "y": f.y(v)} for k, v in lines],
+        "lines": _named(lines, f),
         "yticks": [{"y": f.y(v), "label": f"{v:.3g}"} for v in ticks(lo, hi)],
         "xlabels": [{"x": f.x(i), "label": labels[i]}
                     for i in range(0, len(values), label_every)],
@@ -106,7 +121,7 @@ def moving_range_chart(chart: PartChart) -> dict[str, Any] | None:
         "points": [{"x": f.x(i + 1), "y": f.y(v), "value": v,
                     "beyond": v > st.limits.mr_ucl} for i, v in enumerate(mrs)],
         "polyline": " ".join(f"{f.x(i + 1)},{f.y(v)}" for i, v in enumerate(mrs)),
-        "lines": [{"kind": k, "value": v, "y": f.y(v)} for k, v in lines],
+        "lines": _named(lines, f),
         "yticks": [{"y": f.y(v), "label": f"{v:.2g}"} for v in ticks(lo, hi, 3)],
     }
 

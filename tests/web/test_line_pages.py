@@ -258,3 +258,17 @@ def test_every_heading_goes_through_gettext(filled: Archive, line_url: str) -> N
             if text.strip() and not re.fullmatch(SYMBOLS, text):
                 assert "⟦" in text, (tag, text)
     assert "⟦Bad request⟧" in bad and "⟦since = " in bad
+
+
+def test_a_part_number_with_one_run(line_archive: Archive, line_url: str) -> None:
+    from line_helpers import record
+
+    line_archive.store(record(0, "2026-11-20T08:00", "bench-1", "D1", "IN-400", "PASS", 0.2,
+                              0.4))
+    with TestClient(create_line_app(line_url)) as c:
+        html = c.get("/line", params={"day": DAY}).text
+    page = parse(html)
+    assert page.count("svg", "individuals") == 1 and page.count("svg", "moving-range") == 0
+    assert "One point: no control limits yet" in html
+    assert page.text_by_class["cpk"][0] == "—"
+    assert page.count("line", "line-usl") == 1 and page.count("line", "line-ucl") == 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import threading
 from datetime import UTC, date, datetime, timedelta
+from pathlib import Path
 
 import pytest
 from line_helpers import (
@@ -172,3 +173,17 @@ def test_a_station_with_runs_but_no_heartbeat(line_archive: Archive) -> None:
         "bench-1": Presence.UNKNOWN, "bench-2": Presence.UNKNOWN}
     # reading made nothing: a reader needs no right to write
     assert not inspect(line_archive.engine).has_table(TABLE)
+
+
+def test_heartbeats_on_sqlite(tmp_path: Path) -> None:
+    """One bench with its SQLite archive: the same table, the same staleness."""
+    with Archive(f"sqlite:///{tmp_path / 'archive.sqlite'}") as a:
+        board = StationBoard(a)
+        assert board.read()[1] == []
+        board.publish("bench-1", "running", serial="A1", started_utc="2026-11-20T08:00:00Z")
+        now, (hb,) = board.read()
+        assert presence(hb, now) is Presence.RUNNING
+        assert hb.started_utc == datetime(2026, 11, 20, 8, 0, 0)
+        age_heartbeat(a, "bench-1", 60)
+        now, (hb,) = board.read()
+        assert presence(hb, now) is Presence.OFFLINE

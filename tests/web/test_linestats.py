@@ -178,3 +178,20 @@ def test_limits_bracket_the_centre_and_sigma_within(xs: list[float]) -> None:
     lim = imr_limits(xs)
     assert lim.lcl <= lim.centre <= lim.ucl
     assert lim.ucl - lim.centre == pytest.approx(3 * lim.mr_bar / D2, rel=1e-3)  # E2 ≈ 3/d2
+
+
+def _runs_brute(xs: list[float], c: float, length: int) -> list[int]:
+    """Every index inside some window of ``length`` points all strictly on one side."""
+    flagged: set[int] = set()
+    for i in range(len(xs) - length + 1):
+        w = xs[i:i + length]
+        if all(x > c for x in w) or all(x < c for x in w):
+            flagged.update(range(i, i + length))
+    return sorted(flagged)
+
+
+@settings(max_examples=200)
+@given(xs=st.lists(st.sampled_from([-1.0, 0.0, 1.0]), max_size=40),
+       length=st.integers(1, 10))
+def test_run_rule_against_every_window(xs: list[float], length: int) -> None:
+    assert runs_one_side(xs, 0.0, length) == _runs_brute(xs, 0.0, length)
