@@ -151,7 +151,7 @@ def line_router(source: LineArchive, *, stale_after_s: float = STALE_AFTER_S,
                   days: int = Query(linedata.WINDOW_DAYS, ge=1, le=366),
                   points: int = Query(linedata.CHART_POINTS, ge=2, le=1000)) -> Response:
         try:
-            return _json(view(day, days, points))
+            return _json(linedata.view_json(view(day, days, points)))
         except ArchiveError as e:
             return _json({"error": str(e), "kind": e.kind}, 503)
 

@@ -216,6 +216,64 @@ def line_view(archive: Archive, board: StationBoard, *, day: date | None = None,
     )
 
 
+def _tally_json(t: Tally) -> dict[str, Any]:
+    return {"runs": t.runs, "pass": t.passed, "fail": t.failed,
+            "inconclusive": t.inconclusive, "aborted": t.aborted, "yield": t.yield_}
+
+
+def _chart_json(c: PartChart) -> dict[str, Any]:
+    st, lim = c.stats, c.stats.limits
+    return {
+        "part_number": c.part_number, "axis": c.axis, "sigma_limit": c.usl,
+        "limits_differ": c.limits_differ, "n": len(c.points),
+        "mean": None if lim is None else lim.centre,
+        "mr_bar": None if lim is None else lim.mr_bar,
+        "ucl": None if lim is None else lim.ucl, "lcl": None if lim is None else lim.lcl,
+        "mr_ucl": None if lim is None else lim.mr_ucl, "s": st.s, "cpk": st.cpk,
+        "points": [{"run_id": p.run_id, "serial": p.serial, "station": p.station,
+                    "start_utc": iso(p.start_utc), "sigma": p.sigma, "outcome": p.outcome,
+                    "beyond": i in st.beyond, "run": i in st.run}
+                   for i, p in enumerate(c.points)],
+    }
+
+
+def _station_json(s: StationLine) -> dict[str, Any]:
+    hb = s.heartbeat
+    running = s.presence is Presence.RUNNING and hb is not None
+    return {
+        "station": s.station, "state": s.presence.value,
+        "phase": hb.phase if running and hb is not None else None,
+        "serial": hb.serial if running and hb is not None else None,
+        "part_number": hb.part_number if running and hb is not None else None,
+        "operator": hb.operator if running and hb is not None else None,
+        "run_id": hb.run_id if running and hb is not None else None,
+        "started_utc": iso(hb.started_utc) if running and hb is not None else None,
+        "elapsed_s": s.elapsed_s, "heartbeat_utc": None if hb is None else iso(hb.updated_utc),
+        "heartbeat_age_s": s.age_s,
+        "last": None if s.last is None else {
+            "outcome": s.last.outcome, "serial": s.last.serial, "run_id": s.last.run_id,
+            "end_utc": iso(s.last.end_utc)},
+        "today": _tally_json(s.today),
+    }
+
+
+def view_json(v: LineView) -> dict[str, Any]:
+    """The line view as one JSON object (``/line/data.json``): the same figures as the page,
+    the tallies with the archive's keys (``runs``, ``pass``, ``fail``, ``inconclusive``,
+    ``aborted``, ``yield``)."""
+    return {
+        "archive": v.archive, "now_utc": iso(v.now_utc), "day": v.day.isoformat(),
+        "window_days": v.window_days, "stale_after_s": v.stale_after_s,
+        "stations": [_station_json(s) for s in v.stations],
+        "runs_today": list(v.runs_today),
+        "yield_by_station": [{"station": g.key, "today": _tally_json(g.today),
+                              "window": _tally_json(g.window)} for g in v.yield_by_station],
+        "yield_by_part": [{"part_number": g.key, "today": _tally_json(g.today),
+                           "window": _tally_json(g.window)} for g in v.yield_by_part],
+        "charts": [_chart_json(c) for c in v.charts],
+    }
+
+
 def history(archive: Archive, serial: str | None = None, *, station: str | None = None,
             since: datetime | None = None) -> dict[str, Any]:
     """What ``benchctl history [SERIAL] [--station S] [--since T] --json`` prints, and the
@@ -242,4 +300,4 @@ def history(archive: Archive, serial: str | None = None, *, station: str | None 
 
 
 __all__ = ["CHART_POINTS", "WINDOW_DAYS", "ChartPoint", "GroupYield", "LastRun", "LineView",
-           "PartChart", "StationLine", "history", "line_view", "sigma_charts"]
+           "PartChart", "StationLine", "history", "line_view", "sigma_charts", "view_json"]

@@ -227,8 +227,12 @@ class StationBoard:
             set_={k: (func.coalesce(ins.excluded[k], heartbeats.c[k]) if k in kept
                       else ins.excluded[k]) for k in row if k != "station"},
         )
-        with self._begin(f"publish the state of station {station!r}") as conn:
-            conn.execute(ins)
+        try:
+            with self._begin(f"publish the state of station {station!r}") as conn:
+                conn.execute(ins)
+        except ArchiveError:
+            self._ready = False  # the table may have been dropped: looked for again next time
+            raise
 
     def read(self) -> tuple[datetime, list[Heartbeat]]:
         """The database's time now (naive UTC) and every station's row, by name (none

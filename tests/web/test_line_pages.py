@@ -168,9 +168,23 @@ def test_history_pages_are_the_commands(client: TestClient, line_url: str, tmp_p
 def test_line_data_json(client: TestClient) -> None:
     d = client.get("/line/data.json", params={"day": DAY}).json()
     assert d["day"] == DAY and d["window_days"] == 7
-    assert [s["presence"] for s in d["stations"]] == ["offline", "running", "idle"]
-    assert [(g["key"], g["window"]["runs"]) for g in d["yield_by_part"]] == \
-        [("IN-100", 6), ("IN-200", 4)]
+    assert [s["state"] for s in d["stations"]] == ["offline", "running", "idle"]
+    gone, b1, b2 = d["stations"]
+    assert gone["serial"] is None and gone["heartbeat_age_s"] >= 3600
+    assert (b1["serial"], b1["part_number"], b1["operator"]) == ("A09", "IN-100",
+                                                                 HOSTILE_OPERATOR)
+    assert 170 <= b1["elapsed_s"] < 180 + 300  # 3 min, on a loaded machine
+    assert b2["last"]["outcome"] == "ABORTED" and b2["today"] == {
+        "runs": 3, "pass": 1, "fail": 0, "inconclusive": 1, "aborted": 1, "yield": 0.5}
+    assert [(g["part_number"], g["window"]["runs"], g["window"]["yield"])
+            for g in d["yield_by_part"]] == [("IN-100", 6, pytest.approx(5 / 6)),
+                                             ("IN-200", 4, pytest.approx(1 / 3))]
+    assert [r["serial"] for r in d["runs_today"]][:2] == ["A06", "A07"]
+    c100 = d["charts"][0]
+    assert (c100["part_number"], c100["axis"], c100["n"]) == ("IN-100", "roll", 8)
+    assert c100["mean"] == pytest.approx(0.315, abs=1e-9)
+    assert c100["ucl"] == pytest.approx(0.315 + 2.66 * 0.38 / 7, abs=1e-9)
+    assert c100["sigma_limit"] == 0.4 and not any(p["beyond"] for p in c100["points"])
 
 
 def test_bad_queries(client: TestClient) -> None:
