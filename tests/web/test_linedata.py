@@ -114,7 +114,9 @@ def test_line_view_of_two_stations(line_archive: Archive) -> None:
     board.publish("bench-2", "idle", last_outcome="ABORTED", last_serial="B04")
     board.publish(HOSTILE_STATION, "running", serial="Z1")
     age_heartbeat(line_archive, HOSTILE_STATION, 3600)
-    v = line_view(line_archive, board, day=date.fromisoformat(DAY))
+    # stale after 10 min: a fresh heartbeat stays fresh on a loaded machine (the silent
+    # station's is an hour old)
+    v = line_view(line_archive, board, day=date.fromisoformat(DAY), stale_after_s=600)
 
     st = {s.station: s for s in v.stations}
     assert list(st) == sorted(["bench-1", "bench-2", HOSTILE_STATION])
@@ -182,8 +184,8 @@ def test_heartbeats_on_sqlite(tmp_path: Path) -> None:
         assert board.read()[1] == []
         board.publish("bench-1", "running", serial="A1", started_utc="2026-11-20T08:00:00Z")
         now, (hb,) = board.read()
-        assert presence(hb, now) is Presence.RUNNING
+        assert presence(hb, now, stale_after_s=600) is Presence.RUNNING  # even when loaded
         assert hb.started_utc == datetime(2026, 11, 20, 8, 0, 0)
-        age_heartbeat(a, "bench-1", 60)
+        age_heartbeat(a, "bench-1", 3600)
         now, (hb,) = board.read()
-        assert presence(hb, now) is Presence.OFFLINE
+        assert presence(hb, now, stale_after_s=600) is Presence.OFFLINE
