@@ -111,9 +111,11 @@ def _verdicts_since(archive: Archive, since: datetime) -> list[Any]:
         return list(conn.execute(q))
 
 
-def _yields(rows: Sequence[Any], field: str, today: datetime, end: datetime,
-            keys: Sequence[str | None] = ()) -> tuple[GroupYield, ...]:
-    groups: dict[str | None, tuple[list[str], list[str]]] = {k: ([], []) for k in keys}
+def _yields(rows: Sequence[Any], field: str, today: datetime,
+            end: datetime) -> tuple[GroupYield, ...]:
+    """The verdicts of ``rows`` (from the window's start on) per ``field``: from ``today``
+    on, and all of them, up to ``end``."""
+    groups: dict[str | None, tuple[list[str], list[str]]] = {}
     for r in rows:
         if r.start_utc is None or r.start_utc >= end:
             continue

@@ -16,6 +16,8 @@ updated_utc     when this row was last written (the **database's** clock)
 last_outcome    the verdict of the station's last run (PASS, FAIL, INCONCLUSIVE, ABORTED),
                 with last_serial, last_run_id and last_end_utc; kept by a heartbeat that
                 does not name them
+note            a line the station wants shown under its state ("waiting for the
+                operator", "E-stop pressed"), free text
 =============== ======================================================================
 
 A station whose row is older than the staleness bound (``STALE_AFTER_S``, three missed

@@ -86,7 +86,8 @@ def filled(line_archive: Archive) -> Archive:
     board = StationBoard(line_archive)
     board.publish("bench-1", "running", serial="A09", part_number="IN-100",
                   operator=HOSTILE_OPERATOR, started_utc=datetime.now(UTC) - timedelta(minutes=3))
-    board.publish("bench-2", "idle", last_outcome="ABORTED", last_serial="B04")
+    board.publish("bench-2", "idle", last_outcome="ABORTED", last_serial="B04",
+                  note="<b>waiting</b> for the operator")
     board.publish(HOSTILE_STATION, "running", serial="Z1")
     age_heartbeat(line_archive, HOSTILE_STATION, 3600)
     return line_archive
@@ -117,6 +118,7 @@ def test_line_view_page(client: TestClient) -> None:
     states = [t for t in page.text_by_class.get("state", []) if t]
     assert states == ["offline", "running", "idle"]  # the silent one ("<" first), bench-1, -2
     assert "was running Z1" in html
+    assert "&lt;b&gt;waiting&lt;/b&gt; for the operator" in html
     assert page.count("tr", "run") == 5  # today's runs
     # the charts: IN-100 and IN-200 (roll), each an individuals and a moving-range chart
     assert page.count("svg", "individuals") == 2 and page.count("svg", "moving-range") == 2

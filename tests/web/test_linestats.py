@@ -195,3 +195,11 @@ def _runs_brute(xs: list[float], c: float, length: int) -> list[int]:
        length=st.integers(1, 10))
 def test_run_rule_against_every_window(xs: list[float], length: int) -> None:
     assert runs_one_side(xs, 0.0, length) == _runs_brute(xs, 0.0, length)
+
+
+def test_the_module_examples() -> None:
+    import doctest
+
+    from benchctl.web import linestats
+
+    assert doctest.testmod(linestats).failed == 0
