@@ -88,7 +88,7 @@ def filled(line_archive: Archive) -> Archive:
                   operator=HOSTILE_OPERATOR, started_utc=datetime.now(UTC) - timedelta(minutes=3))
     board.publish("bench-2", "idle", last_outcome="ABORTED", last_serial="B04",
                   note="<b>waiting</b> for the operator")
-    board.publish(HOSTILE_STATION, "running", serial="Z1")
+    board.publish(HOSTILE_STATION, "running", serial="Z1<i>")  # shown through gettext
     age_heartbeat(line_archive, HOSTILE_STATION, 3600)
     return line_archive
 
@@ -117,7 +117,7 @@ def test_line_view_page(client: TestClient) -> None:
     assert page.count("tr", "station") == 3
     states = [t for t in page.text_by_class.get("state", []) if t]
     assert states == ["offline", "running", "idle"]  # the silent one ("<" first), bench-1, -2
-    assert "was running Z1" in html
+    assert "was running Z1&lt;i&gt;" in html  # a value in a translated message, escaped
     assert "&lt;b&gt;waiting&lt;/b&gt; for the operator" in html
     assert page.count("tr", "run") == 5  # today's runs
     # the charts: IN-100 and IN-200 (roll), each an individuals and a moving-range chart
