@@ -34,7 +34,8 @@ CHART_POINTS = 50  # a control chart's newest points per part number and axis
 
 @dataclass(frozen=True)
 class LastRun:
-    """A station's last finished run: from its heartbeat, else the archive."""
+    """A station's last finished run: from its heartbeat or the archive, whichever ended
+    later."""
 
     outcome: str | None
     serial: str | None
@@ -139,6 +140,18 @@ def _last_runs(archive: Archive) -> dict[str, LastRun]:
                 for r in conn.execute(q)}
 
 
+def _newer(told: LastRun | None, archived: LastRun | None) -> LastRun | None:
+    """The station's last run: what its heartbeat told, unless the archive holds a run
+    that ended later (runs made without its server); an end not known loses to one known."""
+    if told is None or archived is None:
+        return told or archived
+    if told.end_utc is None:
+        return archived if archived.end_utc is not None else told
+    if archived.end_utc is None or told.end_utc >= archived.end_utc:
+        return told
+    return archived
+
+
 def _station_lines(heartbeats: Sequence[Heartbeat], last: dict[str, LastRun],
                    today: dict[str | None, Tally], now: datetime,
                    stale_after_s: float) -> tuple[StationLine, ...]:
@@ -151,9 +164,10 @@ def _station_lines(heartbeats: Sequence[Heartbeat], last: dict[str, LastRun],
         elapsed = None
         if p is Presence.RUNNING and hb is not None and hb.started_utc is not None:
             elapsed = max(0.0, (now - hb.started_utc).total_seconds())
-        mine = LastRun(hb.last_outcome, hb.last_serial, hb.last_run_id, hb.last_end_utc) \
-            if hb is not None and hb.last_outcome is not None else last.get(name)
-        out.append(StationLine(name, p, hb, age, elapsed, mine, today.get(name, tally([]))))
+        told = LastRun(hb.last_outcome, hb.last_serial, hb.last_run_id, hb.last_end_utc) \
+            if hb is not None and hb.last_outcome is not None else None
+        out.append(StationLine(name, p, hb, age, elapsed, _newer(told, last.get(name)),
+                               today.get(name, tally([]))))
     return tuple(out)
 
 

@@ -189,3 +189,18 @@ def test_heartbeats_on_sqlite(tmp_path: Path) -> None:
         age_heartbeat(a, "bench-1", 3600)
         now, (hb,) = board.read()
         assert presence(hb, now, stale_after_s=600) is Presence.OFFLINE
+
+
+def test_the_last_verdict_is_the_latest_told(line_archive: Archive) -> None:
+    fill_two_stations(line_archive)  # bench-1's newest archived run: A08, 2026-11-21
+    board = StationBoard(line_archive)
+    board.publish("bench-1", "idle", last_outcome="FAIL", last_serial="OLD",
+                  last_end_utc="2026-11-19T00:00:00Z")  # older than the archive's
+    board.publish("bench-2", "idle", last_outcome="FAIL", last_serial="B05",
+                  last_end_utc="2026-11-22T00:00:00Z")  # not archived yet (queued)
+    v = line_view(line_archive, board, day=date.fromisoformat(DAY), stale_after_s=600)
+    last = {s.station: s.last for s in v.stations}
+    assert last["bench-1"] is not None and (last["bench-1"].serial,
+                                            last["bench-1"].outcome) == ("A08", "PASS")
+    assert last["bench-2"] is not None and (last["bench-2"].serial,
+                                            last["bench-2"].outcome) == ("B05", "FAIL")
