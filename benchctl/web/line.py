@@ -56,7 +56,7 @@ from benchctl.web import linedata
 from benchctl.web.linepages import environment, render_line
 from benchctl.web.linestations import STALE_AFTER_S, StationBoard
 
-CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; "
+CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self'; "
        "base-uri 'none'; form-action 'self'; frame-ancestors 'self'")
 HEADERS = {"Content-Security-Policy": CSP, "X-Content-Type-Options": "nosniff",
            "Referrer-Policy": "same-origin", "Cache-Control": "no-store"}
