@@ -6,6 +6,8 @@ through the same API and signals as the command line).
   (``line_router``), and a minimal app of its own (``create_line_app``);
 - ``benchctl.web.linestations``: the stations' heartbeats in the shared archive database
   (``publish_station_state``, ``StationBoard``);
+- ``benchctl.web.lineheartbeat``: one station's heartbeat kept going from its own thread
+  (``HeartbeatPublisher``);
 - ``benchctl.web.linedata``: what the line view shows, read from the archive;
 - ``benchctl.web.linestats``: the control chart's and the yield's statistics (pure);
 - ``benchctl.web.linechart``: the control chart's SVG geometry (pure);

@@ -10,14 +10,18 @@ For the station server (``benchctl serve``)::
     app.include_router(line_router(line))       # GET /line, /line/data.json, /history, …
     ...                                         # at shutdown (its lifespan): line.close()
 
-    board = StationBoard(archive)               # or publish_station_state(url, …) one-off
-    board.publish("bench-2", StationState.RUNNING, serial="INC-0042", part_number="IN-100",
-                  operator="anna", run_id=run_id, started_utc=start, phase="ramp-in")
-    board.publish("bench-2", StationState.IDLE, last_outcome="PASS", last_serial="INC-0042",
-                  last_run_id=run_id, last_end_utc=end)
+    board = StationBoard(line.get()[0])         # or settings.open(): an Archive
+    beat = HeartbeatPublisher(board.publish, "bench-2")   # benchctl.web.lineheartbeat
+    beat.start()                                # idle, published at once, then every 5 s
+    beat.set(StationState.RUNNING, serial="INC-0042", part_number="IN-100", operator="anna",
+             run_id=run_id, started_utc=start, phase="ramp-in")      # on each change
+    beat.set(StationState.IDLE, last_outcome="PASS", last_serial="INC-0042",
+             last_run_id=run_id, last_end_utc=end)
+    ...                                         # at shutdown: beat.stop()
 
-on every change of state and every ``HEARTBEAT_EVERY_S`` (5 s) between, from its own thread
-(a database out of reach raises ``ArchiveError``: log it, never let it touch a run).
+``HeartbeatPublisher`` publishes from its own thread and logs a database out of reach: the
+server never waits for it. ``StationBoard.publish`` (or ``publish_station_state(url, …)``,
+one-off) is the call underneath, raising ``ArchiveError`` when it cannot write.
 
 Routes (their names for ``request.url_for``):
 
