@@ -4,14 +4,14 @@ station server to include, and a minimal app of its own.
 For the station server (``benchctl serve``)::
 
     from benchctl.web.line import LineArchive, line_router
-    from benchctl.web.linestations import StationBoard, StationState
+    from benchctl.web.lineheartbeat import HeartbeatPublisher
+    from benchctl.web.linestations import StationState
 
     line = LineArchive(settings.url)            # the bench's archive; opened on first use
     app.include_router(line_router(line))       # GET /line, /line/data.json, /history, …
     ...                                         # at shutdown (its lifespan): line.close()
 
-    board = StationBoard(line.get()[0])         # or settings.open(): an Archive
-    beat = HeartbeatPublisher(board.publish, "bench-2")   # benchctl.web.lineheartbeat
+    beat = HeartbeatPublisher(line.publish, "bench-2")    # benchctl.web.lineheartbeat
     beat.start()                                # idle, published at once, then every 5 s
     beat.set(StationState.RUNNING, serial="INC-0042", part_number="IN-100", operator="anna",
              run_id=run_id, started_utc=start, phase="ramp-in")      # on each change
@@ -58,7 +58,7 @@ from benchctl.errors import ArchiveError
 from benchctl.jsonout import plain
 from benchctl.web import linedata
 from benchctl.web.linepages import environment, render_line
-from benchctl.web.linestations import STALE_AFTER_S, StationBoard
+from benchctl.web.linestations import STALE_AFTER_S, StationBoard, StationState
 
 CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self'; "
        "base-uri 'none'; form-action 'self'; frame-ancestors 'self'")
@@ -92,6 +92,11 @@ class LineArchive:
                 self._archive, self._board = a, StationBoard(a)
             assert self._board is not None
             return self._archive, self._board
+
+    def publish(self, station: str, state: StationState | str, **fields: Any) -> None:
+        """``StationBoard.publish`` on this archive, opened first when it is not yet
+        (``ArchiveError`` when it cannot be): what ``HeartbeatPublisher`` calls."""
+        self.get()[1].publish(station, state, **fields)
 
     def close(self) -> None:
         with self._lock:

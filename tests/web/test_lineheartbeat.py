@@ -75,3 +75,25 @@ def test_on_postgresql(line_archive: Archive) -> None:
         pass  # at least one publish, however soon it stops
     (hb,) = board.read()[1]
     assert (hb.station, hb.state, hb.serial) == ("bench-9", "running", "Q1")
+
+
+def test_through_the_pages_archive(line_url: str, caplog: pytest.LogCaptureFixture) -> None:
+    """The station server's way: LineArchive.publish opens the archive when it first can."""
+    from archive_helpers import free_port
+
+    from benchctl.web.line import LineArchive
+
+    down = LineArchive(f"postgresql+psycopg://bench@127.0.0.1:{free_port()}/nowhere")
+    with caplog.at_level("WARNING", logger="benchctl.web.lineheartbeat"), \
+            HeartbeatPublisher(down.publish, "bench-3"):
+        pass
+    down.close()
+    assert any("unreachable" in r.getMessage() for r in caplog.records)
+    up = LineArchive(line_url)
+    try:
+        with HeartbeatPublisher(up.publish, "bench-3", serial=None) as beat:
+            beat.set("running", serial="R1")
+        (hb,) = up.get()[1].read()[1]
+        assert (hb.station, hb.state, hb.serial) == ("bench-3", "running", "R1")
+    finally:
+        up.close()
