@@ -78,6 +78,10 @@ def instrument_section(driver: str) -> dict[str, Any]:
             "interface": "slcan",
             "channel": "x",
         }
+    if driver in ("j1939", "nmea2000"):  # as config/sim_j1939.yaml, config/sim_nmea2000.yaml
+        dbc = "j1939_slope.dbc" if driver == "j1939" else "nmea2000_attitude.dbc"
+        return {"driver": driver, "dbc": str(ROOT / "drivers" / dbc), "interface": "slcan",
+                "channel": "x", "bitrate": 250000}
     if driver == "nmea0183":
         return {"driver": "nmea0183", "serial_port": "x", "sentence": "PASHR"}
     raise ValueError(driver)

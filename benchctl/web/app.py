@@ -126,7 +126,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
     async def index(request: Request) -> HTMLResponse:
         data = {"texts": texts, "csrf": guard.csrf_token(request.cookies.get(COOKIE)),
                 "limit": cfg.run.limit_sigma_deg}
-        return page("station.html.j2", request, profiles=[
+        return page("station/station.html.j2", request, profiles=[
             (key, p.stem) for key, p in profiles.items()],
             plans=[(key, p.stem) for key, p in plans.items()],
             duration=settings.duration_s, serial_pattern=pattern,
@@ -134,7 +134,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
 
     @app.get("/login", response_class=HTMLResponse)
     async def login_page(request: Request) -> HTMLResponse:
-        return page("login.html.j2", request, failed=False)
+        return page("station/login.html.j2", request, failed=False)
 
     @app.post("/login")
     async def login(request: Request) -> Response:
@@ -147,7 +147,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
             return _error(403, "cross-site request refused (CSRF token)")
         sid = guard.login((form.get("token") or [""])[0])
         if sid is None:
-            refused = page("login.html.j2", request, failed=True)
+            refused = page("station/login.html.j2", request, failed=True)
             refused.status_code = 401
             return refused
         resp = RedirectResponse("/", status_code=303)

@@ -29,7 +29,7 @@ from typing import Any
 import pytest
 import yaml
 from junitparser import Error, Failure, JUnitXml, Properties, Skipped
-from live_bench import live_bench
+from live_bench import FOCUSED, live_bench
 from repo_paths import ROOT
 
 from benchctl.cli import main
@@ -370,7 +370,8 @@ def test_ctrl_c_during_a_step_stops_the_plan_and_cleanup_still_runs(tmp_path: Pa
     record ABORTED by the operator), the plan stops there and its cleanup runs."""
     roll = _profile(tmp_path, "roll20", 20)
     out = tmp_path / "runs"
-    with live_bench(tmp_path) as b:
+    # about the signal: the mounting check's tilt and the host check left out (FOCUSED)
+    with live_bench(tmp_path, run=FOCUSED) as b:
         plan = _plan(tmp_path, [{"name": "one", "profile": str(roll), "on_fail": "continue"},
                                 {"name": "two", "profile": str(roll)}])
         with _when_step_moves(out, lambda: os.kill(os.getpid(), signal.SIGINT), nth=1) as sent:

@@ -106,7 +106,8 @@ def test_run_end_to_end_sigma_as_stated(
         stand["baudrate"] = sim["baudrate"] = 460800
     with live_bench(
         tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
-        clock=clock, run={"figures": True, **({} if virtual else FOCUSED)},
+        # the figures drawn on simulated time; the real-time run is about the links
+        clock=clock, run={"figures": virtual, **({} if virtual else FOCUSED)},
     ) as b:
         res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
         assert res.state == "done" and res.exit_code == 0, res.reason
@@ -119,7 +120,8 @@ def test_run_end_to_end_sigma_as_stated(
     assert st["instrument_lost"] == 0 and st["instrument_bad_frames"] == 0
     rows = rec.streams["stand"]["t_host"]
     assert rows.size > 0.8 * 100 * 20  # the reference at ~100 Hz over the profile
-    assert (rec.path / "report.json").is_file() and (rec.path / "analysis_roll.png").is_file()
+    assert (rec.path / "report.json").is_file()
+    assert (rec.path / "analysis_roll.png").is_file() == virtual
     if instrument == "canopen":
         assert (rec.path / "can.blf").stat().st_size > 0  # raw frames beside the recording
     assert json.loads((rec.path / "report.json").read_text())["verdict"] == "PASS"
@@ -289,6 +291,12 @@ def test_kill_9_mid_profile_leaves_a_readable_recording(
     assert math.isfinite(res["sigma"]) and res["n_samples"] > 300
 
 
+#: the README's first command's test, shortened further: ci_short's motion for 19 s (13 s of
+#: multisine between the fades: its lowest line, 0.08 Hz, still fits); the prechecks, the
+#: mounting check's tilt and the host check all stay
+README_SHORT_S = 19.0
+
+
 @pytest.mark.realtime  # the README's first command: a child with its simulator child over TCP
 def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) -> None:
     """The README's first command, shortened: `config/sim.yaml` has a `sim:` section, so
@@ -304,7 +312,7 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
     profile = ROOT / "profiles/ci_short.yaml"
     cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(cfg_path)]
     cmd += ["--profile", str(profile), "--serial", "DEMO-1", "--operator", "ci"]
-    cmd += ["--out", str(tmp_path / "runs"), "--json"]
+    cmd += ["--out", str(tmp_path / "runs"), "--json", "--duration", str(README_SHORT_S)]
     proc = subprocess.run(
         cmd,
         capture_output=True,
@@ -316,7 +324,7 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
     assert rep["verdict"] == "PASS" and rep["state"] == "done" and rep["exit_code"] == 0
     cfg = load_config(cfg_path)
     assert cfg.sim is not None
-    prep = prepare_motion(cfg, profile, RunOptions("x", "y"))
+    prep = prepare_motion(cfg, profile, RunOptions("x", "y", duration_s=README_SHORT_S))
     tab = prep.motion.tables["roll"]
     s = cfg.sim.stand
     servo = ServoModel(

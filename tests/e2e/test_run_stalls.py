@@ -51,7 +51,9 @@ def _run_with_stalls(
         runs = tmp_path / "runs"
         cmd = [sys.executable, "-m", "benchctl", "run", "--config", str(b.config_path)]
         cmd += ["--profile", str(profile), "--serial", "STALL", "--operator", "ci", "--json"]
-        cmd += ["--quiet"]
+        # 14 s of the profile (its whole-period minimum: its lowest line is 0.1 Hz): the five
+        # stalls end within 11.5 s of the motion's start
+        cmd += ["--quiet", "--duration", "14"]
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env

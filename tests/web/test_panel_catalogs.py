@@ -14,8 +14,8 @@ from benchctl.web.i18n import DOMAIN, LOCALE_DIR, SCRIPT_TEXTS, script_texts, tr
 def source_ids() -> set[str]:
     found = extract_from_dir(
         str(LOCALE_DIR.parent),
-        method_map=[("**.py", "python"), ("**/templates/**.j2", "jinja2")],
-        options_map={"**/templates/**.j2": {"extensions": "jinja2.ext.i18n"}},
+        method_map=[("**/i18n.py", "python"), ("**/templates/station/**.j2", "jinja2")],
+        options_map={"**/templates/station/**.j2": {"extensions": "jinja2.ext.i18n"}},
     )
     return {str(msg) for _, _, msg, _, _ in found if isinstance(msg, str)}
 
