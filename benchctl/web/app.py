@@ -24,13 +24,17 @@ from pydantic import BaseModel
 from starlette.responses import StreamingResponse
 
 from benchctl import __version__
+from benchctl.archive.service import settings_for
 from benchctl.config import load_config
 from benchctl.errors import InputError
 from benchctl.text import check_operator, check_serial
 from benchctl.web.i18n import script_texts, translations
+from benchctl.web.line import LineArchive, line_router
+from benchctl.web.lineheartbeat import HeartbeatPublisher
 from benchctl.web.security import Guard
 from benchctl.web.settings import PanelSettings
-from benchctl.web.station import Station
+from benchctl.web.station import Run, Station
+from benchctl.web.station_beat import beat_of
 
 HERE = Path(__file__).parent
 COOKIE = "benchctl_panel"
@@ -73,7 +77,16 @@ def create_app(settings: PanelSettings) -> FastAPI:
     plans = {f"plan-{i}": p for i, p in enumerate(settings.plans)}
     guard = Guard(settings.token_scrypt, require_token=settings.require_token,
                   origins=settings.origins)
-    station = Station(settings)
+    # the line view beside the panel, and this station's heartbeat into the same archive (the
+    # runs' own: the config's archive: section, else the SQLite file in the output folder)
+    source = LineArchive(settings_for(cfg, settings.out_dir).url)
+    beat = HeartbeatPublisher(source.publish, cfg.station)
+
+    def heartbeat(run: Run) -> None:
+        state, fields = beat_of(run, cfg.unit.part_number)
+        beat.set(state, **fields)
+
+    station = Station(settings, on_change=heartbeat)
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(HERE / "templates"), autoescape=True,
         extensions=["jinja2.ext.i18n"], undefined=jinja2.StrictUndefined,
@@ -83,14 +96,20 @@ def create_app(settings: PanelSettings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        yield
-        await station.close()
+        beat.start()
+        try:
+            yield
+        finally:
+            await station.close()
+            beat.stop()  # the last state once more (a thread of its own; bounded wait)
+            source.close()
 
     app = FastAPI(title="benchctl station panel", version=__version__, lifespan=lifespan,
                   docs_url=None, redoc_url=None, openapi_url=None)
     app.state.station = station
     app.state.guard = guard
     app.mount("/static", StaticFiles(directory=HERE / "static"), name="static")
+    app.include_router(line_router(source))  # /line, /history: behind the same access rules
 
     def page(name: str, request: Request, **values: Any) -> HTMLResponse:
         session = request.cookies.get(COOKIE)
@@ -120,7 +139,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
                 return _headers(_error(401, "log in first"))
             return _headers(RedirectResponse("/login", status_code=303))
         response = await call_next(request)
-        return _headers(response, report=path.startswith("/runs/"))
+        return _headers(response, report=path.startswith("/runs/"))  # a page's own kept
 
     @app.get("/", response_class=HTMLResponse)
     async def index(request: Request) -> HTMLResponse:
@@ -263,8 +282,11 @@ async def _stream(station: Station, request: Request) -> AsyncIterator[str]:
 
 
 def _headers(response: Response, report: bool = False) -> Response:
-    response.headers["Content-Security-Policy"] = REPORT_CSP if report else CSP
-    response.headers["X-Content-Type-Options"] = "nosniff"
-    response.headers["Referrer-Policy"] = "same-origin"
-    response.headers["X-Frame-Options"] = "DENY"
+    """The panel's security headers, where the response has none of its own (the line view's
+    pages bring their own policy)."""
+    h = response.headers
+    h.setdefault("Content-Security-Policy", REPORT_CSP if report else CSP)
+    h.setdefault("X-Content-Type-Options", "nosniff")
+    h.setdefault("Referrer-Policy", "same-origin")
+    h.setdefault("X-Frame-Options", "DENY")
     return response

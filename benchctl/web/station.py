@@ -23,7 +23,9 @@ import subprocess
 import sys
 import tempfile
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +80,8 @@ class Run:
     refused: bool = False
     stop_requested: bool = False
     datagrams: int = 0
+    started_utc: str = ""  # when the panel started it (ISO 8601, UTC)
+    ended_utc: str = ""  # when it ended
     prompt: dict[str, Any] | None = None  # a plan's question waiting for the operator
     answered: set[int] = field(default_factory=set)  # its questions answered here
 
@@ -142,6 +146,11 @@ def _plan_outcome(run: Run, res: dict[str, Any]) -> dict[str, Any]:
             "report": False, "refused": False, "exit_code": run.exit_code, "recording": None}
 
 
+def _now_utc() -> str:
+    """The host's time now, for the station's heartbeat (the server's, not a run's clock)."""
+    return datetime.now(UTC).isoformat(timespec="seconds")  # noqa: TID251
+
+
 def _point(snap: dict[str, Any]) -> dict[str, Any] | None:
     t = snap.get("elapsed_s")
     if t is None or not math.isfinite(t):
@@ -167,8 +176,12 @@ class _Datagrams(asyncio.DatagramProtocol):
 class Station:
     """The panel's state: the current or last run, and the browsers watching."""
 
-    def __init__(self, settings: PanelSettings) -> None:
+    def __init__(self, settings: PanelSettings,
+                 on_change: Callable[[Run], None] | None = None) -> None:
+        """``on_change(run)``: told when a run starts, changes state and ends (the station's
+        heartbeat); never lets its failure reach the panel."""
         self.settings = settings
+        self.on_change = on_change
         self.run: Run | None = None
         self.watchers: set[Watcher] = set()
         self.last_operator = ""
@@ -235,6 +248,8 @@ class Station:
                 start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
             )
         self.run = run
+        run.started_utc = _now_utc()
+        self._changed(run)
         self.last_operator = operator
         self._waiter = asyncio.get_running_loop().create_task(self._wait(run))
         self.publish("status", self.status())
@@ -268,6 +283,7 @@ class Station:
         elif kind == "state":
             run.state, run.reason = str(msg.get("state", "")), str(msg.get("reason", ""))
             self.publish("state", {"state": run.state, "reason": run.reason})
+            self._changed(run)
         elif kind == "message":
             run.messages.append(str(msg.get("text", "")))
             self.publish("message", {"text": str(msg.get("text", ""))})
@@ -326,8 +342,18 @@ class Station:
                 "aborted" if run.result else "refused" if run.refused else "error")
         run.prompt = None
         run.exit_code = code
+        run.ended_utc = _now_utc()
+        self._changed(run)
         self._close_transport()
         self.publish("ended", {"run": run.view()})
+
+    def _changed(self, run: Run) -> None:
+        if self.on_change is None:
+            return
+        try:
+            self.on_change(run)
+        except Exception as e:  # the heartbeat is the line view's, never the panel's trouble
+            log.warning("station state not published: %s: %s", type(e).__name__, e)
 
     def stop(self) -> bool:
         """SIGINT to the run going on (Ctrl-C's path); False when none is."""
