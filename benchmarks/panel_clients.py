@@ -5,11 +5,13 @@ watching, then one with N live clients (default 20), both started through the pa
 ``cycle_lateness_s``), side by side, with the events the clients received.
 
 A client is what a browser's page does, without drawing: it holds the live event stream
-(``/api/events``) open and reads every event, and asks for ``/api/status`` once a second. The
-clients run in this process, the panel in its own, the run in a third (the panel's child).
+(``/api/events``) open and reads every event (``--poll``: and asks for ``/api/status`` with the
+plot's points once a second, more than a page does). The clients run in this process, the panel
+in its own, the run in a third (the panel's child). Run it on an otherwise quiet machine, not
+under ``nice``: the panel and the run inherit this process's priority.
 
 Usage: python benchmarks/panel_clients.py [--clients 20] [--duration 60] [--config FILE]
-       [--profile FILE]
+       [--profile FILE] [--poll]
 """
 
 from __future__ import annotations
@@ -42,14 +44,15 @@ def free_port() -> int:
 class Client:
     """One watcher: the event stream read to its end, the status asked for every second."""
 
-    def __init__(self, port: int, stop: threading.Event) -> None:
+    def __init__(self, port: int, stop: threading.Event, poll: bool) -> None:
         self.port, self.stop = port, stop
         self.events = 0
         self.bytes = 0
         self.statuses = 0
         self.errors: list[str] = []
-        self.threads = [threading.Thread(target=self._stream, daemon=True),
-                        threading.Thread(target=self._poll, daemon=True)]
+        self.threads = [threading.Thread(target=self._stream, daemon=True)]
+        if poll:
+            self.threads.append(threading.Thread(target=self._poll, daemon=True))
         for t in self.threads:
             t.start()
 
@@ -73,8 +76,8 @@ class Client:
     def _poll(self) -> None:
         while not self.stop.wait(1.0):
             try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/api/status",
-                                            timeout=10) as r:
+                with urllib.request.urlopen(
+                        f"http://127.0.0.1:{self.port}/api/status?trace=600", timeout=30) as r:
                     r.read()
                 self.statuses += 1
             except OSError as e:
@@ -103,16 +106,26 @@ def post(port: int, path: str) -> None:
     urllib.request.urlopen(req, timeout=30).read()
 
 
-def one_run(port: int, n_clients: int, timeout_s: float) -> dict[str, Any]:
+def status(port: int) -> dict[str, Any]:
+    """The panel's status; a slow answer waited for (a loaded machine), up to a minute."""
+    for _ in range(6):
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/status", timeout=10) as r:
+                return dict(json.loads(r.read()))
+        except TimeoutError:
+            print("(the panel is slow to answer)", file=sys.stderr, flush=True)
+    raise TimeoutError("the panel did not answer /api/status within a minute")
+
+
+def one_run(port: int, n_clients: int, timeout_s: float, poll: bool) -> dict[str, Any]:
     stop = threading.Event()
-    clients = [Client(port, stop) for _ in range(n_clients)]
+    clients = [Client(port, stop, poll) for _ in range(n_clients)]
     time.sleep(1.0)  # the streams open before the run starts
     t0 = time.monotonic()
     start_run(port, f"PANEL{n_clients:02d}")
     run: dict[str, Any] = {}
     while time.monotonic() - t0 < timeout_s:
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/status", timeout=10) as r:
-            run = json.loads(r.read())["run"] or {}
+        run = status(port)["run"] or {}
         if run.get("ended"):
             break
         time.sleep(0.5)
@@ -149,6 +162,8 @@ def main() -> int:
     ap.add_argument("--config", type=Path, default=ROOT / "config/sim.yaml")
     ap.add_argument("--profile", type=Path,
                     default=ROOT / "profiles/paper_vessel_roll_short120.yaml")
+    ap.add_argument("--poll", action="store_true",
+                    help="each client also asks for the status with the plot every second")
     args = ap.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="benchctl-panel-bench-"))
@@ -174,7 +189,7 @@ def main() -> int:
                 time.sleep(0.2)
         for n in (0, args.clients):
             print(f"run with {n} live client(s)…", file=sys.stderr, flush=True)
-            rows.append(one_run(port, n, args.duration + 300.0))
+            rows.append(one_run(port, n, args.duration + 300.0, args.poll))
     finally:
         server.send_signal(signal.SIGINT)
         try:

@@ -182,8 +182,10 @@ def create_app(settings: PanelSettings) -> FastAPI:
         return resp
 
     @app.get("/api/status")
-    async def status() -> JSONResponse:
-        return JSONResponse(station.status())
+    async def status(trace: int = 0) -> JSONResponse:
+        """The station's state as JSON (scripts, tests); the plot's points only when asked
+        (``?trace=N``: the last N; the page gets them with its event stream)."""
+        return JSONResponse(station.status(max(0, min(trace, 3000))))
 
     @app.post("/api/check-serial")
     async def check(body: SerialIn) -> JSONResponse:

@@ -95,7 +95,8 @@ class Run:
             "id": self.id, "kind": self.kind, "serial": self.serial,
             "operator": self.operator, "profile": self.profile, "state": self.state,
             "reason": self.reason, "prompt": self.prompt,
-            "snapshot": self.snapshot, "trace": list(self.trace)[-trace_points:],
+            "snapshot": self.snapshot,
+            "trace": list(self.trace)[-trace_points:] if trace_points > 0 else [],
             "messages": list(self.messages)[-20:], "ended": self.ended,
             "stop_requested": self.stop_requested,
             "outcome": outcome(self) if self.ended else None,
@@ -203,8 +204,9 @@ class Station:
         for w in list(self.watchers):
             w.push(event, data)
 
-    def status(self) -> dict[str, Any]:
-        return {"run": self.run.view() if self.run is not None else None,
+    def status(self, trace_points: int = STATUS_TRACE_POINTS) -> dict[str, Any]:
+        """Everything a browser shows; ``trace_points``: the plot's last points sent."""
+        return {"run": self.run.view(trace_points) if self.run is not None else None,
                 "last_operator": self.last_operator}
 
     # ---- runs
