@@ -29,7 +29,7 @@ from benchctl.text import terminal_lines
 # subcommands, in the order --help lists them (each a module here, its "-" a "_")
 SUBCOMMANDS = (
     "run", "plan", "analyze", "report", "predict", "profile", "sim", "stand", "recording",
-    "schema", "archive", "history", "show", "host-check", "serve",
+    "schema", "archive", "history", "show", "host-check", "serve", "serve-line",
 )
 
 EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
