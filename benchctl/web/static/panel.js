@@ -258,7 +258,7 @@
       ctx.fillText(v.toFixed(step < 1 ? 1 : 0) + "°", 4, y(v) + 5);
     }
     for (let t = Math.ceil(t0 / 10) * 10; t <= t0 + PLOT_WINDOW_S; t += 10) {
-      ctx.fillText(mmss(t), x(t) - 18, H - 8);
+      ctx.fillText(mmss(t), Math.min(x(t) - 18, W - 44), H - 8);
     }
     const axes = Object.keys(pts[pts.length - 1].stand || {});
     ctx.lineWidth = 2;
