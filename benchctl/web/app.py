@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import urllib.parse
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
@@ -33,7 +32,7 @@ from benchctl.web.line import LineArchive, line_router
 from benchctl.web.lineheartbeat import HeartbeatPublisher
 from benchctl.web.security import Guard
 from benchctl.web.settings import PanelSettings
-from benchctl.web.station import Run, Station
+from benchctl.web.station import Run, Station, sse
 from benchctl.web.station_beat import beat_of
 
 HERE = Path(__file__).parent
@@ -256,19 +255,15 @@ def create_app(settings: PanelSettings) -> FastAPI:
     return app
 
 
-def _sse(event: str, data: dict[str, Any]) -> str:
-    return f"event: {event}\ndata: {json.dumps(data, ensure_ascii=False)}\n\n"
-
-
 async def _stream(station: Station, request: Request) -> AsyncIterator[str]:
     """One browser's events: the whole state, then each change; the whole state again after
     the browser fell behind; a comment now and then so proxies keep the line open."""
     watcher = station.watch()
     try:
-        yield _sse("status", station.status())
+        yield sse("status", station.status())
         while not await request.is_disconnected():
             try:
-                event, data = await asyncio.wait_for(watcher.queue.get(), KEEPALIVE_S)
+                text = await asyncio.wait_for(watcher.queue.get(), KEEPALIVE_S)
             except TimeoutError:
                 yield ": keepalive\n\n"
                 continue
@@ -276,9 +271,9 @@ async def _stream(station: Station, request: Request) -> AsyncIterator[str]:
                 watcher.stale = False
                 while not watcher.queue.empty():
                     watcher.queue.get_nowait()
-                yield _sse("status", station.status())
+                yield sse("status", station.status())
                 continue
-            yield _sse(event, data)
+            yield text
     finally:
         station.unwatch(watcher)
 

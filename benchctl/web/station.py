@@ -41,16 +41,22 @@ QUEUE_EVENTS = 256  # a browser's backlog before it is sent the whole state inst
 POLL_S = 0.1  # how often the child's end is looked for
 
 
+def sse(event: str, data: dict[str, Any]) -> str:
+    """One server-sent event: its name and its data as JSON."""
+    return f"event: {event}\ndata: {json.dumps(data, ensure_ascii=False)}\n\n"
+
+
 class Watcher:
-    """One browser's event queue; ``stale`` when events were dropped for it."""
+    """One browser's queue of events (each already as its text: encoded once for every
+    browser); ``stale`` when events were dropped for it."""
 
     def __init__(self) -> None:
-        self.queue: asyncio.Queue[tuple[str, dict[str, Any]]] = asyncio.Queue(QUEUE_EVENTS)
+        self.queue: asyncio.Queue[str] = asyncio.Queue(QUEUE_EVENTS)
         self.stale = False
 
-    def push(self, event: str, data: dict[str, Any]) -> None:
+    def push(self, text: str) -> None:
         try:
-            self.queue.put_nowait((event, data))
+            self.queue.put_nowait(text)
         except asyncio.QueueFull:
             self.stale = True
             while not self.queue.empty():
@@ -201,8 +207,11 @@ class Station:
         self.watchers.discard(w)
 
     def publish(self, event: str, data: dict[str, Any]) -> None:
+        if not self.watchers:
+            return
+        text = sse(event, data)
         for w in list(self.watchers):
-            w.push(event, data)
+            w.push(text)
 
     def status(self, trace_points: int = STATUS_TRACE_POINTS) -> dict[str, Any]:
         """Everything a browser shows; ``trace_points``: the plot's last points sent."""

@@ -24,7 +24,7 @@ def test_a_browser_that_falls_behind_gets_the_whole_state_again() -> None:
     async def go() -> Watcher:
         w = Watcher()
         for i in range(QUEUE_EVENTS + 10):
-            w.push("snapshot", {"i": i})  # never waits
+            w.push(f"event: snapshot\ndata: {i}\n\n")  # never waits
         return w
 
     w = asyncio.run(go())
@@ -50,7 +50,8 @@ def test_datagrams_become_the_live_view(tmp_path: Path) -> None:
         assert view["trace"] == [{"t": 1.0, "stand": {"roll": 1.5},
                                   "instrument": {"roll": 1.4}}]  # a point needs a time
         assert view["prompt"]["text"] == "Clear?"
-        events = [w.queue.get_nowait()[0] for _ in range(w.queue.qsize())]
+        events = [w.queue.get_nowait().split("\n")[0][len("event: "):]
+                  for _ in range(w.queue.qsize())]
         assert events == ["state", "snapshot", "snapshot", "message", "prompt"]  # asked once
     finally:
         shutil.rmtree(st._tmp, ignore_errors=True)
