@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchctl.errors import BenchError, DataError
+from benchctl.outcomes import ExitCode
 
 if TYPE_CHECKING:
     from benchctl.analysis import AnalysisResult
@@ -192,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"benchctl analyze: NOTE: {visible(status['note'])}")
         for r in results.values():
             print(summary(r))
-    return 0
+    return ExitCode.OK
 
 
 def recording_status(rec: Any) -> dict[str, Any]:

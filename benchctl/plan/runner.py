@@ -60,6 +60,7 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode, Outcome
 from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
 from benchctl.results.record import load_record, sha256_file
 from benchctl.text import check_operator, check_serial
@@ -70,11 +71,6 @@ PLAN_SCHEMA_ID = "benchctl-plan/1"
 PLAN_JSON = "plan.json"
 RAMP_TIMEOUT_S = 60.0  # a cleanup/setup ramp_to_zero: at rest at zero within this
 TIMEOUT_SOURCE = "plan timeout"  # the fault source of a step ended by a timeout
-
-# step statuses: a run's outcome, or why it did not give one
-PASS, FAIL, INCONCLUSIVE, ABORTED = "PASS", "FAIL", "INCONCLUSIVE", "ABORTED"
-ERROR, SKIPPED = "ERROR", "SKIPPED"
-EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 
 # an operator prompt: the question → yes (True) or no (False); it raises EOFError when its input
 # ended, TimeoutError when no answer came in time, KeyboardInterrupt on a signal
@@ -104,10 +100,10 @@ class ActionResult:
 class StepResult:
     name: str
     profile: str
-    status: str  # PASS | FAIL | INCONCLUSIVE | ABORTED | ERROR | SKIPPED
+    status: Outcome  # PASS | FAIL | INCONCLUSIVE | ABORTED | ERROR | SKIPPED
     reason: str = ""
     on_fail: str = "stop"
-    exit_code: int | None = None
+    exit_code: ExitCode | None = None
     timed_out: bool = False
     duration_s: float = 0.0
     start_utc: str | None = None
@@ -147,8 +143,8 @@ class PlanResult:
     serial: str
     operator: str
     config: Path | None
-    outcome: str = PASS  # PASS | FAIL | INCONCLUSIVE | ABORTED
-    exit_code: int = EXIT_PASS
+    outcome: Outcome = Outcome.PASS  # PASS | FAIL | INCONCLUSIVE | ABORTED
+    exit_code: ExitCode = ExitCode.OK
     reason: str = ""
     timed_out: bool = False
     interrupted: bool = False
@@ -589,17 +585,19 @@ def run_plan(
                         result.timed_out = True
                         break
                 if stop_reason:
-                    result.outcome, result.reason = ABORTED, stop_reason
+                    result.outcome, result.reason = Outcome.ABORTED, stop_reason
                 # ---- steps
                 for step, scfg in zip(p.steps, live_cfgs, strict=True):
                     if stop_reason:
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
-                                                       f"not run: {stop_reason}", step.on_fail))
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED, f"not run: {stop_reason}",
+                                                       step.on_fail))
                         continue
                     if timers.plan_expired:
                         result.timed_out = True
                         stop_reason = "the plan's timeout_s ran out"
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED,
                                                        f"not run: {stop_reason}", step.on_fail))
                         continue
                     tell(f"step {step.name}: {step.profile.name}")
@@ -608,16 +606,18 @@ def run_plan(
                                    RunOptions, Supervisor, clock)
                     result.steps.append(sr)
                     tell(f"step {step.name}: {sr.status}" + (f" ({sr.reason})" if sr.reason
-                                                              and sr.status != PASS else ""))
+                                                              and sr.status != Outcome.PASS
+                                                              else ""))
                     if sr.timed_out and timers.plan_expired:
                         result.timed_out = True
-                    if sr.status in (ABORTED, ERROR):
+                    if sr.status in (Outcome.ABORTED, Outcome.ERROR):
                         stop_reason = f"step {step.name!r} {sr.status.lower()}: {sr.reason}"
                         if sr.abort is not None and sr.abort.get("source") == "signal":
                             # the run took the signal (the stand at rest): no prompt after it
                             consent.interrupt(KeyboardInterrupt(sr.reason),
                                               f"during step {step.name!r}")
-                    elif sr.status in (FAIL, INCONCLUSIVE) and step.on_fail == "stop":
+                    elif (sr.status in (Outcome.FAIL, Outcome.INCONCLUSIVE)
+                          and step.on_fail == "stop"):
                         stop_reason = f"step {step.name!r} {sr.status} (on_fail: stop)"
             except KeyboardInterrupt as e:  # a signal between the actions or the steps
                 stop_reason = consent.interrupt(e, "between the plan's actions and steps")
@@ -625,8 +625,9 @@ def run_plan(
                 done = {s.name for s in result.steps}
                 for step in p.steps:
                     if step.name not in done:
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
-                                                       f"not run: {stop_reason}", step.on_fail))
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED, f"not run: {stop_reason}",
+                                                       step.on_fail))
             finally:
                 timers.stop()
                 # ---- cleanup: always
@@ -728,7 +729,7 @@ def _ask(ar: ActionResult, prompt: str, asker: Asker | None, consent: Consent) -
 def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
               timers: _Timers, display: Callable[[], Any] | None, run_test: Any,
               RunOptions: Any, Supervisor: Any, clock: Clock = REAL) -> StepResult:
-    sr = StepResult(step.name, str(step.profile), ERROR, on_fail=step.on_fail,
+    sr = StepResult(step.name, str(step.profile), Outcome.ERROR, on_fail=step.on_fail,
                     start_utc=_now(clock))
     t0 = clock.monotonic()
     sup = Supervisor(clock=clock)
@@ -740,11 +741,11 @@ def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Pat
                            supervisor=sup, clock=clock)
     except BenchError as e:  # could not start: bad input found late, a stand in use
         sr.reason = f"could not start: {e}"
-        sr.exit_code = EXIT_ERROR
+        sr.exit_code = Outcome.ERROR.exit_code
         sr.duration_s = clock.monotonic() - t0
         return sr
     sr.duration_s = clock.monotonic() - t0
-    sr.exit_code = res.exit_code
+    sr.exit_code = ExitCode(res.exit_code)
     sr.recording = res.recording
     sr.record_path = res.record
     sr.abort = res.abort
@@ -754,19 +755,19 @@ def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Pat
         except BenchError as e:
             log.warning("step %s: record not readable: %s", step.name, e)
     if res.state == "aborted":
-        sr.status = ABORTED
+        sr.status = Outcome.ABORTED
         sr.reason = res.reason
         f = sup.first
         sr.timed_out = f is not None and isinstance(f.error, PlanTimeout)
     else:
-        sr.status = str(sr.record["outcome"]) if sr.record is not None else str(res.reason)
+        sr.status = Outcome(sr.record["outcome"] if sr.record is not None else res.reason)
         sr.reason = _fail_reason(sr)
     return sr
 
 
 def _fail_reason(sr: StepResult) -> str:
-    bad = [m for m in sr.measurements if m.get("decisive") and m.get("outcome") in (FAIL,
-                                                                                  INCONCLUSIVE)]
+    bad = [m for m in sr.measurements
+           if m.get("decisive") and m.get("outcome") in (Outcome.FAIL, Outcome.INCONCLUSIVE)]
     return "; ".join(f"{_mname(m)} {m['outcome']}" for m in bad[:5])
 
 
@@ -778,29 +779,30 @@ def _conclude(result: PlanResult, stop_reason: str) -> None:
     """The plan's outcome and exit code from its steps and actions."""
     statuses = [s.status for s in result.steps]
     aborted = (result.interrupted or result.timed_out
-               or any(s in (ABORTED, ERROR) for s in statuses)
+               or any(s in (Outcome.ABORTED, Outcome.ERROR) for s in statuses)
                or any(a.status in ("declined", "unanswered", "interrupted", "failed")
                       for a in result.setup)
                or any(a.status in ("interrupted", "failed") for a in result.cleanup))
     if aborted:
-        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        result.outcome = Outcome.ABORTED
         reasons = [stop_reason] if stop_reason else []
         reasons += [f"cleanup: {a.detail}" for a in result.cleanup if a.status == "failed"]
         if result.timed_out and not any("timeout" in r for r in reasons):
             reasons.append("the plan's timeout_s ran out")
         result.reason = "; ".join(reasons) or result.reason or "aborted"
-    elif FAIL in statuses:
-        result.outcome, result.exit_code = FAIL, EXIT_FAIL
+    elif Outcome.FAIL in statuses:
+        result.outcome = Outcome.FAIL
         result.reason = stop_reason or "; ".join(
-            f"{s.name}: {s.reason}" for s in result.steps if s.status == FAIL)
-    elif INCONCLUSIVE in statuses:
-        result.outcome, result.exit_code = INCONCLUSIVE, EXIT_INCONCLUSIVE
+            f"{s.name}: {s.reason}" for s in result.steps if s.status == Outcome.FAIL)
+    elif Outcome.INCONCLUSIVE in statuses:
+        result.outcome = Outcome.INCONCLUSIVE
         result.reason = stop_reason
-    elif statuses and all(s == PASS for s in statuses):
-        result.outcome, result.exit_code, result.reason = PASS, EXIT_PASS, ""
+    elif statuses and all(s == Outcome.PASS for s in statuses):
+        result.outcome, result.reason = Outcome.PASS, ""
     else:  # nothing ran (cannot happen: a plan has steps and nothing stopped it)
-        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        result.outcome = Outcome.ABORTED
         result.reason = stop_reason or "no step ran"
+    result.exit_code = result.outcome.exit_code
 
 
 def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -> None:
@@ -814,7 +816,7 @@ def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -
             result.junit = write_junit(result, Path(junit))
         except OSError as e:  # asked for and not written: an error of the plan (exit 2)
             log.error("JUnit XML not written: %s: %s", junit, e.strerror)
-            result.exit_code = EXIT_ERROR
+            result.exit_code = ExitCode.ERROR
             result.reason = "; ".join(
                 r for r in (result.reason, f"JUnit XML not written: {junit}: {e.strerror}") if r)
     rec = result.to_dict()
@@ -828,14 +830,8 @@ def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -
 
 
 __all__ = [
-    "ABORTED",
-    "ERROR",
-    "FAIL",
-    "INCONCLUSIVE",
-    "PASS",
     "PLAN_JSON",
     "PLAN_SCHEMA_ID",
-    "SKIPPED",
     "ActionResult",
     "Consent",
     "PlanResult",

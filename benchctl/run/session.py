@@ -75,6 +75,7 @@ from benchctl.errors import (
 )
 from benchctl.exits import run_log, set_log_dir
 from benchctl.kinematics import profile_peaks
+from benchctl.outcomes import ExitCode, Outcome
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -144,7 +145,6 @@ if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
 
 log = logging.getLogger(__name__)
 
-EXIT_PASS, EXIT_FAIL, EXIT_ABORT, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
@@ -179,7 +179,7 @@ class RunOptions:
 class RunResult:
     state: str  # done | aborted
     reason: str
-    exit_code: int
+    exit_code: ExitCode
     recording: Path | None
     report: Report | None = None
     stats: dict[str, Any] = field(default_factory=dict)
@@ -196,7 +196,7 @@ class RunResult:
             d["record"] = None if self.record is None else str(self.record)
             return d
         return {
-            "verdict": "ABORTED",
+            "verdict": Outcome.ABORTED,
             "state": self.state,
             "reason": self.reason,
             "abort": self.abort,
@@ -1321,7 +1321,7 @@ class Session:
             log.warning("serial mismatch: %s", sm.note)
         return out, warnings
 
-    def _write_record(self, outcome: str, exit_code: int, *, report: Report | None = None,
+    def _write_record(self, outcome: Outcome, exit_code: ExitCode, *, report: Report | None = None,
                       abort: dict[str, Any] | None = None, strict: bool = False,
                       closed: bool = False, rewrite: bool = False) -> Path | None:
         """record.json into the recording (a record that cannot be written is a warning; the
@@ -1346,7 +1346,7 @@ class Session:
             log.warning("record.json not written: %s", describe(full or e), exc_info=e)
             return None
 
-    def _record(self, outcome: str, exit_code: int, *, report: Report | None,
+    def _record(self, outcome: Outcome, exit_code: ExitCode, *, report: Report | None,
                 abort: dict[str, Any] | None, closed: bool) -> dict[str, Any]:
         """The record of this run (``closed``: with the data files' SHA-256)."""
         if report is not None:
@@ -1366,7 +1366,7 @@ class Session:
         )
         return with_data(rec, self.path, meta) if closed else rec
 
-    def _rewrite_record(self, outcome: str, exit_code: int, *, report: Report | None,
+    def _rewrite_record(self, outcome: Outcome, exit_code: ExitCode, *, report: Report | None,
                         abort: dict[str, Any] | None) -> Path | None:
         """The record and report.html written again once the recording is closed (with the
         data files' SHA-256), both or neither: the earlier report is kept aside (a rename, no
@@ -1608,10 +1608,10 @@ class Session:
         for s in steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
                                  + (f" (at the {s['when']})" if s.get("when") else ""))
-        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort, report=self.report,
-                                    closed=True)
+        record = self._write_record(Outcome.ABORTED, Outcome.ABORTED.exit_code, abort=abort,
+                                    report=self.report, closed=True)
         html = self.path / "report.html"
-        self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
+        self.display.verdict(Outcome.ABORTED, f"{abort['kind']}: {reason}\n"
                              + (_measured_line(measured) + "\n" if measured else "")
                              + "".join(f"{line}\n" for line in stand_lines(where))
                              + (f"report {html}" if html.exists() else f"recording {self.path}"))
@@ -1621,8 +1621,8 @@ class Session:
             log.warning("archive not updated: %s", describe(e))
         _archive(self.cfg, self.out_dir, self.path, self.run_archive)
         return RunResult(
-            "aborted", reason, EXIT_ABORT, self.path, None, stats, steps, log=self.log_path,
-            abort=abort, record=record, measured=measured,
+            "aborted", reason, Outcome.ABORTED.exit_code, self.path, None, stats, steps,
+            log=self.log_path, abort=abort, record=record, measured=measured,
         )
 
 
@@ -1871,10 +1871,6 @@ def run_test(
 
 
 __all__ = [
-    "EXIT_ABORT",
-    "EXIT_FAIL",
-    "EXIT_INCONCLUSIVE",
-    "EXIT_PASS",
     "RunOptions",
     "RunResult",
     "Session",
