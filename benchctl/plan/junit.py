@@ -49,7 +49,7 @@ from benchctl.outcomes import Outcome
 from benchctl.text import for_xml
 
 if TYPE_CHECKING:
-    from benchctl.plan.runner import ActionResult, PlanResult, StepResult
+    from benchctl.plan.result import ActionResult, PlanResult, StepResult
 
 
 def _num(v: Any) -> str:
