@@ -84,7 +84,8 @@ def _delay_option(text: str) -> str | float:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    """The numeric options' ranges (README, the option table), before any file is read."""
+    """The numeric options' ranges (docs/reference/analyze.md, the option table), before any
+    file is read."""
     from benchctl.options import MAX_BAND_HZ, MAX_LAG_S, MAX_RUN_DURATION_S, check_option
 
     check_option("--max-lag", args.max_lag, 0, MAX_LAG_S, lo_open=True, unit="s",
