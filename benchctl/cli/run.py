@@ -182,7 +182,7 @@ def summary_lines(result: Any) -> list[str]:
         lines.append(f"  record {result.record}")
     stand_after: dict[str, Any] | None = (result.abort or {}).get("stand")
     if stand_after:  # where the stand is, and how to bring it to zero
-        from benchctl.run.session import stand_lines
+        from benchctl.run.outputs import stand_lines
 
         lines += [f"  {visible(line)}" for line in stand_lines(stand_after)]
     return lines
