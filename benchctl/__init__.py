@@ -1,6 +1,6 @@
 """benchctl: dynamic-error tests of ship navigation instruments on a roll/pitch motion stand.
 
-The method is Gryazin & Belova (2023); see the README (Analysis) and ``docs/method.md``.
+The method is Gryazin & Belova (2023); see ``docs/method.md`` and ``docs/reference/analyze.md``.
 """
 
 from importlib.metadata import PackageNotFoundError, version

@@ -34,7 +34,7 @@ from benchctl.text import problem as text_problem
 from benchctl.textfile import MAX_YAML_BYTES, decode_utf8, read_input
 
 # Every number in a config is finite (``.inf``, ``.nan``, "inf" are refused); times and rates
-# that size a buffer or a wait are bounded above (README, "Bench configs").
+# that size a buffer or a wait are bounded above (docs/reference/config.md).
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -274,7 +274,7 @@ class SimStandConfig(Strict):
     # stepping to each one (a staircase the servo follows with its own, higher acceleration)
     stream_interpolation: bool = False
     baudrate: Baud = 115200  # byte time of the emulated RTU wire
-    faults: tuple[SimStandFault, ...] = ()  # injected by schedule (see README, "### Stand")
+    faults: tuple[SimStandFault, ...] = ()  # injected by schedule (docs/reference/simulators.md)
 
 
 class CrossAxisConfig(Strict):
@@ -628,7 +628,7 @@ class RunConfig(Strict):
     # or with its axes swapped is refused (on by default)
     mounting_check: MountingCheckConfig = MountingCheckConfig()
     # the host's scheduling latency measured before the motion and judged against the stand's
-    # buffer and watchdog (benchctl.run.fitness; README, "The host fitness check")
+    # buffer and watchdog (benchctl.run.fitness; docs/howto/host-check.md)
     host_check: HostCheckConfig = HostCheckConfig()
     # SCHED_FIFO priority (1–99) the stand loop thread asks for on the real clock (Linux:
     # CAP_SYS_NICE or an rtprio limit); whether it was granted is recorded, a refusal never
@@ -867,7 +867,7 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
 #
 # Every YAML file benchctl reads (bench configs, profiles, register maps) goes through
 # ``read_yaml`` and so through ``BenchYamlLoader``: PyYAML's safe loader plus these rules
-# (README, "Bench configs"):
+# (docs/reference/config.md, "YAML rules"):
 #
 # - the file is UTF-8 (else an error naming the byte offset and line);
 # - a key given twice in one mapping is an error (PyYAML silently keeps the last);

@@ -1,7 +1,7 @@
 """The command line's numeric options: their stated ranges and the one check every option takes
-before anything opens (README, the option tables). Light on purpose — no model, no YAML — so a
-command such as ``benchctl analyze`` checks its options without building the bench config's
-models; :mod:`benchctl.config` names them too."""
+before anything opens (the option tables of ``docs/reference/``: run, plans, analyze, predict).
+Light on purpose — no model, no YAML — so a command such as ``benchctl analyze`` checks its
+options without building the bench config's models; :mod:`benchctl.config` names them too."""
 
 from __future__ import annotations
 

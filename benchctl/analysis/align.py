@@ -67,7 +67,8 @@ BRIDGE_TOL = 1e-2  # … the spline's rms error across such a gap, tried where t
 BRIDGE_TRIALS = 24  # whole (this many places), is below this × the reference's rms
 BRIDGE_SIDE = 8  # samples each side of a trial gap for its local spline
 MIN_SAMPLES = 64
-# Input ranges (README, "Inputs and alignment"): beyond them a stream is refused, not analysed
+# Input ranges (docs/reference/analyze.md, "Input ranges"): beyond them a stream is refused,
+# not analysed
 MAX_GRID_FACTOR = 100  # a stream's grid (span / median step): at most 100× its samples …
 MAX_GRID_SLOTS = 10_000_000  # … and at most 10 million slots
 MIN_STEP_S = 1e-6  # median step at least 1 µs …

@@ -1,4 +1,5 @@
-"""The result of one analysis, and its JSON form (keys documented in the README)."""
+"""The result of one analysis, and its JSON form (keys documented in
+``docs/reference/analyze.md``, "JSON")."""
 
 from __future__ import annotations
 
@@ -103,7 +104,7 @@ class AnalysisResult:
     # the measured stand angle's spectrum against the profile's (benchctl.analysis.excitation)
     excitation: dict[str, Any] | None = None
     # where the stand's motion was not the profile's, left out (benchctl.analysis.departures;
-    # the keys: AnalysisResult docs in the README); None when no departure touches the record
+    # the keys: docs/reference/analyze.md, "JSON"); None when no departure touches the record
     departures: dict[str, Any] | None = None
 
     @property
@@ -112,7 +113,8 @@ class AnalysisResult:
         return not (self.departures or {}).get("too_little", False)
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (NaN/inf → null). See README "Analysis" for every key."""
+        """A JSON-ready dict (NaN/inf → null). See ``docs/reference/analyze.md``, "JSON", for
+        every key."""
         return {
             "source": self.source,
             "axis": self.axis,

@@ -47,6 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
 from benchctl.errors import DataError
+from benchctl.outcomes import Outcome
 
 FloatArray = NDArray[np.float64]
 
@@ -341,8 +342,8 @@ class StepsAnalysis:
         return s is not None and s <= self.limit
 
     @property
-    def verdict(self) -> str:
-        return "PASS" if self.passed else "FAIL"
+    def verdict(self) -> Outcome:
+        return Outcome.PASS if self.passed else Outcome.FAIL
 
     def to_dict(self) -> dict[str, Any]:
         g = self.gains

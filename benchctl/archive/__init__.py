@@ -1,6 +1,6 @@
-"""The results archive (issue 11 item 3): every run in a database — SQLite by default, one
-PostgreSQL server for a line of benches — through SQLAlchemy 2 Core, its schema managed by
-Alembic migrations shipped here (``migrations/``) and applied on open.
+"""The results archive: every run in a database — SQLite by default, one PostgreSQL server for
+a line of benches — through SQLAlchemy 2 Core, its schema managed by Alembic migrations shipped
+here (``migrations/``) and applied on open.
 
 - ``benchctl.archive.schema``: the tables (units, runs, measurements);
 - ``benchctl.archive.store``: ``Archive(url)``: open, migrate, store (idempotent by run_id),

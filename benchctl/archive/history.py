@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
+from benchctl.outcomes import RUN_OUTCOMES, Outcome
 from benchctl.text import csv_cell, terminal_lines, visible
 
 HISTORY_COLUMNS = ("run_id", "start_utc", "serial", "part_number", "station", "operator",
@@ -93,7 +94,7 @@ def show_text(run: dict[str, Any]) -> str:
     run has no value for is ``—`` (an aborted run has no report: the line says so)."""
     p = run.get("profile") or {}
     abort = run.get("abort") or {}
-    aborted = run.get("outcome") == "ABORTED"
+    aborted = run.get("outcome") == Outcome.ABORTED
     why = "no report: the run was aborted" if aborted else "no report recorded"
     lines = [
         f"run        {run['run_id']}",
@@ -193,7 +194,7 @@ def sigma_plot(series: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
         a["points"].append({
             "x": round(x(i), 1), "y": round(y(float(s["sigma"])), 1),
             "ci": None if not ci else (round(y(float(ci[1])), 1), round(y(float(ci[0])), 1)),
-            "fail": s.get("outcome") not in ("PASS", None),
+            "fail": s.get("outcome") not in (Outcome.PASS, None),
             "title": f"{s['run_id']} {s['axis']}: σ = {float(s['sigma']):.4g}"
                      + (f" [{float(ci[0]):.4g}, {float(ci[1]):.4g}]" if ci else "")
                      + f" ({s.get('outcome')})",
@@ -238,15 +239,12 @@ def pts_start(series: Sequence[dict[str, Any]], run_id: str) -> str | None:
     return None
 
 
-VERDICTS = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
-
-
 def _counted(key: dict[str, Any], outcomes: Sequence[str | None]) -> dict[str, Any]:
-    c = {v: sum(o == v for o in outcomes) for v in VERDICTS}
-    judged = c["PASS"] + c["FAIL"] + c["INCONCLUSIVE"]
-    return {**key, "runs": len(outcomes), "pass": c["PASS"], "fail": c["FAIL"],
-            "inconclusive": c["INCONCLUSIVE"], "aborted": c["ABORTED"],
-            "yield": None if judged == 0 else c["PASS"] / judged}
+    c = {v: sum(o == v for o in outcomes) for v in RUN_OUTCOMES}
+    judged = c[Outcome.PASS] + c[Outcome.FAIL] + c[Outcome.INCONCLUSIVE]
+    return {**key, "runs": len(outcomes), "pass": c[Outcome.PASS], "fail": c[Outcome.FAIL],
+            "inconclusive": c[Outcome.INCONCLUSIVE], "aborted": c[Outcome.ABORTED],
+            "yield": None if judged == 0 else c[Outcome.PASS] / judged}
 
 
 def unit_yield(serial: str, rows: Sequence[dict[str, Any]]) -> dict[str, Any]:

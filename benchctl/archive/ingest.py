@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import DataError
+from benchctl.outcomes import Outcome
 from benchctl.recording.format import (
     END_FILE,
     EVENTS_FILE,
@@ -173,7 +174,7 @@ def record_from_files(folder: Path) -> tuple[dict[str, Any], str]:
     abort: dict[str, Any] | None = None
     if not isinstance(end, dict):
         source = "killed"
-        outcome = "ABORTED"
+        outcome = Outcome.ABORTED
         abort = {"kind": "software", "reason": KILLED_REASON}
         end_utc: str | None = datetime.fromtimestamp(_newest_mtime(folder), UTC).isoformat(
             timespec="milliseconds")
@@ -183,9 +184,11 @@ def record_from_files(folder: Path) -> tuple[dict[str, Any], str]:
         reason = str(end.get("reason") or "")
         if end.get("state") == "done":
             verdict = str((report or {}).get("verdict") or reason).upper()
-            outcome = verdict if verdict in ("PASS", "FAIL", "INCONCLUSIVE") else "INCONCLUSIVE"
+            outcome = (Outcome(verdict) if verdict in (Outcome.PASS, Outcome.FAIL,
+                                                       Outcome.INCONCLUSIVE)
+                       else Outcome.INCONCLUSIVE)
         else:
-            outcome = "ABORTED"
+            outcome = Outcome.ABORTED
             abort = {"kind": _abort_kind(reason), "reason": reason or "aborted"}
     config = _map(meta.get("config"))
     unit_cfg = _map(config.get("unit"))

@@ -36,12 +36,13 @@ from sqlalchemy.pool import NullPool
 from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
 from benchctl.errors import ArchiveError, DataError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import RUN_OUTCOMES, Outcome
 from benchctl.redact import redact_secret, redact_text
 
 log = logging.getLogger(__name__)
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
-OUTCOMES = ("PASS", "FAIL", "INCONCLUSIVE", "ABORTED")
+OUTCOMES = RUN_OUTCOMES  # the runs' outcomes the archive counts
 SOURCES = ("record.json", "recording", "killed")
 DEFAULT_CONNECT_TIMEOUT_S = 2.0
 DEFAULT_BUSY_TIMEOUT_S = 30.0  # how long a statement waits for a lock (SQLite: a busy file)
@@ -154,7 +155,7 @@ def run_row(record: Mapping[str, Any], *, recording_sha256: str | None = None,
     files = _map(record.get("files"))
     report = _map(files.get("report_json"))
     software = _map(record.get("software"))
-    outcome = str(record.get("outcome") or "ABORTED").upper()
+    outcome = str(record.get("outcome") or Outcome.ABORTED).upper()
     seed = profile.get("seed")
     return {
         "run_id": run_id[:255],
@@ -565,11 +566,11 @@ class Archive:
                     c[r.outcome] += 1
         out = []
         for (st, day), c in sorted(days.items()):
-            judged = c["PASS"] + c["FAIL"] + c["INCONCLUSIVE"]
+            judged = c[Outcome.PASS] + c[Outcome.FAIL] + c[Outcome.INCONCLUSIVE]
             out.append({"station": st, "day": day, "runs": sum(c.values()),
-                        "pass": c["PASS"], "fail": c["FAIL"],
-                        "inconclusive": c["INCONCLUSIVE"], "aborted": c["ABORTED"],
-                        "yield": None if judged == 0 else c["PASS"] / judged})
+                        "pass": c[Outcome.PASS], "fail": c[Outcome.FAIL],
+                        "inconclusive": c[Outcome.INCONCLUSIVE], "aborted": c[Outcome.ABORTED],
+                        "yield": None if judged == 0 else c[Outcome.PASS] / judged})
         return out
 
 

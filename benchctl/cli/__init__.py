@@ -4,10 +4,10 @@ Each subcommand lives in its own module here with a ``register(subparsers)`` fun
 adds its parser and sets ``handler`` (a function taking the parsed args and returning the exit
 code). Heavy imports happen inside handlers so ``benchctl --help`` stays fast.
 
-Exit codes: 0 pass/success, 1 a measured FAIL (only that), 2 everything else: bad input, a
-device fault, an abort, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), an unexpected exception;
-3 a run judged INCONCLUSIVE by the guarded decision rule (σ's 95 % interval straddles the
-limit).
+Exit codes (``benchctl.outcomes.ExitCode``): 0 pass/success, 1 a measured FAIL (only that),
+2 everything else: bad input, a device fault, an abort, a signal (SIGINT, SIGTERM, SIGHUP,
+SIGQUIT), an unexpected exception; 3 a run judged INCONCLUSIVE by the guarded decision rule
+(σ's 95 % interval straddles the limit).
 No traceback reaches the console: ``main`` prints one line, ``benchctl <cmd>: error: …``, and an
 unexpected exception's traceback goes to a log file named on that line (``benchctl.exits``).
 """
@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 from benchctl import __version__, exits
 from benchctl.errors import BenchError, Interrupted
+from benchctl.outcomes import ExitCode
 from benchctl.text import terminal_lines
 
 # subcommands, in the order --help lists them (each a module here, its "-" a "_")
@@ -31,9 +32,6 @@ SUBCOMMANDS = (
     "run", "plan", "analyze", "report", "predict", "profile", "sim", "stand", "recording",
     "schema", "archive", "history", "show", "host-check", "serve", "serve-line",
 )
-
-EXIT_OK, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
-
 
 class _Parser(argparse.ArgumentParser):
     """argparse exits with 2 on a usage error, which is our error code too."""
@@ -73,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _main(argv)
         except KeyboardInterrupt as e:  # a signal while reporting something else
             _say(f"{_prefix(name)}: {_interrupted(e)}")
-            return EXIT_ERROR
+            return ExitCode.ERROR
         finally:
             _flush_std()
 
@@ -108,7 +106,7 @@ def _main(argv: Sequence[str] | None) -> int:
         if console is not None:
             root.removeHandler(console)
         root.setLevel(old_level)
-    return EXIT_ERROR
+    return ExitCode.ERROR
 
 
 def _command_name(argv: Sequence[str] | None) -> str:

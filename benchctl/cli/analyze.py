@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchctl.errors import BenchError, DataError
+from benchctl.outcomes import ExitCode
 
 if TYPE_CHECKING:
     from benchctl.analysis import AnalysisResult
@@ -83,7 +84,8 @@ def _delay_option(text: str) -> str | float:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    """The numeric options' ranges (README, the option table), before any file is read."""
+    """The numeric options' ranges (docs/reference/analyze.md, the option table), before any
+    file is read."""
     from benchctl.options import MAX_BAND_HZ, MAX_LAG_S, MAX_RUN_DURATION_S, check_option
 
     check_option("--max-lag", args.max_lag, 0, MAX_LAG_S, lo_open=True, unit="s",
@@ -192,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"benchctl analyze: NOTE: {visible(status['note'])}")
         for r in results.values():
             print(summary(r))
-    return 0
+    return ExitCode.OK
 
 
 def recording_status(rec: Any) -> dict[str, Any]:

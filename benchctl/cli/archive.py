@@ -12,6 +12,7 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 from benchctl.text import terminal_lines
 
 CLI_WRITE_TIMEOUT_S = 10.0  # history, show, rebuild: a lock waited for at least this long
@@ -110,7 +111,7 @@ def handle_status(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps({"archive": shown(s.url), "queue_dir": str(s.queue_dir),
                      "queued": pending, "refused": aside}))
-        return 0
+        return ExitCode.OK
     lines = [f"archive {shown(s.url)}",
              f"queue {s.queue_dir}: {len(pending)} record(s) waiting"
              + ("" if not pending else " (`benchctl archive sync` sends them)")]
@@ -121,7 +122,7 @@ def handle_status(args: argparse.Namespace) -> int:
         lines.append(f"refused records are kept in {s.queue_dir / 'refused'}: once the cause is "
                      "fixed, move one back into the queue folder to send it again")
     print(terminal_lines(lines))
-    return 0
+    return ExitCode.OK
 
 
 def handle_sync(args: argparse.Namespace) -> int:
@@ -142,7 +143,7 @@ def handle_sync(args: argparse.Namespace) -> int:
         if res.stopped is not None:
             lines.append(f"  stopped: {res.stopped}")
         print(terminal_lines(lines))
-    return 0 if not res.refused and res.stopped is None else 2
+    return ExitCode.OK if not res.refused and res.stopped is None else ExitCode.ERROR
 
 
 def handle_rebuild(args: argparse.Namespace) -> int:
@@ -161,4 +162,4 @@ def handle_rebuild(args: argparse.Namespace) -> int:
             print(f"  skipped {why}")
         for why in res.refused:
             print(f"  refused {why}")
-    return 0 if not res.refused else 2
+    return ExitCode.OK if not res.refused else ExitCode.ERROR

@@ -12,6 +12,7 @@ from typing import Any
 from benchctl.cli.archive import add_archive_options, open_archive
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 
 
 def since_date(text: str) -> datetime:
@@ -91,4 +92,4 @@ def handle(args: argparse.Namespace) -> int:
         print(h.to_text(rows))
         if args.html is not None:
             print(f"history page: {args.html}")
-    return 0
+    return ExitCode.OK

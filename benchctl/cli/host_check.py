@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchctl.outcomes import ExitCode
+
 MAX_WINDOW_S = 60.0
 
 
@@ -87,4 +89,4 @@ def handle(args: argparse.Namespace) -> int:
         else:
             print("\n".join(lines(check)))
         sys.stdout.flush()
-    return 0 if check.ok else 1
+    return ExitCode.OK if check.ok else ExitCode.FAIL

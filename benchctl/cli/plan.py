@@ -11,6 +11,7 @@ from typing import Any
 
 from benchctl.cli.run import ask_value
 from benchctl.errors import InputError
+from benchctl.outcomes import Outcome
 from benchctl.text import terminal_lines, visible
 
 
@@ -71,11 +72,11 @@ def summary(result: Any) -> str:
         head = f"  {s.status:<12} {s.name}"
         if s.duration_s:
             head += f"  ({s.duration_s:.0f} s)"
-        if s.reason and s.status != "PASS":
+        if s.reason and s.status != Outcome.PASS:
             head += f"  {s.reason}"
         lines.append(head)
         for m in s.measurements:
-            if not m.get("decisive") or m.get("outcome") == "NOT_JUDGED":
+            if not m.get("decisive") or m.get("outcome") == Outcome.NOT_JUDGED:
                 continue
             if str(m.get("name", "")).startswith("precheck"):
                 continue

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchctl.errors import ConfigError, DataError
+from benchctl.outcomes import ExitCode
 
 if TYPE_CHECKING:
     from benchctl.analysis import AnalysisResult
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
     else:
         print("\n".join(texts))
-    return 0
+    return ExitCode.OK
 
 
 def _not_moved(axis: str, profile_name: str, tables: dict[str, HarmonicTable]) -> str:

@@ -9,6 +9,7 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -191,7 +192,7 @@ def handle_show(args: argparse.Namespace) -> int:
         print(dumps(report, indent=2))
     else:
         _print_report(report)
-    return 0
+    return ExitCode.OK
 
 
 def handle_synth(args: argparse.Namespace) -> int:
@@ -235,7 +236,7 @@ def handle_synth(args: argparse.Namespace) -> int:
         )
         if args.table is not None:
             print(f"wrote {args.table}: harmonic table")
-    return 0
+    return ExitCode.OK
 
 
 def handle_plot(args: argparse.Namespace) -> int:
@@ -285,4 +286,4 @@ def handle_plot(args: argparse.Namespace) -> int:
     except OSError as e:
         raise InputError(f"{args.out}: cannot write: {e.strerror}") from None
     print(f"wrote {args.out}")
-    return 0
+    return ExitCode.OK

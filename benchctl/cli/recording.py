@@ -8,6 +8,7 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 from benchctl.text import terminal_lines
 
 
@@ -79,7 +80,7 @@ def handle_show(args: argparse.Namespace) -> int:
     s = summary(args.path)
     if args.json:
         print(dumps(s))
-        return 0
+        return ExitCode.OK
     integrity = s["integrity"]
     failed = integrity["status"] == "FAILED"
     lines = [
@@ -99,7 +100,7 @@ def handle_show(args: argparse.Namespace) -> int:
     lines.append(f"  states     {' → '.join(str(x) for x in s['states'])}")
     # the serial, the operator, the devices' identities: shown, never sent as escapes
     print(terminal_lines(lines))
-    return 0
+    return ExitCode.OK
 
 
 def _integrity_text(d: dict[str, Any]) -> str:
@@ -123,4 +124,4 @@ def handle_export(args: argparse.Namespace) -> int:
             print(f)
     else:
         print(rec.export_mat(args.mat))
-    return 0
+    return ExitCode.OK

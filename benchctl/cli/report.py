@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import DataError
+from benchctl.outcomes import ExitCode
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         except OSError as e:
             raise DataError(f"{dest}: cannot write the report: {e.strerror}") from None
         print(dest)
-        return 0
+        return ExitCode.OK
     record = load_record(folder) if (folder / RECORD_JSON).exists() else None
     try:
         dest = write_html(folder, record=record, trace=not args.no_trace)
@@ -58,4 +59,4 @@ def run(args: argparse.Namespace) -> int:
     if record is not None:
         write_record(folder, with_file(record, "report_html", dest))
     print(dest)
-    return 0
+    return ExitCode.OK

@@ -119,7 +119,7 @@ def handle(args: argparse.Namespace) -> int:
     # The stand loop thread must get the interpreter within a fraction of its 10 ms period when
     # the instrument reader or the display holds it: hand the GIL over every 1 ms, not 5 ms.
     sys.setswitchinterval(0.001)
-    # option ranges (README, the option table), before anything is read or opened
+    # option ranges (docs/reference/run.md, the option table), before anything is read or opened
     check_option("--duration", args.duration, 0, MAX_RUN_DURATION_S, lo_open=True, unit="s")
     check_option("--seed", args.seed, 0, MAX_SEED)
     if args.precision is not None and not (
@@ -191,7 +191,7 @@ def summary_lines(result: Any) -> list[str]:
         lines.append(f"  record {result.record}")
     stand_after: dict[str, Any] | None = (result.abort or {}).get("stand")
     if stand_after:  # where the stand is, and how to bring it to zero
-        from benchctl.run.session import stand_lines
+        from benchctl.run.outputs import stand_lines
 
         lines += [f"  {visible(line)}" for line in stand_lines(stand_after)]
     return lines

@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+from benchctl.outcomes import ExitCode
+
 SCHEMAS = ("record", "plan")
 
 
@@ -29,4 +31,4 @@ def handle(args: argparse.Namespace) -> int:
 
     text = plan_schema_text() if args.name == "plan" else schema_text()
     sys.stdout.write(text if text.endswith("\n") else text + "\n")
-    return 0
+    return ExitCode.OK

@@ -10,6 +10,7 @@ from typing import Any
 from benchctl.cli.archive import add_archive_options, open_archive
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 
 
 def register(sub: Any) -> None:
@@ -48,7 +49,7 @@ def handle(args: argparse.Namespace) -> int:
     else:
         print(show_text(run))
         print(f"integrity  {integrity.text()}")
-    return 0
+    return ExitCode.OK
 
 
 def _integrity(run: dict[str, Any]) -> Any:

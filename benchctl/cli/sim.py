@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from benchctl.clock import REAL, EventLike
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode
 
 if TYPE_CHECKING:
     from benchctl.config import BenchConfig
@@ -87,7 +88,7 @@ def _serve(args: argparse.Namespace, cfg: BenchConfig, done: EventLike) -> int:
         done.wait()
     finally:
         bench.stop()
-    return 0
+    return ExitCode.OK
 
 
 def _wait_eof(done: EventLike) -> None:

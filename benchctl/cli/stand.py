@@ -18,6 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from benchctl.outcomes import ExitCode
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
@@ -80,7 +82,7 @@ def handle(args: argparse.Namespace) -> int:
                 print(dumps(state.to_dict()))
             else:
                 print("\n".join(standctl.describe(state, cfg.source)))
-        return 0
+        return ExitCode.OK
     confirm: Callable[[str], bool]
     if args.yes:
         confirm = _yes
@@ -95,4 +97,4 @@ def handle(args: argparse.Namespace) -> int:
     out = act(cfg, confirm, who)
     _say(f"benchctl stand {args.action}: {out.detail}"
          + (f" (logged in {out.log_file})" if out.log_file is not None else ""))
-    return 2 if out.declined else 0
+    return ExitCode.ERROR if out.declined else ExitCode.OK

@@ -45,10 +45,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchctl.fileout import atomic_write_bytes
+from benchctl.outcomes import Outcome
 from benchctl.text import for_xml
 
 if TYPE_CHECKING:
-    from benchctl.plan.runner import ActionResult, PlanResult, StepResult
+    from benchctl.plan.result import ActionResult, PlanResult, StepResult
 
 
 def _num(v: Any) -> str:
@@ -102,13 +103,13 @@ def _measurement_case(parent: ET.Element, classname: str, m: dict[str, Any], sec
             ET.SubElement(props, "property", name=_case_name(x), value=_not_judged(x))
     text = _text(m)
     outcome = m.get("outcome")
-    if not m.get("decisive") and outcome in ("FAIL", "INCONCLUSIVE"):
+    if not m.get("decisive") and outcome in (Outcome.FAIL, Outcome.INCONCLUSIVE):
         ET.SubElement(case, "system-out").text = f"informative, {outcome}: {text}"
         return "pass"
-    if outcome in ("FAIL", "INCONCLUSIVE"):
+    if outcome in (Outcome.FAIL, Outcome.INCONCLUSIVE):
         ET.SubElement(case, "failure", type=str(outcome), message=f"{outcome}: {text}")
         return "failure"
-    if outcome == "NOT_JUDGED":  # only when no judged measurement could take it along
+    if outcome == Outcome.NOT_JUDGED:  # only when no judged measurement could take it along
         ET.SubElement(case, "system-out").text = f"NOT_JUDGED: {text}"
         return "pass"
     out = [f"{outcome}: {text}"] + [f"NOT_JUDGED: {_text(x)}" for x in extra]
@@ -223,7 +224,7 @@ def _actions(root: ET.Element, plan: str, phase: str, actions: list[ActionResult
         case = ET.SubElement(suite, "testcase", classname=f"{plan}.{phase}",
                              name=f"{a.index + 1}: {label}", time=f"{a.duration_s:.3f}")
         if a.status == "failed":
-            ET.SubElement(case, "error", type="ERROR", message=a.detail)
+            ET.SubElement(case, "error", type=Outcome.ERROR, message=a.detail)
             kinds.append("error")
         elif a.status == "interrupted" or (a.status == "unanswered" and phase == "setup"):
             ET.SubElement(case, "error", type=a.status.upper(), message=a.detail)
@@ -253,11 +254,11 @@ def _step(root: ET.Element, result: PlanResult, s: StepResult) -> list[str]:
                    "record": s.record_path, "timed_out": s.timed_out or None})
     classname = f"{result.name}.{s.name}"
     ms = s.measurements
-    judged = [m for m in ms if m.get("outcome") != "NOT_JUDGED"]
+    judged = [m for m in ms if m.get("outcome") != Outcome.NOT_JUDGED]
     along: dict[int, list[dict[str, Any]]] = {id(j): [] for j in judged}
     alone = set()  # NOT_JUDGED with no judged measurement to go with: a case of its own
     for m in ms:
-        if m.get("outcome") == "NOT_JUDGED":
+        if m.get("outcome") == Outcome.NOT_JUDGED:
             host = _host(m, judged)
             if host is None:
                 alone.add(id(m))
@@ -270,11 +271,11 @@ def _step(root: ET.Element, result: PlanResult, s: StepResult) -> list[str]:
         return times.get(name, 0.0 if name.startswith("precheck: ") else times["motion"])
 
     kinds = [_measurement_case(suite, classname, m, seconds(m), along.get(id(m), []))
-             for m in ms if m.get("outcome") != "NOT_JUDGED" or id(m) in alone]
-    if s.status in ("ABORTED", "ERROR", "SKIPPED"):
+             for m in ms if m.get("outcome") != Outcome.NOT_JUDGED or id(m) in alone]
+    if s.status in (Outcome.ABORTED, Outcome.ERROR, Outcome.SKIPPED):
         case = ET.SubElement(suite, "testcase", classname=classname, name="run",
                              time=f"{s.duration_s:.3f}")
-        if s.status == "SKIPPED":
+        if s.status == Outcome.SKIPPED:
             ET.SubElement(case, "skipped", message=s.reason)
             kinds.append("skipped")
         else:

@@ -49,7 +49,7 @@ import select
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,21 +60,18 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
+from benchctl.outcomes import ExitCode, Outcome
+from benchctl.plan.junit import write_junit
+from benchctl.plan.result import PLAN_SCHEMA_ID, ActionResult, PlanResult, StepResult
 from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
-from benchctl.results.record import load_record, sha256_file
+from benchctl.results.record import load_record
 from benchctl.text import check_operator, check_serial
 
 log = logging.getLogger(__name__)
 
-PLAN_SCHEMA_ID = "benchctl-plan/1"
 PLAN_JSON = "plan.json"
 RAMP_TIMEOUT_S = 60.0  # a cleanup/setup ramp_to_zero: at rest at zero within this
 TIMEOUT_SOURCE = "plan timeout"  # the fault source of a step ended by a timeout
-
-# step statuses: a run's outcome, or why it did not give one
-PASS, FAIL, INCONCLUSIVE, ABORTED = "PASS", "FAIL", "INCONCLUSIVE", "ABORTED"
-ERROR, SKIPPED = "ERROR", "SKIPPED"
-EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 
 # an operator prompt: the question → yes (True) or no (False); it raises EOFError when its input
 # ended, TimeoutError when no answer came in time, KeyboardInterrupt on a signal
@@ -83,112 +80,6 @@ Asker = Callable[[str], bool]
 
 class PlanTimeout(SafetyAbort):
     """A step ended because its own or the plan's ``timeout_s`` ran out."""
-
-
-@dataclass
-class ActionResult:
-    phase: str  # setup | cleanup
-    index: int
-    prompt: str | None
-    check: str | None
-    status: str  # ok | declined | unanswered | interrupted | failed | skipped
-    detail: str = ""
-    duration_s: float = 0.0  # the action's time, its prompt's answer included (JUnit)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"phase": self.phase, "index": self.index, "prompt": self.prompt,
-                "check": self.check, "status": self.status, "detail": self.detail}
-
-
-@dataclass
-class StepResult:
-    name: str
-    profile: str
-    status: str  # PASS | FAIL | INCONCLUSIVE | ABORTED | ERROR | SKIPPED
-    reason: str = ""
-    on_fail: str = "stop"
-    exit_code: int | None = None
-    timed_out: bool = False
-    duration_s: float = 0.0
-    start_utc: str | None = None
-    recording: Path | None = None
-    record_path: Path | None = None
-    record: dict[str, Any] | None = None  # record.json's content (validated), when written
-    abort: dict[str, Any] | None = None
-
-    @property
-    def measurements(self) -> list[dict[str, Any]]:
-        return list((self.record or {}).get("measurements") or [])
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "profile": self.profile,
-            "status": self.status,
-            "reason": self.reason,
-            "on_fail": self.on_fail,
-            "exit_code": self.exit_code,
-            "timed_out": self.timed_out,
-            "duration_s": round(self.duration_s, 3),
-            "start_utc": self.start_utc,
-            "recording": None if self.recording is None else str(self.recording),
-            "record_path": None if self.record_path is None else str(self.record_path),
-            "abort": self.abort,
-            "record": self.record,
-        }
-
-
-@dataclass
-class PlanResult:
-    """What ``run_plan`` returns; ``to_dict()`` is the plan record (``plan.json``)."""
-
-    name: str
-    source: Path | None
-    serial: str
-    operator: str
-    config: Path | None
-    outcome: str = PASS  # PASS | FAIL | INCONCLUSIVE | ABORTED
-    exit_code: int = EXIT_PASS
-    reason: str = ""
-    timed_out: bool = False
-    interrupted: bool = False
-    start_utc: str = ""
-    end_utc: str = ""
-    duration_s: float = 0.0
-    setup: list[ActionResult] = field(default_factory=list)
-    steps: list[StepResult] = field(default_factory=list)
-    cleanup: list[ActionResult] = field(default_factory=list)
-    folder: Path | None = None  # <output_dir>/plan_<stamp>_<serial>: plan.json, sim.log
-    record_path: Path | None = None  # plan.json
-    junit: Path | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        from benchctl import __version__
-
-        return {
-            "schema": PLAN_SCHEMA_ID,
-            "software": {"name": "benchctl", "version": str(__version__)},
-            "plan": {
-                "name": self.name,
-                "path": None if self.source is None else str(self.source),
-                "sha256": sha256_file(self.source),
-            },
-            "serial": self.serial,
-            "operator": self.operator,
-            "config": None if self.config is None else str(self.config),
-            "outcome": self.outcome,
-            "exit_code": self.exit_code,
-            "reason": self.reason,
-            "timed_out": self.timed_out,
-            "interrupted": self.interrupted,
-            "start_utc": self.start_utc,
-            "end_utc": self.end_utc,
-            "duration_s": round(self.duration_s, 3),
-            "setup": [a.to_dict() for a in self.setup],
-            "steps": [s.to_dict() for s in self.steps],
-            "cleanup": [a.to_dict() for a in self.cleanup],
-            "junit": None if self.junit is None else str(self.junit),
-        }
 
 
 # ------------------------------------------------------------------------------- prompts
@@ -589,17 +480,19 @@ def run_plan(
                         result.timed_out = True
                         break
                 if stop_reason:
-                    result.outcome, result.reason = ABORTED, stop_reason
+                    result.outcome, result.reason = Outcome.ABORTED, stop_reason
                 # ---- steps
                 for step, scfg in zip(p.steps, live_cfgs, strict=True):
                     if stop_reason:
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
-                                                       f"not run: {stop_reason}", step.on_fail))
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED, f"not run: {stop_reason}",
+                                                       step.on_fail))
                         continue
                     if timers.plan_expired:
                         result.timed_out = True
                         stop_reason = "the plan's timeout_s ran out"
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED,
                                                        f"not run: {stop_reason}", step.on_fail))
                         continue
                     tell(f"step {step.name}: {step.profile.name}")
@@ -608,16 +501,18 @@ def run_plan(
                                    RunOptions, Supervisor, clock)
                     result.steps.append(sr)
                     tell(f"step {step.name}: {sr.status}" + (f" ({sr.reason})" if sr.reason
-                                                              and sr.status != PASS else ""))
+                                                              and sr.status != Outcome.PASS
+                                                              else ""))
                     if sr.timed_out and timers.plan_expired:
                         result.timed_out = True
-                    if sr.status in (ABORTED, ERROR):
+                    if sr.status in (Outcome.ABORTED, Outcome.ERROR):
                         stop_reason = f"step {step.name!r} {sr.status.lower()}: {sr.reason}"
                         if sr.abort is not None and sr.abort.get("source") == "signal":
                             # the run took the signal (the stand at rest): no prompt after it
                             consent.interrupt(KeyboardInterrupt(sr.reason),
                                               f"during step {step.name!r}")
-                    elif sr.status in (FAIL, INCONCLUSIVE) and step.on_fail == "stop":
+                    elif (sr.status in (Outcome.FAIL, Outcome.INCONCLUSIVE)
+                          and step.on_fail == "stop"):
                         stop_reason = f"step {step.name!r} {sr.status} (on_fail: stop)"
             except KeyboardInterrupt as e:  # a signal between the actions or the steps
                 stop_reason = consent.interrupt(e, "between the plan's actions and steps")
@@ -625,8 +520,9 @@ def run_plan(
                 done = {s.name for s in result.steps}
                 for step in p.steps:
                     if step.name not in done:
-                        result.steps.append(StepResult(step.name, str(step.profile), SKIPPED,
-                                                       f"not run: {stop_reason}", step.on_fail))
+                        result.steps.append(StepResult(step.name, str(step.profile),
+                                                       Outcome.SKIPPED, f"not run: {stop_reason}",
+                                                       step.on_fail))
             finally:
                 timers.stop()
                 # ---- cleanup: always
@@ -728,7 +624,7 @@ def _ask(ar: ActionResult, prompt: str, asker: Asker | None, consent: Consent) -
 def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
               timers: _Timers, display: Callable[[], Any] | None, run_test: Any,
               RunOptions: Any, Supervisor: Any, clock: Clock = REAL) -> StepResult:
-    sr = StepResult(step.name, str(step.profile), ERROR, on_fail=step.on_fail,
+    sr = StepResult(step.name, str(step.profile), Outcome.ERROR, on_fail=step.on_fail,
                     start_utc=_now(clock))
     t0 = clock.monotonic()
     sup = Supervisor(clock=clock)
@@ -740,11 +636,11 @@ def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Pat
                            supervisor=sup, clock=clock)
     except BenchError as e:  # could not start: bad input found late, a stand in use
         sr.reason = f"could not start: {e}"
-        sr.exit_code = EXIT_ERROR
+        sr.exit_code = Outcome.ERROR.exit_code
         sr.duration_s = clock.monotonic() - t0
         return sr
     sr.duration_s = clock.monotonic() - t0
-    sr.exit_code = res.exit_code
+    sr.exit_code = ExitCode(res.exit_code)
     sr.recording = res.recording
     sr.record_path = res.record
     sr.abort = res.abort
@@ -754,19 +650,19 @@ def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Pat
         except BenchError as e:
             log.warning("step %s: record not readable: %s", step.name, e)
     if res.state == "aborted":
-        sr.status = ABORTED
+        sr.status = Outcome.ABORTED
         sr.reason = res.reason
         f = sup.first
         sr.timed_out = f is not None and isinstance(f.error, PlanTimeout)
     else:
-        sr.status = str(sr.record["outcome"]) if sr.record is not None else str(res.reason)
+        sr.status = Outcome(sr.record["outcome"] if sr.record is not None else res.reason)
         sr.reason = _fail_reason(sr)
     return sr
 
 
 def _fail_reason(sr: StepResult) -> str:
-    bad = [m for m in sr.measurements if m.get("decisive") and m.get("outcome") in (FAIL,
-                                                                                  INCONCLUSIVE)]
+    bad = [m for m in sr.measurements
+           if m.get("decisive") and m.get("outcome") in (Outcome.FAIL, Outcome.INCONCLUSIVE)]
     return "; ".join(f"{_mname(m)} {m['outcome']}" for m in bad[:5])
 
 
@@ -778,35 +674,35 @@ def _conclude(result: PlanResult, stop_reason: str) -> None:
     """The plan's outcome and exit code from its steps and actions."""
     statuses = [s.status for s in result.steps]
     aborted = (result.interrupted or result.timed_out
-               or any(s in (ABORTED, ERROR) for s in statuses)
+               or any(s in (Outcome.ABORTED, Outcome.ERROR) for s in statuses)
                or any(a.status in ("declined", "unanswered", "interrupted", "failed")
                       for a in result.setup)
                or any(a.status in ("interrupted", "failed") for a in result.cleanup))
     if aborted:
-        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        result.outcome = Outcome.ABORTED
         reasons = [stop_reason] if stop_reason else []
         reasons += [f"cleanup: {a.detail}" for a in result.cleanup if a.status == "failed"]
         if result.timed_out and not any("timeout" in r for r in reasons):
             reasons.append("the plan's timeout_s ran out")
         result.reason = "; ".join(reasons) or result.reason or "aborted"
-    elif FAIL in statuses:
-        result.outcome, result.exit_code = FAIL, EXIT_FAIL
+    elif Outcome.FAIL in statuses:
+        result.outcome = Outcome.FAIL
         result.reason = stop_reason or "; ".join(
-            f"{s.name}: {s.reason}" for s in result.steps if s.status == FAIL)
-    elif INCONCLUSIVE in statuses:
-        result.outcome, result.exit_code = INCONCLUSIVE, EXIT_INCONCLUSIVE
+            f"{s.name}: {s.reason}" for s in result.steps if s.status == Outcome.FAIL)
+    elif Outcome.INCONCLUSIVE in statuses:
+        result.outcome = Outcome.INCONCLUSIVE
         result.reason = stop_reason
-    elif statuses and all(s == PASS for s in statuses):
-        result.outcome, result.exit_code, result.reason = PASS, EXIT_PASS, ""
+    elif statuses and all(s == Outcome.PASS for s in statuses):
+        result.outcome, result.reason = Outcome.PASS, ""
     else:  # nothing ran (cannot happen: a plan has steps and nothing stopped it)
-        result.outcome, result.exit_code = ABORTED, EXIT_ERROR
+        result.outcome = Outcome.ABORTED
         result.reason = stop_reason or "no step ran"
+    result.exit_code = result.outcome.exit_code
 
 
 def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -> None:
     """plan.json (validated) and the JUnit XML; a file that cannot be written is an error
     line in the log and leaves its path None (the steps' records stand without it)."""
-    from benchctl.plan.junit import write_junit
     from benchctl.plan.record import validate_plan_record
 
     if junit is not None:
@@ -814,7 +710,7 @@ def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -
             result.junit = write_junit(result, Path(junit))
         except OSError as e:  # asked for and not written: an error of the plan (exit 2)
             log.error("JUnit XML not written: %s: %s", junit, e.strerror)
-            result.exit_code = EXIT_ERROR
+            result.exit_code = ExitCode.ERROR
             result.reason = "; ".join(
                 r for r in (result.reason, f"JUnit XML not written: {junit}: {e.strerror}") if r)
     rec = result.to_dict()
@@ -828,14 +724,8 @@ def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -
 
 
 __all__ = [
-    "ABORTED",
-    "ERROR",
-    "FAIL",
-    "INCONCLUSIVE",
-    "PASS",
     "PLAN_JSON",
     "PLAN_SCHEMA_ID",
-    "SKIPPED",
     "ActionResult",
     "Consent",
     "PlanResult",

@@ -1,7 +1,7 @@
 """Profile file schema (pydantic, strict): one model per ``kind``, unknown fields are errors.
 
 Units are in field names (``hs_m``, ``tp_s``, ``sigma_deg``, ``band_hz``). The field reference
-is the README section "Profiles: ``benchctl profile``".
+is ``docs/reference/profiles.md``.
 """
 
 from __future__ import annotations

@@ -34,6 +34,7 @@ from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, loads_strict
+from benchctl.outcomes import Outcome
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -113,8 +114,8 @@ def _verdict(report: Mapping[str, Any] | None, record: Mapping[str, Any] | None,
     if report and report.get("verdict"):
         return str(report["verdict"])
     if end is None:
-        return "INCOMPLETE"
-    return "ABORTED" if end.get("state") == "aborted" else str(end.get("reason") or "?")
+        return Outcome.INCOMPLETE
+    return Outcome.ABORTED if end.get("state") == "aborted" else str(end.get("reason") or "?")
 
 
 def _calibration_warning(due: Any, start: Any) -> str | None:
@@ -238,12 +239,13 @@ def measurement_rows(measurements: Sequence[Mapping[str, Any]]) -> list[dict[str
         if grouped:
             continue
         grouped = True
-        ok = [p for p in pre if p.get("outcome") == "PASS"]
-        failed = [p for p in pre if p.get("outcome") != "PASS"]
+        ok = [p for p in pre if p.get("outcome") == Outcome.PASS]
+        failed = [p for p in pre if p.get("outcome") != Outcome.PASS]
         names = ", ".join(str(p.get("name"))[len(PRECHECK_PREFIX):] for p in pre)
         rows.append({"name": f"prechecks ({len(pre)})", "axis": None,
                      "value": f"{len(ok)} of {len(pre)} passed", "unit": None, "low": None,
-                     "high": None, "ci95": None, "outcome": "FAIL" if failed else "PASS",
+                     "high": None, "ci95": None,
+                     "outcome": Outcome.FAIL if failed else Outcome.PASS,
                      "rule": "check", "decisive": True, "note": names, "group": True})
         rows.extend({**p, "group": False} for p in failed)
     return rows
@@ -469,14 +471,14 @@ def build_context(
                               title, _stamp(folder)),
                          lambda: _trace(folder, names, window, motion_start, title))
     abort = rec.get("abort")
-    if abort is None and verdict in ("ABORTED", "INCOMPLETE"):
+    if abort is None and verdict in (Outcome.ABORTED, Outcome.INCOMPLETE):
         reason = (end or {}).get("reason") if end else "the run ended without closing its " \
             "recording (no end.json: the process was killed)"
         abort = {"kind": None, "reason": reason}
     # an aborted run's cleanup, step by step: the record's, else end.json's (a record not
     # written); those at the motion's end first
     shutdown: list[Any] = []
-    if verdict in ("ABORTED", "INCOMPLETE"):
+    if verdict in (Outcome.ABORTED, Outcome.INCOMPLETE):
         shutdown = list((abort or {}).get("shutdown") or [
             *((end or {}).get("motion_end_shutdown") or []),
             *((end or {}).get("shutdown") or [])])

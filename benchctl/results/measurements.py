@@ -38,10 +38,13 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-PASS, FAIL, INCONCLUSIVE, NOT_JUDGED = "PASS", "FAIL", "INCONCLUSIVE", "NOT_JUDGED"
-# an informative measurement beyond its limit: shown and recorded, never a FAIL (it decides
-# nothing: the excitation fidelity's alarm, a serial mismatch)
-WARNING = "WARNING"
+from benchctl.outcomes import Outcome
+
+# a measurement's outcomes (``Outcome``), also by these names; WARNING: an informative
+# measurement beyond its limit, shown and recorded, never a FAIL (it decides nothing: the
+# excitation fidelity's alarm, a serial mismatch)
+PASS, FAIL, INCONCLUSIVE = Outcome.PASS, Outcome.FAIL, Outcome.INCONCLUSIVE
+NOT_JUDGED, WARNING = Outcome.NOT_JUDGED, Outcome.WARNING
 OUTCOMES = (PASS, FAIL, INCONCLUSIVE, NOT_JUDGED, WARNING)
 RULES = ("simple", "guarded")
 RULE_TEXT = {
@@ -68,7 +71,7 @@ def decide(
     high: float | None,
     ci95: Sequence[float | None] | None = None,
     rule: str = "simple",
-) -> str:
+) -> Outcome:
     """The outcome of one measurement under ``rule`` (see the module notes).
 
     ``guarded`` needs ``ci95`` (lower, upper); a bound that is missing or not finite can
@@ -76,13 +79,13 @@ def decide(
     if rule not in RULES:
         raise ValueError(f"decision rule {rule!r}: expected one of {', '.join(RULES)}")
     if low is None and high is None:
-        return NOT_JUDGED
+        return Outcome.NOT_JUDGED
     if not _finite(value):
-        return FAIL
+        return Outcome.FAIL
     assert value is not None
     if rule == "simple" or ci95 is None:
         ok = (low is None or value >= low) and (high is None or value <= high)
-        return PASS if ok else FAIL
+        return Outcome.PASS if ok else Outcome.FAIL
     lo = ci95[0] if _finite(ci95[0]) else None
     hi = ci95[1] if _finite(ci95[1]) else None
     inside = (
@@ -90,26 +93,26 @@ def decide(
         and (high is None or (hi is not None and hi <= high))
     )
     if inside:
-        return PASS
+        return Outcome.PASS
     outside = (high is not None and lo is not None and lo > high) or (
         low is not None and hi is not None and hi < low
     )
-    return FAIL if outside else INCONCLUSIVE
+    return Outcome.FAIL if outside else Outcome.INCONCLUSIVE
 
 
-def informative(outcome: str) -> str:
+def informative(outcome: Outcome) -> Outcome:
     """An informative measurement's outcome: a FAIL is a ``WARNING`` (it decides nothing, so
     it is never shown as a failure); every other outcome as it is."""
-    return WARNING if outcome == FAIL else outcome
+    return Outcome.WARNING if outcome == Outcome.FAIL else outcome
 
 
-def combine(outcomes: Iterable[str]) -> str:
+def combine(outcomes: Iterable[Outcome]) -> Outcome:
     """FAIL if any FAIL, else INCONCLUSIVE if any, else PASS if any PASS, else NOT_JUDGED."""
     seen = set(outcomes)
-    for o in (FAIL, INCONCLUSIVE, PASS):
+    for o in (Outcome.FAIL, Outcome.INCONCLUSIVE, Outcome.PASS):
         if o in seen:
             return o
-    return NOT_JUDGED
+    return Outcome.NOT_JUDGED
 
 
 @dataclass
@@ -121,7 +124,7 @@ class Measurement:
     low: float | None
     high: float | None
     ci95: list[float | None] | None
-    outcome: str
+    outcome: Outcome
     rule: str  # simple | guarded | check (a precheck: pass or fail as such)
     decisive: bool = True
     note: str | None = None
@@ -142,7 +145,7 @@ class Measurement:
         }
 
 
-def overall(measurements: Iterable[Measurement]) -> str:
+def overall(measurements: Iterable[Measurement]) -> Outcome:
     """The run's outcome from its decisive measurements (NOT_JUDGED when none was judged)."""
     return combine(m.outcome for m in measurements if m.decisive)
 
@@ -205,7 +208,7 @@ def _measure(
     ci = _ci(ci95)
     used = rule if ci is not None else "simple"
     outcome = decide(_num(value), lim[0], lim[1], ci, used)
-    judged = outcome != NOT_JUDGED
+    judged = outcome != Outcome.NOT_JUDGED
     if not decisive:
         outcome = informative(outcome)
     return Measurement(name, axis, _num(value), unit, lim[0], lim[1], ci, outcome, used,
@@ -221,8 +224,8 @@ def axis_measurements(
     sigma = _measure("sigma", axis, verdict.get("sigma"), "deg", (None, limits.sigma_deg),
                      verdict.get("sigma_ci95"), rule)
     why = _sigma_inconclusive(verdict)
-    if why is not None and sigma.outcome != NOT_JUDGED:
-        sigma.outcome, sigma.note = INCONCLUSIVE, f"not judged: {why}"
+    if why is not None and sigma.outcome != Outcome.NOT_JUDGED:
+        sigma.outcome, sigma.note = Outcome.INCONCLUSIVE, f"not judged: {why}"
     out = [
         sigma,
         _measure("mean error", axis, verdict.get("mean_error"), "deg",
@@ -241,7 +244,7 @@ def axis_measurements(
             for name, unit, lim in (("gain", "1", gain_lim),
                                     ("phase", "deg", _sym(limits.phase_deg))):
                 out.append(Measurement(f"{name} at {tag}", axis, None, unit, lim[0], lim[1],
-                                       None, NOT_JUDGED, rule, False, why))
+                                       None, Outcome.NOT_JUDGED, rule, False, why))
             continue
         out.append(_measure(f"gain at {tag}", axis, p.get("gain"), "1", gain_lim,
                             p.get("gain_ci95"), rule))
@@ -296,7 +299,8 @@ def precheck_measurements(prechecks: Iterable[Mapping[str, Any]]) -> list[Measur
     """The prechecks run (``CheckResult.to_dict()``: name, ok, detail): PASS or FAIL each."""
     return [
         Measurement(f"precheck: {p.get('name')}", None, bool(p.get("ok")), None, None, None,
-                    None, PASS if p.get("ok") else FAIL, "check", True, p.get("detail") or None)
+                    None, Outcome.PASS if p.get("ok") else Outcome.FAIL, "check", True,
+                    p.get("detail") or None)
         for p in prechecks
     ]
 
@@ -330,7 +334,8 @@ def serial_measurement(typed: str, reported: str | None) -> Measurement:
     """The serial typed by the operator against the instrument's (informative: a mismatch is
     a ``WARNING``)."""
     match = serial_match(typed, reported)
-    outcome = NOT_JUDGED if match is None else PASS if match else WARNING
+    outcome = (Outcome.NOT_JUDGED if match is None else Outcome.PASS if match
+               else Outcome.WARNING)
     note = ("the instrument reports no serial" if match is None else
             f"typed {typed!r}, instrument reports {reported!r}")
     return Measurement("serial match", None, match, None, None, None, None, outcome, "check",

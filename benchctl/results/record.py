@@ -36,6 +36,7 @@ from benchctl.clock import REAL, Clock
 from benchctl.errors import AnalysisError, BenchError, DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, load_object, plain
+from benchctl.outcomes import ExitCode, Outcome
 from benchctl.results.measurements import RULE_TEXT, Measurement, reported_serial, serial_match
 
 SCHEMA_ID = "benchctl-record/1"
@@ -177,7 +178,7 @@ def build_record(
     meta: Mapping[str, Any],
     *,
     recording: Path,
-    outcome: str,
+    outcome: Outcome,
     measurements: Iterable[Measurement | Mapping[str, Any]] = (),
     decision_rule: str = "simple",
     abort: Mapping[str, Any] | None = None,
@@ -186,7 +187,7 @@ def build_record(
     report_json: Path | None = None,
     report_txt: Path | None = None,
     log: Path | None = None,
-    exit_code: int | None = None,
+    exit_code: ExitCode | None = None,
     end_utc: str | None = None,
     clock: Clock = REAL,
 ) -> dict[str, Any]:

@@ -3,13 +3,19 @@
 Entry point: ``run_test(cfg, profile_path, RunOptions(serial=…, operator=…)) -> RunResult``.
 """
 
-from benchctl.run.session import EXIT_ABORT, EXIT_FAIL, EXIT_PASS, RunOptions, RunResult, run_test
+from benchctl.outcomes import ExitCode, Outcome
+from benchctl.run.session import RunOptions, RunResult, run_test
 from benchctl.run.state import RunState
+
+# the exit codes by the names this package has given them (``ExitCode``)
+EXIT_PASS, EXIT_FAIL, EXIT_ABORT = ExitCode.OK, ExitCode.FAIL, ExitCode.ERROR
 
 __all__ = [
     "EXIT_ABORT",
     "EXIT_FAIL",
     "EXIT_PASS",
+    "ExitCode",
+    "Outcome",
     "RunOptions",
     "RunResult",
     "RunState",

@@ -30,6 +30,7 @@ from datetime import datetime
 from typing import Protocol, TextIO
 
 from benchctl.clock import REAL, Clock
+from benchctl.outcomes import Outcome
 from benchctl.text import visible
 
 
@@ -67,8 +68,9 @@ class Snapshot:
 WIDTH = 80  # the live block's widest line (columns)
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 #: SGR colours of a verdict's banner head and of a warning (a terminal that supports colour)
-COLOURS = {"PASS": "1;32", "FAIL": "1;31", "ABORTED": "1;31", "INCONCLUSIVE": "1;33",
-           "WARNING": "33", "within": "32", "over": "33"}
+COLOURS: dict[str, str] = {
+    Outcome.PASS: "1;32", Outcome.FAIL: "1;31", Outcome.ABORTED: "1;31",
+    Outcome.INCONCLUSIVE: "1;33", Outcome.WARNING: "33", "within": "32", "over": "33"}
 SIGMA_LABEL = "σ (running est.)"  # the live σ: an estimate on the way, not the verdict
 
 
@@ -431,7 +433,7 @@ class TtyDisplay:
         elif now < self._warn_until:
             lines[-1] = self._warning
         self._missed_seen = snap.missed_cycles
-        lines[-1] = paint(lines[-1], "WARNING", self.colour)
+        lines[-1] = paint(lines[-1], Outcome.WARNING, self.colour)
         lines[-3] = paint(lines[-3], sigma_judgement(snap), self.colour)  # the σ line
         self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()

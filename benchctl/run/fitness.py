@@ -1,5 +1,5 @@
 """The host fitness check: the host's scheduling latency measured before the motion and
-judged against what the stand tolerates (``run.host_check``; README, *The host fitness check*).
+judged against what the stand tolerates (``run.host_check``; ``docs/howto/host-check.md``).
 
 For ``window_s`` (2 s) one thread per period — ``run.host_check.period_s`` (1 ms, cyclictest's)
 and the stand loop's own (``1/setpoint_rate_hz`` streaming, else ``1/sample_rate_hz``) — asks

@@ -24,10 +24,8 @@ from benchctl.analysis.departures import departure_text, sigma_inconclusive
 from benchctl.errors import RecordingError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
+from benchctl.outcomes import ExitCode, Outcome
 from benchctl.results.measurements import (
-    FAIL,
-    INCONCLUSIVE,
-    PASS,
     RULE_TEXT,
     Measurement,
     combine,
@@ -41,7 +39,6 @@ log = logging.getLogger(__name__)
 REPORT_JSON = "report.json"
 REPORT_TXT = "report.txt"
 ARCHIVE_INDEX = "index.jsonl"
-EXIT_CODES = {PASS: 0, FAIL: 1, INCONCLUSIVE: 3}  # aborted: 2 (benchctl.run.session)
 
 
 @dataclass
@@ -68,27 +65,28 @@ class AxisVerdict:
     sigma_inconclusive: str | None = None
 
     @property
-    def sigma_outcome(self) -> str:
+    def sigma_outcome(self) -> Outcome:
         """PASS, FAIL or INCONCLUSIVE (the guarded rule, or σ not to be judged)."""
         if self.sigma_inconclusive is not None:
-            return INCONCLUSIVE
+            return Outcome.INCONCLUSIVE
         return decide(self.sigma_deg, None, self.limit_deg, self.sigma_ci95_deg, self.rule)
 
     @property
     def sigma_passed(self) -> bool:
-        return self.sigma_outcome == PASS
+        return self.sigma_outcome == Outcome.PASS
 
     @property
     def linearity_passed(self) -> bool:
-        return self.linearity is None or self.linearity.get("verdict") == "PASS"
+        return self.linearity is None or self.linearity.get("verdict") == Outcome.PASS
 
     @property
-    def outcome(self) -> str:
-        return combine([self.sigma_outcome, PASS if self.linearity_passed else FAIL])
+    def outcome(self) -> Outcome:
+        return combine([self.sigma_outcome,
+                        Outcome.PASS if self.linearity_passed else Outcome.FAIL])
 
     @property
     def passed(self) -> bool:
-        return self.outcome == PASS
+        return self.outcome == Outcome.PASS
 
     def to_dict(self, full: bool = True) -> dict[str, Any]:
         d: dict[str, Any] = {
@@ -157,18 +155,18 @@ class Report:
     warnings: list[str] = field(default_factory=list)
 
     @property
-    def verdict(self) -> str:
+    def verdict(self) -> Outcome:
         """PASS, FAIL or INCONCLUSIVE (guarded rule)."""
         if self.measurements:
             v = overall(self.measurements)
-            return v if v in EXIT_CODES else FAIL  # nothing judged is no pass
+            return Outcome.FAIL if v == Outcome.NOT_JUDGED else v  # nothing judged is no pass
         if not self.axes:
-            return FAIL
+            return Outcome.FAIL
         return combine(v.outcome for v in self.axes.values())
 
     @property
-    def exit_code(self) -> int:
-        return EXIT_CODES[self.verdict]
+    def exit_code(self) -> ExitCode:
+        return self.verdict.exit_code
 
     def to_dict(self, full: bool = True) -> dict[str, Any]:
         return {
@@ -264,7 +262,8 @@ def format_report(rep: Report) -> str:
     )
     if rep.ended is not None:
         lines.append(_ended_line(rep.ended))
-    judged = [x for x in rep.measurements if x.outcome != "NOT_JUDGED" and x.rule != "check"]
+    judged = [x for x in rep.measurements
+              if x.outcome != Outcome.NOT_JUDGED and x.rule != "check"]
     if judged:
         lines.append("  measurements judged:")
         lines.extend(f"    {_measurement_line(x)}" for x in judged)
@@ -430,7 +429,7 @@ def archive_abort(output_dir: Path, meta: dict[str, Any], recording: Path, reaso
                 k: meta.get(k)
                 for k in ("serial", "operator", "station", "profile_name", "seed", "start_utc")
             },
-            "verdict": "ABORTED",
+            "verdict": Outcome.ABORTED,
             "reason": reason,
             "recording": str(recording),
         }

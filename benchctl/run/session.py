@@ -27,7 +27,9 @@ Order of things (each state change is an event in the recording):
 
 Every run — done or aborted — ends with ``record.json`` in the recording
 (``benchctl.results.record``); an aborted one says whether the operator stopped it, the
-equipment failed or the software did.
+equipment failed or the software did. The run's outputs — the report files, the record and
+report.html, the verdict's banner, the index line, the archive — are one list of sinks
+(``benchctl.run.outputs``), the same for a done run and an aborted one.
 
 Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
 that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
@@ -47,10 +49,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import shlex
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -75,6 +76,7 @@ from benchctl.errors import (
 )
 from benchctl.exits import run_log, set_log_dir
 from benchctl.kinematics import profile_peaks
+from benchctl.outcomes import ExitCode, Outcome
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -87,19 +89,26 @@ from benchctl.results.measurements import (
     reported_serial,
     serial_measurement,
 )
-from benchctl.results.record import (
-    abort_kind,
-    build_record,
-    sha256_file,
-    with_data,
-    with_file,
-    write_record,
-)
+from benchctl.results.record import abort_kind, sha256_file, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
+from benchctl.run.outputs import (
+    Console,
+    FinishedRun,
+    IndexLine,
+    RecordFiles,
+    ReportFiles,
+    ResultsArchive,
+    Sink,
+    begin_archive,
+    emit,
+    measured_line,
+    record_in,
+    stand_lines,
+)
 from benchctl.run.plan import MotionPlan, check_setpoints, make_plan
 from benchctl.run.precision import (
     PrecisionCheck,
@@ -113,8 +122,6 @@ from benchctl.run.precision import (
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
 from benchctl.run.recorder import Recorder
 from benchctl.run.report import (
-    REPORT_JSON,
-    REPORT_TXT,
     Report,
     archive,
     archive_abort,
@@ -144,7 +151,6 @@ if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
 
 log = logging.getLogger(__name__)
 
-EXIT_PASS, EXIT_FAIL, EXIT_ABORT, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
@@ -179,7 +185,7 @@ class RunOptions:
 class RunResult:
     state: str  # done | aborted
     reason: str
-    exit_code: int
+    exit_code: ExitCode
     recording: Path | None
     report: Report | None = None
     stats: dict[str, Any] = field(default_factory=dict)
@@ -196,7 +202,7 @@ class RunResult:
             d["record"] = None if self.record is None else str(self.record)
             return d
         return {
-            "verdict": "ABORTED",
+            "verdict": Outcome.ABORTED,
             "state": self.state,
             "reason": self.reason,
             "abort": self.abort,
@@ -1321,78 +1327,6 @@ class Session:
             log.warning("serial mismatch: %s", sm.note)
         return out, warnings
 
-    def _write_record(self, outcome: str, exit_code: int, *, report: Report | None = None,
-                      abort: dict[str, Any] | None = None, strict: bool = False,
-                      closed: bool = False, rewrite: bool = False) -> Path | None:
-        """record.json into the recording (a record that cannot be written is a warning; the
-        recording stays the source of truth) — except, with ``strict`` (a run that has not
-        ended), a full disk: raised as ``RecordingError``, the run's abort. ``closed``: the
-        recording is closed, its data files final — their SHA-256 go into the record
-        (``data``) and the report. ``rewrite``: a record and report are there already; they
-        are replaced together or not at all (the pair that stays names each other's hash)."""
-        if rewrite:
-            return self._rewrite_record(outcome, exit_code, report=report, abort=abort)
-        try:
-            rec = self._record(outcome, exit_code, report=report, abort=abort, closed=closed)
-            html = _write_html(self.path, report, rec, strict=strict,
-                               figures=self.cfg.run.figures)
-            if html is not None:
-                rec = with_file(rec, "report_html", html)
-            return write_record(self.path, rec)
-        except Exception as e:
-            full = RecordingError.disk_full(e, self.path / "record.json")
-            if strict and full is not None:
-                raise full from None
-            log.warning("record.json not written: %s", describe(full or e), exc_info=e)
-            return None
-
-    def _record(self, outcome: str, exit_code: int, *, report: Report | None,
-                abort: dict[str, Any] | None, closed: bool) -> dict[str, Any]:
-        """The record of this run (``closed``: with the data files' SHA-256)."""
-        if report is not None:
-            measurements: list[Measurement] = report.measurements
-            deviations, warnings = report.deviations, report.warnings
-        else:
-            measurements = precheck_measurements(self.prechecks)
-            deviations, warnings = self._deviations(), list(self.host_warnings)
-        rj, rt = self.path / REPORT_JSON, self.path / REPORT_TXT
-        meta = self.writer.meta if self.writer is not None else self.meta  # + devices
-        rec = build_record(
-            meta, recording=self.path, outcome=outcome, measurements=measurements,
-            decision_rule=self.rule, abort=abort, deviations=deviations,
-            warnings=warnings, report_json=rj if rj.exists() else None,
-            report_txt=rt if rt.exists() else None, log=self.log_path,
-            exit_code=exit_code, clock=self.clock,
-        )
-        return with_data(rec, self.path, meta) if closed else rec
-
-    def _rewrite_record(self, outcome: str, exit_code: int, *, report: Report | None,
-                        abort: dict[str, Any] | None) -> Path | None:
-        """The record and report.html written again once the recording is closed (with the
-        data files' SHA-256), both or neither: the earlier report is kept aside (a rename, no
-        room needed) and put back should either write fail, so the record.json and
-        report.html that stay always name each other."""
-        html, prev = self.path / "report.html", self.path / "report.html.prev"
-        done: Path | None = None
-        try:
-            rec = self._record(outcome, exit_code, report=report, abort=abort, closed=True)
-            if html.exists():
-                os.replace(html, prev)
-            drawn = _write_html(self.path, report, rec, figures=self.cfg.run.figures)
-            if drawn is not None:
-                done = write_record(self.path, with_file(rec, "report_html", drawn))
-        except Exception as e:
-            log.warning("record.json and report.html not written again (the earlier ones "
-                        "stand, without the data files' SHA-256): %s", describe(e), exc_info=e)
-        finally:
-            if prev.exists():
-                with contextlib.suppress(OSError):
-                    if done is None:
-                        os.replace(prev, html)
-                    else:
-                        prev.unlink()
-        return done
-
     def _excitation(self, axis: str, res: Any, t: Any, x: Any,
                     window: tuple[float, float]) -> None:
         """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
@@ -1437,6 +1371,39 @@ class Session:
         sa = analyze_steps(*pair, wins, spread_limit=self.cfg.run.linearity_spread_limit)
         attach_steps(res, sa)
         res.warnings.extend(sa.warnings)
+
+    # ---- the outputs
+    def _sinks(self) -> list[Sink]:
+        """The run's outputs in their order (``benchctl.run.outputs``), each handed its writer
+        from here: the same list for a done run and an aborted one."""
+        return [
+            ReportFiles(write_report),
+            RecordFiles(write_record),
+            Console(self.display),
+            IndexLine(archive, archive_abort),
+            ResultsArchive(self.cfg, self.run_archive),
+        ]
+
+    def _finished(self, outcome: Outcome, exit_code: ExitCode, reason: str, *,
+                  report: Report | None = None, results: dict[str, Any] | None = None,
+                  abort: dict[str, Any] | None = None, measured: dict[str, Any] | None = None,
+                  closed: bool = False) -> FinishedRun:
+        """The run at its end for its outputs: with a report, its measurements, deviations and
+        warnings; without one (aborted before the analysis), the prechecks' and the host's."""
+        if report is not None:
+            measurements: list[Measurement] = report.measurements
+            deviations, warnings = report.deviations, report.warnings
+        else:
+            measurements = precheck_measurements(self.prechecks)
+            deviations, warnings = self._deviations(), list(self.host_warnings)
+        return FinishedRun(
+            outcome, exit_code, reason, self.path, Path(self.out_dir),
+            meta=self.writer.meta if self.writer is not None else self.meta,  # + devices
+            decision_rule=self.rule, clock=self.clock, measurements=measurements,
+            deviations=deviations, warnings=warnings, report=report, results=results or {},
+            abort=abort, measured=measured, log=self.log_path, figures=self.cfg.run.figures,
+            closed=closed,
+        )
 
     # ---- the run
     def _recording_failed(self, e: RecordingError) -> None:
@@ -1504,14 +1471,10 @@ class Session:
                 report, results = self._analyse(window)
                 self.report = report  # measured: kept (printed, end.json) should an abort follow
                 self.supervisor.check()  # a signal during the analysis still ends the run
-                files = write_report(report, results, figures=self.cfg.run.figures)
-                record = self._write_record(report.verdict, report.exit_code, report=report,
-                                            strict=True)
-                if record is not None:
-                    files.append(record)
-                if (self.path / "report.html").exists():
-                    files.append(self.path / "report.html")
-                archive(self.out_dir, report)
+                # the outputs that make the run done (a full disk: raised, the run's abort)
+                run = self._finished(report.verdict, report.exit_code, report.verdict,
+                                     report=report, results=results)
+                files = emit(self._sinks(), run)
                 self.writer.event("verdict", **report.to_dict(full=False))
                 self.machine.to(RunState.DONE)
                 self.writer.close(
@@ -1519,15 +1482,12 @@ class Session:
                     report.verdict,
                     analysis_window=list(window),
                     stats=report.stats,
-                    report=[f.name for f in files],
+                    report=[f.name for f in files if f.parent == self.path],
                 )
                 # the data files are final now: the record and the report again, with their
-                # SHA-256 (the record above stands should this one not be written)
-                record = self._write_record(report.verdict, report.exit_code, report=report,
-                                            closed=True, rewrite=True) or record
-                self.display.message(f"{report.verdict}: recording closed")
-                self.display.verdict(report.verdict, _banner_detail(report, self.path))
-                _archive(self.cfg, self.out_dir, self.path, self.run_archive)  # never fails
+                # SHA-256 (the record above stands should this one not be written), the
+                # verdict shown, the archive
+                again = emit(self._sinks(), replace(run, closed=True))
                 return RunResult(
                     "done",
                     report.verdict,
@@ -1536,7 +1496,7 @@ class Session:
                     report,
                     report.stats,
                     log=self.log_path,
-                    record=record,
+                    record=record_in(again) or record_in(files),
                 )
             except BaseException as e:  # every way out, the same path
                 if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
@@ -1581,7 +1541,7 @@ class Session:
         if measured is not None:
             extra["measured"] = measured
             abort["measured_verdict"] = measured["verdict"]
-            self.display.message(_measured_line(measured))
+            self.display.message(measured_line(measured))
         rep = shutdown(
             stop_loops=self._stop_loops,
             stand=self.stand,
@@ -1608,21 +1568,12 @@ class Session:
         for s in steps:
             self.display.message(f"  {s['step']}: {'ok' if s['ok'] else 'FAILED ' + s['detail']}"
                                  + (f" (at the {s['when']})" if s.get("when") else ""))
-        record = self._write_record("ABORTED", EXIT_ABORT, abort=abort, report=self.report,
-                                    closed=True)
-        html = self.path / "report.html"
-        self.display.verdict("ABORTED", f"{abort['kind']}: {reason}\n"
-                             + (_measured_line(measured) + "\n" if measured else "")
-                             + "".join(f"{line}\n" for line in stand_lines(where))
-                             + (f"report {html}" if html.exists() else f"recording {self.path}"))
-        try:
-            archive_abort(self.out_dir, self.meta, self.path, reason)
-        except Exception as e:  # a full disk: the recording's end.json still says it all
-            log.warning("archive not updated: %s", describe(e))
-        _archive(self.cfg, self.out_dir, self.path, self.run_archive)
+        run = self._finished(Outcome.ABORTED, Outcome.ABORTED.exit_code, reason,
+                             report=self.report, abort=abort, measured=measured, closed=True)
+        record = record_in(emit(self._sinks(), run))
         return RunResult(
-            "aborted", reason, EXIT_ABORT, self.path, None, stats, steps, log=self.log_path,
-            abort=abort, record=record, measured=measured,
+            "aborted", reason, Outcome.ABORTED.exit_code, self.path, None, stats, steps,
+            log=self.log_path, abort=abort, record=record, measured=measured,
         )
 
 
@@ -1696,29 +1647,6 @@ def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
     return out
 
 
-def stand_lines(where: dict[str, Any]) -> list[str]:
-    """The stand's place after an abort as the terminal shows it: one line, and the commands
-    that bring it to rest at zero when it is not."""
-    lines = [f"stand: {where['text']}"]
-    if where["known"] and where["commands"]:
-        lines.append("to bring it to rest at zero, in this order:")
-        lines.extend(f"  {c}" for c in where["commands"])
-    return lines
-
-
-def _banner_detail(report: Report, path: Path) -> str:
-    """The verdict banner's lines: σ per axis against its limit, where the report is."""
-    lines = [f"{v.axis} σ {v.sigma_deg:.4f}° (95 % {v.sigma_ci95_deg[0]:.4f} … "
-             f"{v.sigma_ci95_deg[1]:.4f}°)  limit {v.limit_deg:g}°  {v.outcome}"
-             + ("" if v.sigma_inconclusive is None else
-                f"\n  σ not judged: {v.sigma_inconclusive}")
-             for v in report.axes.values()]
-    lines.extend(f"DEVIATION: {d}" for d in report.deviations)
-    html = path / "report.html"
-    lines.append(f"report {html}" if html.exists() else f"recording {path}")
-    return "\n".join(lines)
-
-
 def _measured(report: Report | None) -> dict[str, Any] | None:
     """An aborted run's verdict measured before the abort (end.json's ``measured``)."""
     if report is None:
@@ -1731,63 +1659,6 @@ def _measured(report: Report | None) -> dict[str, Any] | None:
         "note": "measured before the run was aborted; its report, record or archive could not "
                 "all be written",
     }
-
-
-def _measured_line(m: dict[str, Any]) -> str:
-    axes = "; ".join(f"{a} σ {v['sigma']:.4f}° (95 % {v['sigma_ci95'][0]:.4f} … "
-                     f"{v['sigma_ci95'][1]:.4f}°) limit {v['limit']:g}° {v['verdict']}"
-                     for a, v in m["axes"].items())
-    return (f"measured before the abort: {m['verdict']} ({axes}); its report, record or "
-            "archive could not all be written, so the run is ABORTED")
-
-
-def _write_html(folder: Path, report: Report | None, record: dict[str, Any],
-                strict: bool = False, figures: bool = True) -> Path | None:
-    """``report.html`` into the recording (``benchctl.report.html``), from the run's report and
-    record (an aborted run: what is known); a report that cannot be drawn is a warning, the
-    verdict and the record stand without it — except, with ``strict``, a full disk, raised as
-    ``RecordingError`` (the run's abort)."""
-    try:
-        from benchctl.report.html import write_html
-
-        return write_html(folder, report=None if report is None else report.to_dict(full=True),
-                          record=record, figures=figures)
-    except Exception as e:
-        full = RecordingError.disk_full(e, folder / "report.html")
-        if strict and full is not None:
-            raise full from None
-        log.warning("report.html not written: %s", describe(full or e), exc_info=e)
-        return None
-
-
-def _archive(cfg: BenchConfig, out_dir: Path, recording: Path,
-             run_archive: RunArchive | None) -> None:
-    """The run into the results archive (``benchctl.archive``) once its recording is closed:
-    never raises and never waits long (a database out of reach: the record is queued; out of
-    reach at the run's start: queued at once)."""
-    try:
-        if run_archive is not None:
-            run_archive.end(recording)
-            return
-        from benchctl.archive.service import archive_run_within, settings_for
-
-        archive_run_within(settings_for(cfg, out_dir), recording)
-    except Exception as e:
-        log.warning("archive not updated: %s", describe(e), exc_info=e)
-
-
-def _archive_at_start(cfg: BenchConfig, out_dir: Path) -> RunArchive | None:
-    """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent —
-    in the background (``benchctl.archive.service.RunArchive``): the run does not wait."""
-    try:
-        from benchctl.archive.service import RunArchive, settings_for
-
-        run_archive = RunArchive(settings_for(cfg, out_dir), out_dir)
-        run_archive.begin()
-        return run_archive
-    except Exception as e:
-        log.warning("archive not updated: %s", describe(e), exc_info=e)
-        return None
 
 
 def _id_text(d: dict[str, Any]) -> str:
@@ -1850,11 +1721,11 @@ def run_test(
     prepared = prepare_motion(cfg, Path(profile_path), opts)
     if device_factory is not None:
         return Session(cfg, prepared, opts, display, device_factory, supervisor=supervisor,
-                       run_archive=_archive_at_start(cfg, Path(out_dir)), clock=clock).run()
+                       run_archive=begin_archive(cfg, Path(out_dir)), clock=clock).run()
     if cfg.sim is not None:
         return Session(cfg, prepared, opts, display, start_simulators=True,
                        supervisor=supervisor,
-                       run_archive=_archive_at_start(cfg, Path(out_dir)), clock=clock).run()
+                       run_archive=begin_archive(cfg, Path(out_dir)), clock=clock).run()
     session = Session(cfg, prepared, opts, display, supervisor=supervisor, clock=clock)
     holder = {
         "command": "benchctl run",
@@ -1866,18 +1737,15 @@ def run_test(
     }
     # refused here, if in use, before anything connects (the archive's database too)
     with stand_lock(cfg, holder):
-        session.run_archive = _archive_at_start(cfg, Path(out_dir))
+        session.run_archive = begin_archive(cfg, Path(out_dir))
         return session.run()
 
 
 __all__ = [
-    "EXIT_ABORT",
-    "EXIT_FAIL",
-    "EXIT_INCONCLUSIVE",
-    "EXIT_PASS",
     "RunOptions",
     "RunResult",
     "Session",
     "describe",
     "run_test",
+    "stand_lines",
 ]

@@ -77,7 +77,7 @@ class FaultSpecError(ValueError):
 
 SECONDS = Param("float", 0.0, MAX_FAULT_S, lo_open=True)
 
-# SimStand.inject(kind, **params); README "### Stand", fault knobs
+# SimStand.inject(kind, **params); docs/reference/simulators.md, the stand's fault knobs
 STAND: dict[str, dict[str, Param]] = {
     "drop_connection": {"duration_s": SECONDS},
     "stall": {"duration_s": SECONDS},
@@ -96,7 +96,8 @@ GARBLING: dict[str, tuple[str, ...]] = {
     "nmea0183": ("checksum", "truncated", "range", "bytes"),
 }
 
-# SimInstrument.inject(kind, **params); README "### Instrument", fault injection
+# SimInstrument.inject(kind, **params); docs/reference/simulators.md, the instrument's fault
+# injection
 INSTRUMENT: dict[str, dict[str, Param]] = {
     "garbled": {
         "fraction": Param("float", 0.0, 1.0, lo_open=True),

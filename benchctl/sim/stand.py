@@ -612,8 +612,12 @@ class SimStand:
             self._mode = "stream"
             self._stream_from = None
             self._stream_target = {a: self._table_value(a, self._table_end) for a in self.axes}
-        traj_target = self._trajectory_tick(t) if self._mode == "trajectory" else None
-        if self._mode == "traj_stop":
+        # one step of the queue or of the stop after it per tick (the tick the queue runs dry
+        # on has taken the stop's first step already)
+        traj_target = None
+        if self._mode == "trajectory":
+            traj_target = self._trajectory_tick(t)
+        elif self._mode == "traj_stop":
             traj_target = self._traj_stop_tick()
         at_rest = True
         # servo_step's terms, as it computes them (this runs 1000 times a second)
@@ -711,7 +715,13 @@ class SimStand:
         # its last point repeated (the motion at rest): nothing left to stop.
         if last != before:
             q.underruns += 1
-            self._traj_stop = {a: (float(last[i]), float(rate[i])) for i, a in enumerate(self.axes)}
+            # the stop continues the path the queue was playing: at this tick the queue's line
+            # through its last two points has gone ``past`` beyond the last one; the stop's
+            # state is that line one tick back, so its first step lands on it (a step in the
+            # target would be a jump of the servo's acceleration: ωn² times the step)
+            past = (u - (q.next_index - 1)) * q.period_s - self._tick_s
+            self._traj_stop = {a: (float(last[i]) + rate[i] * past, float(rate[i]))
+                               for i, a in enumerate(self.axes)}
             self._mode = "traj_stop"
             q.clear()
             return self._traj_stop_tick()

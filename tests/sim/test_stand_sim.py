@@ -589,3 +589,44 @@ def test_trajectory_queue_plays_ahead_and_an_underrun_stops_within_limits(
     assert np.max(dv) < 200.0 * 3  # sampled rates; a jump to rest would be ~10/0.001
     s = stand.read_sample()
     assert s.status.enabled and not s.status.fault
+
+
+@pytest.mark.parametrize("end_rate", [5.0, 10.0, 20.0])
+def test_an_underrun_stop_continues_the_queues_path_within_the_acceleration_limit(
+    vclock: VirtualClock, end_rate: float
+) -> None:
+    """The stand's own motion — every physics tick, not sampled — stays within its
+    acceleration limit when its queue runs dry mid-motion: the stop continues the path the
+    queue was playing (its position and rate at that instant) and decelerates from there. An
+    8 Hz servo (the shipped one) answers a step in its target of one tick's motion (0.01° at
+    10 °/s) with 25 °/s² on top of the stop's deceleration: the limit then breaks."""
+    fast = SimStandConfig(bandwidth_hz=8.0, damping=0.8, watchdog_s=1.5)
+    with simulated(fast, "tcp", vclock) as (sim, stand):
+        stand.enable()
+        stand.begin_trajectory()
+        n = 60  # accelerating at a constant rate to end_rate over 60 points at 50 Hz
+        pts = end_rate * 0.02 * np.arange(1, n + 1) ** 2 / (2 * n)
+        for j in range(0, n, 20):
+            stand.push_points(j, {"roll": pts[j:j + 20]}, read=False)
+        t_start = stand.start_trajectory()
+
+        def stopped() -> bool:
+            s = stand.read_sample()
+            stand.heartbeat()
+            tr = s.trajectory
+            return tr is not None and tr.underruns == 1 and not s.status.moving
+
+        wait_for(stopped, 3.0, "the stand to stop after the underrun", vclock)
+        peak = sim.peaks(following="profile")["roll"]
+        assert peak["rate_deg_s"] == pytest.approx(end_rate, rel=0.1)
+        assert peak["accel_deg_s2"] <= LIMITS.accel_deg_s2, peak
+        # the servo's acceleration tick by tick (its position's second difference) as the
+        # queue runs dry: it turns smoothly towards the stop's deceleration, its change
+        # growing by at most ωn² · (deceleration) · tick² = 0.45 °/s² a tick; a step of the
+        # target would jump it by ωn² times the step at once (8.6 °/s² at 5 °/s)
+        tick = 1.0 / fast.tick_hz
+        t_dry = t_start + (n - 1) * 0.02
+        ts = t_dry + tick * np.arange(-6, 7)
+        x = np.array([sim.true_angles(float(t))["roll"] for t in ts])
+        accel = np.diff(x, 2) / tick**2
+        assert np.abs(np.diff(accel, 2)).max() < 1.0, (end_rate, np.diff(accel))
