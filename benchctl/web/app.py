@@ -209,6 +209,8 @@ def create_app(settings: PanelSettings) -> FastAPI:
                 run = await station.start(serial, operator, profiles[body.profile])
         except InputError as e:
             return _error(400, str(e))
+        except OSError as e:  # the child could not be started
+            return _error(500, f"the run could not be started: {e}")
         return JSONResponse({"id": run.id})
 
     @app.post("/api/stop")

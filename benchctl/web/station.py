@@ -242,23 +242,29 @@ class Station:
 
     async def start(self, serial: str, operator: str, path: Path, kind: str = "test") -> Run:
         """Start a run of a profile, or a plan (``kind``); ``InputError`` while one is going
-        on. Its datagram socket is bound before the child starts: nothing it publishes is
-        lost."""
+        on (or starting: two Starts at once start one run). Its datagram socket is bound
+        before the child starts: nothing it publishes is lost. ``OSError`` when the child
+        cannot be started (the station is free again)."""
         if self.busy:
             raise InputError("a run is going on at this station: one run per stand")
         run = Run(self._next_id, serial, operator, path.stem,
                   self._tmp / f"run-{self._next_id}", kind=kind)
         self._next_id += 1
-        run.folder.mkdir(mode=0o700)
-        (run.folder / "answers").mkdir(mode=0o700)
-        await self._listen(run)
-        with (run.folder / "result.json").open("wb") as out, \
-                (run.folder / "stderr.txt").open("wb") as err:
-            run.proc = subprocess.Popen(
-                self.command(run, path), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
-                start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
-            )
-        self.run = run
+        previous, self.run = self.run, run  # taken before the first wait
+        try:
+            run.folder.mkdir(mode=0o700)
+            (run.folder / "answers").mkdir(mode=0o700)
+            await self._listen(run)
+            with (run.folder / "result.json").open("wb") as out, \
+                    (run.folder / "stderr.txt").open("wb") as err:
+                run.proc = subprocess.Popen(
+                    self.command(run, path), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                    start_new_session=True,  # the server's terminal's Ctrl-C is not the run's
+                )
+        except BaseException:
+            self.run = previous
+            self._close_transport()
+            raise
         run.started_utc = _now_utc()
         self._changed(run)
         self.last_operator = operator

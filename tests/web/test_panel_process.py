@@ -36,3 +36,31 @@ def test_the_server_killed_mid_run_leaves_the_run_to_its_verdict(tmp_path: Path)
     end = json.loads((rec / "end.json").read_text())
     assert end["state"] == "done" and end["reason"] == "PASS"
     assert (rec / "report.html").is_file()
+
+
+def test_two_starts_at_once_start_one_run(tmp_path: Path) -> None:
+    """Two browsers pressing Start together: one run, the other told the station is busy."""
+    import asyncio
+    import sys
+
+    from repo_paths import ROOT
+
+    from benchctl.errors import InputError
+    from benchctl.web.settings import PanelSettings
+    from benchctl.web.station import Station
+
+    profile = ROOT / "profiles/paper_vessel_roll_short120.yaml"
+    st = Station(PanelSettings(config=ROOT / "config/sim_virtual.yaml", profiles=(profile,)))
+    st.command = lambda run, path: [sys.executable, "-c", "pass"]  # type: ignore[method-assign]
+
+    async def go() -> list[object]:
+        results = await asyncio.gather(st.start("SN-1", "a", profile),
+                                       st.start("SN-2", "b", profile), return_exceptions=True)
+        while st.busy:
+            await asyncio.sleep(0.05)
+        await st.close()
+        return list(results)
+
+    results = asyncio.run(go())
+    assert sum(isinstance(r, InputError) for r in results) == 1
+    assert st.run is not None and st.run.ended and st.run.exit_code == 0
