@@ -18,7 +18,9 @@ from repo_paths import ROOT
 
 from benchctl.web.security import hash_token
 
-pytestmark = [pytest.mark.realtime, pytest.mark.slow]
+# in a real browser, its server and the run it starts as child processes; the runs on
+# simulated time (config/sim_virtual.yaml) but the one stopped mid-motion (``realtime``)
+pytestmark = pytest.mark.slow
 
 HOSTILE_OPERATOR = '<img src=x onerror="window.pwned=1">'
 TOKEN = "a long enough access token"
@@ -115,6 +117,7 @@ def test_a_run_to_its_verdict_by_keyboard_alone(tmp_path: Path, browser: Browser
     assert browser.errors == []
 
 
+@pytest.mark.realtime  # Stop while the stand moves: a run on the host's time
 def test_stop_takes_the_ctrl_c_path_and_shows_aborted(tmp_path: Path, browser: Browser) -> None:
     page = browser.page
     with serve(tmp_path, config=ROOT / "config/sim.yaml", duration_s=60.0) as url:

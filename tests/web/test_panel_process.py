@@ -13,9 +13,8 @@ import psutil
 import pytest
 from panel import post_json, serve, wait_for
 
-pytestmark = pytest.mark.realtime
 
-
+@pytest.mark.realtime  # the server killed while a run moves on the host's time
 def test_the_server_killed_mid_run_leaves_the_run_to_its_verdict(tmp_path: Path) -> None:
     procs: list[subprocess.Popen[bytes]] = []
     with serve(tmp_path, duration_s=60.0, procs=procs) as url:  # simulated time
