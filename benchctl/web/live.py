@@ -24,13 +24,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import socket
 from pathlib import Path
 from typing import Any
 
+from benchctl.jsonout import dumps
 from benchctl.run.display import Display, Snapshot
 
 MAX_DATAGRAM = 60_000  # bytes: within the smallest default Unix datagram limit of a Linux host
@@ -71,8 +71,7 @@ class LivePublisher:
         """Publish one object; False when it was dropped (never raises)."""
         seq, self.seq = self.seq, self.seq + 1
         try:
-            data = json.dumps({"kind": kind, "seq": seq, "pid": self.pid, **_finite(fields)},
-                              ensure_ascii=False, allow_nan=False).encode()
+            data = dumps({"kind": kind, "seq": seq, "pid": self.pid, **_finite(fields)}).encode()
             if len(data) > MAX_DATAGRAM or self._sock is None:
                 raise ValueError("datagram too large or no socket")
             self._sock.sendto(data, socket.MSG_DONTWAIT, self.path)

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.errors import InputError
+from benchctl.jsonout import dumps
 from benchctl.web.settings import PanelSettings
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,7 @@ POLL_S = 0.1  # how often the child's end is looked for
 
 def sse(event: str, data: dict[str, Any]) -> str:
     """One server-sent event: its name and its data as JSON."""
-    return f"event: {event}\ndata: {json.dumps(data, ensure_ascii=False)}\n\n"
+    return f"event: {event}\ndata: {dumps(data)}\n\n"
 
 
 class Watcher:
