@@ -722,6 +722,41 @@ class UnitConfig(Strict):
         return v
 
 
+class PanelConfig(Strict):
+    """The station's web panel (``benchctl serve``): what its operator sees and may choose.
+    ``lang``: the language of every text the operator reads (en, ru). ``profiles``: the motion
+    profiles offered (files, or folders whose ``*.yaml`` files are profiles); ``plans``: the
+    acceptance plans offered; ``duration_s``: each run's duration (None: the profile's own).
+    ``host``/``port``: where it listens (loopback by default; another address needs
+    ``token_scrypt``, the hash ``benchctl serve --hash-token`` prints — never the token).
+    ``require_token``: ask for the token on loopback too (behind a reverse proxy).
+    ``origins``: the addresses browsers reach it by, behind a proxy. ``out_dir``: the runs'
+    folder (None: ``run.output_dir``). Relative paths resolve against this config's folder;
+    ``benchctl serve``'s options override each field."""
+
+    lang: Literal["en", "ru"] = "en"
+    profiles: list[Path] = Field(default_factory=list)
+    plans: list[Path] = Field(default_factory=list)
+    duration_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 8350
+    token_scrypt: str | None = None
+    require_token: bool = False
+    origins: list[str] = Field(default_factory=list)
+    out_dir: Path | None = None
+
+    def resolved(self, base: Path) -> PanelConfig:
+        """The same with its relative paths taken from ``base`` (a folder)."""
+        def rel(p: Path) -> Path:
+            return p if p.is_absolute() else base / p
+
+        return self.model_copy(update={
+            "profiles": [rel(p) for p in self.profiles],
+            "plans": [rel(p) for p in self.plans],
+            "out_dir": None if self.out_dir is None else rel(self.out_dir),
+        })
+
+
 class BenchConfig(Strict):
     station: str = "bench"
     unit: UnitConfig = UnitConfig()
@@ -730,6 +765,7 @@ class BenchConfig(Strict):
     run: RunConfig
     sim: SimConfig | None = None
     archive: ArchiveConfig = ArchiveConfig()  # the results archive (benchctl.archive)
+    panel: PanelConfig | None = None  # the station's web panel (benchctl serve)
 
     source: Path | None = Field(default=None, exclude=True)  # the file it came from
 
@@ -860,6 +896,8 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
                 ) from None
     for section, fields in updates.items():
         cfg = cfg.model_copy(update={section: getattr(cfg, section).model_copy(update=fields)})
+    if cfg.panel is not None:
+        cfg = cfg.model_copy(update={"panel": cfg.panel.resolved(base)})
     return cfg
 
 

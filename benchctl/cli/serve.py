@@ -31,8 +31,9 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--config", type=Path, help="bench config YAML (required to serve)")
     p.add_argument("--panel", type=Path, metavar="FILE",
-                   help="panel settings YAML: lang, profiles, plans, duration_s, host, port, "
-                   "token_scrypt, require_token, origins, out_dir (the options below override it)")
+                   help="panel settings YAML, instead of the bench config's panel: section (the "
+                   "same fields: lang, profiles, plans, duration_s, host, port, token_scrypt, "
+                   "require_token, origins, out_dir; the options below override it)")
     p.add_argument("--profile", type=Path, action="append", metavar="FILE|DIR",
                    help="a profile the operator may choose, or a folder of them (*.yaml); "
                    "repeatable (default: the panel settings' profiles)")
@@ -70,12 +71,15 @@ def _read_token() -> str:
 
 
 def settings_from(args: argparse.Namespace) -> Any:
-    """The panel's settings: its file (``--panel``), the options over it."""
+    """The panel's settings: the bench config's ``panel:`` section, or the file ``--panel``
+    names instead, the options over it."""
+    from benchctl.config import load_config
     from benchctl.web.settings import PanelSettings, plan_files, profile_files, read_panel_file
 
     if args.config is None:
         raise InputError("--config is required (the bench config of this station)")
-    f = read_panel_file(args.panel) if args.panel is not None else None
+    # a bad config refused before anything listens
+    f = read_panel_file(args.panel) if args.panel is not None else load_config(args.config).panel
     pick = (lambda opt, name, default: opt if opt is not None  # noqa: E731
             else getattr(f, name) if f is not None else default)
     origins = tuple(args.origin) if args.origin else tuple(f.origins if f else ())
@@ -113,6 +117,6 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.web.server import serve
 
     settings = settings_from(args)
-    load_config(settings.config)  # a bad config refused before anything listens
+    load_config(settings.config)  # a bad config refused before anything listens (--panel)
     serve(settings)
     return 0

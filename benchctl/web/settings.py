@@ -1,53 +1,38 @@
-"""The station panel's own settings: a small YAML file (``benchctl serve --panel FILE``), the
-command line's options over it.
+"""The station panel's settings: the bench config's ``panel:`` section, or a file of the same
+fields (``benchctl serve --panel FILE``, e.g. one per operator station sharing a bench
+config), the command line's options over either::
 
-The bench config (``--config``) says nothing about the panel; this file does::
+    panel:
+      lang: ru                      # the operator's language: en or ru
+      profiles:                     # what the operator may choose: files, or folders of *.yaml
+        - ../profiles/paper_vessel_roll.yaml
+      plans:                        # acceptance plans the operator may start (optional)
+        - ../plans/ci_short.yaml
+      duration_s: 120               # each run's duration (default: the profile's own)
+      host: 127.0.0.1               # where the panel listens (loopback by default)
+      port: 8350
+      token_scrypt: "scrypt$16384$8$1$…"   # benchctl serve --hash-token; required off loopback
+      require_token: false          # ask for the token on loopback too (behind a reverse proxy)
+      origins: [https://bench3.example.org]  # the address(es) browsers use, behind a proxy
+      out_dir: ../runs              # the runs' output folder (default: the config's run.output_dir)
 
-    lang: ru                      # the operator's language: en or ru
-    profiles:                     # what the operator may choose: files, or folders of *.yaml
-      - ../profiles/paper_vessel_roll.yaml
-    plans:                        # acceptance plans the operator may start (optional)
-      - ../plans/ci_short.yaml
-    duration_s: 120               # each run's duration (default: the profile's own)
-    host: 127.0.0.1               # where the panel listens (loopback by default)
-    port: 8350
-    token_scrypt: "scrypt$16384$8$1$…"   # benchctl serve --hash-token; required off loopback
-    require_token: false          # ask for the token on loopback too (behind a reverse proxy)
-    origins: [https://bench3.example.org]  # the address(es) browsers use, behind a proxy
-    out_dir: ../runs              # the runs' output folder (default: the config's run.output_dir)
-
-Relative paths are taken from the file's folder; a field the file does not know is an error.
+Relative paths are taken from the folder of the file they are in; an unknown field is an
+error.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ValidationError
 
-from benchctl.config import field_path, read_yaml, shown_value
+from benchctl.config import PanelConfig, field_path, read_yaml, shown_value
 from benchctl.errors import ConfigError
 
 LANGUAGES = ("en", "ru")
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8350
-
-
-class _PanelFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    lang: Literal["en", "ru"] = "en"
-    profiles: list[Path] = Field(default_factory=list)
-    plans: list[Path] = Field(default_factory=list)
-    duration_s: float | None = Field(default=None, gt=0)
-    host: str = DEFAULT_HOST
-    port: int = Field(default=DEFAULT_PORT, ge=0, le=65535)
-    token_scrypt: str | None = None
-    require_token: bool = False
-    origins: list[str] = Field(default_factory=list)
-    out_dir: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -70,11 +55,12 @@ class PanelSettings:
         return replace(self, **changes)  # type: ignore[arg-type]
 
 
-def read_panel_file(path: Path) -> _PanelFile:
-    """The panel settings file, validated (``ConfigError`` naming the file and the field)."""
+def read_panel_file(path: Path) -> PanelConfig:
+    """The panel settings file, validated as the bench config's ``panel:`` section
+    (``ConfigError`` naming the file and the field); relative paths from its folder."""
     data = read_yaml(path, "panel settings") or {}
     try:
-        model = _PanelFile.model_validate(data)
+        model = PanelConfig.model_validate(data)
     except ValidationError as e:
         parts = []
         for err in e.errors():
@@ -82,13 +68,7 @@ def read_panel_file(path: Path) -> _PanelFile:
             shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
             parts.append(f"field {field_path(err['loc']) or '(top level)'}{shown}: {err['msg']}")
         raise ConfigError(f"{path}: invalid panel settings: " + "; ".join(parts)) from None
-    base = path.parent
-    return model.model_copy(update={
-        "profiles": [p if p.is_absolute() else base / p for p in model.profiles],
-        "plans": [p if p.is_absolute() else base / p for p in model.plans],
-        "out_dir": None if model.out_dir is None or model.out_dir.is_absolute()
-        else base / model.out_dir,
-    })
+    return model.resolved(path.parent)
 
 
 def plan_files(entries: list[Path] | tuple[Path, ...]) -> tuple[Path, ...]:

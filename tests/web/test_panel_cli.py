@@ -33,6 +33,31 @@ def test_the_panel_file_and_the_options_over_it(tmp_path: Path) -> None:
     assert s.origins == ("https://b.example",) and s.host == "127.0.0.1"
 
 
+def test_the_bench_configs_panel_section_chooses_the_stations_language(tmp_path: Path) -> None:
+    """The station's language (and the rest) in its bench config, relative paths from the
+    config's folder; the options still win, and a panel file replaces the section."""
+    text = (ROOT / "config/sim.yaml").read_text()
+    text = text.replace("../drivers/", f"{ROOT}/drivers/").replace("../runs", str(tmp_path))
+    (tmp_path / "profiles").mkdir()
+    (tmp_path / "profiles/roll.yaml").write_text(
+        (ROOT / "profiles/ci_short.yaml").read_text())
+    cfg = tmp_path / "bench.yaml"
+    cfg.write_text(text + "panel:\n  lang: ru\n  profiles: [profiles]\n  port: 8400\n"
+                   "  out_dir: station-runs\n")
+    s = settings_from(args("--config", str(cfg)))
+    assert s.lang == "ru" and s.port == 8400
+    assert s.profiles == ((tmp_path / "profiles/roll.yaml").resolve(),)
+    assert s.out_dir == (tmp_path / "station-runs").resolve()
+    assert settings_from(args("--config", str(cfg), "--lang", "en")).lang == "en"
+    panel = tmp_path / "panel.yaml"
+    panel.write_text(f"profiles: [{ROOT / 'profiles/ci_short.yaml'}]\n")
+    s = settings_from(args("--config", str(cfg), "--panel", str(panel)))
+    assert s.lang == "en" and s.port == 8350  # the file's fields, not the section's
+    cfg.write_text(text + "panel:\n  lang: fr\n")
+    with pytest.raises(ConfigError, match=r"bench\.yaml: invalid bench config: field panel\.lang"):
+        settings_from(args("--config", str(cfg)))
+
+
 def test_what_is_wrong_is_named(tmp_path: Path) -> None:
     panel = tmp_path / "panel.yaml"
     panel.write_text("lang: fr\ncolour: blue\n")
