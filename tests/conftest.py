@@ -102,10 +102,12 @@ def vclock() -> Iterator[VirtualClock]:
         yield clock
 
 
-# --- the results archive: a PostgreSQL server for a module, an empty archive of each kind ---
-@pytest.fixture(scope="module")
+# --- the results archive: a PostgreSQL server for the session, an empty archive of each kind ---
+@pytest.fixture(scope="session")
 def pg() -> Iterator[PgServer]:
-    """The distribution's PostgreSQL (initdb, pg_ctl) in a temporary folder, for one module."""
+    """The distribution's PostgreSQL (initdb, pg_ctl) in a temporary folder, one for each test
+    process (each test makes databases of its own on it; a module that changes the server's
+    rules, as tests/unit/archive/test_archive_secrets.py does, starts its own)."""
     srv = PgServer.start()
     try:
         yield srv
@@ -115,7 +117,7 @@ def pg() -> Iterator[PgServer]:
 
 @pytest.fixture(params=["sqlite", "postgresql"])
 def url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    """An empty archive: a SQLite file, then a new database on the module's PostgreSQL."""
+    """An empty archive: a SQLite file, then a new database on the session's PostgreSQL."""
     if request.param == "sqlite":
         return f"sqlite:///{tmp_path / 'archive.sqlite'}"
     srv: PgServer = request.getfixturevalue("pg")

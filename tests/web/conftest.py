@@ -1,4 +1,4 @@
-"""The line view's tests: a new database on the module's PostgreSQL server per test (the
+"""The line view's tests: a new database on the session's PostgreSQL server per test (the
 shared ``pg`` fixture: the distribution's initdb/pg_ctl; a machine without them fails)."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from benchctl.archive.store import Archive
 
 @pytest.fixture
 def line_url(pg: PgServer) -> str:
-    """An empty archive database on the module's PostgreSQL."""
+    """An empty archive database on the session's PostgreSQL."""
     return pg.create_database(f"line_{uuid.uuid4().hex[:12]}")
 
 
