@@ -108,7 +108,9 @@ def create_app(settings: PanelSettings) -> FastAPI:
     app.state.station = station
     app.state.guard = guard
     app.mount("/static", StaticFiles(directory=HERE / "static"), name="static")
-    app.include_router(line_router(source))  # /line, /history: behind the same access rules
+    # /line, /history: behind the same access rules, in the station's language
+    app.include_router(line_router(source, translations=translations(settings.lang),
+                                   lang=settings.lang))
 
     def page(name: str, request: Request, **values: Any) -> HTMLResponse:
         session = request.cookies.get(COOKIE)

@@ -1,5 +1,6 @@
-"""The panel's message catalogs: in step with the texts in its sources (templates, script
-texts), every one translated into Russian, and read at run time from the package."""
+"""The web pages' message catalogs: in step with the texts in their sources (the station
+panel's templates and script texts, the line view's templates), every one translated into
+Russian, and read at run time from the package."""
 
 from __future__ import annotations
 
@@ -14,8 +15,11 @@ from benchctl.web.i18n import DOMAIN, LOCALE_DIR, SCRIPT_TEXTS, script_texts, tr
 def source_ids() -> set[str]:
     found = extract_from_dir(
         str(LOCALE_DIR.parent),
-        method_map=[("**/i18n.py", "python"), ("**/templates/station/**.j2", "jinja2")],
-        options_map={"**/templates/station/**.j2": {"extensions": "jinja2.ext.i18n"}},
+        method_map=[("**/i18n.py", "python"), ("**/line.py", "python"),
+                    ("**/templates/station/**.j2", "jinja2"),
+                    ("**/templates/line/**.j2", "jinja2")],
+        options_map={"**/templates/station/**.j2": {"extensions": "jinja2.ext.i18n"},
+                     "**/templates/line/**.j2": {"extensions": "jinja2.ext.i18n"}},
     )
     return {str(msg) for _, _, msg, _, _ in found if isinstance(msg, str)}
 

@@ -71,3 +71,13 @@ def test_what_a_run_makes_the_station_publish(tmp_path: Path) -> None:
     refused = Run(2, "SN-2", "anna", "short", tmp_path)
     refused.exit_code, refused.error = 2, "stand in use"
     assert "last_outcome" not in beat_of(refused, None)[1]  # it did not run: no outcome
+
+
+def test_the_line_view_in_the_stations_language(tmp_path: Path) -> None:
+    """A Russian station's panel serves the line view in Russian: its headings from the same
+    catalogs as the station page."""
+    with TestClient(create_app(settings(tmp_path, lang="ru")), base_url=LOOPBACK) as c:
+        wait_for("the station's first heartbeat", lambda: states(tmp_path), 60)
+        text = c.get("/line").text
+        assert "Линия" in text and "Стенды" in text and "Выход годных" in text
+        assert "Line view" not in text and "Yield" not in text
