@@ -1,4 +1,5 @@
-"""Exact synthetic records for the analysis tests: a multisine through a known linear instrument.
+"""Exact synthetic records for the analysis tests and benchmarks: a multisine through a known
+linear instrument.
 
 The instrument's response is applied analytically, line by line: for
 ``x(t) = Σ A_k cos(2π f_k t + φ_k)`` the output is
