@@ -145,7 +145,8 @@ W, H = 720, 260
 ML, MR, MT, MB = 60, 20, 20, 50  # margins
 
 
-def _ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+def ticks(lo: float, hi: float, n: int = 5) -> list[float]:
+    """Round values between ``lo`` and ``hi`` for an axis (about ``n``)."""
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return [lo]
     step = 10 ** math.floor(math.log10((hi - lo) / n))
@@ -153,10 +154,8 @@ def _ticks(lo: float, hi: float, n: int = 5) -> list[float]:
         if (hi - lo) / (step * m) <= n:
             step *= m
             break
-    first = math.ceil(lo / step) * step
-    out = []
-    v = first
-    while v <= hi + 1e-12 * abs(hi):
+    out, v = [], math.ceil(lo / step) * step
+    while v <= hi + 1e-12 * max(1.0, abs(hi)):  # (a top of 0 reached from below: kept)
         out.append(round(v, 12))
         v += step
     return out
@@ -207,7 +206,7 @@ def sigma_plot(series: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
         "width": W, "height": H, "left": ML, "right": W - MR, "top": MT, "bottom": H - MB,
         "axes": list(axes.values()),
         "limits": [{"y": round(y(v), 1), "value": v} for v in limits],
-        "yticks": [{"y": round(y(v), 1), "label": f"{v:.3g}"} for v in _ticks(lo, hi)],
+        "yticks": [{"y": round(y(v), 1), "label": f"{v:.3g}"} for v in ticks(lo, hi)],
         "xlabels": [{"x": round(x(i), 1), "label": label}
                     for i, label in zip(range(0, len(runs), label_every),
                                         run_labels([pts_start(series, r) or r

@@ -15,7 +15,6 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-import jinja2
 from fastapi import FastAPI, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
@@ -30,6 +29,7 @@ from benchctl.text import check_operator, check_serial
 from benchctl.web.i18n import script_texts, translations
 from benchctl.web.line import LineArchive, line_router
 from benchctl.web.lineheartbeat import HeartbeatPublisher
+from benchctl.web.linepages import environment
 from benchctl.web.security import Guard
 from benchctl.web.settings import PanelSettings
 from benchctl.web.station import Run, Station, sse
@@ -86,11 +86,7 @@ def create_app(settings: PanelSettings) -> FastAPI:
         beat.set(state, **fields)
 
     station = Station(settings, on_change=heartbeat)
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(HERE / "templates"), autoescape=True,
-        extensions=["jinja2.ext.i18n"], undefined=jinja2.StrictUndefined,
-    )
-    env.install_gettext_translations(translations(settings.lang), newstyle=True)  # type: ignore[attr-defined]
+    env = environment(translations(settings.lang))  # the web pages' one Jinja2 environment
     texts = script_texts(settings.lang)
 
     @contextlib.asynccontextmanager

@@ -12,29 +12,13 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from benchctl.archive.history import run_labels
+from benchctl.archive.history import run_labels, ticks
 from benchctl.archive.store import iso
 from benchctl.web.linedata import PartChart
 from benchctl.web.linestats import moving_ranges
 
 W, H, H_MR = 720, 240, 120
 ML, MR, MT, MB = 60, 70, 14, 36  # margins; the right one holds the lines' names
-
-
-def ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    """Round values between ``lo`` and ``hi`` for an axis (about ``n``)."""
-    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
-        return [lo]
-    step = 10 ** math.floor(math.log10((hi - lo) / n))
-    for m in (1, 2, 5, 10):
-        if (hi - lo) / (step * m) <= n:
-            step *= m
-            break
-    out, v = [], math.ceil(lo / step) * step
-    while v <= hi + 1e-12 * max(1.0, abs(hi)):
-        out.append(round(v, 12))
-        v += step
-    return out
 
 
 class _Frame:

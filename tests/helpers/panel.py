@@ -104,3 +104,11 @@ def serve(tmp: Path, *args: str, config: Path = ROOT / "config/sim_virtual.yaml"
                 proc.kill()
                 proc.wait()
         log.close()
+
+
+def live_socket(tmp: Path, timeout_s: float = 10.0) -> socket.socket:
+    """The panel's end of the live channel: a datagram socket bound at ``tmp/live.sock``."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    s.bind(str(tmp / "live.sock"))
+    s.settimeout(timeout_s)
+    return s

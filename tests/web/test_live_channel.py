@@ -4,9 +4,10 @@ or raises into the run — no reader, a reader that does not read, a value that 
 from __future__ import annotations
 
 import json
-import socket
 import time
 from pathlib import Path
+
+from panel import live_socket
 
 from benchctl.run.display import NullDisplay, Snapshot
 from benchctl.web.live import LiveDisplay, LivePublisher, live_display
@@ -32,16 +33,9 @@ class Recorder(NullDisplay):
         self.calls.append("close")
 
 
-def reader(tmp: Path) -> socket.socket:
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    s.bind(str(tmp / "live.sock"))
-    s.settimeout(5.0)
-    return s
-
-
 def test_each_call_goes_to_the_run_display_and_the_panel(tmp_path: Path) -> None:
     inner = Recorder()
-    with reader(tmp_path) as r:
+    with live_socket(tmp_path, 5.0) as r:
         d = live_display(inner, tmp_path / "live.sock")
         assert isinstance(d, LiveDisplay)
         d.state("running", "")
@@ -73,7 +67,7 @@ def test_no_reader_drops_and_never_raises(tmp_path: Path) -> None:
 
 
 def test_a_reader_that_does_not_read_never_holds_the_run(tmp_path: Path) -> None:
-    with reader(tmp_path):  # bound, never read: its queue fills
+    with live_socket(tmp_path, 5.0):  # bound, never read: its queue fills
         pub = LivePublisher(tmp_path / "live.sock")
         t0 = time.monotonic()
         sent = sum(pub.send("snapshot", payload="x" * 2000) for _ in range(5000))

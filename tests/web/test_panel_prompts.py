@@ -5,28 +5,21 @@ an unanswered prompt (``TimeoutError``)."""
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from panel import live_socket
 
 from benchctl.web.live import LivePublisher
 from benchctl.web.prompts import PanelAsker
 
 
-def listen(tmp: Path) -> socket.socket:
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    s.bind(str(tmp / "live.sock"))
-    s.settimeout(10.0)
-    return s
-
-
 def test_the_answer_file_answers_the_question(tmp_path: Path) -> None:
     answers = tmp_path / "answers"
     answers.mkdir()
-    with listen(tmp_path) as sock:
+    with live_socket(tmp_path, 10.0) as sock:
         asker = PanelAsker(LivePublisher(tmp_path / "live.sock"), answers, timeout_s=60)
 
         def panel() -> None:  # what the server does when the operator presses a button
@@ -48,7 +41,7 @@ def test_the_answer_file_answers_the_question(tmp_path: Path) -> None:
 
 
 def test_no_answer_in_time_is_unanswered(tmp_path: Path) -> None:
-    with listen(tmp_path) as sock:
+    with live_socket(tmp_path, 10.0) as sock:
         asker = PanelAsker(LivePublisher(tmp_path / "live.sock"), tmp_path, timeout_s=2.5)
         t0 = time.monotonic()
         with pytest.raises(TimeoutError, match=r"no answer on the panel within 2\.5 s"):
