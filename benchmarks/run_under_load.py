@@ -172,7 +172,8 @@ def main() -> int:
 
         ref = one_run(cfg_path, args, sim_stand, False, 0)
         if "rep" not in ref or ref["code"] != 0:
-            print(f"reference run failed: exit {ref['code']} {ref.get('error', '')}")
+            why = ref["rep"].get("reason") or ref["rep"].get("verdict") if "rep" in ref else ""
+            print(f"reference run failed: exit {ref['code']} {why} {ref.get('error', '')}")
             return 2
         sigma_ref = {a: v["sigma"] for a, v in ref["rep"]["axes"].items()}
         print(
