@@ -83,8 +83,8 @@ def test_the_verdict_screen_of_a_pass_holds_sigma_its_interval_and_limit(tmp_pat
                                  "axes": {"roll": {"sigma": 0.22, "sigma_ci95": [0.19, 0.28],
                                                    "limit": 0.4, "verdict": "PASS"}}}))
     o = outcome(result_run(tmp_path, res, 0))
-    assert o["axes"] == [{"axis": "roll", "sigma": 0.22, "ci": [0.19, 0.28], "limit": 0.4,
-                          "verdict": "PASS"}]
+    assert o["axes"] == [{"axis": "roll", "axis_name": "roll", "sigma": 0.22,
+                          "ci": [0.19, 0.28], "limit": 0.4, "verdict": "PASS", "word": "PASS"}]
     assert o["report"] is False
 
 
