@@ -265,7 +265,22 @@ def test_a_panel_started_again_takes_up_the_run_it_left_going(tmp_path: Path,
             "fade-in", "running"), 120)
         procs[0].send_signal(signal.SIGKILL)  # the panel crashes; the run goes on
         procs[0].wait(30)
-    assert run.is_running()
+    try:
+        assert run.is_running()
+        restart_and_stop(tmp_path, port, run, browser)
+    finally:  # whatever failed, the run left going is stopped as Stop would
+        if run.is_running():
+            run.send_signal(signal.SIGINT)
+            psutil.wait_procs([run], timeout=60)
+    # put away: a panel started again now starts idle
+    with serve(tmp_path, duration_s=3000.0, port=port) as url:
+        assert run_status(url) is None
+    assert browser.errors == []
+
+
+def restart_and_stop(tmp_path: Path, port: int, run: Any, browser: Browser) -> None:
+    import psutil
+
     page = browser.page
     with serve(tmp_path, duration_s=3000.0, port=port) as url:
         status = run_status(url)
@@ -292,7 +307,3 @@ def test_a_panel_started_again_takes_up_the_run_it_left_going(tmp_path: Path,
         assert gone, "the run did not end"
         page.click("#new-test")
         wait_for("the form again", lambda: browser.visible("#setup"), 30)
-    # put away: a panel started again now starts idle
-    with serve(tmp_path, duration_s=3000.0, port=port) as url:
-        assert run_status(url) is None
-    assert browser.errors == []
