@@ -307,3 +307,30 @@ def restart_and_stop(tmp_path: Path, port: int, run: Any, browser: Browser) -> N
         assert gone, "the run did not end"
         page.click("#new-test")
         wait_for("the form again", lambda: browser.visible("#setup"), 30)
+
+
+def test_a_run_in_russian_every_text_in_the_language(tmp_path: Path, browser: Browser) -> None:
+    """The station in Russian: a refused serial in the panel's words (the check's English as
+    the detail), the run's messages and its verdict screen (the verdict, the axes) in Russian."""
+    page = browser.page
+    with serve(tmp_path, "--lang", "ru") as url:  # simulated time
+        page.goto(url)
+        wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
+        page.keyboard.press("Enter")  # nothing typed
+        wait_for("the refusal", lambda: browser.text("#form-error") ==
+                 "Введите или отсканируйте серийный номер.", 10)
+        assert "expected the serial number" in browser.text("#form-detail")
+        page.fill("#serial", "20260001")
+        page.fill("#operator", "demo")
+        page.click("#start")
+        wait_for("the verdict", lambda: browser.visible("#verdict"), 120)
+        assert browser.text("#verdict-word") == "ГОДЕН"
+        assert "крен" in browser.text("#verdict-axes")
+        messages = browser.text("#messages")
+        assert "Проверка перед движением: место на диске — пройдена." in messages
+        assert "ГОДЕН: запись закрыта." in messages
+        page.click("#new-test")
+        wait_for("the form again", lambda: browser.visible("#setup"), 30)
+    # the refused serial's 400 is the page's answer (and the browser's log of it), no error
+    assert [e for e in browser.errors if "400" not in e] == []
+    assert any(e.startswith("HTTP 400") and "check-serial" in e for e in browser.errors)
