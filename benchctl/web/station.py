@@ -510,6 +510,7 @@ class Station:
             run.ended_utc = str(data.get("ended_utc") or "")
             run.finished = True
             self.run = run
+            self._changed(run)  # the station's heartbeat: its last outcome
             return
         if not self._alive(run):  # it ended while no panel watched
             self.run = run

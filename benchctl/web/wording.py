@@ -243,7 +243,8 @@ class Words:
         m = re.fullmatch(r"(\S.*?): (ok|FAILED)(?: (.*?))?(?: \(at the (.*)\))?", s, re.S)
         if m and text.startswith("  "):  # a cleanup step of an abort (session._abort)
             ok = m.group(2) == "ok"
-            detail = m.group(1) + (f": {m.group(3)}" if m.group(3) else "")
+            detail = (m.group(1) + (f": {m.group(3)}" if m.group(3) else "")
+                      + (f" (at the {m.group(4)})" if m.group(4) else ""))
             return {"text": self(_("Cleanup step done.") if ok else _("Cleanup step FAILED.")),
                     "detail": detail}
         m = re.fullmatch(r"mounting check: (.*)", s, re.S)

@@ -95,7 +95,8 @@ def test_the_stands_state_from_its_fields_with_numbers_in_the_language() -> None
     ({"kind": "software", "source": "run (exception)", "error": "ZeroDivisionError",
       "reason": "run (exception): unexpected ZeroDivisionError: division by zero"},
      "A software error stopped the run.", "Испытание остановлено из-за ошибки программы."),
-])
+], ids=["SIGINT", "SIGTERM", "fault", "E-stop", "silent", "tracking", "precheck",
+        "connection", "disk-full", "software"])
 def test_an_aborts_headline_from_its_kind_source_and_error(abort: dict[str, Any], en: str,
                                                            ru: str) -> None:
     assert EN.abort_headline(abort, abort["reason"]) == en
