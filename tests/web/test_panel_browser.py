@@ -325,7 +325,8 @@ def test_a_run_in_russian_every_text_in_the_language(tmp_path: Path, browser: Br
         page.click("#start")
         wait_for("the verdict", lambda: browser.visible("#verdict"), 120)
         assert browser.text("#verdict-word") == "ГОДЕН"
-        assert "крен" in browser.text("#verdict-axes")
+        axes = browser.text("#verdict-axes")
+        assert "крен" in axes and "0,4" in axes and "0.4" not in axes  # a decimal comma
         messages = browser.text("#messages")
         assert "Проверка перед движением: место на диске — пройдена." in messages
         assert "ГОДЕН: запись закрыта." in messages

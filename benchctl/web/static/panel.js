@@ -25,7 +25,16 @@
     const m = Math.floor(s / 60), r = Math.floor(s % 60);
     return String(m).padStart(2, "0") + ":" + String(r).padStart(2, "0");
   }
-  function num(v, digits) { return v == null || !isFinite(v) ? "—" : Number(v).toFixed(digits); }
+  // numbers the station's language's way (a decimal comma in Russian)
+  const LANG = document.documentElement.lang || "en";
+  function num(v, digits) {
+    if (v == null || !isFinite(v)) return "—";
+    return Number(v).toLocaleString(LANG, { minimumFractionDigits: digits,
+      maximumFractionDigits: digits, useGrouping: false });
+  }
+  function plain(v) {
+    return v == null || !isFinite(v) ? "—" : Number(v).toLocaleString(LANG, { useGrouping: false });
+  }
   function el(tag, content, cls) {
     const e = document.createElement(tag);
     if (content != null) e.textContent = String(content);
@@ -162,7 +171,7 @@
     }
     const sig = Object.entries(snap.sigma_deg || {})
       .map(([a, v]) => axisName(a) + " " + num(v, 3) + "°").join("  ");
-    const limit = snap.limit_deg == null ? "" : "   " + T.limit + " " + snap.limit_deg + "°";
+    const limit = snap.limit_deg == null ? "" : "   " + T.limit + " " + plain(snap.limit_deg) + "°";
     text($("sigma"), (sig || "—") + limit);
     const j = judgement(snap);
     const judged = $("sigma-judged");
@@ -196,7 +205,7 @@
       tr.appendChild(el("td", a.axis_name || a.axis));
       tr.appendChild(el("td", num(a.sigma, 4)));
       tr.appendChild(el("td", num(a.ci[0], 4) + " … " + num(a.ci[1], 4)));
-      tr.appendChild(el("td", a.limit == null ? "—" : a.limit));
+      tr.appendChild(el("td", plain(a.limit)));
       tr.appendChild(el("td", a.word || T[a.verdict] || a.verdict));
       body.appendChild(tr);
     }
