@@ -239,3 +239,44 @@ def test_its_output_gone_the_verdict_is_read_from_its_recording(tmp_path: Path) 
     shutil.rmtree(tmp_path / "other")
     asyncio.run(go(again))
     assert again.run is None and not again.state_file.exists()  # type: ignore[union-attr]
+
+
+def test_a_plan_taken_up_again_gets_its_questions_answered(tmp_path: Path) -> None:
+    """A plan left going: its question, published again, reaches the new panel, whose answer
+    is written where the plan waits for it (the earlier panel's answers folder)."""
+    import subprocess
+    import sys
+
+    from benchctl.web import runstate
+    from benchctl.web.live import LivePublisher
+
+    st = restarted(tmp_path)
+    sock = tmp_path / "old-panel" / "run-7" / "live.sock"
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", "--live",
+                              str(sock)])
+    try:
+        ident = runstate.identity(child.pid)
+        assert ident is not None
+        folder = saved_run(tmp_path, st, child.pid, ident, kind="plan")
+        (folder / "answers").mkdir()
+
+        async def go() -> None:
+            await st.resume()
+            assert st.run is not None and st.run.kind == "plan" and st.busy
+            LivePublisher(folder / "live.sock").send("prompt", id=0, text="Unit mounted?",
+                                                     timeout_s=600)
+            while st.run.prompt is None:
+                await asyncio.sleep(0.02)
+            assert st.answer(0, True)
+            child.kill()  # the plan ends (its result not written): the panel sees it go
+            while st.busy:
+                await asyncio.sleep(0.05)
+            await st.close()
+
+        asyncio.run(go())
+    finally:
+        if child.poll() is None:
+            child.kill()
+        child.wait(30)
+    assert (folder / "answers" / "prompt-0.answer").read_text() == "yes"
+    assert st.run is not None and st.run.ended
