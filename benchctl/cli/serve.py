@@ -24,7 +24,9 @@ def register(sub: Any) -> None:
             "running σ and the stand's health live, Stop (the same path as Ctrl-C: the stand "
             "brought to rest, the recording closed) and the verdict with its report. Each run "
             "is a child process (benchctl run --live) with its own real-time loop: the panel, "
-            "a browser or the server going away never touches the motion. Listens on "
+            "a browser or the server going away never touches the motion, and a panel started "
+            "again takes up the run it left going (a state file in the runs' output folder). "
+            "Listens on "
             "127.0.0.1 unless told otherwise; on any other address an access token is required "
             "(--hash-token makes its hash for the panel settings file). Needs the web extra."
         ),

@@ -8,6 +8,9 @@ The station panel (``benchctl serve``):
   ``benchctl.web.server``: it under uvicorn, after the access rules are checked;
 - ``benchctl.web.station``: the run going on as the panel sees it — a child process
   (``benchctl run --live`` / ``benchctl plan --live``), its published state, the browsers;
+  ``benchctl.web.runstate``: the current run kept in a state file, for a panel started again
+  to take it up; ``benchctl.web.wording``: the panel's own words (in the station's language)
+  for what a run says in English — an abort, the stand after it, its messages, a refusal;
 - ``benchctl.web.live``: the run's side of the live channel (a display teed to JSON datagrams,
   never blocking); ``benchctl.web.plan_live`` and ``benchctl.web.prompts``: a plan's, with its
   prompts answered on the panel;

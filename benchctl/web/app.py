@@ -25,15 +25,17 @@ from benchctl import __version__
 from benchctl.archive.service import settings_for
 from benchctl.config import load_config
 from benchctl.errors import InputError
-from benchctl.text import check_operator, check_serial
+from benchctl.text import OPERATOR_MAX, SERIAL_MAX, check_operator, check_serial
 from benchctl.web.i18n import script_texts, translations
 from benchctl.web.line import LineArchive, line_router
 from benchctl.web.lineheartbeat import HeartbeatPublisher
 from benchctl.web.linepages import environment
+from benchctl.web.runstate import state_path
 from benchctl.web.security import Guard
 from benchctl.web.settings import PanelSettings
 from benchctl.web.station import Run, Station, sse
 from benchctl.web.station_beat import beat_of
+from benchctl.web.wording import _
 
 HERE = Path(__file__).parent
 COOKIE = "benchctl_panel"
@@ -46,6 +48,16 @@ REPORT_CSP = ("default-src 'none'; style-src 'unsafe-inline'; img-src 'self' dat
               "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
 OPEN_PATHS = ("/login", "/static/", "/favicon.ico")
 LOGIN_MAX_BYTES = 4096  # the login form: a token and a CSRF token (urlencoded)
+
+
+class Refused(Exception):
+    """A value the form sent refused: ``text`` in the operator's language, ``detail`` the
+    check's own English."""
+
+    def __init__(self, text: str, detail: str) -> None:
+        super().__init__(detail)
+        self.text = text
+        self.detail = detail
 
 
 class SerialIn(BaseModel):
@@ -63,8 +75,10 @@ class AnswerIn(BaseModel):
     yes: bool
 
 
-def _error(status: int, text: str) -> JSONResponse:
-    return JSONResponse({"error": text}, status_code=status)
+def _error(status: int, text: str, detail: str = "") -> JSONResponse:
+    """A refused request: ``error`` in the operator's language, ``detail`` the technical
+    English (shown as a secondary line)."""
+    return JSONResponse({"error": text, "detail": detail}, status_code=status)
 
 
 def create_app(settings: PanelSettings) -> FastAPI:
@@ -85,13 +99,20 @@ def create_app(settings: PanelSettings) -> FastAPI:
         state, fields = beat_of(run, cfg.unit.part_number)
         beat.set(state, **fields)
 
-    station = Station(settings, on_change=heartbeat)
+    # the current run kept in the station's working folder (the runs' output folder), for a
+    # panel started again to take it up (benchctl.web.runstate)
+    out_dir = settings.out_dir if settings.out_dir is not None else cfg.run.output_dir
+    station = Station(settings, on_change=heartbeat,
+                      state_file=state_path(Path(out_dir), settings.port))
+    w = station.words
     env = environment(translations(settings.lang))  # the web pages' one Jinja2 environment
     texts = script_texts(settings.lang)
+    busy_text = _("A run is going on at this station: one run per stand.")
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         beat.start()
+        await station.resume()  # a run left going by an earlier panel, or its verdict
         try:
             yield
         finally:
@@ -121,19 +142,21 @@ def create_app(settings: PanelSettings) -> FastAPI:
         host = request.headers.get("host", "")
         path = request.url.path
         if not guard.host_allowed(host):
-            return _headers(Response(f"host {host!r} not served: open the panel by its own "
-                                     "address", status_code=400, media_type="text/plain"))
+            return _headers(Response(
+                w(_("This address is not served: open the panel by its own address.")) +
+                f" (host {host!r})", status_code=400, media_type="text/plain"))
         if request.method not in ("GET", "HEAD"):
+            cross = w(_("Refused: the request did not come from this panel's page."))
             if not guard.origin_ok(request.headers.get("origin"),
                                    request.headers.get("referer"), host):
-                return _headers(_error(403, "cross-site request refused (Origin)"))
+                return _headers(_error(403, cross, "cross-site request refused (Origin)"))
             if path.startswith("/api/") and not guard.csrf_ok(
                     request.cookies.get(COOKIE), request.headers.get("x-csrf-token")):
-                return _headers(_error(403, "cross-site request refused (CSRF token)"))
+                return _headers(_error(403, cross, "cross-site request refused (CSRF token)"))
         if not path.startswith(OPEN_PATHS) and not guard.authenticated(
                 request.cookies.get(COOKIE)):
             if path.startswith("/api/"):
-                return _headers(_error(401, "log in first"))
+                return _headers(_error(401, w(_("Log in first.")), "log in first"))
             return _headers(RedirectResponse("/login", status_code=303))
         response = await call_next(request)
         return _headers(response, report=path.startswith("/runs/"))  # a page's own kept
@@ -156,11 +179,12 @@ def create_app(settings: PanelSettings) -> FastAPI:
     async def login(request: Request) -> Response:
         body = await request.body()
         if len(body) > LOGIN_MAX_BYTES:
-            return _error(413, "request too large")
+            return _error(413, w(_("The request is too large.")), "request too large")
         form = urllib.parse.parse_qs(body.decode("utf-8", "replace"))
         session = request.cookies.get(COOKIE)
         if not guard.csrf_ok(session, (form.get("csrf") or [""])[0]):
-            return _error(403, "cross-site request refused (CSRF token)")
+            return _error(403, w(_("Refused: the request did not come from this panel's page.")),
+                          "cross-site request refused (CSRF token)")
         sid = guard.login((form.get("token") or [""])[0])
         if sid is None:
             refused = page("station/login.html.j2", request, failed=True)
@@ -184,49 +208,64 @@ def create_app(settings: PanelSettings) -> FastAPI:
         (``?trace=N``: the last N; the page gets them with its event stream)."""
         return JSONResponse(station.status(max(0, min(trace, 3000))))
 
+    def serial_of(value: str) -> str:
+        try:
+            return check_serial(value, "serial", pattern, pattern_where)
+        except InputError as e:
+            raise Refused(w.refused_text("serial", value, SERIAL_MAX, pattern), str(e)) from None
+
+    def operator_of(value: str) -> str:
+        try:
+            return check_operator(value, "operator")
+        except InputError as e:
+            raise Refused(w.refused_text("operator", value, OPERATOR_MAX), str(e)) from None
+
     @app.post("/api/check-serial")
     async def check(body: SerialIn) -> JSONResponse:
         try:
-            serial = check_serial(body.serial, "serial", pattern, pattern_where)
-        except InputError as e:
-            return _error(400, str(e))
+            serial = serial_of(body.serial)
+        except Refused as e:
+            return _error(400, e.text, e.detail)
         return JSONResponse({"serial": serial})
 
     @app.post("/api/start")
     async def start(body: StartIn) -> JSONResponse:
         try:
-            serial = check_serial(body.serial, "serial", pattern, pattern_where)
-            operator = check_operator(body.operator, "operator")
+            serial = serial_of(body.serial)
+            operator = operator_of(body.operator)
             if body.profile not in profiles and body.profile not in plans:
-                raise InputError(f"profile {body.profile!r}: not one this station offers")
+                return _error(400, w(_("This profile is not one this station offers.")),
+                              f"profile {body.profile!r}: not one this station offers")
             if station.busy:
-                return _error(409, "a run is going on at this station: one run per stand")
+                return _error(409, w(busy_text))
             if body.profile in plans:
                 run = await station.start(serial, operator, plans[body.profile], kind="plan")
             else:
                 run = await station.start(serial, operator, profiles[body.profile])
-        except InputError as e:
-            return _error(400, str(e))
+        except Refused as e:
+            return _error(400, e.text, e.detail)
+        except InputError as e:  # two Starts at once: the other one started
+            return _error(409, w(busy_text), str(e))
         except OSError as e:  # the child could not be started
-            return _error(500, f"the run could not be started: {e}")
+            return _error(500, w(_("The run could not be started.")), str(e))
         return JSONResponse({"id": run.id})
 
     @app.post("/api/stop")
     async def stop() -> JSONResponse:
         if not station.stop():
-            return _error(409, "no run is going on")
+            return _error(409, w(_("No run is going on.")))
         return JSONResponse({"ok": True})
 
     @app.post("/api/answer")
     async def answer(body: AnswerIn) -> JSONResponse:
         if not station.answer(body.id, body.yes):
-            return _error(409, "no such question is waiting")
+            return _error(409, w(_("This question is no longer waiting for an answer.")))
         return JSONResponse({"ok": True})
 
     @app.post("/api/dismiss")
     async def dismiss() -> JSONResponse:
         if not station.dismiss():
-            return _error(409, "a run is going on")
+            return _error(409, w(busy_text))
         return JSONResponse({"ok": True})
 
     @app.get("/favicon.ico")
@@ -243,7 +282,8 @@ def create_app(settings: PanelSettings) -> FastAPI:
 
     def _report(path: Path | None) -> Response:
         if path is None:
-            return Response("no report for this run", status_code=404, media_type="text/plain")
+            return Response(w(_("There is no report for this run.")), status_code=404,
+                            media_type="text/plain")
         return FileResponse(path, media_type="text/html")
 
     @app.get("/api/events")

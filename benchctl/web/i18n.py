@@ -40,10 +40,6 @@ SCRIPT_TEXTS = {
     "rejoins": _("rejoins"), "underruns": _("underruns"), "samples": _("instrument samples"),
     "health_ok": _("healthy"), "health_warn": _("WARNING: the motion was touched"),
     "stopping": _("stopping: bringing the stand to rest…"),
-    "refused_title": _("The stand is in use: this run was refused before anything moved"),
-    "not_started": _("The run did not start"),
-    "next_abort": _("Before the next test: check the unit's mounting and the stand, then start "
-                    "again."),
     "next_commands": _("Bring the stand to rest at zero, in this order:"),
     "at_rest": _("The stand is at rest at zero."),
     "measured_before": _("Measured before the abort (not the run's result):"),
@@ -51,6 +47,7 @@ SCRIPT_TEXTS = {
     "serial_ok": _("serial accepted"),
     "open_report": _("Open the report"),
     "prompt_timeout": _("Not answered within %(s)s s, the plan ends (no answer is a no)."),
+    "axis_roll": _("roll"), "axis_pitch": _("pitch"),
 }
 
 

@@ -4,7 +4,12 @@ one), what it published (``benchctl.web.live``) and how it ended; and the browse
 The run is ``benchctl run … --json --quiet --live SOCKET``, a child in a session of its own: its
 output goes to files (``result.json``: the run's JSON; ``stderr.txt``: a refusal or an error),
 not pipes, so a server that stops or dies never blocks or breaks it. Stop is SIGINT to it — the
-same path as Ctrl-C. Everything here runs on the server's event loop; the run's datagrams come
+same path as Ctrl-C. What the panel needs to take the run up again after its own restart is kept
+in a state file (``benchctl.web.runstate``): a panel started again re-attaches to a run still
+going on (its live socket bound again at the same path, its end found by polling its process)
+or shows the verdict of one that ended meanwhile. Every text the operator reads of the run is
+composed in the station's language (``benchctl.web.wording``), the run's English kept as
+details. Everything here runs on the server's event loop; the run's datagrams come
 in through an asyncio datagram endpoint and go out to each browser's queue without waiting: a
 browser that does not keep up loses its queued events and is sent the whole state again.
 """
@@ -17,8 +22,10 @@ import json
 import logging
 import math
 import os
+import shutil
 import signal
 import socket
+import stat
 import subprocess
 import sys
 import tempfile
@@ -31,7 +38,9 @@ from typing import Any
 
 from benchctl.errors import InputError
 from benchctl.jsonout import dumps
+from benchctl.web import runstate
 from benchctl.web.settings import PanelSettings
+from benchctl.web.wording import DETAILS, REATTACHED, Words, _
 
 log = logging.getLogger(__name__)
 
@@ -75,11 +84,16 @@ class Run:
     folder: Path  # the panel's own files for this run: the socket, result.json, stderr.txt
     kind: str = "test"  # test (benchctl run) | plan (benchctl plan)
     proc: subprocess.Popen[bytes] | None = None
+    pid: int | None = None  # the run's process (this server's child, or one taken up again)
+    identity: str = ""  # its boot id and start time (benchctl.web.runstate.identity)
+    adopted: bool = False  # taken up again after the panel's restart: not this server's child
+    recording: str | None = None  # the run's recording folder, once it says it
+    finished: bool = False  # ended (an adopted run's exit code is not known)
     state: str = "starting"
     reason: str = ""
     snapshot: dict[str, Any] | None = None
     trace: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=TRACE_POINTS))
-    messages: deque[str] = field(default_factory=lambda: deque(maxlen=MESSAGES))
+    messages: deque[dict[str, str]] = field(default_factory=lambda: deque(maxlen=MESSAGES))
     verdict: dict[str, Any] | None = None
     result: dict[str, Any] | None = None
     exit_code: int | None = None
@@ -94,63 +108,116 @@ class Run:
 
     @property
     def ended(self) -> bool:
-        return self.exit_code is not None
+        return self.finished or self.exit_code is not None
 
-    def view(self, trace_points: int = STATUS_TRACE_POINTS) -> dict[str, Any]:
-        """What a browser is sent: everything it shows of this run."""
+    def view(self, trace_points: int = STATUS_TRACE_POINTS,
+             words: Words | None = None) -> dict[str, Any]:
+        """What a browser is sent: everything it shows of this run (its texts in the language
+        of ``words``)."""
+        w = words or Words()
+        reason = w.state_reason(self.reason)
         return {
             "id": self.id, "kind": self.kind, "serial": self.serial,
             "operator": self.operator, "profile": self.profile, "state": self.state,
-            "reason": self.reason, "prompt": self.prompt,
+            "reason": self.reason, "reason_text": reason["text"],
+            "reason_detail": reason["detail"], "prompt": self.prompt,
             "snapshot": self.snapshot,
             "trace": list(self.trace)[-trace_points:] if trace_points > 0 else [],
             "messages": list(self.messages)[-20:], "ended": self.ended,
-            "stop_requested": self.stop_requested,
-            "outcome": outcome(self) if self.ended else None,
+            "stop_requested": self.stop_requested, "adopted": self.adopted,
+            "outcome": outcome(self, w) if self.ended else None,
+        }
+
+    def saved(self, path: Path | None) -> dict[str, Any]:
+        """What the state file keeps of this run (``benchctl.web.runstate``)."""
+        return {
+            "run_id": self.id, "serial": self.serial, "operator": self.operator,
+            "profile": self.profile, "kind": self.kind, "folder": str(self.folder),
+            "socket": str(self.folder / "live.sock"), "pid": self.pid,
+            "identity": self.identity, "recording": self.recording,
+            "out_dir": None if path is None else str(path),
+            "started_utc": self.started_utc, "stop_requested": self.stop_requested,
+            "ended": self.ended, "ended_utc": self.ended_utc, "state": self.state,
+            "exit_code": self.exit_code, "error": self.error, "refused": self.refused,
+            "result": runstate.slim(self.result) if self.ended else None,
         }
 
 
-def outcome(run: Run) -> dict[str, Any]:
+def outcome(run: Run, words: Words | None = None) -> dict[str, Any]:
     """The verdict screen's content: the verdict, σ per axis with its interval and limit, an
-    abort's reason and what to do next, the report; or why the run did not start."""
+    abort's headline, where the stand is and what to do next, the report; or why the run did
+    not start. Each text in the language of ``words`` (English by default); the run's own
+    English (its reason, its stand description) as ``detail`` and ``stand_detail``."""
+    w = words or Words()
     res = run.result
     if res is None:
-        return {"verdict": "ABORTED" if run.stop_requested else "ERROR", "axes": [],
-                "steps": [], "reason": run.error or f"ended with exit code {run.exit_code}",
-                "refused": run.refused, "kind": "", "next": [], "report": False,
-                "exit_code": run.exit_code}
+        verdict = "ABORTED" if run.stop_requested else "ERROR"
+        if run.refused:
+            headline = w(_("The stand is in use: this run was refused before anything moved"))
+        elif verdict == "ABORTED":
+            headline = w(_("The run was stopped before it wrote its result."))
+        elif run.error:
+            headline = w(_("The run did not start"))
+        elif run.exit_code is not None:
+            headline = w(_("The run ended (exit code %(code)s) without a result."),
+                         code=run.exit_code)
+        else:
+            headline = w(_("The run ended without a result."))
+        return {"verdict": verdict, "word": w.outcome_word(verdict) if verdict == "ABORTED"
+                else w(_("NOT STARTED")), "axes": [], "steps": [], "reason": run.error,
+                "headline": headline, "detail": run.error, "details_label": w(DETAILS),
+                "refused": run.refused, "kind": "", "next": [], "advice": "",
+                "report": False, "exit_code": run.exit_code}
     if run.kind == "plan":
-        return _plan_outcome(run, res)
+        return _plan_outcome(run, res, w)
     axes = []
     for name, a in (res.get("axes") or {}).items():
         ci = a.get("sigma_ci95") or [None, None]
-        axes.append({"axis": name, "sigma": a.get("sigma"), "ci": ci, "limit": a.get("limit"),
-                     "verdict": a.get("verdict")})
+        axes.append({"axis": name, "axis_name": w.axis(name), "sigma": a.get("sigma"),
+                     "ci": ci, "limit": a.get("limit"), "verdict": a.get("verdict"),
+                     "word": w.outcome_word(a.get("verdict"))})
+    verdict = res.get("verdict", "ERROR")
+    reason = str(res.get("reason") or "")
     abort = res.get("abort") or {}
     stand = abort.get("stand") or {}
     nxt: list[str] = list(stand.get("commands") or [])
     recording = res.get("recording")
     report = isinstance(recording, str) and (Path(recording) / "report.html").is_file()
+    measured = res.get("measured")
+    aborted = verdict == "ABORTED"
     return {
-        "verdict": res.get("verdict", "ERROR"), "axes": axes,
-        "reason": res.get("reason", ""), "kind": abort.get("kind", ""),
-        "stand": stand.get("text", ""), "at_rest": stand.get("at_rest"),
-        "at_zero": stand.get("at_zero"), "next": nxt, "report": report,
-        "measured": res.get("measured"), "deviations": res.get("deviations") or [],
+        "verdict": verdict, "word": w.outcome_word(verdict), "axes": axes,
+        "reason": reason, "kind": abort.get("kind", ""),
+        "headline": w.abort_headline(abort, reason) if aborted else "",
+        "detail": reason, "details_label": w(DETAILS),
+        "stand": stand.get("text", ""), "stand_text": w.stand_sentence(stand),
+        "stand_detail": stand.get("text", ""), "at_rest": stand.get("at_rest"),
+        "at_zero": stand.get("at_zero"), "next": nxt,
+        "advice": w.abort_advice(abort, reason) if aborted else "", "report": report,
+        "measured": measured,
+        "measured_word": w.outcome_word(measured.get("verdict"))
+        if isinstance(measured, dict) else "",
+        "deviations": res.get("deviations") or [],
         "refused": False, "exit_code": run.exit_code, "recording": recording, "steps": [],
     }
 
 
-def _plan_outcome(run: Run, res: dict[str, Any]) -> dict[str, Any]:
+def _plan_outcome(run: Run, res: dict[str, Any], w: Words) -> dict[str, Any]:
     """A plan's verdict screen: its outcome, each step's status and report."""
     steps = []
     for s in res.get("steps") or []:
         rec = s.get("recording")
         steps.append({"name": s.get("name"), "verdict": s.get("status"),
-                      "reason": s.get("reason", ""),
+                      "word": w.outcome_word(s.get("status")), "reason": s.get("reason", ""),
+                      "detail": s.get("reason", ""),
                       "report": isinstance(rec, str) and (Path(rec) / "report.html").is_file()})
-    return {"verdict": res.get("outcome", "ERROR"), "axes": [], "steps": steps,
-            "reason": res.get("reason", ""), "kind": "", "stand": "", "next": [],
+    verdict = res.get("outcome", "ERROR")
+    headline = (w(_("The plan was stopped before its end.")) if verdict == "ABORTED" else
+                w(_("The plan could not be carried out.")) if verdict == "ERROR" else "")
+    return {"verdict": verdict, "word": w.outcome_word(verdict), "axes": [], "steps": steps,
+            "reason": res.get("reason", ""), "headline": headline,
+            "detail": res.get("reason", ""), "details_label": w(DETAILS), "kind": "",
+            "stand": "", "stand_text": "", "stand_detail": "", "next": [], "advice": "",
             "report": False, "refused": False, "exit_code": run.exit_code, "recording": None}
 
 
@@ -185,11 +252,15 @@ class Station:
     """The panel's state: the current or last run, and the browsers watching."""
 
     def __init__(self, settings: PanelSettings,
-                 on_change: Callable[[Run], None] | None = None) -> None:
+                 on_change: Callable[[Run], None] | None = None,
+                 state_file: Path | None = None) -> None:
         """``on_change(run)``: told when a run starts, changes state and ends (the station's
-        heartbeat); never lets its failure reach the panel."""
+        heartbeat); never lets its failure reach the panel. ``state_file``: where the current
+        run is kept for a panel started again (``benchctl.web.runstate``; None: nowhere)."""
         self.settings = settings
         self.on_change = on_change
+        self.state_file = state_file
+        self.words = Words(settings.lang)
         self.run: Run | None = None
         self.watchers: set[Watcher] = set()
         self.last_operator = ""
@@ -197,6 +268,7 @@ class Station:
         self._tmp = Path(tempfile.mkdtemp(prefix="benchctl-panel-"))
         self._transport: asyncio.BaseTransport | None = None
         self._waiter: asyncio.Task[None] | None = None
+        self._old_dirs: list[Path] = []  # an earlier panel's folders of a run taken up
 
     # ---- browsers
     def watch(self) -> Watcher:
@@ -216,8 +288,8 @@ class Station:
 
     def status(self, trace_points: int = STATUS_TRACE_POINTS) -> dict[str, Any]:
         """Everything a browser shows; ``trace_points``: the plot's last points sent."""
-        return {"run": self.run.view(trace_points) if self.run is not None else None,
-                "last_operator": self.last_operator}
+        return {"run": self.run.view(trace_points, self.words) if self.run is not None
+                else None, "last_operator": self.last_operator}
 
     # ---- runs
     @property
@@ -267,6 +339,9 @@ class Station:
             self._close_transport()
             raise
         run.started_utc = _now_utc()
+        run.pid = run.proc.pid
+        run.identity = runstate.identity(run.pid) or ""
+        self._save(run)
         self._changed(run)
         self.last_operator = operator
         self._waiter = asyncio.get_running_loop().create_task(self._wait(run))
@@ -275,8 +350,14 @@ class Station:
 
     async def _listen(self, run: Run) -> None:
         self._close_transport()
+        path = run.folder / "live.sock"
+        if run.adopted:  # the dead server's socket file: the run sends to this path again
+            with contextlib.suppress(FileNotFoundError):
+                if not stat.S_ISSOCK(path.lstat().st_mode):
+                    raise OSError(f"{path}: not a socket; the run's live data not taken up")
+                path.unlink()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        sock.bind(str(run.folder / "live.sock"))
+        sock.bind(str(path))
         sock.setblocking(False)
         loop = asyncio.get_running_loop()
         self._transport, _ = await loop.create_datagram_endpoint(
@@ -300,11 +381,19 @@ class Station:
             self.publish("snapshot", {"snapshot": msg, "point": point})
         elif kind == "state":
             run.state, run.reason = str(msg.get("state", "")), str(msg.get("reason", ""))
-            self.publish("state", {"state": run.state, "reason": run.reason})
+            reason = self.words.state_reason(run.reason)
+            self.publish("state", {"state": run.state, "reason": run.reason,
+                                   "reason_text": reason["text"],
+                                   "reason_detail": reason["detail"]})
             self._changed(run)
         elif kind == "message":
-            run.messages.append(str(msg.get("text", "")))
-            self.publish("message", {"text": str(msg.get("text", ""))})
+            text = str(msg.get("text", ""))
+            shown = self.words.message(text)
+            run.messages.append(shown)
+            self.publish("message", shown)
+            if text.startswith("recording to ") and run.recording is None:
+                run.recording = text[len("recording to "):]
+                self._save(run)
         elif kind == "verdict":
             run.verdict = {"verdict": msg.get("verdict"), "detail": msg.get("detail", "")}
         elif (kind == "prompt" and isinstance(msg.get("id"), int)
@@ -334,20 +423,29 @@ class Station:
         return True
 
     async def _wait(self, run: Run) -> None:
-        assert run.proc is not None
-        while run.proc.poll() is None:
-            await asyncio.sleep(POLL_S)
+        if run.proc is not None:
+            while run.proc.poll() is None:
+                await asyncio.sleep(POLL_S)
+        else:  # taken up again: not our child, its end is looked for, its code not known
+            while self._alive(run):
+                await asyncio.sleep(POLL_S)
         await asyncio.sleep(POLL_S)  # the last datagrams in
-        self._finish(run, run.proc.returncode)
+        self._finish(run, run.proc.returncode if run.proc is not None else None)
 
-    def _finish(self, run: Run, code: int) -> None:
-        text = (run.folder / "result.json").read_text(encoding="utf-8", errors="replace")
-        try:
-            result = json.loads(text) if text.strip() else None
-        except ValueError:
-            result = None
-        run.result = result if isinstance(result, dict) else None
-        err = (run.folder / "stderr.txt").read_text(encoding="utf-8", errors="replace")
+    def _alive(self, run: Run) -> bool:
+        return run.pid is not None and runstate.is_the_run(
+            run.pid, run.identity, run.folder / "live.sock")
+
+    def _finish(self, run: Run, code: int | None) -> None:
+        result = _read_json(run.folder / "result.json")
+        if result is None and run.recording is not None:  # its output gone: its recording's
+            result = runstate.from_recording(Path(run.recording))
+        run.result = result
+        if code is None and result is not None and isinstance(result.get("exit_code"), int):
+            code = result["exit_code"]
+        if run.result is not None and isinstance(run.result.get("recording"), str):
+            run.recording = run.result["recording"]
+        err = _read_text(run.folder / "stderr.txt")
         lines = [ln for ln in err.splitlines() if ln.strip()]
         errors = [ln for ln in lines if ": error: " in ln]
         run.error = (errors[-1].split(": error: ", 1)[1] if errors
@@ -360,10 +458,79 @@ class Station:
                 "aborted" if run.result else "refused" if run.refused else "error")
         run.prompt = None
         run.exit_code = code
+        run.finished = True
         run.ended_utc = _now_utc()
+        self._save(run)
         self._changed(run)
         self._close_transport()
-        self.publish("ended", {"run": run.view()})
+        self.publish("ended", {"run": run.view(words=self.words)})
+
+    def _save(self, run: Run) -> None:
+        if self.state_file is not None and run is self.run:
+            runstate.save(self.state_file, run.saved(self.settings.out_dir))
+
+    async def resume(self) -> None:
+        """At the panel's start: take up the run its state file names. Still going on (the
+        same process: its pid and start time, its command line), it is shown running again,
+        its live data received at the same socket, Stop sends it SIGINT, its end is looked for
+        and its verdict read from its own files; ended meanwhile, its verdict is shown (from
+        its output, else its recording); nothing to show, the panel starts idle."""
+        if self.state_file is None or self.busy:
+            return
+        data = runstate.load(self.state_file)
+        if data is None:
+            return
+        try:
+            run = Run(int(data["run_id"]), str(data["serial"]), str(data["operator"]),
+                      str(data["profile"]), Path(str(data["folder"])),
+                      kind=str(data.get("kind") or "test"))
+        except (KeyError, TypeError, ValueError) as e:
+            log.warning("the panel's state in %s not taken up: %s", self.state_file, e)
+            return
+        run.adopted = True
+        if (run.folder.parent.name.startswith("benchctl-panel-")
+                and run.folder.parent.parent == Path(tempfile.gettempdir())):
+            self._old_dirs.append(run.folder.parent)
+        run.pid = data.get("pid") if isinstance(data.get("pid"), int) else None
+        run.identity = str(data.get("identity") or "")
+        run.recording = data.get("recording") if isinstance(data.get("recording"), str) \
+            else None
+        run.started_utc = str(data.get("started_utc") or "")
+        run.stop_requested = bool(data.get("stop_requested"))
+        self._next_id = max(self._next_id, run.id + 1)
+        self.last_operator = run.operator
+        if data.get("ended"):
+            result = data.get("result")
+            run.result = result if isinstance(result, dict) else None
+            run.state = str(data.get("state") or "")
+            run.error = str(data.get("error") or "")
+            run.refused = bool(data.get("refused"))
+            code = data.get("exit_code")
+            run.exit_code = code if isinstance(code, int) else None
+            run.ended_utc = str(data.get("ended_utc") or "")
+            run.finished = True
+            self.run = run
+            self._changed(run)  # the station's heartbeat: its last outcome
+            return
+        if not self._alive(run):  # it ended while no panel watched
+            self.run = run
+            self._finish(run, None)
+            if run.result is None and not run.error:
+                self.run = None  # nothing to show of it
+                runstate.remove(self.state_file)
+            return
+        run.state = "running"
+        run.messages.append({"text": self.words(REATTACHED), "detail": ""})
+        self.run = run
+        try:
+            run.folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+            await self._listen(run)
+        except OSError as e:  # shown running all the same, Stop works; its live data lost
+            log.warning("the run's live data (pid %s) not taken up: %s", run.pid, e)
+        log.warning("took up the run of %s again (pid %s)", run.serial, run.pid)
+        self._changed(run)
+        self._waiter = asyncio.get_running_loop().create_task(self._wait(run))
+        self.publish("status", self.status())
 
     def _changed(self, run: Run) -> None:
         if self.on_change is None:
@@ -374,15 +541,23 @@ class Station:
             log.warning("station state not published: %s: %s", type(e).__name__, e)
 
     def stop(self) -> bool:
-        """SIGINT to the run going on (Ctrl-C's path); False when none is."""
+        """SIGINT to the run going on (Ctrl-C's path); False when none is. A run taken up
+        again gets it only while it is still the same process."""
         run = self.run
-        if run is None or run.ended or run.proc is None:
+        if run is None or run.ended or (run.proc is None and run.pid is None):
             return False
         if run.stop_requested:  # once: the run is already on its way out
             return True
+        if run.proc is not None:
+            with contextlib.suppress(ProcessLookupError):
+                run.proc.send_signal(signal.SIGINT)
+        elif self._alive(run) and run.pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(run.pid, signal.SIGINT)
+        else:
+            return False  # ended: its end is on its way to the page
         run.stop_requested = True
-        with contextlib.suppress(ProcessLookupError):
-            run.proc.send_signal(signal.SIGINT)
+        self._save(run)
         self.publish("stopping", {"id": run.id})
         return True
 
@@ -391,6 +566,8 @@ class Station:
         if self.busy:
             return False
         self.run = None
+        if self.state_file is not None:
+            runstate.remove(self.state_file)
         self.publish("status", self.status())
         return True
 
@@ -417,11 +594,30 @@ class Station:
                 await self._waiter
         self._close_transport()
         run = self.run
-        if run is not None and not run.ended and run.proc is not None:
-            log.warning("the run of %s (pid %d) goes on without the panel and ends by itself; "
-                        "to stop it as Stop would: kill -INT %d", run.serial, run.proc.pid,
-                        run.proc.pid)
+        if run is not None and not run.ended and run.pid is not None:
+            log.warning("the run of %s (pid %d) goes on without the panel and ends by itself "
+                        "(a panel started again takes it up); to stop it as Stop would: "
+                        "kill -INT %d", run.serial, run.pid, run.pid)
+            if run.adopted:
+                shutil.rmtree(self._tmp, ignore_errors=True)  # its files are the old panel's
             return
-        import shutil
-
         shutil.rmtree(self._tmp, ignore_errors=True)
+        for old in self._old_dirs:  # an earlier panel's files of a run taken up, now ended
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return ""
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    """The run's JSON output (None: none, or not a whole object)."""
+    text = _read_text(path)
+    try:
+        obj = json.loads(text) if text.strip() else None
+    except ValueError:
+        return None
+    return obj if isinstance(obj, dict) else None

@@ -67,15 +67,16 @@ def wait_for(what: str, check: Any, timeout_s: float, every_s: float = 0.1) -> A
 @contextlib.contextmanager
 def serve(tmp: Path, *args: str, config: Path = ROOT / "config/sim_virtual.yaml",
           profile: Path = SHORT_PROFILE, duration_s: float = 30.0,
-          procs: list[subprocess.Popen[bytes]] | None = None) -> Iterator[str]:
-    """``benchctl serve`` on a free loopback port; yields its base URL (its process appended to
-    ``procs``). At the end the server gets SIGINT and is waited for; the run it started must
-    have ended by then."""
-    port = free_port()
+          procs: list[subprocess.Popen[bytes]] | None = None,
+          port: int | None = None) -> Iterator[str]:
+    """``benchctl serve`` on a free loopback port (or ``port``: a panel started again where
+    it was); yields its base URL (its process appended to ``procs``). At the end the server
+    gets SIGINT and is waited for; the run it started must have ended by then."""
+    port = free_port() if port is None else port
     cmd = [sys.executable, "-m", "benchctl", "serve", "--config", str(config),
            "--profile", str(profile), "--duration", repr(duration_s), "--out",
            str(tmp / "runs"), "--port", str(port), *args]
-    log = (tmp / f"serve-{port}.log").open("wb")
+    log = (tmp / f"serve-{port}.log").open("ab")  # a panel started again: its log after
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=child_env(),
                             cwd=tmp)
     url = f"http://127.0.0.1:{port}"

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 from browser import chromium
-from panel import get_json, serve, wait_for
+from panel import free_port, get_json, post_json, serve, wait_for
 from playwright.sync_api import Page, sync_playwright
 from repo_paths import ROOT
 
@@ -133,8 +133,9 @@ def test_stop_takes_the_ctrl_c_path_and_shows_aborted(tmp_path: Path, browser: B
         page.click("#stop")
         wait_for("the verdict", lambda: browser.visible("#verdict"), 90)
         assert browser.text("#verdict-word") == "ABORTED"
+        assert browser.text("#verdict-title").startswith("Stopped by the operator")
         assert "SIGINT" in browser.text("#verdict-reason")  # the same path as Ctrl-C
-        assert "at rest" in browser.text("#verdict-stand")
+        assert "At rest." in browser.text("#verdict-stand")
         outcome = run_status(url)["outcome"]
         assert outcome["verdict"] == "ABORTED" and outcome["at_rest"] is True
         assert outcome["exit_code"] == 2 and outcome["kind"] == "operator"
@@ -191,7 +192,7 @@ def test_a_stand_in_use_is_refused_clearly(tmp_path: Path, browser: Browser) -> 
         page.fill("#operator", "demo")
         page.click("#start")
         wait_for("the refusal", lambda: browser.visible("#verdict"), 60)
-        assert "stand is in use" in browser.text("#verdict-title")
+        assert "stand is in use" in browser.text("#verdict-title")  # the panel's words
         reason = browser.text("#verdict-reason")
         assert "is in use by" in reason and HOSTILE_OPERATOR in reason
         assert page.evaluate("window.pwned === undefined")
@@ -238,3 +239,99 @@ def test_a_plan_with_its_prompts_as_dialogs(tmp_path: Path, browser: Browser) ->
             links.nth(1).click()
         assert "/steps/1/report" in page.url and "σ" in (page.text_content("body") or "")
     assert browser.errors == []
+
+
+@pytest.mark.realtime  # the server killed (SIGKILL) and started again while its run goes on
+def test_a_panel_started_again_takes_up_the_run_it_left_going(tmp_path: Path,
+                                                               browser: Browser) -> None:
+    """The panel crashes mid-run; started again on its port, it shows that run running, its
+    live values moving again; Stop (SIGINT, Ctrl-C's path) ends it and its ABORTED verdict is
+    shown — the run read from its own files, not this server's child. The run is on simulated
+    time, long enough to outlive the restart."""
+    import signal
+    import subprocess
+
+    import psutil
+
+    port = free_port()
+    procs: list[subprocess.Popen[bytes]] = []
+    with serve(tmp_path, duration_s=3000.0, procs=procs, port=port) as url:
+        post_json(url, "/api/start", {"serial": "20260001", "operator": "demo",
+                                      "profile": "0"})
+        children = wait_for("the run's process",
+                            lambda: psutil.Process(procs[0].pid).children(), 30)
+        run = children[0]
+        wait_for("the motion", lambda: (run_status(url) or {}).get("state") in (
+            "fade-in", "running"), 120)
+        procs[0].send_signal(signal.SIGKILL)  # the panel crashes; the run goes on
+        procs[0].wait(30)
+    try:
+        assert run.is_running()
+        restart_and_stop(tmp_path, port, run, browser)
+    finally:  # whatever failed, the run left going is stopped as Stop would
+        if run.is_running():
+            run.send_signal(signal.SIGINT)
+            psutil.wait_procs([run], timeout=60)
+    # put away: a panel started again now starts idle
+    with serve(tmp_path, duration_s=3000.0, port=port) as url:
+        assert run_status(url) is None
+    assert browser.errors == []
+
+
+def restart_and_stop(tmp_path: Path, port: int, run: Any, browser: Browser) -> None:
+    import psutil
+
+    page = browser.page
+    with serve(tmp_path, duration_s=3000.0, port=port) as url:
+        status = run_status(url)
+        assert status is not None and not status["ended"] and status["adopted"]
+        assert status["serial"] == "20260001" and status["operator"] == "demo"
+        page.goto(url)
+        wait_for("the live view", lambda: browser.visible("#live"), 30)
+        assert browser.focused() == "stop"
+        values: set[str] = set()
+        wait_for("the live angles to change",
+                 lambda: values.add(browser.text("#angles")) or len(values - {""}) >= 3, 60,
+                 0.2)
+        assert "restarted" in browser.text("#messages")
+        page.keyboard.press("Enter")  # Stop
+        wait_for("the verdict", lambda: browser.visible("#verdict"), 120)
+        assert browser.text("#verdict-word") == "ABORTED"
+        assert browser.text("#verdict-title").startswith("Stopped by the operator")
+        assert "SIGINT" in browser.text("#verdict-reason")  # the run's own words: details
+        assert "At rest." in browser.text("#verdict-stand")
+        outcome = run_status(url)["outcome"]
+        assert outcome["verdict"] == "ABORTED" and outcome["kind"] == "operator"
+        assert outcome["at_rest"] is True
+        gone, _ = psutil.wait_procs([run], timeout=30)
+        assert gone, "the run did not end"
+        page.click("#new-test")
+        wait_for("the form again", lambda: browser.visible("#setup"), 30)
+
+
+def test_a_run_in_russian_every_text_in_the_language(tmp_path: Path, browser: Browser) -> None:
+    """The station in Russian: a refused serial in the panel's words (the check's English as
+    the detail), the run's messages and its verdict screen (the verdict, the axes) in Russian."""
+    page = browser.page
+    with serve(tmp_path, "--lang", "ru") as url:  # simulated time
+        page.goto(url)
+        wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
+        page.keyboard.press("Enter")  # nothing typed
+        wait_for("the refusal", lambda: browser.text("#form-error") ==
+                 "Введите или отсканируйте серийный номер.", 10)
+        assert "expected the serial number" in browser.text("#form-detail")
+        page.fill("#serial", "20260001")
+        page.fill("#operator", "demo")
+        page.click("#start")
+        wait_for("the verdict", lambda: browser.visible("#verdict"), 120)
+        assert browser.text("#verdict-word") == "ГОДЕН"
+        axes = browser.text("#verdict-axes")
+        assert "крен" in axes and "0,4" in axes and "0.4" not in axes  # a decimal comma
+        messages = browser.text("#messages")
+        assert "Проверка перед движением: место на диске — пройдена." in messages
+        assert "ГОДЕН: запись закрыта." in messages
+        page.click("#new-test")
+        wait_for("the form again", lambda: browser.visible("#setup"), 30)
+    # the refused serial's 400 is the page's answer (and the browser's log of it), no error
+    assert [e for e in browser.errors if "400" not in e] == []
+    assert any(e.startswith("HTTP 400") and "check-serial" in e for e in browser.errors)

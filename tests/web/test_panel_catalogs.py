@@ -16,6 +16,8 @@ def source_ids() -> set[str]:
     found = extract_from_dir(
         str(LOCALE_DIR.parent),
         method_map=[("**/i18n.py", "python"), ("**/line.py", "python"),
+                    ("**/wording.py", "python"), ("**/station.py", "python"),
+                    ("**/app.py", "python"),
                     ("**/templates/station/**.j2", "jinja2"),
                     ("**/templates/line/**.j2", "jinja2")],
         options_map={"**/templates/station/**.j2": {"extensions": "jinja2.ext.i18n"},

@@ -137,10 +137,14 @@ def test_the_serial_rules_apply_and_their_message_is_data(client: TestClient) ->
     r = client.post("/api/check-serial", json={"serial": HOSTILE + "\x1b"}, headers=hdr)
     assert r.status_code == 400
     assert r.headers["content-type"].startswith("application/json")
-    assert "control character" in r.json()["error"]
+    # the panel's words for it, the check's own English as the detail
+    assert r.json()["error"] == ("The serial number holds a character that cannot be shown: "
+                                 "type or scan it again.")
+    assert "control character" in r.json()["detail"]
     r = client.post("/api/start", json={"serial": "20260001", "operator": "x\x07",
                                         "profile": "0"}, headers=hdr)
-    assert r.status_code == 400 and "operator" in r.json()["error"]
+    assert r.status_code == 400 and "name holds a character" in r.json()["error"]
+    assert "operator" in r.json()["detail"]
     r = client.post("/api/start", json={"serial": "20260001", "operator": "demo",
                                         "profile": "../../etc/passwd"}, headers=hdr)
     assert r.status_code == 400 and "not one this station offers" in r.json()["error"]

@@ -25,7 +25,16 @@
     const m = Math.floor(s / 60), r = Math.floor(s % 60);
     return String(m).padStart(2, "0") + ":" + String(r).padStart(2, "0");
   }
-  function num(v, digits) { return v == null || !isFinite(v) ? "—" : Number(v).toFixed(digits); }
+  // numbers the station's language's way (a decimal comma in Russian)
+  const LANG = document.documentElement.lang || "en";
+  function num(v, digits) {
+    if (v == null || !isFinite(v)) return "—";
+    return Number(v).toLocaleString(LANG, { minimumFractionDigits: digits,
+      maximumFractionDigits: digits, useGrouping: false });
+  }
+  function plain(v) {
+    return v == null || !isFinite(v) ? "—" : Number(v).toLocaleString(LANG, { useGrouping: false });
+  }
   function el(tag, content, cls) {
     const e = document.createElement(tag);
     if (content != null) e.textContent = String(content);
@@ -54,7 +63,7 @@
       const serial = $("serial");
       serial.value = "";
       text($("serial-status"), "");
-      text($("form-error"), "");
+      formError("", "");
       $("start").disabled = false;
       serial.focus();
     } else if (view === "live") {
@@ -76,7 +85,7 @@
     text($("live-profile"), run.profile);
     clear($("messages"));
     for (const m of run.messages || []) addMessage(m);
-    setState(run.state, run.reason);
+    setState(run.state, run.reason_text, run.reason_detail);
     if (run.snapshot) renderSnapshot(run.snapshot);
     $("stopping").hidden = !run.stop_requested;
     if (run.stop_requested) { text($("stopping"), T.stopping); $("stop").disabled = true; }
@@ -114,14 +123,26 @@
     if (promptId === id) { $("prompt-yes").disabled = false; $("prompt-no").disabled = false; }
   }
 
-  function setState(state, reason) {
+  function setState(state, reason, detail) {
     text($("state"), (T[state] || state) + (reason ? " (" + reason + ")" : ""));
+    text($("state-detail"), detail || "");
   }
 
+  function axisName(a) { return T["axis_" + a] || a; }
+
+  // a message of the run: the panel's words for it, and the run's own (English) as a detail
   function addMessage(m) {
     const list = $("messages");
-    list.appendChild(el("li", m));
+    const li = document.createElement("li");
+    if (m.text) li.appendChild(el("span", m.text));
+    if (m.detail) li.appendChild(el("span", m.detail, "detail"));
+    list.appendChild(li);
     while (list.children.length > 50) list.removeChild(list.firstChild);
+  }
+
+  function formError(message, detail) {
+    text($("form-error"), message);
+    text($("form-detail"), detail);
   }
 
   function judgement(snap) {
@@ -141,7 +162,7 @@
     for (const a of Object.keys(snap.instrument_deg || {})) if (!axes.includes(a)) axes.push(a);
     for (const a of axes) {
       const tr = document.createElement("tr");
-      tr.appendChild(el("td", a));
+      tr.appendChild(el("td", axisName(a)));
       tr.appendChild(el("td", num((snap.stand_deg || {})[a], 2)));
       tr.appendChild(el("td", num((snap.instrument_deg || {})[a], 2)));
       tr.appendChild(el("td", num((snap.tracking_error_deg || {})[a], 3)));
@@ -149,8 +170,8 @@
       body.appendChild(tr);
     }
     const sig = Object.entries(snap.sigma_deg || {})
-      .map(([a, v]) => a + " " + num(v, 3) + "°").join("  ");
-    const limit = snap.limit_deg == null ? "" : "   " + T.limit + " " + snap.limit_deg + "°";
+      .map(([a, v]) => axisName(a) + " " + num(v, 3) + "°").join("  ");
+    const limit = snap.limit_deg == null ? "" : "   " + T.limit + " " + plain(snap.limit_deg) + "°";
     text($("sigma"), (sig || "—") + limit);
     const j = judgement(snap);
     const judged = $("sigma-judged");
@@ -174,18 +195,18 @@
   function renderVerdict(r) {
     const o = r.outcome || {};
     const word = $("verdict-word");
-    text(word, T[o.verdict] || o.verdict);
+    text(word, o.word || T[o.verdict] || o.verdict);
     word.className = "verdict " + (o.verdict || "");
     text($("verdict-serial"), r.serial + " · " + r.operator + " · " + r.profile);
     const body = $("verdict-axes");
     clear(body);
     for (const a of o.axes || []) {
       const tr = document.createElement("tr");
-      tr.appendChild(el("td", a.axis));
+      tr.appendChild(el("td", a.axis_name || a.axis));
       tr.appendChild(el("td", num(a.sigma, 4)));
       tr.appendChild(el("td", num(a.ci[0], 4) + " … " + num(a.ci[1], 4)));
-      tr.appendChild(el("td", a.limit == null ? "—" : a.limit));
-      tr.appendChild(el("td", T[a.verdict] || a.verdict));
+      tr.appendChild(el("td", plain(a.limit)));
+      tr.appendChild(el("td", a.word || T[a.verdict] || a.verdict));
       body.appendChild(tr);
     }
     body.parentElement.hidden = !(o.axes || []).length;
@@ -194,8 +215,8 @@
     (o.steps || []).forEach((s, i) => {
       const tr = document.createElement("tr");
       tr.appendChild(el("td", s.name));
-      tr.appendChild(el("td", T[s.verdict] || s.verdict));
-      tr.appendChild(el("td", s.reason));
+      tr.appendChild(el("td", s.word || s.verdict));
+      tr.appendChild(el("td", s.detail || "", "detail"));
       const cell = document.createElement("td");
       if (s.report) {
         const a = el("a", T.open_report, "link");
@@ -206,14 +227,15 @@
       steps.appendChild(tr);
     });
     $("verdict-steps-table").hidden = !(o.steps || []).length;
-    text($("verdict-title"), o.refused ? T.refused_title : o.verdict === "ERROR" ? T.not_started : "");
-    text($("verdict-reason"), o.reason ? (o.kind ? o.kind + ": " : "") + o.reason : "");
-    text($("verdict-stand"), o.stand || "");
+    text($("verdict-title"), o.headline || "");
+    text($("verdict-reason"), o.detail ? o.details_label + ": " + o.detail : "");
+    text($("verdict-stand"), o.stand_text || "");
+    text($("verdict-stand-detail"), o.stand_detail || "");
     const next = $("verdict-next");
     clear(next);
     if (o.verdict === "ABORTED") {
       if (o.measured) {
-        next.appendChild(el("p", T.measured_before + " " + o.measured.verdict));
+        next.appendChild(el("p", T.measured_before + " " + (o.measured_word || o.measured.verdict)));
       }
       if ((o.next || []).length) {
         next.appendChild(el("p", T.next_commands, "warning"));
@@ -223,7 +245,7 @@
       } else if (o.at_zero) {
         next.appendChild(el("p", T.at_rest));
       }
-      next.appendChild(el("p", T.next_abort));
+      if (o.advice) next.appendChild(el("p", o.advice));
     }
     const link = $("report-link");
     link.hidden = !o.report;
@@ -295,14 +317,14 @@
       if (!run || run.ended) return;
       const d = JSON.parse(e.data);
       renderSnapshot(d.snapshot);
-      setState(d.snapshot.state, "");
+      if (d.snapshot.state !== run.state) { run.state = d.snapshot.state; setState(run.state, "", ""); }
       if (d.point) { trace.push(d.point); if (trace.length > 3000) trace.shift(); }
     });
     source.addEventListener("state", (e) => {
       const d = JSON.parse(e.data);
-      if (run && !run.ended) setState(d.state, d.reason);
+      if (run && !run.ended) { run.state = d.state; setState(d.state, d.reason_text, d.reason_detail); }
     });
-    source.addEventListener("message", (e) => addMessage(JSON.parse(e.data).text));
+    source.addEventListener("message", (e) => addMessage(JSON.parse(e.data)));
     source.addEventListener("stopping", () => {
       $("stopping").hidden = false;
       text($("stopping"), T.stopping);
@@ -318,11 +340,11 @@
   // ---- the form: Enter in the serial checks it (a scanner types it and Enter)
   async function checkSerial() {
     const serial = $("serial");
-    text($("form-error"), "");
+    formError("", "");
     const r = await post("/api/check-serial", { serial: serial.value });
     if (!r.ok) {
       text($("serial-status"), "");
-      text($("form-error"), r.payload.error || r.status);
+      formError(r.payload.error || r.status, r.payload.detail || "");
       serial.select();
       return false;
     }
@@ -340,13 +362,13 @@
   $("start-form").addEventListener("submit", async (e) => {
     e.preventDefault();
     $("start").disabled = true;
-    text($("form-error"), "");
+    formError("", "");
     const r = await post("/api/start", {
       serial: $("serial").value, operator: $("operator").value, profile: $("profile").value,
     });
     if (!r.ok) {
       $("start").disabled = false;
-      text($("form-error"), r.payload.error || r.status);
+      formError(r.payload.error || r.status, r.payload.detail || "");
       $("serial").focus();
     }
   });
