@@ -54,6 +54,43 @@ def _ports_and_ptys(me: psutil.Process) -> set[str]:
     return found
 
 
+def _descendants(pid: int) -> set[int]:
+    """The process ids of ``pid``'s children, their children and so on: what
+    ``psutil.Process(pid).children(recursive=True)`` finds, read from each thread's
+    ``/proc/<pid>/task/<tid>/children`` instead of a scan of every process on the machine (that
+    scan cost each test ≈ 2 ms of CPU, twice). Where the kernel has no such file, psutil."""
+    if not Path(f"/proc/{pid}/task/{pid}/children").exists():
+        return {p.pid for p in psutil.Process(pid).children(recursive=True)}
+    found: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            tids = os.listdir(f"/proc/{p}/task")
+        except OSError:  # ended meanwhile
+            continue
+        for tid in tids:
+            try:
+                with open(f"/proc/{p}/task/{tid}/children") as f:
+                    kids = [int(k) for k in f.read().split()]
+            except OSError:
+                continue
+            for k in kids:
+                if k not in found:
+                    found.add(k)
+                    todo.append(k)
+    return found
+
+
+def _live(pid: int) -> psutil.Process | None:
+    """``pid`` as a psutil process, unless it ended or is a zombie."""
+    try:
+        p = psutil.Process(pid)
+        return p if p.is_running() and p.status() != psutil.STATUS_ZOMBIE else None
+    except psutil.Error:
+        return None
+
+
 @pytest.fixture(autouse=True)
 def no_leaks() -> Iterator[None]:
     """Fail a test that leaves a thread, a child process, an open socket or a pty behind
@@ -61,17 +98,15 @@ def no_leaks() -> Iterator[None]:
     before = _threads()
     me = psutil.Process()
     io_before = _ports_and_ptys(me)
-    children_before = {p.pid for p in me.children(recursive=True)}
+    children_before = _descendants(me.pid)
     yield
     deadline = time.monotonic() + 5.0
     while True:
         leaked = [t for t in _threads() - before if not t.name.startswith(("pydevd", "asyncio_"))]
         kids = [
             p
-            for p in me.children(recursive=True)
-            if p.pid not in children_before
-            and p.is_running()
-            and p.status() != psutil.STATUS_ZOMBIE
+            for p in map(_live, sorted(_descendants(me.pid) - children_before))
+            if p is not None
         ]
         io_leaked = sorted(_ports_and_ptys(me) - io_before)
         if not leaked and not kids and not io_leaked:

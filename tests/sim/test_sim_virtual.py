@@ -57,10 +57,20 @@ def _digest(rec: Path, name: str) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+@pytest.fixture(scope="module")
+def undisturbed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, Path]:
+    """The undisturbed run of ``_config`` (its config file, exit code, recording), made once for
+    the module: the first of the two same-input runs below, and the disturbed runs' twin."""
+    tmp = tmp_path_factory.mktemp("undisturbed")
+    cfg = _config(tmp)
+    code, rec = _run(cfg, tmp / "a")
+    return cfg, code, rec
+
+
 @pytest.mark.slow
-def test_two_runs_with_the_same_inputs_record_the_same_bytes(tmp_path: Path) -> None:
-    cfg = _config(tmp_path)
-    code1, rec1 = _run(cfg, tmp_path / "a")
+def test_two_runs_with_the_same_inputs_record_the_same_bytes(
+        tmp_path: Path, undisturbed: tuple[Path, int, Path]) -> None:
+    cfg, code1, rec1 = undisturbed  # the first run; the second one here, the same config file
     code2, rec2 = _run(cfg, tmp_path / "b")
     assert code1 == code2 == 0
     for name in (*DATA, "events.jsonl"):
@@ -125,12 +135,13 @@ def _events(rec: Path) -> list[dict[str, Any]]:
 
 
 @pytest.mark.slow
-def test_disturbed_from_the_motions_start_the_motion_starts_in_step(tmp_path: Path) -> None:
+def test_disturbed_from_the_motions_start_the_motion_starts_in_step(
+        tmp_path: Path, undisturbed: tuple[Path, int, Path]) -> None:
     """``sim.disturb.from_s`` at the undisturbed twin's fade-in: before it nothing is disturbed,
     so the motion starts at the same simulated instant and the instrument's samples (its
     instants and values, noise included) are the twin's; disturbed from the start, the motion
     starts later and the noise falls on other instants of it."""
-    code, twin = _run(_config(tmp_path / "u"), tmp_path / "u" / "out")
+    _cfg, code, twin = undisturbed  # the undisturbed twin (the module's run)
     assert code == 0
     fade = next(e["t_state"] for e in _events(twin) if e.get("to") == "fade-in")
     recs = {}

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from browser import chromium
 from panel import free_port, get_json, post_json, serve, wait_for
+from playwright.sync_api import Browser as PwBrowser
 from playwright.sync_api import Page, sync_playwright
 from repo_paths import ROOT
 
@@ -27,8 +28,8 @@ TOKEN = "a long enough access token"
 
 
 class Browser:
-    """One headless Chromium, a page, and every console error or uncaught exception of every
-    page it opened."""
+    """A page in a browser context of its own (the module's headless Chromium), and every
+    console error or uncaught exception of every page that context opened."""
 
     def __init__(self, page: Page, errors: list[str]) -> None:
         self.page = page
@@ -44,8 +45,27 @@ class Browser:
         return str(self.page.evaluate("document.activeElement && document.activeElement.id"))
 
 
+@pytest.fixture(scope="module")
+def chromium_browser() -> Iterator[PwBrowser]:
+    """One headless Chromium for the module (its launch is a second or two of each test's
+    time); each test gets a context of its own in it (below): its own cookies, storage and
+    pages, as a fresh browser would have."""
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium(), args=["--no-sandbox"])
+        try:
+            # Chromium starts its GPU process and its network and storage services with the
+            # first page and keeps them: started here, they are the module's, not a test's
+            # (every test is checked for the child processes it leaves behind)
+            warm = b.new_context()
+            warm.new_page().goto("data:text/html,<p>warm-up</p><script>1</script>")
+            warm.close()
+            yield b
+        finally:
+            b.close()
+
+
 @pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Browser]:
+def browser(chromium_browser: PwBrowser) -> Iterator[Browser]:
     errors: list[str] = []
 
     def watch(page: Page) -> None:
@@ -55,16 +75,14 @@ def browser(tmp_path: Path) -> Iterator[Browser]:
         page.on("response", lambda r: errors.append(f"HTTP {r.status} {r.url}")
                 if r.status >= 400 else None)
 
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=chromium(), args=["--no-sandbox"])
-        try:
-            ctx = b.new_context(viewport={"width": 1280, "height": 900})
-            ctx.on("page", watch)
-            page = ctx.new_page()
-            page.set_default_timeout(30_000)
-            yield Browser(page, errors)
-        finally:
-            b.close()
+    ctx = chromium_browser.new_context(viewport={"width": 1280, "height": 900})
+    try:
+        ctx.on("page", watch)
+        page = ctx.new_page()
+        page.set_default_timeout(30_000)
+        yield Browser(page, errors)
+    finally:
+        ctx.close()
 
 
 def run_status(url: str) -> Any:
