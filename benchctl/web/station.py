@@ -423,14 +423,19 @@ class Station:
         return True
 
     async def _wait(self, run: Run) -> None:
-        if run.proc is not None:
-            while run.proc.poll() is None:
-                await asyncio.sleep(POLL_S)
-        else:  # taken up again: not our child, its end is looked for, its code not known
-            while self._alive(run):
-                await asyncio.sleep(POLL_S)
-        await asyncio.sleep(POLL_S)  # the last datagrams in
-        self._finish(run, run.proc.returncode if run.proc is not None else None)
+        try:
+            if run.proc is not None:
+                while run.proc.poll() is None:
+                    await asyncio.sleep(POLL_S)
+            else:  # taken up again: not our child, its end is looked for, its code not known
+                while self._alive(run):
+                    await asyncio.sleep(POLL_S)
+            await asyncio.sleep(POLL_S)  # the last datagrams in
+            self._finish(run, run.proc.returncode if run.proc is not None else None)
+        except Exception:  # never a panel that shows a run going on for ever
+            log.exception("the end of the run of %s not handled", run.serial)
+            run.finished = True
+            self.publish("status", self.status())
 
     def _alive(self, run: Run) -> bool:
         return run.pid is not None and runstate.is_the_run(

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
@@ -130,9 +131,13 @@ def test_a_run_left_going_is_taken_up_its_live_data_received_and_stopped(
     sock = tmp_path / "old-panel" / "run-7" / "live.sock"
     # the "run": a process whose command line is a run's (--live at the panel's socket); it
     # ends on SIGINT, as a run does at Ctrl-C
-    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", "--live",
-                              str(sock)])
+    # it says when it is up (a run is, long before anyone can press Stop): a SIGINT during an
+    # interpreter's start-up is not the Ctrl-C path this test is about
+    child = subprocess.Popen([sys.executable, "-c",
+                              "import time; print('up', flush=True); time.sleep(120)", "--live",
+                              str(sock)], stdout=subprocess.PIPE, text=True)
     try:
+        assert child.stdout is not None and child.stdout.readline() == "up\n"
         ident = runstate.identity(child.pid)
         assert ident is not None
         folder = saved_run(tmp_path, st, child.pid, ident)
@@ -146,10 +151,14 @@ def test_a_run_left_going_is_taken_up_its_live_data_received_and_stopped(
             pub = LivePublisher(folder / "live.sock")  # what the run sends arrives again
             assert pub.send("snapshot", state="running", elapsed_s=12.5,
                             stand_deg={"roll": 1.0})
+            deadline = time.monotonic() + 60  # generous: a loaded machine
             while st.run is not None and st.run.snapshot is None:
+                assert time.monotonic() < deadline, "the datagram sent was not received"
                 await asyncio.sleep(0.02)
             assert st.stop()  # SIGINT, to this same process
             while st.busy:
+                assert time.monotonic() < deadline, (
+                    f"the run's end not seen; the process: {child.poll()} (None: running)")
                 await asyncio.sleep(0.05)
             view = st.status()["run"]
             await st.close()
@@ -252,9 +261,13 @@ def test_a_plan_taken_up_again_gets_its_questions_answered(tmp_path: Path) -> No
 
     st = restarted(tmp_path)
     sock = tmp_path / "old-panel" / "run-7" / "live.sock"
-    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", "--live",
-                              str(sock)])
+    # it says when it is up (a run is, long before anyone can press Stop): a SIGINT during an
+    # interpreter's start-up is not the Ctrl-C path this test is about
+    child = subprocess.Popen([sys.executable, "-c",
+                              "import time; print('up', flush=True); time.sleep(120)", "--live",
+                              str(sock)], stdout=subprocess.PIPE, text=True)
     try:
+        assert child.stdout is not None and child.stdout.readline() == "up\n"
         ident = runstate.identity(child.pid)
         assert ident is not None
         folder = saved_run(tmp_path, st, child.pid, ident, kind="plan")
