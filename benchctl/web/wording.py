@@ -101,6 +101,10 @@ class Words:
     def axis(self, name: str) -> str:
         return self(AXES[name]) if name in AXES else name
 
+    def precheck(self, name: str) -> str:
+        """A check before the motion by its name, as the operator reads it."""
+        return self(PRECHECKS[name]) if name in PRECHECKS else name
+
     def outcome_word(self, outcome: Any) -> str:
         o = str(outcome or "")
         return self(OUTCOMES[o]) if o in OUTCOMES else o
@@ -229,14 +233,14 @@ class Words:
             return {"text": self(_("Recording to the folder:")), "detail": m.group(1)}
         m = re.fullmatch(r"precheck (.+?): (ok|FAILED) — (.*)", s, re.S)
         if m:
-            name = self(PRECHECKS[m.group(1)]) if m.group(1) in PRECHECKS else m.group(1)
+            name = self.precheck(m.group(1))
             ok = m.group(2) == "ok"
             return {"text": self(_("Check before the motion: %(check)s — passed.") if ok else
                                  _("Check before the motion: %(check)s — FAILED."),
                                  check=name), "detail": m.group(3)}
         m = re.fullmatch(r"precheck (.+?): (.*); measuring again \((\d+)/(\d+)\)", s, re.S)
         if m:
-            name = self(PRECHECKS[m.group(1)]) if m.group(1) in PRECHECKS else m.group(1)
+            name = self.precheck(m.group(1))
             return {"text": self(_("Check before the motion: %(check)s — measuring again "
                                    "(%(n)s of %(of)s)."), check=name, n=m.group(3),
                                  of=m.group(4)), "detail": m.group(2)}

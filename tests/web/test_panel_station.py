@@ -112,6 +112,23 @@ def saved_run(tmp: Path, st: Station, pid: int, ident: str, **more: Any) -> Path
     return folder
 
 
+def stand_in_run(sock: Path) -> Any:
+    """A stand-in for a run left going: a process whose command line is a run's (``--live`` at
+    the panel's socket), up and waiting, that ends on SIGINT as a run does at Ctrl-C. It handles
+    SIGINT whatever it inherited, as a run does (``benchctl.exits``: a shell without job control
+    starts its background commands with SIGINT ignored, a loaded CI run's included)."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c",
+                              "import signal, time; "
+                              "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                              "print('up', flush=True); time.sleep(120)", "--live",
+                              str(sock)], stdout=subprocess.PIPE, text=True)
+    assert child.stdout is not None and child.stdout.readline() == "up\n"
+    return child
+
+
 def restarted(tmp: Path) -> Station:
     return Station(PanelSettings(config=ROOT / "config/sim.yaml", profiles=(
         ROOT / "profiles/paper_vessel_roll_short120.yaml",), lang="ru"),
@@ -121,26 +138,14 @@ def restarted(tmp: Path) -> Station:
 def test_a_run_left_going_is_taken_up_its_live_data_received_and_stopped(
         tmp_path: Path) -> None:
     import signal
-    import subprocess
-    import sys
 
     from benchctl.web import runstate
     from benchctl.web.live import LivePublisher
 
     st = restarted(tmp_path)
     sock = tmp_path / "old-panel" / "run-7" / "live.sock"
-    # the "run": a process whose command line is a run's (--live at the panel's socket); it
-    # ends on SIGINT, as a run does at Ctrl-C
-    # it handles SIGINT whatever it inherited, as a run does (``benchctl.exits``: a shell
-    # without job control starts its background commands with SIGINT ignored, CI's included),
-    # and says when it is up (a run is, long before anyone can press Stop)
-    child = subprocess.Popen([sys.executable, "-c",
-                              "import signal, time; "
-                              "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                              "print('up', flush=True); time.sleep(120)", "--live",
-                              str(sock)], stdout=subprocess.PIPE, text=True)
+    child = stand_in_run(sock)
     try:
-        assert child.stdout is not None and child.stdout.readline() == "up\n"
         ident = runstate.identity(child.pid)
         assert ident is not None
         folder = saved_run(tmp_path, st, child.pid, ident)
@@ -256,24 +261,14 @@ def test_its_output_gone_the_verdict_is_read_from_its_recording(tmp_path: Path) 
 def test_a_plan_taken_up_again_gets_its_questions_answered(tmp_path: Path) -> None:
     """A plan left going: its question, published again, reaches the new panel, whose answer
     is written where the plan waits for it (the earlier panel's answers folder)."""
-    import subprocess
-    import sys
 
     from benchctl.web import runstate
     from benchctl.web.live import LivePublisher
 
     st = restarted(tmp_path)
     sock = tmp_path / "old-panel" / "run-7" / "live.sock"
-    # it handles SIGINT whatever it inherited, as a run does (``benchctl.exits``: a shell
-    # without job control starts its background commands with SIGINT ignored, CI's included),
-    # and says when it is up (a run is, long before anyone can press Stop)
-    child = subprocess.Popen([sys.executable, "-c",
-                              "import signal, time; "
-                              "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                              "print('up', flush=True); time.sleep(120)", "--live",
-                              str(sock)], stdout=subprocess.PIPE, text=True)
+    child = stand_in_run(sock)
     try:
-        assert child.stdout is not None and child.stdout.readline() == "up\n"
         ident = runstate.identity(child.pid)
         assert ident is not None
         folder = saved_run(tmp_path, st, child.pid, ident, kind="plan")
