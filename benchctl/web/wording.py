@@ -68,6 +68,15 @@ FIXED_MESSAGES = {
     "starting the simulators for the plan": _("Starting the simulators for the plan."),
 }
 
+#: messages of a known beginning: the panel's sentence, the rest of the run's text its detail
+#: (tried before the prechecks' forms, and after the cleanup steps' form, as they stand)
+_PREFIXED_FIRST = (("ABORTED: ", _("ABORTED.")), ("recording to ", _("Recording to the folder:")))
+_PREFIXED_LATER = (
+    ("mounting check: ", _("Mounting check: each axis tilted a few degrees and back.")),
+    ("equalisation pre-test: ", _("Equalisation pre-test.")),
+    ("simulated disturbances: ", _("Simulated disturbances.")),
+)
+
 # the panel's own
 REATTACHED = _("The panel was restarted and took this run up again; its earlier messages are "
                "in the run's log.")
@@ -100,6 +109,13 @@ class Words:
 
     def axis(self, name: str) -> str:
         return self(AXES[name]) if name in AXES else name
+
+    def _prefixed(self, s: str, table: tuple[tuple[str, str], ...]) -> dict[str, str] | None:
+        """``s`` told by the first of ``table``'s beginnings it starts with (None: none)."""
+        for prefix, msgid in table:
+            if s.startswith(prefix):
+                return {"text": self(msgid), "detail": s[len(prefix):]}
+        return None
 
     def precheck(self, name: str) -> str:
         """A check before the motion by its name, as the operator reads it."""
@@ -225,12 +241,9 @@ class Words:
         if m:
             return {"text": self(_("%(verdict)s: the recording is closed."),
                                  verdict=self.outcome_word(m.group(1))), "detail": ""}
-        m = re.fullmatch(r"ABORTED: (.*)", s, re.S)
-        if m:
-            return {"text": self(_("ABORTED.")), "detail": m.group(1)}
-        m = re.fullmatch(r"recording to (.*)", s, re.S)
-        if m:
-            return {"text": self(_("Recording to the folder:")), "detail": m.group(1)}
+        shown = self._prefixed(s, _PREFIXED_FIRST)
+        if shown is not None:
+            return shown
         m = re.fullmatch(r"precheck (.+?): (ok|FAILED) — (.*)", s, re.S)
         if m:
             name = self.precheck(m.group(1))
@@ -251,16 +264,9 @@ class Words:
                       + (f" (at the {m.group(4)})" if m.group(4) else ""))
             return {"text": self(_("Cleanup step done.") if ok else _("Cleanup step FAILED.")),
                     "detail": detail}
-        m = re.fullmatch(r"mounting check: (.*)", s, re.S)
-        if m:
-            return {"text": self(_("Mounting check: each axis tilted a few degrees and back.")),
-                    "detail": m.group(1)}
-        m = re.fullmatch(r"equalisation pre-test: (.*)", s, re.S)
-        if m:
-            return {"text": self(_("Equalisation pre-test.")), "detail": m.group(1)}
-        m = re.fullmatch(r"simulated disturbances: (.*)", s, re.S)
-        if m:
-            return {"text": self(_("Simulated disturbances.")), "detail": m.group(1)}
+        shown = self._prefixed(s, _PREFIXED_LATER)
+        if shown is not None:
+            return shown
         m = re.fullmatch(r"step (.+?): (PASS|FAIL|INCONCLUSIVE|ABORTED|ERROR|SKIPPED)"
                          r"(?: \((.*)\))?", s, re.S)
         if m:
