@@ -22,8 +22,6 @@ from benchctl.analysis import analyze
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
 from benchctl.cli import main
 from benchctl.config import (
-    MAX_YAML_DEPTH,
-    MAX_YAML_NODES,
     SimStandConfig,
     StandLimits,
     load_config,
@@ -34,6 +32,7 @@ from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.errors import ConfigError, DataError, InputError
 from benchctl.profiles import load_profile
 from benchctl.sim import faults
+from benchctl.yamlfile import MAX_YAML_DEPTH, MAX_YAML_NODES
 
 SLOW = 30.0  # a generous bound for "refused quickly" (was minutes, or a hang)
 
