@@ -25,8 +25,15 @@ from pydantic import (
 )
 
 from benchctl.errors import ConfigError
+from benchctl.faultspec import (
+    FAULTS,
+    MAX_FAULT_S,
+    STAND,
+    FaultSpecError,
+    check_kind,
+    check_params,
+)
 from benchctl.options import MAX_BAND_HZ
-from benchctl.sim.faults import MAX_FAULT_S, FaultSpecError, check_kind, check_params
 from benchctl.text import PART_NUMBER_MAX, STATION_MAX
 from benchctl.text import problem as text_problem
 from benchctl.validation import invalid, shown_value
@@ -229,10 +236,10 @@ class SimStandFault(Strict):
     """A fault the simulated stand injects by itself, ``after_s`` seconds after it starts.
 
     ``kind`` and the parameters it takes (``duration_s``, ``code``) are checked against the
-    table in ``benchctl.sim.faults`` (as ``SimStand.inject`` does).
+    kind's model in ``benchctl.faultspec`` (as ``SimStand.inject`` does).
     """
 
-    kind: str  # drop_connection, stall, modbus_exception, stand_fault, estop
+    kind: str = Field(json_schema_extra={"enum": list(STAND)})
     after_s: FaultSeconds = 0.0
     duration_s: Positive | None = None  # drop/stall/modbus_exception; None = until cleared
     code: int | None = None  # modbus_exception (1..255) or stand_fault (1..65535) code
@@ -326,18 +333,42 @@ class SimInstrumentConfig(Strict):
     mounting: SimMountingConfig = SimMountingConfig()
 
 
+def _fault_params_schema(schema: dict[str, Any]) -> None:
+    """``SimFault``'s JSON Schema: which ``params`` each target and kind takes."""
+    rules = []
+    for target, kinds in FAULTS.items():
+        for kind, model in kinds.items():
+            params = model.model_json_schema()
+            params.pop("title", None)
+            for prop in params.get("properties", {}).values():  # not given, never null
+                prop.pop("default", None)
+                prop.pop("title", None)
+                given = [a for a in prop.pop("anyOf", []) if a.get("type") != "null"]
+                if given:
+                    prop.update(given[0])
+            rules.append({
+                "if": {"properties": {"target": {"const": target}, "kind": {"const": kind}},
+                       "required": ["target", "kind"]},
+                "then": {"properties": {"params": params}},
+            })
+    schema["allOf"] = rules
+
+
 class SimFault(Strict):
     """A fault the simulators inject by themselves, ``after_motion_s`` after the stand first moves.
 
     ``target`` stand: kinds of ``SimStand.inject`` (drop_connection, stall, modbus_exception,
     stand_fault, estop); instrument: kinds of ``SimInstrument.inject`` (garbled, silent, stuck,
     drop). ``params`` are that method's keyword arguments. Kinds and parameters (names, types,
-    ranges) are checked against ``benchctl.sim.faults`` here; a garbled fault's ``how`` against
-    the instrument's driver by ``parse_config``.
+    ranges) are checked against the kind's model in ``benchctl.faultspec`` here; a garbled
+    fault's ``how`` against the instrument's driver by ``parse_config``. The JSON Schema gives
+    each kind's parameters (``if`` target and kind, ``then`` params).
     """
 
+    model_config = ConfigDict(json_schema_extra=_fault_params_schema)
+
     target: Literal["stand", "instrument"]
-    kind: str
+    kind: str = Field(json_schema_extra={"enum": [k for t in FAULTS.values() for k in t]})
     after_motion_s: FaultSeconds = 0.0
     params: dict[str, bool | str | int | Finite] = Field(default_factory=dict)
 

@@ -57,8 +57,8 @@ from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map
 from benchctl.errors import ConfigError, DeviceError
+from benchctl.faultspec import FaultSpecError, check_params
 from benchctl.harmonics import HarmonicTable
-from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise
 from benchctl.sim.stand_servers import RtuStandServer, TcpStandServer
 

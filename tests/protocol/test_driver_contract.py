@@ -25,7 +25,7 @@ from benchctl.devices.base import AngleSensor, DeviceIdentity, InstrumentSample,
 from benchctl.devices.instrument import DRIVERS, open_instrument
 from benchctl.devices.modbus.stand import open_stand
 from benchctl.errors import BenchError
-from benchctl.sim.faults import GARBLING, transport
+from benchctl.faultspec import GARBLING, transport
 
 INSTRUMENT_DRIVERS = sorted(DRIVERS)
 
