@@ -9,6 +9,7 @@ was expected; it is always fatal.
 from __future__ import annotations
 
 import datetime
+import json
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -23,6 +24,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic.json_schema import SkipJsonSchema
 
 from benchctl.errors import ConfigError
 from benchctl.faultspec import (
@@ -54,53 +56,85 @@ Baud = Annotated[int, Field(gt=0, le=100_000_000)]
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
 
 class StandLimits(Strict):
     """Per-axis limits of the stand; every motion is checked against them before it is sent."""
 
     angle_deg: Positive
+    """The largest angle the stand may be commanded to, either way (°)."""
     rate_deg_s: Positive
+    """The largest angular rate of a commanded motion (°/s)."""
     accel_deg_s2: Positive
+    """The largest angular acceleration of a commanded motion (°/s²)."""
 
 
 class StandConfig(Strict):
+    """The motion stand: how it is reached over Modbus, its register map, limits and the way the
+    motion reaches it."""
+
     driver: Literal["modbus-tcp", "modbus-rtu"]
+    """How the stand is reached: Modbus TCP or Modbus RTU (serial)."""
     host: str = "127.0.0.1"
+    """modbus-tcp: the stand controller's address."""
     port: int = Field(default=502, ge=0, le=65535)
-    serial_port: str | None = None  # modbus-rtu: a device path or a pyserial URL
+    """modbus-tcp: its TCP port."""
+    serial_port: str | None = None
+    """modbus-rtu: a device path (`/dev/ttyUSB0`) or a pyserial URL."""
     baudrate: Baud = 115200
-    parity: Literal["N", "E", "O"] = "N"  # modbus-rtu
-    stopbits: Literal[1, 2] = 1  # modbus-rtu
+    """modbus-rtu: the line's baud rate."""
+    parity: Literal["N", "E", "O"] = "N"
+    """modbus-rtu: the line's parity (N, E or O)."""
+    stopbits: Literal[1, 2] = 1
+    """modbus-rtu: the line's stop bits."""
     device_id: int = Field(default=1, ge=0, le=247)
+    """The stand controller's Modbus unit id (slave address)."""
     register_map: Path = Path("../drivers/stand_generic.yaml")
-    # one exchange lasts at most timeout_s × (retries + 1), and the next heartbeat waits behind
-    # it: with heartbeat_period_s that must fit inside the stand's watchdog (checked below)
+    """The register map of the stand controller (YAML; relative to this file)."""
     timeout_s: Seconds = 0.4
+    """How long one Modbus request waits for its reply (s). One exchange lasts at most timeout_s ×
+    (retries + 1), and the next heartbeat waits behind it: with heartbeat_period_s that must fit
+    inside the stand's watchdog (checked when the config is loaded)."""
     retries: int = Field(default=1, ge=0, le=100)
+    """How many times a request without a reply is sent again before the run gives up on the stand.
+    """
     axes: tuple[Literal["roll", "pitch"], ...] = ("roll", "pitch")
-    # stream: setpoints from the host; buffered: points queued ahead in the stand's trajectory
-    # buffer (needs a `trajectory:` section in the register map); table: the stand plays a table
+    """The stand's axes the run drives."""
     mode: Literal["stream", "buffered", "table"] = "stream"
-    # buffered: how far ahead the queue is kept (s of motion; capped by the stand's capacity)
+    """How the motion reaches the stand: `stream` (one setpoint from the host every period),
+    `buffered` (points queued ahead in the stand's trajectory buffer; needs a `trajectory:` section
+    in the register map) or `table` (the stand plays a whole table on its own)."""
     buffer_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 1.0
+    """buffered: how far ahead of the motion the queue is kept full (s of motion; capped by the
+    stand's capacity)."""
     setpoint_rate_hz: HostRate = 100.0
-    sample_rate_hz: HostRate = 100.0  # how often the encoder angle is read (stream: each cycle)
+    """The rate of the commanded points (Hz): setpoints sent (stream), or points queued (buffered).
+    """
+    sample_rate_hz: HostRate = 100.0
+    """How often the stand's encoder angle is read (Hz); in stream mode, each cycle."""
     heartbeat_period_s: Seconds = 0.1
-    # the stand's own heartbeat watchdog (its setting, from its manual or parameters): when
-    # given, the config is checked against it (with a `sim:` section: sim.stand.watchdog_s)
+    """How often the host writes the stand's heartbeat register (s)."""
     watchdog_s: Seconds | None = None
+    """The stand's own heartbeat watchdog (its setting, from its manual or parameters, s). When
+    given, the config is checked against it (with a `sim:` section, sim.stand.watchdog_s is the
+    stand's)."""
     limits: StandLimits
-    tracking_tolerance_deg: Positive = 0.5  # |measured - commanded| beyond this aborts
-    # the stand's following lag (s): a position servo without velocity feed-forward trails its
-    # setpoint by about this × its rate (2ζ/ω_n for a second-order loop); the tracking check
-    # judges measured − setpoint + following_lag_s × rate. 0: a stand that does not trail
+    """The stand's angle, rate and acceleration limits; every motion is checked against them before
+    it is sent."""
+    tracking_tolerance_deg: Positive = 0.5
+    """The run aborts when the measured angle departs from the commanded one by more than this (°),
+    the following lag allowed for."""
     following_lag_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
-    zero_tolerance_deg: Positive = 0.05  # "at rest" means |angle| below this
-    wire_trace: bool = False  # debug-log every frame sent and received
-    # the stand's calibration due date (YYYY-MM-DD), into the run's record and report
+    """The stand's following lag (s): a position servo without velocity feed-forward trails its
+    setpoint by about this × its rate (2ζ/ω_n for a second-order loop); the tracking check judges
+    measured − setpoint + following_lag_s × rate. 0: a stand that does not trail."""
+    zero_tolerance_deg: Positive = 0.05
+    """The stand is at rest at zero when every axis is within this of 0° (°)."""
+    wire_trace: bool = False
+    """Log every Modbus frame sent and received (debug level)."""
     calibration_due: datetime.date | None = None
+    """The stand's calibration due date (YYYY-MM-DD), into the run's record and report."""
 
     @model_validator(mode="after")
     def _transport(self) -> StandConfig:
@@ -120,7 +154,9 @@ class InstrumentAxis(Strict):
     the running σ, the analysis and the report all see the stand's axes."""
 
     output: AxisName
+    """The instrument's own output that measures this stand axis (`roll` or `pitch`)."""
     sign: Literal[1, -1] = 1
+    """The sign applied to that output: -1 for a unit mounted reversed on this axis."""
 
 
 def _axes_mapping(v: Any) -> Any:
@@ -152,43 +188,78 @@ def axis_map(axes: Any) -> dict[str, tuple[str, int]]:
     return {str(a): (str(a), 1) for a in axes}
 
 
+def _axes_schema(schema: dict[str, Any]) -> None:
+    """``instrument.axes`` in the JSON Schema: the list form (``[roll, pitch]``) besides the
+    mapping (as ``_axes_mapping`` reads both)."""
+    mapping = {k: v for k, v in schema.items() if k not in ("description", "title", "default")}
+    for k in mapping:
+        del schema[k]
+    listed = {"type": "array", "items": {"enum": ["roll", "pitch"]}, "uniqueItems": True,
+              "minItems": 1}
+    schema["anyOf"] = [listed, mapping]
+
+
 class InstrumentConfig(Strict):
+    """The instrument under test: its protocol and link, what it measures and what the run expects
+    of it."""
+
     driver: Literal["canopen", "j1939", "nmea2000", "nmea0183"]
-    # CAN (canopen, j1939, nmea2000): any python-can interface name and its channel
-    interface: str | None = None  # slcan, socketcand, virtual, pcan, kvaser, socketcan …
+    """The instrument's protocol: CANopen (CiA 410 inclinometer), J1939, NMEA 2000 (over CAN) or
+    NMEA 0183 (serial)."""
+    interface: str | None = None
+    """CAN drivers: the python-can interface name (slcan, socketcand, socketcan, pcan, kvaser,
+    virtual, …)."""
     channel: str | None = None
+    """CAN drivers: the python-can channel (a serial port for slcan, `can0` for socketcan, …)."""
     bitrate: Baud = 500000
-    node_id: int = Field(default=10, ge=1, le=127)  # CANopen node id
-    source_address: int | None = Field(default=None, ge=0, le=253)  # J1939 / NMEA 2000 SA filter
+    """CAN drivers: the bus bit rate (bit/s)."""
+    node_id: int = Field(default=10, ge=1, le=127)
+    """canopen: the instrument's CANopen node id."""
+    source_address: int | None = Field(default=None, ge=0, le=253)
+    """j1939, nmea2000: accept frames from this source address only (none: from any)."""
     eds: Path | None = None
+    """canopen: the instrument's EDS file (relative to this file)."""
     dbc: Path | None = None
-    can_log: str | None = "can.blf"  # raw CAN frames beside the recording (.blf or .asc)
-    # slcan: seconds to wait after opening the serial port (None: 0 for a pseudo-terminal, else
-    # python-can's 2 s for a real adapter that resets on open)
+    """j1939: the DBC file that describes its messages (relative to this file)."""
+    can_log: str | None = "can.blf"
+    """CAN drivers: the raw frames are logged beside the recording under this name (.blf or .asc);
+    none: not logged."""
     sleep_after_open_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] | None = (
         None
     )
-    # slcan: ask the adapter to timestamp every received frame (Z1, its own ms clock); the
-    # analysis then dates the samples by the adapter's clock, not by their receipt
+    """slcan: seconds to wait after opening the serial port (none: 0 for a pseudo-terminal, else
+    python-can's 2 s for a real adapter that resets on open)."""
     adapter_timestamps: bool = True
-    # further keyword arguments for can.Bus (e.g. a hardware interface's own options)
+    """slcan: ask the adapter to timestamp every received frame (Z1, its own millisecond clock); the
+    analysis then dates the samples by the adapter's clock, not by their receipt."""
     can_options: dict[str, str | int | Finite | bool] = Field(default_factory=dict)
-    connect_timeout_s: Seconds = 3.0  # SDO answers / the first broadcast frame within this
-    # serial (nmea0183)
+    """CAN drivers: further keyword arguments for python-can's `can.Bus` (a hardware interface's own
+    options)."""
+    connect_timeout_s: Seconds = 3.0
+    """The instrument must answer (SDO) or send its first frame within this (s) when the run opens
+    it."""
     serial_port: str | None = None
+    """nmea0183: the serial port (a device path or a pyserial URL)."""
     baudrate: Baud = 115200
+    """nmea0183: the serial line's baud rate."""
     sentence: Literal["PASHR", "PHTRO", "XDR"] | None = None
-    # what the run expects of it: the stand's axes it measures, and for each the instrument's
-    # output that measures it and its sign (InstrumentAxis). A list (`[roll, pitch]`) reads
-    # each output as the stand axis of its own name; a mapping (`roll: {output: pitch,
-    # sign: -1}`) maps a unit whose axes are swapped or reversed on the stand
+    """nmea0183: the sentence that carries roll and pitch (none: whichever comes)."""
     axes: dict[AxisName, InstrumentAxis] = Field(
-        default_factory=lambda: {a: InstrumentAxis(output=a) for a in ("roll", "pitch")}
+        default_factory=lambda: {a: InstrumentAxis(output=a) for a in ("roll", "pitch")},
+        json_schema_extra=_axes_schema,
     )
+    """The stand's axes the instrument measures, and for each the instrument's output that measures
+    it and its sign. A list (`[roll, pitch]`) reads each output as the stand axis of its own name; a
+    mapping (`roll: {output: pitch, sign: -1}`) maps a unit whose axes are swapped or reversed on
+    the stand."""
     expected_rate_hz: DeviceRate = 100.0
-    static_tolerance_deg: Positive = 0.5  # at rest, |instrument - stand| must be within this
-    silence_timeout_s: Seconds = 1.0  # no sample for this long aborts the run
+    """The instrument's output rate (Hz); the precheck measures it against this."""
+    static_tolerance_deg: Positive = 0.5
+    """At rest before the motion, the instrument and the stand must agree within this (°)."""
+    silence_timeout_s: Seconds = 1.0
+    """No sample from the instrument for this long aborts the run (s)."""
     wire_trace: bool = False
+    """Log every frame received from the instrument (debug level)."""
 
     @field_validator("axes", mode="before")
     @classmethod
@@ -240,9 +311,13 @@ class SimStandFault(Strict):
     """
 
     kind: str = Field(json_schema_extra={"enum": list(STAND)})
+    """The fault: drop_connection, stall, modbus_exception, stand_fault or estop."""
     after_s: FaultSeconds = 0.0
-    duration_s: Positive | None = None  # drop/stall/modbus_exception; None = until cleared
-    code: int | None = None  # modbus_exception (1..255) or stand_fault (1..65535) code
+    """Seconds after the simulated stand starts."""
+    duration_s: Positive | None = None
+    """drop_connection, stall, modbus_exception: how long (s); none: until cleared (stall: 1 s)."""
+    code: int | None = None
+    """modbus_exception: the exception code (1–255); stand_fault: the fault code (1–65535)."""
 
     @field_validator("kind")
     @classmethod
@@ -267,20 +342,32 @@ class SimStandConfig(Strict):
     """Physics of the simulated servo stand."""
 
     bandwidth_hz: Positive = 8.0
+    """The simulated servo's natural frequency (Hz): a second-order position loop."""
     damping: Positive = 0.8
+    """The simulated servo's damping ratio."""
     rate_limit_deg_s: Positive = 60.0
+    """The simulated drive's own rate limit (°/s)."""
     accel_limit_deg_s2: Positive = 300.0
+    """The simulated drive's own acceleration limit (°/s²); a fault or E-stop brakes at it."""
     encoder_resolution_deg: NonNegative = 0.001
-    soft_limit_deg: Positive = 40.0  # beyond this the simulated stand faults
-    watchdog_s: Seconds = 1.0  # heartbeat silence that stops the stand
+    """The simulated encoder's resolution (°); 0: exact."""
+    soft_limit_deg: Positive = 40.0
+    """Crossing this angle outwards faults the simulated stand (code 1); setpoints beyond it are
+    refused (°)."""
+    watchdog_s: Seconds = 1.0
+    """Heartbeat silence for this long while enabled faults the simulated stand (code 2) (s)."""
     tick_hz: DeviceRate = 1000.0
-    rtu_wire_delay: bool = True  # emulate serial byte time on the RTU pty
-    # stream mode: the drive interpolates linearly between consecutive setpoints over the
-    # interval between them (as a drive in cyclic synchronous position mode does), instead of
-    # stepping to each one (a staircase the servo follows with its own, higher acceleration)
+    """The simulated servo's physics rate (Hz)."""
+    rtu_wire_delay: bool = True
+    """Emulate the serial byte time on the RTU link."""
     stream_interpolation: bool = False
-    baudrate: Baud = 115200  # byte time of the emulated RTU wire
-    faults: tuple[SimStandFault, ...] = ()  # injected by schedule (docs/reference/simulators.md)
+    """stream mode: the drive interpolates linearly between consecutive setpoints over the interval
+    between them (as a drive in cyclic synchronous position mode does), instead of stepping to each
+    one."""
+    baudrate: Baud = 115200
+    """The byte time of the emulated RTU wire (baud)."""
+    faults: tuple[SimStandFault, ...] = ()
+    """Faults the simulated stand injects by itself on a schedule, from its start."""
 
 
 class CrossAxisConfig(Strict):
@@ -288,7 +375,9 @@ class CrossAxisConfig(Strict):
     axis's input is its own angle plus this fraction of the other axis's angle (|k| ≤ 1)."""
 
     roll_from_pitch: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    """The fraction of the pitch angle added to the roll axis's input."""
     pitch_from_roll: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    """The fraction of the roll angle added to the pitch axis's input."""
 
 
 class SimMountingConfig(Strict):
@@ -298,8 +387,11 @@ class SimMountingConfig(Strict):
     model senses, so every protocol sees it; the default is a correct mount."""
 
     swap_axes: bool = False
+    """The unit's roll output senses the stand's pitch and the other way round."""
     roll_sign: Literal[1, -1] = 1
+    """-1: the roll output reads the angle it senses reversed."""
     pitch_sign: Literal[1, -1] = 1
+    """-1: the pitch output reads the angle it senses reversed."""
 
 
 class SimInstrumentConfig(Strict):
@@ -311,26 +403,44 @@ class SimInstrumentConfig(Strict):
     """
 
     gain: Finite = 1.0
-    lag_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0  # 1st order
-    natural_freq_hz: Positive | None = None  # second-order response, if set
+    """The simulated instrument's static gain."""
+    lag_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0
+    """Its first-order lag's time constant (s); 0: none."""
+    natural_freq_hz: Positive | None = None
+    """Its second-order response's natural frequency (Hz), in place of the first-order lag; none:
+    first order."""
     damping: Positive = 0.7
+    """The second-order response's damping ratio."""
     latency_s: Annotated[float, Field(ge=0, le=MAX_WAIT_S, allow_inf_nan=False)] = 0.0
+    """A pure delay of its output (s)."""
     bias_deg: Finite = 0.0
-    noise_deg: NonNegative = 0.0  # white noise σ
-    drift_deg_s: Finite = 0.0  # slow linear drift
+    """A constant offset of its output (°)."""
+    noise_deg: NonNegative = 0.0
+    """The σ of white noise added to its output (°)."""
+    drift_deg_s: Finite = 0.0
+    """A slow linear drift of its output (°/s)."""
     quantisation_deg: NonNegative = 0.0
+    """The step its output is rounded to (°); 0: none (the protocol's own resolution still applies).
+    """
     rate_hz: DeviceRate = 100.0
+    """Its output rate (Hz)."""
     seed: int = Field(default=1, ge=0, lt=2**63)
-    # exact first-order-hold integration rate of lag / 2nd order
+    """The seed of its noise: the same seed gives the same noise."""
     substep_hz: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] = 4000.0
+    """The rate of the exact first-order-hold integration of its lag or second-order response (Hz).
+    """
     cross_axis: CrossAxisConfig = CrossAxisConfig()
+    """Cross-axis coupling (a misaligned sensing axis)."""
     cubic_per_deg2: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    """The cubic term's coefficient: each axis's input u becomes u + cubic_per_deg2 · u³ (1/°²); 0:
+    none."""
     saturation_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)] | None = None
-    # the serial number it reports where its protocol carries one (CANopen 1018h sub 4, an
-    # UNSIGNED32); None: the EDS's default
+    """Each axis's input is clipped to ± this (°); none: no saturation."""
     serial_number: int | None = Field(default=None, ge=0, lt=2**32)
-    # how the unit sits on the stand (swapped or reversed axes); default: mounted correctly
+    """The serial number it reports where its protocol carries one (CANopen 1018h sub 4, an
+    UNSIGNED32); None: the EDS's default."""
     mounting: SimMountingConfig = SimMountingConfig()
+    """How the unit sits on the stand (swapped or reversed axes); by default mounted correctly."""
 
 
 def _fault_params_schema(schema: dict[str, Any]) -> None:
@@ -368,9 +478,14 @@ class SimFault(Strict):
     model_config = ConfigDict(json_schema_extra=_fault_params_schema)
 
     target: Literal["stand", "instrument"]
+    """Which simulator injects it: the stand or the instrument."""
     kind: str = Field(json_schema_extra={"enum": [k for t in FAULTS.values() for k in t]})
+    """The fault: stand: drop_connection, stall, modbus_exception, stand_fault, estop; instrument:
+    garbled, silent, stuck, drop."""
     after_motion_s: FaultSeconds = 0.0
+    """Seconds after the stand first moves."""
     params: dict[str, bool | str | int | Finite] = Field(default_factory=dict)
+    """The fault's parameters (its kind's; none by default)."""
 
     @field_validator("kind")
     @classmethod
@@ -415,18 +530,33 @@ class SimDisturbConfig(Strict):
     """
 
     seed: Annotated[int, Field(ge=0, lt=2**63)] = 0
+    """Everything is drawn from this seed (one pseudo-random stream per kind): a seed replays
+    exactly."""
     from_s: Annotated[float, Field(ge=0, le=86_400, allow_inf_nan=False)] = 0.0
+    """The host's stalls, the send jitter and the slow, lost and garbled frames act from this many
+    seconds after the simulators start (s)."""
     host_stalls_per_min: Annotated[float, Field(ge=0, le=600, allow_inf_nan=False)] = 0.0
+    """Host stalls (the run's process stopped), a Poisson stream of this many a minute."""
     host_stall_s: tuple[SimSeconds, SimSeconds] = (0.05, 0.3)
+    """[shortest, longest]: a stall's duration, log-uniform between them (s)."""
     send_jitter_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
+    """Every frame the host sends leaves late by up to this, uniform (s)."""
     slow_reply_p: Probability = 0.0
+    """The probability that a stand reply is slow."""
     slow_reply_s: tuple[SimSeconds, SimSeconds] = (0.01, 0.5)
+    """[shortest, longest]: a slow reply's extra delay, log-uniform between them (s)."""
     lost_reply_p: Probability = 0.0
+    """The probability that a stand reply is lost."""
     lost_frame_p: Probability = 0.0
+    """The probability that an instrument frame is lost."""
     garbled_frame_p: Probability = 0.0
+    """The probability that an instrument frame is garbled (one byte changed)."""
     faults: Annotated[int, Field(ge=0, le=100)] = 0
+    """How many stand or instrument faults, at random moments of the motion."""
     fault_kinds: tuple[str, ...] = ("stand:stall", "stand:stand_fault", "instrument:silent")
+    """The kinds those faults are drawn from, as `stand:KIND` or `instrument:KIND`."""
     operator_stop_p: Probability = 0.0
+    """The probability of an operator's Ctrl-C at a random moment."""
 
     @field_validator("host_stall_s", "slow_reply_s")
     @classmethod
@@ -455,23 +585,28 @@ class SimConfig(Strict):
     """Present in a config → ``benchctl run`` starts the simulators itself (``benchctl sim``)."""
 
     stand: SimStandConfig = SimStandConfig()
+    """The simulated stand's physics and faults."""
     instrument: SimInstrumentConfig = SimInstrumentConfig()
+    """The simulated instrument's model."""
     faults: tuple[SimFault, ...] = ()
-    motion_threshold_deg: Positive = 0.01  # "the stand first moves": |true angle| beyond this
-    #: ``real``: the simulators run beside the run on the host's time, over a TCP socket and
-    #: pseudo-terminals; ``virtual``: in the run's process on simulated time, over in-process
-    #: links (``benchctl.channels``) — a 15-minute test in about a minute, the same bytes
-    #: every time
+    """Faults the simulators inject by themselves, timed from the moment the stand first moves."""
+    motion_threshold_deg: Positive = 0.01
+    """"The stand first moves": its true angle beyond this (°)."""
     clock: Literal["real", "virtual"] = "real"
-    #: simulated time: the UTC wall time at its start (every stamp of the run follows from it)
+    """`real`: the simulators run beside the run on the host's time, over a TCP socket and
+    pseudo-terminals; `virtual`: in the run's process on simulated time, over in-process links — a
+    15-minute test in about a minute, the same bytes every time."""
     epoch_utc: datetime.datetime = datetime.datetime(2026, 1, 1, tzinfo=datetime.UTC)
-    #: simulated time: one way latency of the stand's link (Modbus TCP; RTU adds byte times)
+    """Simulated time: the UTC wall time at its start (every stamp of the run follows from it)."""
     link_latency_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0005
-    #: simulated time: the host computation charged to each cycle of the stand loop, so a loop
-    #: too slow for its rate still shows as one
+    """Simulated time: the one-way latency of the stand's link (Modbus TCP; RTU adds byte times)
+    (s)."""
     host_cost_s: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0002
-    #: simulated time: seeded host stalls, slow/lost/garbled frames, faults, an operator's stop
+    """Simulated time: the host computation charged to each cycle of the stand loop, so that a loop
+    too slow for its rate still shows as one (s)."""
     disturb: SimDisturbConfig | None = None
+    """Simulated time: seeded host stalls, slow, lost and garbled frames, faults and an operator's
+    stop."""
 
     @field_validator("epoch_utc")
     @classmethod
@@ -491,27 +626,42 @@ class EqualiseConfig(Strict):
     ``max_boost_db``, nor beyond the stand's limits."""
 
     enabled: bool = False
+    """Equalise before the motion (off by default; `--equalise` turns it on)."""
     level: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.2
+    """The pre-test's amplitudes as a fraction of the profile's."""
     periods: Annotated[int, Field(ge=1, le=20)] = 1
+    """The pre-test's length in whole periods of the profile's multisine."""
     max_period_s: Annotated[float, Field(ge=1, le=600, allow_inf_nan=False)] = 20.0
+    """A profile period longer than this is pre-tested over a shorter one, the response interpolated
+    (s)."""
     fade_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
+    """The pre-test's fade in and out (s)."""
     settle_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)] = 3.0
+    """Settling before the pre-test's samples are taken (s)."""
     min_gain_db: Annotated[float, Field(ge=-60, lt=0, allow_inf_nan=False)] = -20.0
+    """A line where the stand moves less than this is not corrected (dB)."""
     max_boost_db: Annotated[float, Field(ge=0, le=40, allow_inf_nan=False)] = 10.0
+    """No line is driven up by more than this (dB), nor beyond the stand's limits."""
     max_uncertainty_db: Annotated[float, Field(gt=0, le=6, allow_inf_nan=False)] = 0.5
+    """A line whose measured response is uncertain beyond this is not corrected (dB)."""
 
 
 class AnalysisConfig(Strict):
-    # default: the documented rule in benchctl.analysis
+    """How the recording is analysed."""
+
     max_lag_s: Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)] | None = None
-    band_hz: tuple[NonNegative, Positive] | None = None  # σ restricted to this band
+    """The longest delay between the two streams the analysis searches for (s); none: the documented
+    default rule."""
+    band_hz: tuple[NonNegative, Positive] | None = None
+    """[lo, hi]: σ restricted to this band (Hz); none: the whole band."""
     compensate_delay: (
         Literal["none", "auto"] | Annotated[float, Field(ge=-3600, le=3600, allow_inf_nan=False)]
     ) = "none"
-    # after an underrun or a rejoin, the stand is back on the profile: its servo and the
-    # instrument settle for this long before the analysis takes its samples again
-    # (benchctl.analysis.departures)
+    """`none`; `auto` (the instrument's delay estimated and removed before σ); or a delay in seconds
+    to remove."""
     departure_settle_s: Annotated[float, Field(ge=0, le=60, allow_inf_nan=False)] = 3.0
+    """After an underrun or a rejoin, the stand is back on the profile: its servo and the instrument
+    settle for this long before the analysis takes its samples again (s)."""
 
     @field_validator("band_hz")
     @classmethod
@@ -531,13 +681,20 @@ class ExcitationConfig(Strict):
     during the motion is confirmed beyond ±``abort_db``."""
 
     alarm_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.5
+    """A band's measured excitation beyond ± this of the profile's raises an alarm (dB)."""
     abort_db: Annotated[float, Field(gt=0, le=40, allow_inf_nan=False)] = 3.0
+    """Beyond ± this, the abort level (dB); at least alarm_db."""
     weak_line_db: Annotated[float, Field(ge=-120, lt=0, allow_inf_nan=False)] = -30.0
+    """Lines weaker than this, re the strongest (amplitude), are not judged (dB)."""
     weak_band_db: Annotated[float, Field(ge=-120, lt=0, allow_inf_nan=False)] = -20.0
+    """Bands weaker than this, re the strongest (power), are not judged (dB)."""
     max_ci_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 0.5
+    """A band whose 95 % interval's half-width exceeds this is not judged (dB)."""
     band_edges_hz: tuple[Positive, ...] | None = None
-    # stop the run when, during the motion, a band's running estimate lies beyond ±abort_db
+    """The bands' edges, strictly ascending (Hz); none: third-octave bands."""
     abort_run: bool = True
+    """Abort the run when, during the motion, a band's running estimate is confirmed beyond ±
+    abort_db."""
 
     @field_validator("band_edges_hz")
     @classmethod
@@ -573,10 +730,15 @@ class MountingCheckConfig(Strict):
     test's to measure (and FAIL). Their sum must stay below 1 (the cases stay apart)."""
 
     enabled: bool = True
+    """Run the mounting check before the motion."""
     tilt_deg: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] = 2.0
+    """How far each axis is tilted (°)."""
     hold_s: Annotated[float, Field(ge=0.2, le=10, allow_inf_nan=False)] = 1.0
+    """How long the tilt is held at each end (s)."""
     gain_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.3
+    """The tilted axis's reading must follow it with a gain within 1 ± this."""
     cross_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.3
+    """Every other reading must stay within ± this of the tilt (as a gain)."""
 
     @model_validator(mode="after")
     def _apart(self) -> MountingCheckConfig:
@@ -593,11 +755,16 @@ class RunLimits(Strict):
     """Optional limits of further measurements (benchctl.results.measurements): each one set
     makes that measurement decide the verdict with σ; unset, it is recorded, not judged."""
 
-    gain_min: Positive | None = None  # gain at the periods 3/5/7/10 s (where excited) ≥ this
-    gain_max: Positive | None = None  # … ≤ this
-    phase_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)] | None = None  # |φ| ≤
+    gain_min: Positive | None = None
+    """The gain at the periods 3, 5, 7 and 10 s (where excited) must be at least this."""
+    gain_max: Positive | None = None
+    """… and at most this."""
+    phase_deg: Annotated[float, Field(gt=0, le=180, allow_inf_nan=False)] | None = None
+    """|phase| at those periods at most this (°)."""
     delay_s: Annotated[float, Field(gt=0, le=MAX_WAIT_S, allow_inf_nan=False)] | None = None
-    mean_error_deg: Positive | None = None  # |mean error| ≤ this
+    """The instrument's delay at most this (s)."""
+    mean_error_deg: Positive | None = None
+    """|mean error| at most this (°)."""
 
     @model_validator(mode="after")
     def _gain(self) -> RunLimits:
@@ -621,53 +788,69 @@ class HostCheckConfig(Strict):
     moves). Not measured on simulated time. ``benchctl host-check`` runs it alone."""
 
     enabled: bool = True
+    """Measure the host before the motion (never on simulated time)."""
     window_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
-    # the fixed wake period measured besides the stand loop's own (cyclictest's 1 ms)
+    """How long the wakes are measured (s)."""
     period_s: Annotated[float, Field(ge=1e-4, le=1.0, allow_inf_nan=False)] = 0.001
-    # worst lateness × margin must fit inside the stand's tolerance
+    """The fixed wake period measured besides the stand loop's own (s; cyclictest's 1 ms)."""
     margin: Annotated[float, Field(ge=1, le=1e6, allow_inf_nan=False)] = 4.0
+    """The worst lateness × this must fit inside what the stand tolerates."""
     on_poor: Literal["warn", "refuse"] = "warn"
+    """A host that does not fit: `warn` (the run goes on, a warning in the record) or `refuse` (a
+    failed precheck: exit 2, nothing moves)."""
 
 
 class RunConfig(Strict):
-    limit_sigma_deg: Positive  # the verdict: PASS when σ ≤ this, per axis
-    # how σ (and every measurement with an interval) is judged against its limit:
-    # simple (value ≤ limit) or guarded (the 95 % interval wholly within: PASS; wholly beyond:
-    # FAIL; else INCONCLUSIVE, exit 3); benchctl.results.measurements
+    """The run's rules: the verdict, the checks before and during the motion, the analysis and the
+    outputs."""
+
+    limit_sigma_deg: Positive
+    """The verdict's limit: PASS when σ is at most this, on every axis (°)."""
     decision_rule: Literal["simple", "guarded"] = "simple"
-    limits: RunLimits = RunLimits()  # optional limits for gain, phase, delay, mean error
+    """How σ (and every measurement with an interval) is judged against its limit: `simple` (the
+    value within the limit) or `guarded` (the 95 % interval wholly within: PASS; wholly beyond:
+    FAIL; else INCONCLUSIVE, exit 3)."""
+    limits: RunLimits = RunLimits()
+    """Optional limits of further measurements (gain, phase, delay, mean error)."""
     output_dir: Path = Path("runs")
+    """Where the runs' folders are written (relative to this file)."""
     min_free_disk_mb: Positive = 200.0
-    precheck_window_s: Seconds = 1.0  # instrument rate and static agreement measured over this
-    # ± fraction of instrument.expected_rate_hz
+    """A run is refused when the output folder's disk has less free space than this (MB)."""
+    precheck_window_s: Seconds = 1.0
+    """The instrument's rate and its agreement with the stand at rest are measured over this (s)."""
     instrument_rate_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.2
-    # stand motion departing from the profile beyond this aborts the run
+    """The instrument's measured rate must be within ± this fraction of instrument.expected_rate_hz.
+    """
     profile_tolerance_deg: Positive = 1.0
-    # sine_steps profiles: PASS when max − min of the steps' gains ≤ this (per axis)
+    """The stand's motion departing from the profile by more than this aborts the run (°)."""
     linearity_spread_limit: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.01
+    """sine_steps profiles: PASS when the spread (max − min) of the steps' gains is at most this,
+    per axis."""
     analysis: AnalysisConfig = AnalysisConfig()
-    excitation: ExcitationConfig = ExcitationConfig()  # measured excitation fidelity
-    lock_dir: Path | None = None  # one run per stand: its lock files (None: /run/benchctl-locks)
-    # stop the motion once σ's 95 % interval is within ± this fraction of σ (after at least one
-    # whole period of the multisine; benchctl.run.precision); None: the whole profile runs
+    """Analysis options."""
+    excitation: ExcitationConfig = ExcitationConfig()
+    """The excitation fidelity's levels: the measured motion's spectrum against the profile's."""
+    lock_dir: Path | None = None
+    """One run per stand: where its lock files are kept (none: /run/benchctl-locks)."""
     precision: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] | None = None
-    # a low-level pre-test and the drive corrected by the stand's measured response (off by
-    # default; --equalise turns it on)
+    """Stop the motion once σ's 95 % interval is within ± this fraction of σ (after at least one
+    whole period of the multisine); none: the whole profile runs."""
     equalise: EqualiseConfig = EqualiseConfig()
-    # before the motion, each axis tilted to a few degrees and back: a unit mounted reversed
-    # or with its axes swapped is refused (on by default)
+    """A low-level pre-test and the drive corrected by the stand's measured response (off by
+    default)."""
     mounting_check: MountingCheckConfig = MountingCheckConfig()
-    # the host's scheduling latency measured before the motion and judged against the stand's
-    # buffer and watchdog (benchctl.run.fitness; docs/howto/host-check.md)
+    """Before the motion, each axis tilted a few degrees and back: a unit mounted reversed or with
+    its axes swapped is refused (on by default)."""
     host_check: HostCheckConfig = HostCheckConfig()
-    # SCHED_FIFO priority (1–99) the stand loop thread asks for on the real clock (Linux:
-    # CAP_SYS_NICE or an rtprio limit); whether it was granted is recorded, a refusal never
-    # stops the run; None: not asked for
+    """The host's scheduling latency, measured before the motion and judged against the stand's
+    buffer and watchdog."""
     realtime_priority: Annotated[int, Field(ge=1, le=99)] | None = None
-    # the report's figures drawn at the run's end (analysis_<axis>.png and report.html's
-    # figures, about 1-3 s per axis); false on a bench whose reports nobody opens at the
-    # station (a CI bench, a campaign): report.html says so, `benchctl report REC` draws them
+    """The SCHED_FIFO priority (1–99) the stand loop's thread asks for on the real clock (Linux:
+    CAP_SYS_NICE or an rtprio limit); whether it was granted is recorded, a refusal never stops the
+    run; none: not asked for."""
     figures: bool = True
+    """Draw the report's figures at the run's end (about 1–3 s per axis); false on a bench whose
+    reports nobody opens at the station: `benchctl report REC` draws them later."""
 
 
 _ARCHIVE_URL = re.compile(r"(sqlite:///.+|(postgresql|postgres)(\+psycopg)?://.+)\Z", re.S)
@@ -685,10 +868,19 @@ class ArchiveConfig(Strict):
     the record is queued; any one statement is given twice this."""
 
     enabled: bool = True
+    """Store every run in the archive."""
     url: str | None = None
+    """`sqlite:///PATH` (a relative PATH against this file's folder) or
+    `postgresql+psycopg://USER@HOST[:PORT]/DB` (its password from libpq's own sources, never here);
+    none: `sqlite:///<run.output_dir>/archive.sqlite`."""
     queue_dir: Path | None = None
+    """Where records wait while the database cannot be reached (none:
+    `<run.output_dir>/archive-queue`)."""
     connect_timeout_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] = 2.0
+    """How long a connection to the database may take (s)."""
     write_timeout_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 2.0
+    """How long a statement waits for a lock (a busy SQLite file) before the record is queued (s);
+    any one statement is given twice this."""
 
     @field_validator("url")
     @classmethod
@@ -733,8 +925,14 @@ class UnitConfig(Strict):
     refused before the stand moves, as is an instrument that reports no serial)."""
 
     part_number: str | None = None
+    """The unit's part number, into every record."""
     serial_pattern: str | None = Field(default=None, min_length=1, max_length=MAX_SERIAL_PATTERN)
+    """A Python regular expression every serial typed for this unit must wholly match (e.g.
+    `SN-[0-9]{6}`), checked before anything opens."""
     serial_check: Literal["warn", "require"] = "warn"
+    """A serial typed unlike the one the instrument reports: `warn` (a warning, the run goes on) or
+    `require` (the run is refused before the stand moves, as is an instrument that reports no
+    serial)."""
 
     @field_validator("part_number")
     @classmethod
@@ -765,15 +963,27 @@ class PanelConfig(Strict):
     ``benchctl serve``'s options override each field."""
 
     lang: Literal["en", "ru"] = "en"
+    """The language of every text the operator reads (en, ru)."""
     profiles: list[Path] = Field(default_factory=list)
+    """The motion profiles offered: files, or folders whose `*.yaml` files are profiles."""
     plans: list[Path] = Field(default_factory=list)
+    """The acceptance plans offered."""
     duration_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    """Each run's duration (s); none: the profile's own."""
     host: str = "127.0.0.1"
+    """The address the panel listens on (loopback by default; another address needs token_scrypt).
+    """
     port: Annotated[int, Field(ge=0, le=65535)] = 8350
+    """The port the panel listens on."""
     token_scrypt: str | None = None
+    """The hash of the operators' token that `benchctl serve --hash-token` prints (never the token
+    itself)."""
     require_token: bool = False
+    """Ask for the token on loopback too (behind a reverse proxy)."""
     origins: list[str] = Field(default_factory=list)
+    """The addresses browsers reach the panel by, behind a proxy."""
     out_dir: Path | None = None
+    """The runs' folder (none: run.output_dir)."""
 
     def resolved(self, base: Path) -> PanelConfig:
         """The same with its relative paths taken from ``base`` (a folder)."""
@@ -788,16 +998,28 @@ class PanelConfig(Strict):
 
 
 class BenchConfig(Strict):
-    station: str = "bench"
-    unit: UnitConfig = UnitConfig()
-    stand: StandConfig
-    instrument: InstrumentConfig
-    run: RunConfig
-    sim: SimConfig | None = None
-    archive: ArchiveConfig = ArchiveConfig()  # the results archive (benchctl.archive)
-    panel: PanelConfig | None = None  # the station's web panel (benchctl serve)
+    """A bench: the stand, the instrument under test, the run's rules, and optionally the
+    simulators, the archive and the web panel."""
 
-    source: Path | None = Field(default=None, exclude=True)  # the file it came from
+    station: str = "bench"
+    """The bench's name, into every record and on the panel."""
+    unit: UnitConfig = UnitConfig()
+    """The unit under test: its part number and the form of its serials."""
+    stand: StandConfig
+    """The motion stand: its link, register map, limits and how the motion reaches it."""
+    instrument: InstrumentConfig
+    """The instrument under test: its protocol, link and expected rate."""
+    run: RunConfig
+    """The run: its verdict limit, decision rule, checks and outputs."""
+    sim: SimConfig | None = None
+    """Present: a simulated bench (`benchctl run` starts the simulators itself)."""
+    archive: ArchiveConfig = ArchiveConfig()
+    """The results archive: every run stored in a database."""
+    panel: PanelConfig | None = None
+    """The station's web panel (`benchctl serve`)."""
+
+    source: SkipJsonSchema[Path | None] = Field(default=None, exclude=True)
+    """The file the config came from (set when it is loaded; not a field of the file)."""
 
     @field_validator("station")
     @classmethod
@@ -896,6 +1118,43 @@ def parse_config(data: Any, source: Path) -> BenchConfig:
     if cfg.panel is not None:
         cfg = cfg.model_copy(update={"panel": cfg.panel.resolved(base)})
     return cfg
+
+
+CONFIG_SCHEMA_ID = "urn:benchctl:schema:bench-config"
+CONFIG_SCHEMA_FILE = "bench-config.schema.json"  # in benchctl/schemas/, for editors
+
+
+def config_schema() -> dict[str, Any]:
+    """The bench config's JSON Schema (draft 2020-12), from the models that validate it: every
+    section and field with its type, default, bounds and meaning. ``benchctl schema config``
+    prints it; ``benchctl/schemas/bench-config.schema.json`` is the same, shipped for editors
+    (a config's first line ``# yaml-language-server: $schema=…`` names it)."""
+    schema = _one_line(BenchConfig.model_json_schema(mode="validation"))
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "$id": CONFIG_SCHEMA_ID,
+        "title": "benchctl bench config",
+        **{k: v for k, v in schema.items() if k != "title"},
+    }
+
+
+def _one_line(node: Any) -> Any:
+    """Descriptions as editors show them: a docstring's line breaks become spaces (a blank line
+    between paragraphs stays)."""
+    if isinstance(node, dict):
+        return {
+            k: ("\n\n".join(" ".join(p.split()) for p in v.split("\n\n"))
+                if k == "description" and isinstance(v, str) else _one_line(v))
+            for k, v in node.items()
+        }
+    if isinstance(node, list):
+        return [_one_line(v) for v in node]
+    return node
+
+
+def config_schema_text() -> str:
+    """``config_schema()`` as the shipped file has it (indented, UTF-8, one final newline)."""
+    return json.dumps(config_schema(), indent=2, ensure_ascii=False) + "\n"
 
 
 def load_config(path: str | Path) -> BenchConfig:
