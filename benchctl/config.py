@@ -1154,7 +1154,7 @@ def _one_line(node: Any) -> Any:
 
 def config_schema_text() -> str:
     """``config_schema()`` as the shipped file has it (indented, UTF-8, one final newline)."""
-    return json.dumps(config_schema(), indent=2, ensure_ascii=False) + "\n"
+    return json.dumps(config_schema(), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
 
 
 def load_config(path: str | Path) -> BenchConfig:
