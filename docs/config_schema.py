@@ -1,6 +1,6 @@
 """A Sphinx directive, ``bench-config-schema``: the bench config's fields, generated.
 
-The bench config is validated by the pydantic models in ``benchctl/config.py``
+The bench config is validated by the pydantic models in the package ``benchctl/config/``
 (``BenchConfig`` and the models of its sections). This renders their JSON Schema
 (``benchctl.config.config_schema()``, what ``benchctl schema config`` prints) as one table per
 section — every field with its type, its default (or *required*), its bounds and its meaning —
