@@ -60,8 +60,8 @@ from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig, SimInstrumentConfig
 from benchctl.devices.base import AXES
 from benchctl.errors import ConfigError
+from benchctl.faultspec import FaultSpecError, check_params
 from benchctl.sim import nmea_talker
-from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.motion import MotionSource
 from benchctl.sim.pty_port import PtyPort
