@@ -442,7 +442,7 @@ def predict(
         warnings.append(
             f"σ not predicted, only bounded: {100 * share:.3g} % of the target's variance "
             f"({outside:.4g} deg²) lies at {where}, where H was {why}; from the lines measured "
-            f"σ = {sigma:.4g}°, and with {assumed}: σ ≤ {sigma_bound:.4g}° (95 %). "
+            f"σ = {sigma:.4g}°, and taking {assumed}: σ ≤ {sigma_bound:.4g}° (95 %). "
             "Record a profile that excites that band to predict σ"
         )
     elif share > OUTSIDE_WARN:

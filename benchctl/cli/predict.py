@@ -167,6 +167,7 @@ def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: Analys
             "period_s": la.lines.period_s,
             "lines_source": la.lines.source,
             "timing_variance": timing,
+            "warnings": list(res.warnings),
         },
         "assumptions": {
             "noise": "independent of the motion (carried over whole)",
@@ -220,4 +221,5 @@ def _summary(doc: dict[str, Any], pred: Prediction) -> str:
             "which grows with the motion's rate (not scaled here)"
         )
     lines.extend(f"  warning: {w}" for w in pred.warnings)
+    lines.extend(f"  the recording: {w}" for w in m["warnings"])
     return "\n".join(lines)
