@@ -52,7 +52,7 @@ def test_csv_json(single_csv: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert d["duration"] == pytest.approx(300.0) and d["max_lag"] == pytest.approx(30.0)
     assert d["band"]["lo"] == 0.05 and d["delay_compensated"] == 0.0
     assert set(d["frf"]) == {"freq", "gain", "phase_deg", "coherence", "gain_ci95",
-                             "phase_ci95_deg", "source"}
+                             "phase_ci95_deg", "reliable", "source"}
     assert np.allclose(d["frf"]["gain"], 0.98, atol=0.005)
     assert d["frf"]["source"] == "lines" and d["lines"]["source"] == "detected"
     assert d["lines"]["n_periods"] == 3 and d["lines"]["period_s"] == pytest.approx(100.0)
