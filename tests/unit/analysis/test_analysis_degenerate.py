@@ -5,14 +5,17 @@ unexpected error."""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from benchctl.analysis import analyze
 from benchctl.cli import main
-from benchctl.errors import DataError
+from benchctl.errors import BenchError, DataError
 
 FS, TP = 100.0, 20.0
 
@@ -216,3 +219,43 @@ def test_degenerate_recordings_through_analyze_and_predict(
     assert not any("missing" in w for w in out["whole"]["measured"]["warnings"])
     assert main(["predict", str(short), "--profile", str(prof_b), "--axis", "roll"]) == 0
     assert "the recording: the record (49.52 s) holds 0.9904 periods" in capsys.readouterr().out
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.integers(0, 400),
+       kind=st.sampled_from(["exact", "constant_x", "constant_y", "both_zero", "noisy",
+                             "tiny", "step"]),
+       period=st.sampled_from([None, 2.0, 5.0, 7.3]),
+       band=st.sampled_from([None, (0.1, 0.5), (0.0, 5.0), (0.2, 0.21)]),
+       lines=st.sampled_from(["auto", "off"]))
+def test_degenerate_inputs_never_raise_an_unexpected_error(
+        n: int, kind: str, period: float | None, band: tuple[float, float] | None,
+        lines: str) -> None:
+    """Any length 0 … 400, an exact, constant, zero, noisy, 1e-300-small or stepped signal, with
+    or without a period (whole or not) and a band: a result whose JSON is finite where given,
+    or a ``BenchError`` (exit 2 through the CLI) — never another exception."""
+    fs = 10.0
+    t = np.arange(n) / fs
+    x = np.cos(2 * np.pi * 0.5 * t) + 0.3 * np.cos(2 * np.pi * 1.5 * t + 1.0)
+    x = 1e-300 * x if kind == "tiny" else x
+    y = x.copy()
+    if kind == "constant_x":
+        x = np.full(n, 1.0)
+    elif kind == "constant_y":
+        y = np.full(n, 2.0)
+    elif kind == "both_zero":
+        x, y = np.zeros(n), np.zeros(n)
+    elif kind == "noisy":
+        y = 0.98 * x + np.random.default_rng(n).normal(0.0, 0.01, n)
+    elif kind == "step" and n:
+        x = (t > t.mean()).astype(float)
+        y = x
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # 0/0 in H1 of a 1e-300 signal
+        try:
+            r = analyze(t, x, t, y, period_s=period, band_hz=band,
+                        lines=lines)  # type: ignore[arg-type]
+        except BenchError:
+            return
+    json.dumps(r.to_dict(), allow_nan=False)
+    assert r.sigma >= 0.0 and r.sigma_ci95[0] <= r.sigma <= r.sigma_ci95[1] + 1e-12
