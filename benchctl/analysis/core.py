@@ -605,7 +605,7 @@ def _line_analysis(
         return None
 
 
-PAD_SHARE = 0.02  # a record short of whole periods by at most this share of a period: completed
+PAD_SHARE = 0.02  # a record short of whole periods by at most this share of them: completed
 PAD_CYCLES = 1.5  # … and by a gap of at most this / the lines' band (Hz), s
 
 
@@ -620,7 +620,7 @@ def _whole_part(al: Aligned, period: float,
     """A record just short of (or past) whole periods of ``period``: on whole periods, and the
     note that says so; None when it holds whole periods already, or not one and not nearly one.
 
-    Short of whole periods by at most ``PAD_SHARE`` of a period, with ``pad`` (known lines: a
+    Short of whole periods by at most ``PAD_SHARE`` of them, with ``pad`` (known lines: a
     recording's profile; a run stopped half a second early, the usual one-period record of a
     sea state included): the grid is completed to the
     next whole period with empty slots, a gap at the end that the line fit handles as any
@@ -635,7 +635,7 @@ def _whole_part(al: Aligned, period: float,
     m_near = round(near * period / al.dt)
     if near >= 1 and abs(n - m_near) <= 1:
         return None  # whole periods (to a slot)
-    if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE
+    if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE * near
             and int(al.mask.sum()) >= 2):
         missing = m_near - n
         part = dataclasses.replace(
