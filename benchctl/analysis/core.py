@@ -607,6 +607,7 @@ def _line_analysis(
 
 PAD_SHARE = 0.02  # a record short of whole periods by at most this share of them: completed
 PAD_CYCLES = 1.5  # … and by a gap of at most this / the lines' band (Hz), s
+WHOLE_REL = 1e-4  # a record this close to whole periods is whole (a stand's clock ppm off)
 
 
 def _line_span(ls: LineSet) -> float:
@@ -633,8 +634,8 @@ def _whole_part(al: Aligned, period: float,
     nf = span / period
     near = round(nf)
     m_near = round(near * period / al.dt)
-    if near >= 1 and abs(n - m_near) <= 1:
-        return None  # whole periods (to a slot)
+    if near >= 1 and (abs(n - m_near) <= 1 or abs(nf - near) <= WHOLE_REL * near):
+        return None  # whole periods: to a slot, or to a clock's ppm (the lines then refine it)
     if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE * near
             and int(al.mask.sum()) >= 2):
         missing = m_near - n
