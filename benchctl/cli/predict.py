@@ -207,7 +207,8 @@ def _summary(doc: dict[str, Any], pred: Prediction) -> str:
         f"{pred.freq.max():.4g} Hz, {pred.target_variance:.5g} deg²; "
         + (f"outside the tested band {100 * pred.outside_share:.3g} % "
            f"({pred.outside_variance:.4g} deg², {len(pred.freq) - pred.n_inside} lines): not in "
-           f"σ; with |1 − H| ≤ 1 there σ ≤ {pred.sigma_outside_bound:.5g}°"
+           f"σ" + ("" if pred.bounded else ", what it could add held in σ's interval")
+           + f"; with no more than |1 − H| ≤ 1 there σ ≤ {pred.sigma_outside_bound:.5g}°"
            if pred.n_inside < len(pred.freq) else "all inside the tested band"),
         "  assumes: the noise independent of the motion (carried over whole); H between "
         "measured lines interpolated, never outside them",

@@ -174,8 +174,9 @@ def test_api_matches_cli(single_csv: Path, capsys: pytest.CaptureFixture[str]) -
 def test_summary_gain_range_leaves_the_weak_lines_out(tmp_path: Path,
                                                       capsys: pytest.CaptureFixture[str]) -> None:
     """A multisine whose three lowest lines are 0.002° high (a profile's band edge) through a
-    gain of 0.98 with 0.02° of noise: their Ĥ is noise (SNR ≪ 10). The summary's gain range is
-    the reliable lines' (0.98 ± their noise), and says how many lines it left out and where."""
+    gain of 0.98 with 0.02° of noise: their Ĥ is mostly noise (SNR about 3). The summary's gain
+    range is the reliable lines' (0.98 ± their noise), and says how many lines it left out and
+    where."""
     tp, fs = 40.0, 10.0
     k = np.arange(2, 25)
     f = k / tp
