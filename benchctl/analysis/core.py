@@ -575,11 +575,26 @@ def _line_analysis(
                                  "known line set")
             lines, period_s = ex.line_set, None
         period = (lines.period_s if isinstance(lines, LineSet) else period_s)
-        trimmed = _whole_part(al, period) if period is not None else None
-        if trimmed is not None:
-            al, note = trimmed
-            warnings.append(note)
-        ls, x_spectrum = _line_set(al, lines, period_s)
+        # completed with a gap only for known lines: found in the reference, a gap's edge
+        # leaks into every harmonic and they would be found everywhere
+        whole = (_whole_part(al, period, pad=isinstance(lines, LineSet))
+                 if period is not None else None)
+        ls, x_spectrum = _line_set(al if whole is None else whole[0], lines, period_s)
+        if whole is not None and ls is not None and whole[2] * _line_span(ls) > PAD_CYCLES:
+            # the gap at the end too long for the lines' band: their fit would amplify the
+            # noise (a band B holds ≈ 2·B·gap functions that live mostly in the gap)
+            assert period is not None
+            whole = _whole_part(al, period, pad=False)
+            if whole is None:
+                raise LinesError(
+                    f"the record ({len(al.mask) * al.dt:.6g} s) is short of whole periods of "
+                    f"{period:.6g} s by more than a gap the lines' band "
+                    f"({_line_span(ls):.4g} Hz) lets the fit bridge ({PAD_CYCLES:g}/band = "
+                    f"{PAD_CYCLES / _line_span(ls):.3g} s), and holds no whole period")
+            ls, x_spectrum = _line_set(whole[0], lines, period_s)
+        if whole is not None:
+            al = whole[0]
+            warnings.append(whole[1])
         if ls is None:
             return None
         la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum, band_hz)
@@ -590,14 +605,52 @@ def _line_analysis(
         return None
 
 
-def _whole_part(al: Aligned, period: float) -> tuple[Aligned, str] | None:
-    """A record just short of (or past) whole periods of ``period``: its first whole periods,
-    and the note that says so; None when it holds whole periods already, or not one."""
+PAD_SHARE = 0.02  # a record short of whole periods by at most this share of them: completed
+PAD_CYCLES = 1.5  # … and by a gap of at most this / the lines' band (Hz), s
+WHOLE_REL = 1e-4  # a record this close to whole periods is whole (a stand's clock ppm off)
+
+
+def _line_span(ls: LineSet) -> float:
+    """The band of a line set, Hz (its lowest to its highest line, one spacing at least)."""
+    f = ls.freq
+    return float(f.max() - f.min()) + 1.0 / ls.period_s
+
+
+def _whole_part(al: Aligned, period: float,
+                pad: bool = True) -> tuple[Aligned, str, float] | None:
+    """A record just short of (or past) whole periods of ``period``: on whole periods, and the
+    note that says so; None when it holds whole periods already, or not one and not nearly one.
+
+    Short of whole periods by at most ``PAD_SHARE`` of them, with ``pad`` (known lines: a
+    recording's profile; a run stopped half a second early, the usual one-period record of a
+    sea state included): the grid is completed to the
+    next whole period with empty slots, a gap at the end that the line fit handles as any
+    other (every sample used), unless the lines' band makes that gap too long to bridge
+    (``PAD_CYCLES``, judged by the caller, who then asks again with ``pad=False``). Otherwise its
+    first whole periods (the rest left out). Returns the record, the note and the seconds
+    missing at the end (0 when trimmed)."""
     n = len(al.mask)
     span = n * al.dt
     nf = span / period
-    whole = math.floor(nf + WHOLE_PERIODS_TOL)
-    if whole < 1 or abs(nf - round(nf)) <= WHOLE_PERIODS_TOL:
+    near = round(nf)
+    m_near = round(near * period / al.dt)
+    if near >= 1 and (abs(n - m_near) <= 1 or abs(nf - near) <= WHOLE_REL * near):
+        return None  # whole periods: to a slot, or to a clock's ppm (the lines then refine it)
+    if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE * near
+            and int(al.mask.sum()) >= 2):
+        missing = m_near - n
+        part = dataclasses.replace(
+            al, t=np.concatenate((al.t, np.full(missing, np.nan))),
+            x=np.concatenate((al.x, np.zeros(missing))),
+            y=np.concatenate((al.y, np.zeros(missing))),
+            mask=np.concatenate((al.mask, np.zeros(missing, dtype=bool))))
+        return (part, (f"the record ({span:.6g} s) holds {nf:.6g} periods of {period:.6g} s: "
+                      f"the line-wise estimate is made over {near} whole period"
+                      f"{'s' if near > 1 else ''} ({m_near * al.dt:.6g} s), the last "
+                      f"{missing * al.dt:.4g} s of which are missing (a gap at the end)"),
+                missing * al.dt)
+    whole = near if n > m_near else math.floor(nf)
+    if whole < 1:
         return None
     m = round(whole * period / al.dt)
     if m < 2 or abs(m * al.dt / period - whole) > WHOLE_PERIODS_TOL / max(whole, 1):
@@ -605,10 +658,10 @@ def _whole_part(al: Aligned, period: float) -> tuple[Aligned, str] | None:
     part = dataclasses.replace(al, t=al.t[:m], x=al.x[:m], y=al.y[:m], mask=al.mask[:m])
     if int(part.mask.sum()) < 2:
         return None
-    return part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
-                  f"line-wise estimate is made over its first {whole} whole period"
-                  f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
-                  f"{span - m * al.dt:.4g} s left out of it")
+    return (part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
+                   f"line-wise estimate is made over its first {whole} whole period"
+                   f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
+                   f"{span - m * al.dt:.4g} s left out of it"), 0.0)
 
 
 def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
@@ -676,8 +729,12 @@ def _result(
         mean_removal = la.mean_removal
         ci = la.sigma_ci95
         dof = la.dof
-        # the record just short of whole periods: the lines over its whole periods (_whole_part)
-        part = la.n_periods * la.lines.period_s < (len(al.mask) - 1) * al.dt
+        # the record just short of whole periods: the lines over its whole periods, or over
+        # whole periods that hold a gap at the end (_whole_part); either way σ over the
+        # samples present is not over whole periods, and reads the lines' motion unevenly
+        span = la.n_periods * la.lines.period_s
+        part = span < (len(al.mask) - 1) * al.dt or span > len(al.mask) * al.dt + max(
+            2.0 * al.dt, 1e-4 * la.lines.period_s)
         if n < len(al.mask) or part:
             # samples missing (gaps, exclusions): the σ over the samples present weighs the
             # motion's phases unevenly (an error that depends on the motion then reads off);
@@ -747,12 +804,14 @@ def _result(
             keep = (la.freq >= band_hz[0]) & (la.freq <= band_hz[1])
         frf_arrays = (la.freq[keep], la.gain[keep], la.phase_deg[keep], la.coherence[keep],
                       la.gain_ci95[keep], la.phase_ci95_deg[keep])
+        frf_reliable: NDArray[np.bool_] | None = la.reliable[keep]
         periods = periods_from_lines(la, frf_mod.TRADITIONAL_PERIODS_S)
         frf_source = "lines"
         split = (la.linear, la.incoherent, "lines")
     else:
         gci, pci = frf_mod.h1_intervals(resp, dof_f)
         frf_arrays = (resp.freq, resp.gain, resp.phase_deg, resp.coherence, gci, pci)
+        frf_reliable = None
         periods = frf_mod.at_periods(resp, dof_f, grid.freq, sp.gxx, grid.resolution_hz)
         frf_source = "h1"
         split = (linear, variance - linear, "lag_window")
@@ -786,6 +845,7 @@ def _result(
         frf_gain_ci95=frf_arrays[4],
         frf_phase_ci95_deg=frf_arrays[5],
         frf_source=frf_source,
+        frf_reliable=frf_reliable,
         periods=periods,
         linear=split[0],
         incoherent=split[1],

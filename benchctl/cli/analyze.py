@@ -342,10 +342,25 @@ def _lines_block(r: AnalysisResult) -> list[str]:
         f"    linear {la.linear:.5g} deg² (95 % CI {la.linear_ci95[0]:.5g} … "
         f"{la.linear_ci95[1]:.5g}), incoherent {la.incoherent:.5g} deg² "
         f"({la.incoherent_ci95[0]:.5g} … {la.incoherent_ci95[1]:.5g})",
-        f"    gain {float(la.gain.min()):.4f} … {float(la.gain.max()):.4f}, phase "
-        f"{float(la.phase_deg.min()):.3f} … {float(la.phase_deg.max()):.3f}° over "
-        f"{float(la.freq.min()):.4g} … {float(la.freq.max()):.4g} Hz",
+        *_gain_range(la),
     ]
+
+
+def _gain_range(la: Any) -> list[str]:
+    """The gain and phase ranges over the reliable lines (SNR ≥ the floor); the weak lines'
+    count and band said, never their noise-made gains."""
+    import numpy as np
+
+    ok = la.reliable if la.reliable.size == len(la.freq) else np.ones(len(la.freq), dtype=bool)
+    weak = int((~ok).sum())
+    note = (f" ({weak} line{'s' if weak > 1 else ''} over {float(la.freq[~ok].min()):.4g} … "
+            f"{float(la.freq[~ok].max()):.4g} Hz below SNR {la.snr_floor:g}: not measured "
+            "reliably, not shown)" if weak else "")
+    if not ok.any():
+        return [f"    no line measured reliably{note}"]
+    return [f"    gain {float(la.gain[ok].min()):.4f} … {float(la.gain[ok].max()):.4f}, phase "
+            f"{float(la.phase_deg[ok].min()):.3f} … {float(la.phase_deg[ok].max()):.3f}° over "
+            f"{float(la.freq[ok].min()):.4g} … {float(la.freq[ok].max()):.4g} Hz{note}"]
 
 
 def _distortion_block(r: AnalysisResult) -> list[str]:
