@@ -20,6 +20,7 @@ from pydantic import TypeAdapter, ValidationError
 from benchctl.errors import ConfigError, DataError
 from benchctl.profiles.records import RecordedSpectrum, estimate_psd
 from benchctl.profiles.schema import (
+    KINDS,
     ProfileSpec,
     RecordedAxisSpec,
     RecordedProfile,
@@ -95,7 +96,6 @@ def sine_steps_duration(spec: SineStepsProfile) -> float:
 
 
 def _kinds() -> tuple[str, ...]:
-    from benchctl.profiles.schema import KINDS
 
     return KINDS
 

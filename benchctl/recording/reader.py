@@ -30,6 +30,7 @@ from benchctl.recording.format import (
     META_FILE,
     STREAM_FILES,
 )
+from benchctl.redact import redact
 
 if TYPE_CHECKING:
     from benchctl.analysis.timebase import Instants
@@ -409,8 +410,6 @@ class Recording:
     def export_mat(self, dest: str | Path) -> Path:
         """All streams and metadata into one MATLAB .mat file (struct per stream)."""
         from scipy.io import savemat
-
-        from benchctl.redact import redact
 
         d = Path(dest)
         payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.uncertainty import density_interval
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -108,7 +110,6 @@ def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
     analysis band (deg²/Hz, log); below, on its own axis in deg, σ accumulated over frequency
     and the σ limit — the limit is drawn against the axis whose unit it has, never beside a
     density axis it could be read against."""
-    from benchctl.analysis.uncertainty import density_interval
 
     psd = analysis.get("psd") or {}
     f, s = _arr(psd.get("freq")), _arr(psd.get("error"))

@@ -30,11 +30,15 @@ from functools import cache
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
+
 from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, loads_strict
 from benchctl.outcomes import Outcome
+from benchctl.recording import load_recording
+from benchctl.report.figures import excitation_svg, frf_svg, psd_svg, trace_svg
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -266,11 +270,6 @@ def _trace(folder: Path, axes: Sequence[str], window: Sequence[float] | None,
            motion_start: float | None, title: str) -> dict[str, str]:
     """A ``TRACE_EXCERPT_S`` excerpt per axis: the middle of the analysis window, or the last
     seconds recorded (an aborted run)."""
-    import numpy as np
-
-    from benchctl.recording import load_recording
-    from benchctl.report.figures import trace_svg
-
     out: dict[str, str] = {}
     try:
         rec = load_recording(folder)
@@ -342,7 +341,6 @@ def _cached(key: str, make: Callable[[], T]) -> T:
 def _figures_of(name: str, an: Mapping[str, Any], lim: Any, exc: Any,
                 title: str) -> dict[str, str | None]:
     """An axis's PSD, frequency response and excitation figures (SVG), drawn once per content."""
-    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
 
     limit = lim if isinstance(lim, int | float) else None
 

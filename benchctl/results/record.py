@@ -32,7 +32,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from benchctl import __version__
 from benchctl.clock import REAL, Clock
+from benchctl.config import axis_map
 from benchctl.errors import AnalysisError, BenchError, DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, load_object, plain
@@ -195,7 +197,6 @@ def build_record(
     station, devices, profile, seed, config, start time, software version, hashes) and its
     results. ``abort``: {kind, reason, …} for an aborted run (``outcome`` ABORTED).
     ``end_utc``: else now on ``clock`` (the run's)."""
-    from benchctl import __version__
 
     devices = meta.get("devices") or {}
     dut = devices.get("instrument")
@@ -259,7 +260,6 @@ def build_record(
 def _instrument_axes(instrument: Mapping[str, Any]) -> dict[str, Any] | None:
     """``instrument.axes`` of the run's config as {stand axis: {output, sign}} (the axis
     mapping every sample was read with); an older config's list of names is the identity."""
-    from benchctl.config import axis_map
 
     axes = instrument.get("axes")
     if not axes:

@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.analysis.departures import departure_text, sigma_inconclusive
+from benchctl.analysis.excitation import format_fidelity
+from benchctl.analysis.plot import plot_result
 from benchctl.errors import RecordingError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
@@ -234,8 +236,6 @@ def format_report(rep: Report) -> str:
             lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))
         if v.excitation is not None:
-            from benchctl.analysis.excitation import format_fidelity
-
             lines.append(f"        {format_fidelity(v.excitation)}")
     st = rep.stats
     lat = st.get("cycle_lateness_s", {})
@@ -336,8 +336,6 @@ def _plot(result: Any, dest: Path, meta: dict[str, Any] | None = None,
     and date in its title, the σ limit on its PSD panel."""
     m = meta or {}
     try:
-        from benchctl.analysis.plot import plot_result
-
         plot_result(result, dest, serial=None if m.get("serial") is None else str(m["serial"]),
                     date=str(m.get("start_utc") or "")[:10] or None, limit_deg=limit_deg)
     except Exception as e:  # a plot is a convenience; the verdict stands without it

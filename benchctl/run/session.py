@@ -47,6 +47,7 @@ complete.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import shlex
@@ -59,10 +60,31 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from benchctl import __version__
+from benchctl.analysis import analyze
+from benchctl.analysis.crossaxis import cross_axis_for
+from benchctl.analysis.departures import departures_of
+from benchctl.analysis.equalise import (
+    corrected_table,
+    estimate_response,
+    pretest_design,
+    response_at,
+)
+from benchctl.analysis.excitation import (
+    RunningFidelity,
+    breached,
+    fidelity_of_table,
+    limits_of,
+    reach_of,
+)
+from benchctl.analysis.lines import LineSet, line_set_from_tables
+from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
-from benchctl.config import BenchConfig
+from benchctl.config import BenchConfig, axis_map
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
+from benchctl.devices.instrument import open_instrument
+from benchctl.devices.modbus import open_stand
+from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.errors import (
     DISK_FULL_ERRNOS,
     AnalysisError,
@@ -75,8 +97,9 @@ from benchctl.errors import (
     is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
-from benchctl.kinematics import profile_peaks
+from benchctl.kinematics import Limits, profile_peaks
 from benchctl.outcomes import ExitCode, Outcome
+from benchctl.profiles import check_motion, load_profile, synthesize
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -91,6 +114,7 @@ from benchctl.results.measurements import (
 )
 from benchctl.results.record import abort_kind, sha256_file, write_record
 from benchctl.run import fitness
+from benchctl.run import mounting as mt
 from benchctl.run import prechecks as pc
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
@@ -137,6 +161,9 @@ from benchctl.run.stand_loop import (
 )
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, shutdown
+from benchctl.sim.bench import SimBench
+from benchctl.sim.disturb import Disturbances
+from benchctl.sim.launch import start_simulators
 from benchctl.text import (
     check_operator,
     check_part_number,
@@ -237,8 +264,6 @@ def mounting_plan(cfg: BenchConfig, axes: tuple[str, ...], where: str) -> Motion
     ``where`` and the fields when it does not fit. Setpoints at the stand's setpoint rate,
     streamed — or queued, on a buffered stand (a stand that plays tables takes setpoints too:
     its ramp to zero is streamed)."""
-    from benchctl.kinematics import Limits
-    from benchctl.run import mounting as mt
 
     mc, lim = cfg.run.mounting_check, cfg.stand.limits
     period = 1.0 / cfg.stand.setpoint_rate_hz
@@ -269,10 +294,6 @@ class Pretest:
 def prepare_pretest(cfg: BenchConfig, motion: Any, rate: float, where: str) -> Pretest:
     """The low-level pre-test of ``motion`` (``run.equalise``), checked against the stand's
     limits before anything moves; raises ``ConfigError``/``LimitError`` naming ``where``."""
-    import dataclasses
-
-    from benchctl.analysis.equalise import pretest_design
-    from benchctl.profiles import check_motion
 
     eq = cfg.run.equalise
     tables = getattr(motion, "tables", None) or {}
@@ -322,7 +343,6 @@ def _fades(motion: Any) -> tuple[float, float]:
 
 def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> PreparedMotion:
     """Load, synthesise and check the profile against this bench; raises before anything moves."""
-    from benchctl.profiles import check_motion, load_profile, synthesize
 
     profile = load_profile(profile_path)
     rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
@@ -341,23 +361,19 @@ def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> Pr
                 f"{src}: field {section}.axes = {list(have)}: the profile {profile_path} moves "
                 f"{list(axes)}, expected {section}.axes to include {missing}"
             )
-    if cfg.stand.mode == "buffered":
-        from benchctl.devices.modbus.regmap import load_register_map
-
-        if load_register_map(cfg.stand.register_map).trajectory is None:
-            raise ConfigError(
-                f"{src}: field stand.mode = 'buffered', but the register map "
-                f"{cfg.stand.register_map} has no trajectory queue (no `trajectory:` section); "
-                "expected mode 'stream' or 'table' for this stand"
-            )
+    if (cfg.stand.mode == "buffered"
+            and load_register_map(cfg.stand.register_map).trajectory is None):
+        raise ConfigError(
+            f"{src}: field stand.mode = 'buffered', but the register map "
+            f"{cfg.stand.register_map} has no trajectory queue (no `trajectory:` section); "
+            "expected mode 'stream' or 'table' for this stand"
+        )
     if cfg.stand.mode == "table" and not getattr(motion, "tables", None):
         raise ConfigError(
             f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
             "table; expected mode 'stream' for this profile"
         )
     if cfg.stand.mode == "table":
-        from benchctl.devices.modbus.regmap import load_register_map
-
         axes_map = load_register_map(cfg.stand.register_map).axes
         for a, tab in (motion.tables or {}).items():
             room = axes_map[a].table_max_lines if a in axes_map else 0
@@ -443,8 +459,6 @@ def mounting_result(
     """The mounting check's precheck from the tilt's stand samples ((t_host, angles) each) and
     instrument samples: the stand's measured angles interpolated at the instrument's instants,
     the response fitted and judged (``benchctl.run.mounting``)."""
-    from benchctl.config import axis_map
-    from benchctl.run import mounting as mt
 
     mc = cfg.run.mounting_check
     mapping = axis_map(cfg.instrument.axes)
@@ -489,8 +503,6 @@ def open_devices(
     cfg: BenchConfig, recording: Path, *, clock: Clock = REAL
 ) -> tuple[Stand, AngleSensor]:
     """The real drivers for this config (also what talks to the simulators), on ``clock``."""
-    from benchctl.devices.instrument import open_instrument
-    from benchctl.devices.modbus import open_stand
 
     can_log = None
     if cfg.instrument.driver != "nmea0183" and cfg.instrument.can_log:
@@ -529,8 +541,6 @@ def simulators(
                 f"{cfg.source}: field sim.clock = virtual: the run needs a virtual clock "
                 "(benchctl run makes one; a caller of Session passes one)"
             )
-        from benchctl.sim.bench import SimBench
-        from benchctl.sim.disturb import Disturbances
 
         plan = None
         if cfg.sim.disturb is not None:
@@ -543,7 +553,6 @@ def simulators(
                     disturb(plan)
             yield bench.config()
         return
-    from benchctl.sim.launch import start_simulators
 
     with start_simulators(cfg, log_path=log_path) as sim:
         yield sim.config
@@ -945,11 +954,6 @@ class Session:
         recorded, the stand's response on the profile's lines estimated, the drive corrected
         and checked against the limits like any motion; the main motion's loop then waits in
         hold with the corrected plan."""
-        import dataclasses
-
-        from benchctl.analysis.equalise import corrected_table, estimate_response, response_at
-        from benchctl.analysis.excitation import reach_of
-        from benchctl.profiles import check_motion
 
         pre, w, stand = self.prep.pretest, self.writer, self.stand
         assert pre is not None and w is not None and stand is not None and self.loop is not None
@@ -1120,7 +1124,6 @@ class Session:
     def _excitation_watch(self) -> list[Any]:
         """The running excitation estimates (``run.excitation.abort_run``): one per axis with
         a harmonic table and a band to judge, listening to the stand's samples from now on."""
-        from benchctl.analysis.excitation import RunningFidelity, limits_of, reach_of
 
         ex = self.cfg.run.excitation
         motion = self.prep.motion
@@ -1233,11 +1236,6 @@ class Session:
         return lo, hi
 
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
-        from benchctl.analysis import analyze
-        from benchctl.analysis.crossaxis import cross_axis_for
-        from benchctl.analysis.departures import departures_of
-        from benchctl.analysis.lines import LineSet, line_set_from_tables
-
         a = self.cfg.run.analysis
         rec = load_recording(self.path)
         # underruns and rejoins: left out as gaps are, with the settling this bench states
@@ -1332,7 +1330,6 @@ class Session:
         """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
         against the profile's lines over the window's whole periods; a warning when a band is
         beyond the alarm level (run.excitation)."""
-        from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
 
         tables = getattr(self.prep.motion, "tables", None) or {}
         if axis not in tables or getattr(self.prep.motion, "segments", None):
@@ -1359,7 +1356,6 @@ class Session:
     def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
         """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
         whole full-amplitude cycles placed on the motion's start; its verdict joins σ's."""
-        from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 
         motion = self.prep.motion
         if not getattr(motion, "segments", None):
