@@ -34,12 +34,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from benchctl.archive.service import RunArchive, archive_run_within, settings_for
 from benchctl.clock import Clock
 from benchctl.config import BenchConfig
 from benchctl.errors import RecordingError
 from benchctl.outcomes import ExitCode, Outcome
-from benchctl.report.html import write_html as draw
 from benchctl.results.measurements import Measurement
 from benchctl.results.record import RECORD_JSON, build_record, with_data, with_file
 from benchctl.run.display import Display
@@ -255,6 +253,7 @@ class ResultsArchive:
             if self.run_archive is not None:
                 self.run_archive.end(run.folder)
                 return []
+            from benchctl.archive.service import archive_run_within, settings_for
 
             archive_run_within(settings_for(self.cfg, run.out_dir), run.folder)
         except Exception as e:
@@ -266,6 +265,8 @@ def begin_archive(cfg: BenchConfig, out_dir: Path) -> RunArchive | None:
     """Before a run: killed runs (no end.json) into the archive as ABORTED, the queue sent —
     in the background (``benchctl.archive.service.RunArchive``): the run does not wait."""
     try:
+        from benchctl.archive.service import RunArchive, settings_for
+
         run_archive = RunArchive(settings_for(cfg, out_dir), out_dir)
         run_archive.begin()
         return run_archive
@@ -294,6 +295,8 @@ def write_html(run: FinishedRun, record: dict[str, Any], strict: bool = False) -
     verdict and the record stand without it — except, with ``strict``, a full disk, raised as
     ``RecordingError`` (the run's abort)."""
     try:
+        from benchctl.report.html import write_html as draw
+
         report = None if run.report is None else run.report.to_dict(full=True)
         return draw(run.folder, report=report, record=record, figures=run.figures)
     except Exception as e:

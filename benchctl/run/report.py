@@ -22,7 +22,6 @@ from typing import Any
 
 from benchctl.analysis.departures import departure_text, sigma_inconclusive
 from benchctl.analysis.excitation import format_fidelity
-from benchctl.analysis.plot import plot_result
 from benchctl.errors import RecordingError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
@@ -336,6 +335,8 @@ def _plot(result: Any, dest: Path, meta: dict[str, Any] | None = None,
     and date in its title, the σ limit on its PSD panel."""
     m = meta or {}
     try:
+        from benchctl.analysis.plot import plot_result  # matplotlib: only when a plot is drawn
+
         plot_result(result, dest, serial=None if m.get("serial") is None else str(m["serial"]),
                     date=str(m.get("start_utc") or "")[:10] or None, limit_deg=limit_deg)
     except Exception as e:  # a plot is a convenience; the verdict stands without it

@@ -10,6 +10,8 @@ A function-local import needs a measured reason, and each kind allowed is listed
   runs, so that ``benchctl --help`` or ``benchctl run`` does not import what the others need;
 - the two imports that break a circle still listed in ``pyproject.toml``'s import-linter
   contracts (a recording's time bases, the Modbus link's in-process client);
+- an import inside a ``try`` whose handler guards an optional part of a run (an output sink,
+  a plot): a part that cannot even be imported fails alone, the run's verdict stands;
 - the analysis package, until its evaluation path is one (its own lazy imports are listed by
   the layers contract's ``ignore_imports``).
 """
@@ -31,17 +33,21 @@ EXEMPT_DIRS = ("benchctl/cli/", "benchctl/analysis/")
 
 
 def _local_imports(tree: ast.Module) -> list[tuple[int, str]]:
-    """(line, module) of every import inside a function, not under ``if TYPE_CHECKING``."""
-    typing_only: set[int] = set()
+    """(line, module) of every import inside a function, not under ``if TYPE_CHECKING`` nor in
+    a ``try`` block."""
+    exempt: set[int] = set()  # … nor inside a try (a guarded part, see above)
     for node in ast.walk(tree):
         if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            typing_only.update(range(node.lineno, (node.end_lineno or node.lineno) + 1))
+            exempt.update(range(node.lineno, (node.end_lineno or node.lineno) + 1))
+        if isinstance(node, ast.Try):
+            for stmt in node.body:
+                exempt.update(range(stmt.lineno, (stmt.end_lineno or stmt.lineno) + 1))
     found = []
     for fn in ast.walk(tree):
         if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
             continue
         for node in ast.walk(fn):
-            if not isinstance(node, ast.Import | ast.ImportFrom) or node.lineno in typing_only:
+            if not isinstance(node, ast.Import | ast.ImportFrom) or node.lineno in exempt:
                 continue
             if isinstance(node, ast.ImportFrom):
                 found.append((node.lineno, node.module or ""))
@@ -68,5 +74,7 @@ def test_the_check_sees_a_local_import() -> None:
         "import typing\n"
         "def f():\n    from benchctl.config import load_config\n"
         "def g():\n    if typing.TYPE_CHECKING:\n        from benchctl.run import session\n"
+        "def h():\n    try:\n        from benchctl.report import html\n    except ImportError:\n"
+        "        pass\n"
     )
     assert _local_imports(tree) == [(3, "benchctl.config")]
