@@ -91,7 +91,8 @@ def child(tree: Path, args: argparse.Namespace) -> None:
     from benchctl.clock import virtual
     from benchctl.config import load_config
     from benchctl.run import state as run_state
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.prepare import RunOptions
+    from benchctl.run.session import run_test
 
     out: Path = args.out
     cfg_path = bench_config(tree, args, out)

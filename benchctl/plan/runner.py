@@ -69,8 +69,9 @@ from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, l
 from benchctl.results.record import load_record
 from benchctl.run import RunOptions, run_test
 from benchctl.run import prechecks as pc
+from benchctl.run.devices import recording_dir, simulators
 from benchctl.run.lock import stand_lock
-from benchctl.run.session import prepare_motion, recording_dir, simulators
+from benchctl.run.prepare import prepare_motion
 from benchctl.run.supervisor import Supervisor
 from benchctl.text import check_operator, check_serial
 

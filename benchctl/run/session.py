@@ -51,7 +51,6 @@ import dataclasses
 import logging
 import math
 import shlex
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
@@ -66,7 +65,6 @@ from benchctl.analysis.departures import departures_of
 from benchctl.analysis.equalise import (
     corrected_table,
     estimate_response,
-    pretest_design,
     response_at,
 )
 from benchctl.analysis.excitation import (
@@ -80,11 +78,8 @@ from benchctl.analysis.lines import LineSet, line_set_from_tables
 from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
-from benchctl.config import BenchConfig, axis_map
-from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
-from benchctl.devices.instrument import open_instrument
-from benchctl.devices.modbus import open_stand
-from benchctl.devices.modbus.regmap import load_register_map
+from benchctl.config import BenchConfig
+from benchctl.devices.base import AngleSensor, Stand
 from benchctl.errors import (
     DISK_FULL_ERRNOS,
     AnalysisError,
@@ -97,9 +92,8 @@ from benchctl.errors import (
     is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
-from benchctl.kinematics import Limits, profile_peaks
 from benchctl.outcomes import ExitCode, Outcome
-from benchctl.profiles import check_motion, load_profile, synthesize
+from benchctl.profiles import check_motion
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -114,11 +108,19 @@ from benchctl.results.measurements import (
 )
 from benchctl.results.record import abort_kind, sha256_file, write_record
 from benchctl.run import fitness
-from benchctl.run import mounting as mt
 from benchctl.run import prechecks as pc
+from benchctl.run.devices import (
+    SIM_LOG,
+    DeviceFactory,
+    _identity,
+    open_devices,
+    recording_dir,
+    simulators,
+)
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
+from benchctl.run.mounting_check import mounting_result
 from benchctl.run.outputs import (
     Console,
     FinishedRun,
@@ -133,7 +135,7 @@ from benchctl.run.outputs import (
     record_in,
     stand_lines,
 )
-from benchctl.run.plan import MotionPlan, check_setpoints, make_plan
+from benchctl.run.plan import MotionPlan, make_plan
 from benchctl.run.precision import (
     PrecisionCheck,
     PrecisionWatch,
@@ -142,6 +144,12 @@ from benchctl.run.precision import (
     profile_period,
     relative_halfwidth,
     whole_periods_in,
+)
+from benchctl.run.prepare import (
+    PreparedMotion,
+    RunOptions,
+    mounting_plan,
+    prepare_motion,
 )
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
 from benchctl.run.recorder import Recorder
@@ -161,51 +169,23 @@ from benchctl.run.stand_loop import (
 )
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, shutdown
-from benchctl.sim.bench import SimBench
 from benchctl.sim.disturb import Disturbances
-from benchctl.sim.launch import start_simulators
 from benchctl.text import (
-    check_operator,
-    check_part_number,
     check_serial,
-    file_name_part,
-    from_device,
 )
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
-    from benchctl.sim.disturb import Disturbances
+
 
 log = logging.getLogger(__name__)
 
-SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
 FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
 REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
 
 
-@dataclass
-class RunOptions:
-    serial: str
-    operator: str
-    duration_s: float | None = None
-    out_dir: Path | None = None
-    seed: int | None = None
-    scale_to_fit: bool = False  # scale a profile over the limits down instead of refusing it
-    precision: float | None = None  # --precision: overrides run.precision (see run.precision)
-    decision_rule: str | None = None  # --decision-rule: overrides run.decision_rule
-    part_number: str | None = None  # --part-number: overrides unit.part_number
-    equalise: bool | None = None  # --equalise: overrides run.equalise.enabled
-
-    def __post_init__(self) -> None:
-        """The serial, the operator and the part number checked and stripped
-        (``benchctl.text``): a control character or an overlong value is an ``InputError``
-        here, before anything is read or opened."""
-        self.serial = check_serial(self.serial, "serial")
-        self.operator = check_operator(self.operator, "operator")
-        if self.part_number is not None:
-            self.part_number = check_part_number(self.part_number, "part_number")
 
 
 @dataclass
@@ -243,345 +223,28 @@ class RunResult:
         }
 
 
-# -------------------------------------------------------------------------- profile and motion
-@dataclass
-class PreparedMotion:
-    profile: Any
-    motion: Any
-    plan: MotionPlan
-    check: pc.CheckResult
-    meta: dict[str, Any]
-    # run.equalise: the pre-test (its designs per axis, its checked plan); None: no pre-test
-    pretest: Pretest | None = None
-    # run.mounting_check: the tilt, checked against the limits; None: planned when it is run
-    # (a caller's own PreparedMotion) or no check
-    tilt: MotionPlan | None = None
 
 
-def mounting_plan(cfg: BenchConfig, axes: tuple[str, ...], where: str) -> MotionPlan:
-    """The mounting check's tilt of ``axes`` (``benchctl.run.mounting.tilt_points``) as a plan
-    for a stand loop, checked step by step against the stand's limits; ``LimitError`` naming
-    ``where`` and the fields when it does not fit. Setpoints at the stand's setpoint rate,
-    streamed — or queued, on a buffered stand (a stand that plays tables takes setpoints too:
-    its ramp to zero is streamed)."""
-
-    mc, lim = cfg.run.mounting_check, cfg.stand.limits
-    period = 1.0 / cfg.stand.setpoint_rate_hz
-    try:
-        points = mt.tilt_points(axes, mc.tilt_deg, mc.hold_s,
-                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
-    except LimitError as e:
-        raise LimitError(
-            f"{where}: field run.mounting_check.tilt_deg = {mc.tilt_deg:g}°: {e} (field "
-            "stand.limits); expected a smaller tilt, or run.mounting_check.enabled: false"
-        ) from None
-    n = next(iter(points.values())).size
-    mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
-    return MotionPlan(axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
-                      peaks={a: profile_peaks(v, period) for a, v in points.items()})
 
 
-@dataclass
-class Pretest:
-    """The equalisation pre-test, checked against the limits like any motion."""
-
-    designs: dict[str, Any]  # axis → benchctl.analysis.equalise.PretestDesign
-    motion: Any
-    plan: MotionPlan
-    check: dict[str, Any]
 
 
-def prepare_pretest(cfg: BenchConfig, motion: Any, rate: float, where: str) -> Pretest:
-    """The low-level pre-test of ``motion`` (``run.equalise``), checked against the stand's
-    limits before anything moves; raises ``ConfigError``/``LimitError`` naming ``where``."""
-
-    eq = cfg.run.equalise
-    tables = getattr(motion, "tables", None) or {}
-    if not tables or getattr(motion, "segments", None):
-        raise ConfigError(
-            f"{where}: equalisation needs a profile of lines (one harmonic table per axis); "
-            f"profile kind {getattr(motion, 'kind', '?')!r} has none; expected no equalisation"
-        )
-    try:
-        designs = {
-            a: pretest_design(t, level=eq.level, periods=eq.periods,
-                              max_period_s=eq.max_period_s, fade_s=eq.fade_s,
-                              settle_s=eq.settle_s)
-            for a, t in tables.items()
-        }
-    except DataError as e:
-        raise ConfigError(f"{where}: {e}; expected a profile whose lines repeat") from None
-    duration = max(d.table.duration_s for d in designs.values())
-    pre_tables = {  # one duration for every axis: the longest pre-test
-        a: dataclasses.replace(d.table, duration_s=duration) for a, d in designs.items()}
-    pre_motion = dataclasses.replace(motion, name=f"{motion.name} (equalisation pre-test)",
-                                     table_by_axis=pre_tables)
-    try:  # a pre-test over the limits (another crest): scaled down, it only measures
-        result = check_motion(pre_motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=True)
-    except LimitError as e:
-        raise LimitError(f"{where}: the equalisation pre-test: {e}") from None
-    pre_motion = result.motion
-    tabs = dict(pre_motion.tables or {})
-    designs = {a: dataclasses.replace(d, table=tabs[a]) for a, d in designs.items()}
-
-    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-        return {a: np.asarray(v, dtype=float) for a, v in pre_motion.evaluate(t).items()}
-
-    fade = cfg.run.equalise.fade_s
-    plan = make_plan(evaluate, tuple(tabs), duration, rate, fade, fade, mode=cfg.stand.mode,
-                     tables=tabs)
-    return Pretest(designs, pre_motion, plan, result.to_dict())
 
 
-def _fades(motion: Any) -> tuple[float, float]:
-    for obj in (motion, *(getattr(motion, "tables", None) or {}).values()):
-        fi, fo = getattr(obj, "fade_in_s", None), getattr(obj, "fade_out_s", None)
-        if fi is not None and fo is not None:
-            return float(fi), float(fo)
-    return 0.0, 0.0
 
 
-def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> PreparedMotion:
-    """Load, synthesise and check the profile against this bench; raises before anything moves."""
-
-    profile = load_profile(profile_path)
-    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
-    src = cfg.source or Path("<config>")
-    # every motion (the profile's own duration, a plan step's, --duration) capped before any
-    # of it is synthesised, at the stand's faster rate in any mode (as --duration is)
-    duration = profile.duration_s if opts.duration_s is None else opts.duration_s
-    check_setpoints(duration, max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz),
-                    f"{profile_path} on {src}")
-    motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
-    axes = tuple(motion.axes)
-    for section, have in (("stand", cfg.stand.axes), ("instrument", cfg.instrument.axes)):
-        missing = [a for a in axes if a not in have]
-        if missing:
-            raise ConfigError(
-                f"{src}: field {section}.axes = {list(have)}: the profile {profile_path} moves "
-                f"{list(axes)}, expected {section}.axes to include {missing}"
-            )
-    if (cfg.stand.mode == "buffered"
-            and load_register_map(cfg.stand.register_map).trajectory is None):
-        raise ConfigError(
-            f"{src}: field stand.mode = 'buffered', but the register map "
-            f"{cfg.stand.register_map} has no trajectory queue (no `trajectory:` section); "
-            "expected mode 'stream' or 'table' for this stand"
-        )
-    if cfg.stand.mode == "table" and not getattr(motion, "tables", None):
-        raise ConfigError(
-            f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
-            "table; expected mode 'stream' for this profile"
-        )
-    if cfg.stand.mode == "table":
-        axes_map = load_register_map(cfg.stand.register_map).axes
-        for a, tab in (motion.tables or {}).items():
-            room = axes_map[a].table_max_lines if a in axes_map else 0
-            if tab is not None and tab.n_lines > room:
-                raise LimitError(
-                    f"{profile_path} on {src} (field stand.mode = 'table'): the {a} table has "
-                    f"{tab.n_lines} lines over {duration:g} s, the stand's table takes at most "
-                    f"{room} (register map {cfg.stand.register_map}); expected mode 'buffered' "
-                    "or 'stream', or a profile with fewer lines"
-                )
-    # raises LimitError naming needed vs allowed, before anything opens
-    try:
-        result = check_motion(
-            motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=opts.scale_to_fit
-        )
-    except LimitError as e:
-        raise LimitError(f"{profile_path} on {src} (field stand.limits): {e}") from None
-    motion = result.motion
-    figures = result.to_dict()
-    check = pc.CheckResult("profile within limits", True, "within the stand limits", figures)
-    fade_in, fade_out = _fades(motion)
-    tables = motion.tables
-    tables = dict(tables) if tables else None
-
-    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-        return {a: np.asarray(v, dtype=float) for a, v in motion.evaluate(t).items()}
-
-    plan = make_plan(
-        evaluate,
-        axes,
-        float(motion.duration_s),
-        rate,
-        fade_in,
-        fade_out,
-        mode=cfg.stand.mode,
-        tables=tables,
-    )
-    pdict = profile.to_dict() if hasattr(profile, "to_dict") else {}
-    requested = opts.precision if opts.precision is not None else cfg.run.precision
-    equalise = opts.equalise if opts.equalise is not None else cfg.run.equalise.enabled
-    if requested is not None:  # a precision stop: whole periods of a multisine, not table mode
-        where = (f"--precision {requested:g}" if opts.precision is not None
-                 else f"{src}: field run.precision = {requested:g}")
-        if cfg.stand.mode == "table":
-            raise ConfigError(
-                f"{where}: a precision stop needs stand.mode 'stream' or 'buffered' (a stand "
-                "playing its table cannot be faded out early); expected no precision here"
-            )
-        profile_period(motion, axes, f"{where} with profile {profile_path}")
-    meta = {
-        "profile_path": str(profile_path),
-        "profile_name": getattr(profile, "name", profile_path.stem),
-        "profile": pdict,
-        "seed": opts.seed if opts.seed is not None else getattr(profile, "seed", None),
-        "duration_s": float(motion.duration_s),
-        "fade_in_s": fade_in,
-        "fade_out_s": fade_out,
-        "motion_check": figures,
-        "scale": result.scale,
-        "precision_requested": requested,
-        "equalise_requested": equalise,
-    }
-    tilt = mounting_plan(cfg, axes, f"{src}") if cfg.run.mounting_check.enabled else None
-    pretest = None
-    if equalise:
-        where = "--equalise" if opts.equalise else f"{src}: field run.equalise.enabled = true"
-        pretest = prepare_pretest(cfg, motion, rate, f"{where} with profile {profile_path}")
-        meta["equalise_pretest"] = {
-            "axes": {a: d.to_dict() for a, d in pretest.designs.items()},
-            "duration_s": pretest.plan.duration_s,
-            "check": pretest.check,
-        }
-    return PreparedMotion(profile, motion, plan, check, meta, pretest, tilt)
 
 
-# -------------------------------------------------------------------------- mounting check
-def mounting_result(
-    stand_rows: list[tuple[float, dict[str, float]]],
-    samples: list[Any],
-    axes: tuple[str, ...],
-    cfg: BenchConfig,
-) -> pc.CheckResult:
-    """The mounting check's precheck from the tilt's stand samples ((t_host, angles) each) and
-    instrument samples: the stand's measured angles interpolated at the instrument's instants,
-    the response fitted and judged (``benchctl.run.mounting``)."""
-
-    mc = cfg.run.mounting_check
-    mapping = axis_map(cfg.instrument.axes)
-    values: dict[str, Any] = {
-        "axes": list(axes), "tilt_deg": mc.tilt_deg, "gain_tolerance": mc.gain_tolerance,
-        "cross_tolerance": mc.cross_tolerance,
-        "instrument_axes": {a: {"output": o, "sign": sg} for a, (o, sg) in mapping.items()},
-    }
-    name = "mounting"
-    ts = np.array([t for t, _ in stand_rows], dtype=float)
-    order = np.argsort(ts, kind="stable")
-    readings = sorted({r for s in samples for r in s.angle_deg},
-                      key=lambda r: (r not in axes, axes.index(r) if r in axes else 0, r))
-    ti = np.array([s.t_host for s in samples], dtype=float)
-    try:
-        if not readings:
-            raise DataError("mounting check: no instrument sample during the tilt")
-        x = {a: np.array([stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)
-             for a in axes}
-        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples], dtype=float)
-             for r in readings}
-        resp, delay = mt.fit_sampled(ts[order], x, ti, y)
-    except DataError as e:
-        return pc.CheckResult(name, False, f"{e} (run.mounting_check)", values)
-    values["response"] = resp.to_dict()
-    values["delay_s"] = delay
-    where = str(cfg.source) if cfg.source is not None else "the bench config"
-    verdict = mt.judge(resp, axes, mapping, mc.gain_tolerance, mc.cross_tolerance, where)
-    values["findings"] = {f.reading: f.kind for f in verdict.findings}
-    if verdict.ok:
-        seen = ", ".join(f"{r} {resp.gain[r][a]:.3f}× the stand's {a}"
-                         for r in readings for a in axes if r == a)
-        return pc.CheckResult(name, True, f"mounted as configured: {seen}", values)
-    return pc.CheckResult(name, False, verdict.detail, values)
 
 
-# -------------------------------------------------------------------------- devices
-DeviceFactory = Callable[[BenchConfig, Path], tuple[Stand, AngleSensor]]
 
 
-def open_devices(
-    cfg: BenchConfig, recording: Path, *, clock: Clock = REAL
-) -> tuple[Stand, AngleSensor]:
-    """The real drivers for this config (also what talks to the simulators), on ``clock``."""
-
-    can_log = None
-    if cfg.instrument.driver != "nmea0183" and cfg.instrument.can_log:
-        can_log = recording / cfg.instrument.can_log
-    stand = open_stand(cfg.stand, clock=clock)
-    try:
-        sensor = open_instrument(cfg.instrument, can_log_path=can_log, clock=clock)
-    except BaseException:
-        stand.close()
-        raise
-    return stand, sensor
 
 
-@contextlib.contextmanager
-def simulators(
-    cfg: BenchConfig,
-    log_path: Path | None = None,
-    clock: Clock = REAL,
-    disturb: Callable[[Disturbances], None] | None = None,
-    horizon_s: float = 3600.0,
-) -> Iterator[BenchConfig]:
-    """With a ``sim:`` section, run the simulators for the length of the run: a child process
-    (its output to ``log_path``, the recording's ``sim.log``), or, on simulated time
-    (``sim.clock: virtual``, ``clock`` a virtual clock), in this process on ``clock`` over
-    in-process links. Yields the config pointed at them.
-
-    On simulated time with ``sim.disturb``, the seeded disturbances (``benchctl.sim.disturb``)
-    over ``horizon_s`` seconds are applied to the clock, the links and the simulators' fault
-    schedule, and handed to ``disturb`` (the run records them and takes the operator's stop)."""
-    if cfg.sim is None:
-        yield cfg
-        return
-    if cfg.sim.clock == "virtual":
-        if not clock.virtual:
-            raise ConfigError(
-                f"{cfg.source}: field sim.clock = virtual: the run needs a virtual clock "
-                "(benchctl run makes one; a caller of Session passes one)"
-            )
-
-        plan = None
-        if cfg.sim.disturb is not None:
-            plan = Disturbances(cfg.sim.disturb, horizon_s)
-            cfg = plan.with_faults(cfg)
-        with SimBench(cfg, private=True, clock=clock) as bench:
-            if plan is not None:
-                bench.disturb(plan)
-                if disturb is not None:
-                    disturb(plan)
-            yield bench.config()
-        return
-
-    with start_simulators(cfg, log_path=log_path) as sim:
-        yield sim.config
 
 
-def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock = REAL) -> Path:
-    """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
-    taken), the serial as a safe file-name part of at most 64 bytes
-    (``benchctl.text.file_name_part``); the time is ``clock``'s."""
-    stamp = clock.now_utc().strftime("%Y%m%dT%H%M%SZ")
-    base = out_dir / f"{prefix}{stamp}_{file_name_part(serial)}"
-    p, i = base, 1
-    while p.exists():
-        i += 1
-        p = base.with_name(f"{base.name}_{i}")
-    return p
 
 
-def _identity(d: DeviceIdentity) -> dict[str, Any]:
-    """A device's identity for the metadata: what it reports, never refused, each string cut
-    to ``benchctl.text.DEVICE_TEXT_MAX`` (shown safe wherever it is printed)."""
-    return {
-        "vendor": from_device(d.vendor),
-        "model": from_device(d.model),
-        "serial": from_device(d.serial),
-        "firmware": from_device(d.firmware),
-        "protocol": from_device(d.protocol),
-        "extra": {from_device(k): from_device(v) for k, v in d.extra.items()},
-    }
 
 
 # -------------------------------------------------------------------------- the run

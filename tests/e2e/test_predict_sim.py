@@ -21,7 +21,7 @@ from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimInstrumentConfig
 from benchctl.run import RunOptions, run_test
-from benchctl.run.session import prepare_motion
+from benchctl.run.prepare import prepare_motion
 
 pytestmark = pytest.mark.slow
 

@@ -31,7 +31,7 @@ from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError
 from benchctl.harmonics import HarmonicTable
 from benchctl.profiles import load_profile, synthesize
-from benchctl.run.session import RunOptions, prepare_motion
+from benchctl.run.prepare import RunOptions, prepare_motion
 from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.sim.servo import AxisState, ServoModel, servo_step
 
@@ -243,7 +243,8 @@ def _fake_session(
     from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
     from benchctl.profiles.synthesis import TableMotion
-    from benchctl.run.session import Session, prepare_pretest
+    from benchctl.run.prepare import prepare_pretest
+    from benchctl.run.session import Session
 
     cfg = bench_config(tmp_path, equalise={"enabled": True, "fade_s": 0.5, "settle_s": 0.5})
     cfg = cfg.model_copy(update={"stand": cfg.stand.model_copy(update={"mode": mode})})

@@ -24,7 +24,8 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.config import parse_config
 from benchctl.report.html import REPORT_HTML, build_context, render_html
 from benchctl.results.record import load_record
-from benchctl.run.session import RunOptions, RunResult, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import RunResult, Session
 
 NASTY_SERIAL = "<script>alert('x')</script>&SN"
 NASTY_OPERATOR = 'O"Brien <b>'

@@ -29,7 +29,8 @@ from benchctl.run.display import (
     format_block,
     health_warning,
 )
-from benchctl.run.session import RunOptions, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import Session
 
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 LONG_SERIAL = "SN-" + "9" * 60

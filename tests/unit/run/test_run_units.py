@@ -424,7 +424,7 @@ def test_buffered_mode_needs_a_stand_with_a_queue(tmp_path: Path) -> None:
 
     from benchctl.errors import ConfigError
     from benchctl.run import RunOptions
-    from benchctl.run.session import prepare_motion
+    from benchctl.run.prepare import prepare_motion
 
     root = ROOT
     raw = yaml.safe_load((root / "drivers/stand_generic.yaml").read_text())
