@@ -15,7 +15,7 @@ import numpy as np
 from benchctl.analysis.equalise import (
     pretest_design,
 )
-from benchctl.config import BenchConfig
+from benchctl.config import BenchConfig, StandConfig
 from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.errors import (
     ConfigError,
@@ -60,7 +60,7 @@ class RunOptions:
             self.part_number = check_part_number(self.part_number, "part_number")
 
 
-@dataclass
+@dataclass(frozen=True)
 class PreparedMotion:
     profile: Any
     motion: Any
@@ -157,17 +157,30 @@ def _fades(motion: Any) -> tuple[float, float]:
     return 0.0, 0.0
 
 
+def motion_rate_hz(stand: StandConfig) -> float:
+    """The one rule for the rate a run's motion is synthesised at: the stand's setpoint rate
+    (streamed or queued points), or — a stand that plays tables — the rate its angle is read
+    at (the table's samples are the reference's instants)."""
+    return stand.setpoint_rate_hz if stand.mode != "table" else stand.sample_rate_hz
+
+
+def check_motion_length(stand: StandConfig, duration_s: float, where: str) -> None:
+    """The one cap on a motion's setpoints, before any of it is synthesised: ``duration_s`` at
+    the stand's faster rate, in any mode (``LimitError`` naming ``where`` beyond it). The
+    command line's ``--duration``, a plan's step and a profile's own duration all pass here."""
+    check_setpoints(duration_s, max(stand.setpoint_rate_hz, stand.sample_rate_hz), where)
+
+
 def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> PreparedMotion:
     """Load, synthesise and check the profile against this bench; raises before anything moves."""
 
     profile = load_profile(profile_path)
-    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
+    rate = motion_rate_hz(cfg.stand)
     src = cfg.source or Path("<config>")
     # every motion (the profile's own duration, a plan step's, --duration) capped before any
     # of it is synthesised, at the stand's faster rate in any mode (as --duration is)
     duration = profile.duration_s if opts.duration_s is None else opts.duration_s
-    check_setpoints(duration, max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz),
-                    f"{profile_path} on {src}")
+    check_motion_length(cfg.stand, duration, f"{profile_path} on {src}")
     motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
     axes = tuple(motion.axes)
     for section, have in (("stand", cfg.stand.axes), ("instrument", cfg.instrument.axes)):

@@ -148,6 +148,7 @@ from benchctl.run.precision import (
 from benchctl.run.prepare import (
     PreparedMotion,
     RunOptions,
+    motion_rate_hz,
     mounting_plan,
     prepare_motion,
 )
@@ -279,6 +280,8 @@ class Session:
         self.log_path: Path | None = None
         self.cfg = cfg
         self.prep = prepared
+        #: the plan the motion plays: the prepared one, or the one equalisation made of it
+        self.plan: MotionPlan = prepared.plan
         self.opts = opts
         self.display: Display = display or NullDisplay()
         self.device_factory: DeviceFactory = (
@@ -360,7 +363,7 @@ class Session:
             limit_deg=self.cfg.run.limit_sigma_deg,
             cycles=self.loop.cycles,
             rejoins=self.loop.rejoins,
-            mode=self.prep.plan.mode,
+            mode=self.plan.mode,
             underruns=self.loop.underruns,
             sigma_judged_after_s=self._sigma_judged_after(),
         )
@@ -368,7 +371,7 @@ class Session:
     def _sigma_judged_after(self) -> float | None:
         """Motion time from which the running σ is judged live: the fade-in and one whole
         period of a periodic multisine (every line excited once); None without a period."""
-        plan = self.prep.plan
+        plan = self.plan
         periods = [t.period_s for t in (plan.tables or {}).values()]
         if not periods or None in periods or getattr(self.prep.motion, "segments", None):
             return None
@@ -422,17 +425,17 @@ class Session:
             self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
         self._precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._realtime(self.loop)
         self._host_check()
         self._rate_and_zero()
         self._mounting_check()
-        if self.prep.plan.mode == "table" and self.prep.pretest is None:
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        if self.plan.mode == "table" and self.prep.pretest is None:
+            assert self.plan.tables is not None
+            stand.upload_table(self.plan.tables)
+            w.event("table_uploaded", axes=list(self.plan.tables))
 
     def _realtime(self, loop: StandLoop) -> None:
         """Record and say whether the stand loop thread got ``run.realtime_priority``."""
@@ -606,7 +609,7 @@ class Session:
         # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
         # own "moving" off, as a table or a pre-test needs to start
         stand.go_to_zero()
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         self.loop.start()  # hold until the motion (or the pre-test) begins
         result = mounting_result(stand_rows, samples, self.axes, cfg)
         w.update_meta(mounting_check=result.values)
@@ -644,7 +647,7 @@ class Session:
         # the response per axis, from the recording (the same instants the verdict will use)
         rec = load_recording(self.path)
         target = self.prep.motion
-        rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
+        rate = motion_rate_hz(cfg.stand)
         drives, report = {}, {}
         for axis, design in pre.designs.items():
             tr, xr, _, _ = rec.pair(axis, window=False)
@@ -674,8 +677,8 @@ class Session:
         def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
             return {a: np.asarray(v, dtype=float) for a, v in result.motion.evaluate(t).items()}
 
-        old = self.prep.plan
-        self.prep.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
+        old = self.plan  # the prepared plan stays as it was: equalisation makes a new one
+        self.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
                                    old.fade_in_s, old.fade_out_s, mode=old.mode,
                                    tables=dict(result.motion.tables or {}))
         disturbed = {"missed_cycles": loop.missed_cycles, "rejoins": loop.rejoins,
@@ -698,13 +701,13 @@ class Session:
                 f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
                 f" on {len(r['freq_hz'])} lines; "
                 + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
-        if self.prep.plan.mode == "table":
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        if self.plan.mode == "table":
+            assert self.plan.tables is not None
+            stand.upload_table(self.plan.tables)
+            w.event("table_uploaded", axes=list(self.plan.tables))
         self.supervisor.check()  # a fault while the correction was computed
         loop.stop()
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         self.loop.start()  # hold until the motion begins
 
     def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
@@ -750,7 +753,7 @@ class Session:
         assert loop is not None and self.recorder is not None
         loop.begin_motion()
         limit = (
-            self.prep.plan.duration_s + 60.0
+            self.plan.duration_s + 60.0
         )  # settle and slack; a hung loop cannot hang the run
         t0 = self.clock.monotonic()
         t_wake = t0
@@ -814,7 +817,7 @@ class Session:
     def _precision_watch(self) -> PrecisionWatch | None:
         """The precision checks, once moving (None when no precision was requested)."""
         requested = self.prep.meta.get("precision_requested")
-        loop, plan = self.loop, self.prep.plan
+        loop, plan = self.loop, self.plan
         if requested is None or loop is None or loop.t_motion_start is None:
             return None
         tables = dict(getattr(self.prep.motion, "tables", None) or {})
@@ -886,7 +889,7 @@ class Session:
 
     def _window(self) -> tuple[float, float]:
         assert self.loop is not None and self.loop.t_motion_start is not None
-        p = self.prep.plan
+        p = self.plan
         t0 = self.loop.t_motion_start
         early = self.loop.ended_early
         if early is not None and self.precision is not None:  # the whole periods to the stop
@@ -1097,7 +1100,7 @@ class Session:
                 if self.start_simulators:
                     self.cfg = stack.enter_context(simulators(
                         self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
-                        horizon_s=self.prep.plan.duration_s + 600.0,
+                        horizon_s=self.plan.duration_s + 600.0,
                     ))
                     self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created

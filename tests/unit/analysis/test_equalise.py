@@ -9,6 +9,7 @@ than the stand's rate/acceleration is capped (reported) and the drive stays with
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -252,10 +253,10 @@ def _fake_session(
                         5.0, 0.5, 0.5, 2.0)
     motion = TableMotion("fake-lines", "harmonics", {"roll": tab}, {"roll": None}, 1)
     prep = sine_motion(("roll",), duration_s=5.0, mode=mode, fade_s=0.5)
-    prep.motion = motion
-    prep.plan.tables = {"roll": tab}
-    prep.plan.values = {"roll": tab.evaluate(np.arange(prep.plan.n_slots) * prep.plan.period_s)}
-    prep.pretest = prepare_pretest(cfg, motion, 100.0, "test")
+    plan = dataclasses.replace(prep.plan, tables={"roll": tab}, values={
+        "roll": tab.evaluate(np.arange(prep.plan.n_slots) * prep.plan.period_s)})
+    prep = dataclasses.replace(prep, motion=motion, plan=plan,
+                               pretest=prepare_pretest(cfg, motion, 100.0, "test"))
     stand = FakeStand(("roll",), clock=clock)
     sensor = FakeSensor(stand)
     sess = Session(cfg, prep, RunOptions("SN-EQ", "tester"),

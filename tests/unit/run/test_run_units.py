@@ -3,6 +3,7 @@ supervisor, recorder format extensions and the stream loop's deadline discipline
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -285,7 +286,7 @@ def test_table_loop_plays_and_polls(tmp_path: Path, vclock: VirtualClock) -> Non
     stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
-    loop.plan.mode = "table"
+    loop.plan = dataclasses.replace(loop.plan, mode="table")
     assert loop.plan.tables is not None
     stand.upload_table(loop.plan.tables)
     start_instrument(sensor, rec)
