@@ -90,8 +90,8 @@ def child(tree: Path, args: argparse.Namespace) -> None:
     sys.path.insert(0, str(tree))
     from benchctl.clock import virtual
     from benchctl.config import load_config
+    from benchctl.run import RunOptions
     from benchctl.run import state as run_state
-    from benchctl.run.prepare import RunOptions
     from benchctl.run.session import run_test
 
     out: Path = args.out

@@ -51,6 +51,7 @@ import dataclasses
 import logging
 import math
 import shlex
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
@@ -714,22 +715,43 @@ class Session:
         """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
         watching it as the motion is watched (faults, stalls, a silent instrument, a time
         limit)."""
+        self._watch(loop, what, loop.plan.duration_s)
+        self.supervisor.check()
+
+    def _watch(
+        self,
+        loop: StandLoop,
+        what: str,
+        duration_s: float,
+        before: Callable[[float, float], None] | None = None,
+        after: Callable[[float, float], None] | None = None,
+    ) -> None:
+        """The one watch loop over a stand loop playing ``what`` until its motion is done or a
+        fault is raised: every 0.1 s the loop's health (``_check_loop``), a time limit (the
+        motion's ``duration_s`` and a minute for settling and slack: a hung loop cannot hang
+        the run) and the display; ``before``/``after`` (given the time) add the motion's own
+        watches, before the health check and after the time limit (each called with the time
+        and the time the watch began)."""
         loop.begin_motion()
-        limit = loop.plan.duration_s + 60.0
+        limit = duration_s + 60.0
         t0 = self.clock.monotonic()
-        t_wake, resumed = t0, -math.inf
+        t_wake = t0
+        resumed = -math.inf  # this thread's last wake-up after a stall of the process
         while not loop.motion_done.wait(0.1):
             if self.supervisor.faulted:
                 break
             now = self.clock.monotonic()
-            if now - t_wake > 0.1 + HOST_STALL_S:
-                resumed = now
+            if before is not None:
+                before(now, t0)
+            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
+                resumed = now  # get a moment to catch up before their silence counts
             t_wake = now
             self._check_loop(loop, now, resumed, what)
             if now - t0 > limit:
                 raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
+            if after is not None:
+                after(now, t0)
             self.display.update(self._snapshot())
-        self.supervisor.check()
 
     def _check_loop(self, loop: StandLoop, now: float, resumed: float, what: str) -> None:
         """The main thread's watch over a stand loop playing ``what``: the loop alive, cycling,
@@ -751,19 +773,13 @@ class Session:
     def _motion(self) -> None:
         loop = self.loop
         assert loop is not None and self.recorder is not None
-        loop.begin_motion()
-        limit = (
-            self.plan.duration_s + 60.0
-        )  # settle and slack; a hung loop cannot hang the run
-        t0 = self.clock.monotonic()
-        t_wake = t0
-        resumed = -math.inf  # this thread's last wake-up after a stall of the process
         watch: list[Any] | None = None  # the running excitation estimates, once moving
-        t_fidelity = t0
-        while not loop.motion_done.wait(0.1):
-            if self.supervisor.faulted:
-                break
-            now = self.clock.monotonic()
+        t_fidelity: float | None = None  # the last update (first: the watch's start)
+
+        def excitation(now: float, t0: float) -> None:
+            nonlocal watch, t_fidelity
+            if t_fidelity is None:
+                t_fidelity = t0
             if watch is None and loop.t_motion_start is not None:
                 watch = self._excitation_watch()
             if watch and now - t_fidelity >= FIDELITY_EVERY_S:
@@ -773,17 +789,14 @@ class Session:
                     why = rf.abort_reason()
                     if why:
                         raise SafetyAbort(why)
-            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
-                resumed = now  # get a moment to catch up before their silence counts
-            t_wake = now
-            self._check_loop(loop, now, resumed, "motion")
-            if now - t0 > limit:
-                raise SafetyAbort(f"motion did not finish within {limit:.0f} s")
+
+        def precision(now: float, _t0: float) -> None:
             if self.precision is None and loop.t_motion_start is not None:
                 self.precision = self._precision_watch()
             if self.precision is not None:
                 self._precision_poll(now)
-            self.display.update(self._snapshot())
+
+        self._watch(loop, "motion", self.plan.duration_s, excitation, precision)
         self.recorder.stand_taps.clear()
         self.supervisor.check()
 
