@@ -436,6 +436,9 @@ def analyze(
             al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                        labels=labels)
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
+            # the period again: a motion periodic on the reference's clock is periodic on
+            # the corrected grid, not on the skewed one (whole periods, no window's leakage)
+            motion_period = _known_period(al, lines, period_s)
             rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
             if rest is None or abs(rest.ppm) <= rest.se_ppm:
                 break

@@ -142,7 +142,7 @@ def estimate_skew(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: flo
     if not np.all(den > 0.0):
         return None
     step = -np.sum(w * omega * dphi, axis=1) / den  # τ_s − τ_{s−1}
-    tau = np.concatenate(([0.0], np.cumsum(step)))
+    tau = _against_mean(c, omega, np.concatenate(([0.0], np.cumsum(step))))
     mids = np.asarray((np.arange(count) + 0.5) * m * dt, dtype=float)
     mc = mids - mids.mean()
     b = float(np.dot(mc, tau - tau.mean()) / np.dot(mc, mc))
@@ -154,6 +154,26 @@ def estimate_skew(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: flo
     r2 = 1.0 - float(np.dot(resid, resid)) / spread if spread > 0.0 else 0.0
     return Skew(ppm=1e6 * b, se_ppm=1e6 * se, segments=count, drift_s=b * span,
                 delays_s=tau, mids_s=mids, r2=r2, whole_periods=whole)
+
+
+def _against_mean(c: NDArray[np.complex128], omega: FloatArray, tau: FloatArray,
+                  rounds: int = 3) -> FloatArray:
+    """Each segment's delay against the record's mean cross-spectrum, starting from ``tau``
+    (the consecutive turns cumulated, which never wrap): ``C̄ = Σ_s C_s e^{jωτ_s}``, then
+    ``τ_s += −Σ w ω ∠(C_s e^{jωτ_s} C̄*) / Σ w ω²`` (``w = |C_s||C̄|``), ``rounds`` times.
+    Cumulated turns carry each step's error into every later segment (a random walk that a
+    line through them reads as a skew of a few ppm); against the mean each segment's error
+    is its own."""
+    for _ in range(rounds):
+        rot = c * np.exp(1j * omega[None, :] * tau[:, None])
+        mean = rot.sum(axis=0)
+        z = rot * np.conj(mean)[None, :]
+        w = np.abs(z)
+        den = np.sum(w * omega**2, axis=1)
+        if not np.all(den > 0.0):
+            break
+        tau = tau - np.sum(w * omega * np.angle(z), axis=1) / den
+    return np.asarray(tau - tau[0], dtype=float)
 
 
 def deskewed(t_dev: FloatArray, skew: Skew) -> FloatArray:
