@@ -70,6 +70,7 @@ from benchctl.analysis.result import AnalysisResult
 from benchctl.analysis.skew import WARN_PPM as SKEW_WARN_PPM
 from benchctl.analysis.skew import Skew, deskewed, estimate_skew
 from benchctl.analysis.timebase import label_of
+from benchctl.analysis.timing import TimingBudget, error_rate_covariance, timing_budget
 from benchctl.analysis.uncertainty import (
     density_interval,
     dof_of_variance,
@@ -85,7 +86,6 @@ LinesMode = LineSet | Literal["auto", "off"]
 MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
-TIMING_SHARE_WARN = 0.01  # warn when the timing contribution exceeds 1 % of σ²
 SKEW_PASSES = 3  # a skew is measured again after its correction, at most this many times
 TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
 
@@ -344,8 +344,8 @@ def analyze(
     max_lag_s: float | None = None,
     band_hz: tuple[float, float] | None = None,
     compensate_delay: DelayMode = "none",
-    timebase: Literal["given", "fitted"] = "given",
-    reference_timebase: Literal["given", "fitted"] = "given",
+    timebase: Literal["auto", "given", "fitted"] = "auto",
+    reference_timebase: Literal["auto", "given", "fitted"] = "auto",
     lines: LinesMode = "auto",
     period_s: float | None = None,
     source: str = "",
@@ -369,9 +369,11 @@ def analyze(
         Remove an acquisition delay (s, positive when the device lags) before the analysis:
         the reference is evaluated at ``t_dev − delay``. "auto" uses the delay estimated from
         the cross-correlation peak. The delay found before compensation is always reported.
-    timebase : {"given", "fitted"}
-        Device instants as given, or fitted to a uniform clock (jittery receipt times).
-    reference_timebase : {"given", "fitted"}
+    timebase : {"auto", "given", "fitted"}
+        Device instants as given, or fitted to a uniform clock (jittery receipt times), or
+        (``auto``, the default) the fitted clock when the data show the stamps' scatter
+        about it to be the stamps' own error (``benchctl.analysis.timing``), else as given.
+    reference_timebase : {"auto", "given", "fitted"}
         The same for the reference's instants (a reference sampled on a uniform clock whose
         stamps jitter). Instants labelled with their time base (``timebase.Instants``, as
         ``Recording.pair`` gives them) are used as given and keep their label.
@@ -424,6 +426,8 @@ def analyze(
     labels = (label_of(t_ref), label_of(t_dev))
     al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                labels=labels)
+    timebase, reference_timebase = al.modes  # "auto" chosen once, from the stamps as given
+    choice = al.choice
     al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     # the instrument's stamps drifting against the reference's (its own clock fast or slow):
     # measured from the cross-spectrum's phase turning over the record, taken out (skew.py)
@@ -455,6 +459,7 @@ def analyze(
             al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase,
                        reference_timebase=reference_timebase, labels=labels)
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
+    al = dataclasses.replace(al, choice=choice)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s,
                    ex, skew)
 
@@ -471,6 +476,16 @@ def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> floa
     power = periodogram(al.x, al.mask)
     count = detect_period(al.x, al.mask, power)
     return None if count is None else len(al.mask) * al.dt / count
+
+
+def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
+                   centre: float) -> TimingBudget:
+    """σ's interval with timing in it (``timing.timing_budget``): the variance the instants'
+    residual errors add, and an offset between the streams through cov(ε, ẋ)."""
+    m = al.mask
+    rate = al.xdot[m] if al.xdot is not None else np.zeros(int(m.sum()))
+    cov = error_rate_covariance(eps[m], rate)
+    return timing_budget(centre, ci, al.timing_variance, cov, al.offset_u_s)
 
 
 def _skew_fields(skew: Skew | None) -> dict[str, Any]:
@@ -732,9 +747,11 @@ def _result(
             "variance_ci95": None,
             "sigma_ci95": None,
         }
-    # (an error of exactly zero: only a timing contribution above rounding is worth a word)
-    if al.timing_variance > max(TIMING_SHARE_WARN * variance, TIMING_FLOOR_DEG2):
-        warnings.append(al.timing_warning(variance))
+    # timing in σ's interval; a warning when it moves the interval noticeably (timing.py)
+    budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)))
+    ci = budget.ci
+    if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
+        warnings.append(al.timing_warning(variance, budget.cross))
     if al.device.gap_count:
         warnings.append(
             f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "
@@ -805,6 +822,7 @@ def _result(
             **al.timing_fields(),
             "timing_share": al.timing_variance / variance if variance > 0 else 0.0,
             **_skew_fields(skew),
+            **budget.fields(),
         },
         cross_checks=cross,
         uncertainty={

@@ -142,7 +142,8 @@ def estimate_skew(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: flo
     if not np.all(den > 0.0):
         return None
     step = -np.sum(w * omega * dphi, axis=1) / den  # τ_s − τ_{s−1}
-    tau = _against_mean(c, omega, np.concatenate(([0.0], np.cumsum(step))))
+    tau = _against_mean(c, np.asarray(omega, dtype=float),
+                        np.asarray(np.concatenate(([0.0], np.cumsum(step))), dtype=float))
     mids = np.asarray((np.arange(count) + 0.5) * m * dt, dtype=float)
     mc = mids - mids.mean()
     b = float(np.dot(mc, tau - tau.mean()) / np.dot(mc, mc))
