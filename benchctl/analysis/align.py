@@ -37,8 +37,9 @@ sample instants; the default ``"auto"`` lays the record on the stamps, measures 
 ``β`` of each stream's scatter about its clock is the stamps' own error
 (``timing.stamp_shares``: the error formed at the stamps follows ``ẋ·scatter`` with slope β) and
 takes the fitted clock when ``β ≥ 0.5``, the stamps otherwise. Stamps used as given count
-``β`` of their scatter as their residual error (all of it when it cannot be measured). ``reference_timebase`` does the same for the reference (a
-stream sampled on a uniform clock whose stamps jitter). Instants labelled by their time base
+``β`` of their scatter as their residual error (all of it when it cannot be measured).
+``reference_timebase`` does the same for the reference (a stream sampled on a uniform clock
+whose stamps jitter). Instants labelled by their time base
 (``timebase.Instants``, as a recording's ``pair`` gives them) are used as given and carry their
 own label and residual error.
 
@@ -61,7 +62,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.analysis.timebase import Clock, fit_slots
+from benchctl.analysis.timebase import WANDER_BLOCK, Clock, fit_slots
 from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
 
@@ -88,6 +89,7 @@ Mode = Literal["auto", "given", "fitted"]
 MODES = ("auto", "given", "fitted")
 #: time bases whose error is a random scatter per sample (not an offset of the record)
 RANDOM_STAMPS = ("given", "receipt", "midpoint", "request_end")
+FITTED_CLOCKS = ("fitted", "device", "adapter")  # clocks fitted through stamps (wander blocks)
 
 
 @dataclass(frozen=True)
@@ -150,12 +152,31 @@ class Aligned:
     @property
     def offset_u_s(self) -> float:
         """Standard uncertainty (s) of an offset common to the record between the streams'
-        instants: the residual error of each time base that is a clock (fitted, device,
-        adapter, the stand's); stamps used as they are scatter at random, their error is in
-        ``timing_variance``, not an offset."""
+        instants, from the residual error of each time base that is a clock: a clock fitted
+        through stamps (fitted, device, adapter) errs independently from block to block of
+        ``WANDER_BLOCK`` samples (at its knots by √(3/2) × its rms error, which is averaged
+        along the interpolation), so over the record by that / √(blocks); another
+        (the stand's) by its error. Stamps used as they are scatter at random: their error is
+        in ``timing_variance`` and ``random_residual_s``, not an offset."""
+        span = len(self.mask) * self.dt
+        parts = []
+        for base, r, step in ((self.device_timebase, self.device_residual_s, self.dt),
+                              (self.reference_timebase, self.reference_residual_s,
+                               self.reference.dt)):
+            if base in RANDOM_STAMPS:
+                continue
+            r = float(np.nan_to_num(r))
+            if base in FITTED_CLOCKS and step > 0:  # its knots err by √(3/2) of its rms error
+                r *= math.sqrt(1.5 / max(1.0, span / step / WANDER_BLOCK))
+            parts.append(r)
+        return math.hypot(*parts) if parts else 0.0
+
+    @property
+    def random_residual_s(self) -> float:
+        """rms error (s) of the instants that scatter at random (stamps used as they are)."""
         parts = [float(np.nan_to_num(r)) for base, r in (
             (self.device_timebase, self.device_residual_s),
-            (self.reference_timebase, self.reference_residual_s)) if base not in RANDOM_STAMPS]
+            (self.reference_timebase, self.reference_residual_s)) if base in RANDOM_STAMPS]
         return math.hypot(*parts) if parts else 0.0
 
     def timing_warning(self, variance: float, cross: float = 0.0) -> str:

@@ -426,7 +426,8 @@ def analyze(
     labels = (label_of(t_ref), label_of(t_dev))
     al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                labels=labels)
-    timebase, reference_timebase = al.modes  # "auto" chosen once, from the stamps as given
+    asked = (timebase, reference_timebase)
+    timebase, reference_timebase = al.modes  # "auto" chosen once, from the stamps as given …
     choice = al.choice
     al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     # the instrument's stamps drifting against the reference's (its own clock fast or slow):
@@ -435,10 +436,16 @@ def analyze(
     skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
     if skew is not None and skew.significant:
         td_stamped, total = td, skew
-        for _ in range(SKEW_PASSES):  # each pass measures what the last one left
+        for i in range(SKEW_PASSES):  # each pass measures what the last one left
             td = deskewed(td_stamped, total)
-            al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
+            # … or, with a skew, on the stamps without it (a drift of the delay swamps the
+            # error's slope on rate × scatter that tells stamps' errors from true instants)
+            modes = asked if i == 0 else (timebase, reference_timebase)
+            al = align(tr, xr, td, yd, timebase=modes[0], reference_timebase=modes[1],
                        labels=labels)
+            if i == 0:
+                timebase, reference_timebase = al.modes
+                choice = al.choice
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
             # the period again: a motion periodic on the reference's clock is periodic on
             # the corrected grid, not on the skewed one (whole periods, no window's leakage)
@@ -479,13 +486,20 @@ def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> floa
 
 
 def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
-                   centre: float) -> TimingBudget:
+                   centre: float, skew: Skew | None) -> TimingBudget:
     """σ's interval with timing in it (``timing.timing_budget``): the variance the instants'
-    residual errors add, and an offset between the streams through cov(ε, ẋ)."""
+    residual errors add, and an offset between the streams through cov(ε, ẋ) — the time
+    bases' (``Aligned.offset_u_s``) and, for a skew taken out, the correction's own: a slope
+    off by its standard error leaves a delay off by that × (t − t₀), on average × T/2."""
     m = al.mask
     rate = al.xdot[m] if al.xdot is not None else np.zeros(int(m.sum()))
     cov = error_rate_covariance(eps[m], rate)
-    return timing_budget(centre, ci, al.timing_variance, cov, al.offset_u_s)
+    n = max(int(m.sum()), 1)
+    random = 2.0 * float(np.sqrt(np.mean((eps[m] * rate) ** 2))) * al.random_residual_s / n**0.5
+    offset = al.offset_u_s
+    if skew is not None and skew.significant:
+        offset = math.hypot(offset, 1e-6 * skew.se_ppm * 0.5 * len(m) * al.dt)
+    return timing_budget(centre, ci, al.timing_variance, cov, offset, random)
 
 
 def _skew_fields(skew: Skew | None) -> dict[str, Any]:
@@ -748,7 +762,7 @@ def _result(
             "sigma_ci95": None,
         }
     # timing in σ's interval; a warning when it moves the interval noticeably (timing.py)
-    budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)))
+    budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)), skew)
     ci = budget.ci
     if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
         warnings.append(al.timing_warning(variance, budget.cross))

@@ -22,13 +22,18 @@ time base (``"auto"``) of a stream whose stamps scatter is then the fitted clock
 
 - random errors of rms ``δ`` add ``σ_ẋ²·δ²`` (the stamps' share ``β`` of a stream used as
   given, the fitted clock's error for a fitted one), a bias: σ² is read high by it;
+- the same random errors move σ² through the error itself, ``−2·mean(ε·ẋ·δ)``: zero on
+  average, of standard deviation ``2·rms(ε·ẋ)·δ/√N``;
 - an offset ``δ₀`` common to the record (what a fitted clock or a stand clock leaves unknown, of
   standard uncertainty ``u₀``) adds ``−2·δ₀·cov(ε, ẋ) + δ₀²σ_ẋ²``. For a lagging instrument ε
   is mostly ``−τ·ẋ``: the first term is first-order in ``δ₀`` (0.75 ms against an 80 ms lag:
-  σ² +1.9 %), of standard uncertainty ``2·|cov(ε, ẋ)|·u₀``.
+  σ² +1.9 %), of standard uncertainty ``2·|cov(ε, ẋ)|·u₀``. A clock fitted through stamps
+  (block levels of ``WANDER_BLOCK`` samples) has independent errors from block to block: the
+  offset common to the record is its rms error over √(blocks) (``Aligned.offset_u_s``).
 
 σ's interval ``[lo, hi]`` (from the record's statistics) becomes, in σ², the statistical
-half-widths about its centre each combined in quadrature with ``1.96 × 2|cov(ε, ẋ)|u₀``, and
+half-widths about its centre each combined in quadrature with 1.96 × the two standard
+deviations above (``cross``), and
 the lower end moved down by the bias: the truth is σ̂² less the bias, and the bias is known
 to no better than itself (the stamps' share of the scatter, the clock's error are estimates).
 The timing is worth a warning when it moves the interval noticeably: when bias + 1.96 × the
@@ -137,17 +142,20 @@ def timing_budget(
     bias: float,
     cov_eps_rate: float,
     offset_u_s: float,
+    random_cross: float = 0.0,
 ) -> TimingBudget:
     """σ's interval with timing in it, and whether it is worth a warning (module notes).
 
     ``sigma``: the centre of the interval (σ̂, or σ̂ with the mean removal added back, deg);
     ``ci``: its statistical 95 % interval; ``bias``: the variance random
     instant errors add (deg²); ``cov_eps_rate``: cov(ε, ẋ) (deg²/s); ``offset_u_s``: the
-    standard uncertainty of an offset common to the record between the two streams' instants.
+    standard uncertainty of an offset common to the record between the two streams' instants;
+    ``random_cross``: the standard deviation of σ² from random instant errors through the
+    error itself, ``2·rms(ε·ẋ)·δ/√N`` (deg²).
     """
     lo, hi = float(ci[0]), float(ci[1])
     v = min(max(sigma * sigma, lo * lo), hi * hi)
-    cross = 2.0 * abs(cov_eps_rate) * offset_u_s
+    cross = math.hypot(2.0 * abs(cov_eps_rate) * offset_u_s, random_cross)
     ext = Z95 * cross
     h_lo = max(v - lo * lo, 0.0)
     h_hi = max(hi * hi - v, 0.0)
