@@ -84,6 +84,7 @@ MAX_ABS_TIME_S = 1e12  # |time| at most 10¹² s
 MAX_ABS_ANGLE_DEG = 1e6  # |angle| at most 10⁶ deg
 
 
+SMOOTH_SCATTER = 0.5  # lag-1 correlation of a scatter above which it is a wander, not jitter
 GRID_SCATTER = 1e-6  # stamps within this share of a step of their clock: a grid, no test
 Mode = Literal["auto", "given", "fitted"]
 MODES = ("auto", "given", "fitted")
@@ -403,9 +404,16 @@ class _Stream:
 
     def testable(self, mode: str) -> bool:
         """Unlabelled stamps used (or maybe used) as given that scatter about their clock by
-        more than ``GRID_SCATTER`` of a step (a grid written with its rounding is a grid)."""
-        return (self.label is None and mode != "fitted"
-                and self.timing.jitter_rms > GRID_SCATTER * self.timing.dt)
+        more than ``GRID_SCATTER`` of a step (a grid written with its rounding is a grid), and
+        at random: a scatter that follows itself from sample to sample (lag-1 correlation over
+        ``SMOOTH_SCATTER``) is a clock's slow wander the fitted clock follows anyway — a
+        skewed clock's curve, say —, not jitter to test."""
+        if not (self.label is None and mode != "fitted"
+                and self.timing.jitter_rms > GRID_SCATTER * self.timing.dt):
+            return False
+        d = self.scatter - float(np.mean(self.scatter))
+        den = float(np.dot(d, d))
+        return den > 0.0 and float(np.dot(d[1:], d[:-1])) / den < SMOOTH_SCATTER
 
     def instants(self, mode: str, share: StampShare) -> tuple[FloatArray, StreamTiming, str,
                                                                  float]:

@@ -433,11 +433,12 @@ def analyze(
     # the instrument's stamps drifting against the reference's (its own clock fast or slow):
     # measured from the cross-spectrum's phase turning over the record, taken out (skew.py)
     motion_period = _known_period(al, lines, period_s)
-    skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
+    skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
     if skew is not None and skew.significant:
-        td_stamped, total = td, skew
+        total, pending = None, skew
         for i in range(SKEW_PASSES):  # each pass measures what the last one left
-            td = deskewed(td_stamped, total)
+            td = deskewed(td, pending)
+            total = pending if total is None else total.plus(pending)
             # … or, with a skew, on the stamps without it (a drift of the delay swamps the
             # error's slope on rate × scatter that tells stamps' errors from true instants)
             modes = asked if i == 0 else (timebase, reference_timebase)
@@ -450,10 +451,10 @@ def analyze(
             # the period again: a motion periodic on the reference's clock is periodic on
             # the corrected grid, not on the skewed one (whole periods, no window's leakage)
             motion_period = _known_period(al, lines, period_s)
-            rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
-            if rest is None or abs(rest.ppm) <= rest.se_ppm:
+            rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
+            if rest is None or not rest.left:
                 break
-            total = total.plus(rest)
+            pending = rest
         skew = total
     _check_band(band_hz, al, sp.grid.resolution_hz)
     delay_raw = _delay(sp, al)
@@ -469,6 +470,12 @@ def analyze(
     al = dataclasses.replace(al, choice=choice)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s,
                    ex, skew)
+
+
+def _t0(al: Aligned) -> float:
+    """The grid's first instant (its first slot always holds a sample)."""
+    ok = np.flatnonzero(np.isfinite(al.t))
+    return float(al.t[ok[0]]) if ok.size else 0.0
 
 
 def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> float | None:
@@ -497,8 +504,9 @@ def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
     n = max(int(m.sum()), 1)
     random = 2.0 * float(np.sqrt(np.mean((eps[m] * rate) ** 2))) * al.random_residual_s / n**0.5
     offset = al.offset_u_s
-    if skew is not None and skew.significant:
-        offset = math.hypot(offset, 1e-6 * skew.se_ppm * 0.5 * len(m) * al.dt)
+    if skew is not None:  # the correction's own (its mean less its start), or what a skew
+        offset = math.hypot(offset, skew.anchor_se_s if skew.significant  # left uncorrected
+                            else skew.unexplained_s)
     return timing_budget(centre, ci, al.timing_variance, cov, offset, random)
 
 
@@ -507,7 +515,8 @@ def _skew_fields(skew: Skew | None) -> dict[str, Any]:
     if skew is None:
         return {"skew_ppm": None, "skew_ci95_ppm": None, "skew_corrected": False}
     return {"skew_ppm": skew.ppm, "skew_ci95_ppm": list(skew.ci95_ppm),
-            "skew_corrected": skew.significant, "skew_drift_s": skew.drift_s}
+            "skew_corrected": skew.significant, "skew_drift_s": skew.drift_s,
+            "skew_degree": skew.degree, "skew_wander_s": skew.wander_s}
 
 
 def _line_set(
@@ -670,12 +679,16 @@ def _result(
 ) -> AnalysisResult:
     grid = sp.grid
     warnings: list[str] = []
-    if skew is not None and skew.significant and abs(skew.ppm) > SKEW_WARN_PPM:
+    if skew is not None and skew.significant and (abs(skew.ppm) > SKEW_WARN_PPM
+                                                  or skew.degree > 1):
         lo_p, hi_p = skew.ci95_ppm
+        curve = (f"; its rate changes over the record: the delay follows a curve of degree "
+                 f"{skew.degree}, up to {1e3 * skew.wander_s:.3g} ms off a steady drift"
+                 if skew.degree > 1 else "")
         warnings.append(
             f"timing: the instrument's stamps drift against the reference's by "
             f"{skew.ppm:+.4g} ppm (95 % {lo_p:+.4g} … {hi_p:+.4g}; {1e3 * skew.drift_s:+.4g} ms "
-            "over the record): its clock runs fast or slow. Corrected, anchored at the "
+            f"over the record{curve}): its clock runs fast or slow. Corrected, anchored at the "
             "record's start (its clock taken as right when the record began); set the "
             "instrument's clock, or record its stamps with the host's receipt times")
     eps_raw = np.where(al.mask, al.y - al.x, 0.0)
