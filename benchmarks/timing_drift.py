@@ -10,6 +10,9 @@ multisine (lines k/100 s, 0.05 … 0.6 Hz, 5° rms), plus white noise, so
    200), on a two-CSV record (reference 100 Hz on the host's clock, instrument 50 Hz, 900 s):
    σ's error and the skew read against the truth; periodic (period detected) and not (one
    900 s period, nothing to detect).
+   Then a delay that changes slowly: the clock's rate ramping from 0 to 200 ppm over the
+   record (a parabola, 90 ms at the end), or wandering up to ±200 ppm and back (a delay
+   ``A(1 − cos 2πt/T)``, 57 ms at its peak).
 2. **Jittered CSV**: 1.15 ms rms jitter on both streams' stamps, a 0.027° instrument (a
    gain error orthogonal noise only) at 5°/s rms roll rate, 100 Hz, 300 s: σ's error by
    default and as given.
@@ -46,6 +49,19 @@ MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=5.0)
 def lagging(f: FloatArray) -> FloatArray:
     """The instrument: gain 0.995, 80 ms first-order lag, 10 ms delay."""
     return 0.995 * first_order(0.08)(f) * delay(0.01)(f)
+
+
+def slowly(kind: str, ms: Multisine = MS, span: float = 900.0) -> tuple[tuple[FloatArray, ...],
+                                                                         float]:
+    """The instrument's stamps delayed by a curve: its clock's rate ramping from 0 to 200 ppm
+    (``ramp``) or wandering up to ±200 ppm and back (``wander``); the true σ."""
+    (tr, x, td, y), truth = skewed(0.0, ms, span=span)
+    u = td - td[0]
+    if kind == "ramp":
+        delay = 200e-6 * u**2 / (2 * span)
+    else:
+        delay = 200e-6 * span / (2 * np.pi) * (1 - np.cos(2 * np.pi * u / span))
+    return (tr, x, td + delay, y), truth
 
 
 def skewed(ppm: float, ms: Multisine = MS, span: float = 900.0, noise: float = 0.05,
@@ -143,6 +159,15 @@ def main(argv: list[str] | None = None) -> int:
             mark = "" if tm["skew_corrected"] else " (not corrected)"
             print(f"   {label:<22}{ppm:>9.0f}{tm['skew_ppm']:>10.2f}{lo:>10.2f} … {hi:<7.2f}"
                   f"{100 * (sigma / truth - 1):>+9.3f} %{mark}")
+    print(f"   {'motion':<22}{'clock rate':<26}{'degree':>7}{'mean ppm':>10}{'σ error':>10}")
+    for label, ms in (("periodic (detected)", MS),
+                      ("one 900 s period", Multisine(900.0, 0.05, 0.6, 5.0, seed=3))):
+        for kind, what in (("ramp", "ramping 0 → 200 ppm"), ("wander", "wandering ±200 ppm")):
+            rec, truth = slowly(kind, ms)
+            sigma, tm, _ = measure(rec, a.csv)
+            deg = tm.get("skew_degree") if tm["skew_corrected"] else "-"
+            print(f"   {label:<22}{what:<26}{deg!s:>7}{tm['skew_ppm']:>10.2f}"
+                  f"{100 * (sigma / truth - 1):>+9.3f} %")
     print("2. CSV with 1.15 ms rms jitter on both streams, 0.027° instrument, 5°/s rms, 100 Hz,"
           " 300 s")
     rec, truth = jittered()
