@@ -54,6 +54,7 @@ clock's own error, for labelled ones their label's.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -408,9 +409,13 @@ class _Stream:
         at random: a scatter that follows itself from sample to sample (lag-1 correlation over
         ``SMOOTH_SCATTER``) is a clock's slow wander the fitted clock follows anyway — a
         skewed clock's curve, say —, not jitter to test."""
-        if not (self.label is None and mode != "fitted"
-                and self.timing.jitter_rms > GRID_SCATTER * self.timing.dt):
-            return False
+        return (self.label is None and mode != "fitted"
+                and self.timing.jitter_rms > GRID_SCATTER * self.timing.dt
+                and self.random_scatter)
+
+    @functools.cached_property
+    def random_scatter(self) -> bool:
+        """The scatter's lag-1 correlation is under ``SMOOTH_SCATTER``."""
         d = self.scatter - float(np.mean(self.scatter))
         den = float(np.dot(d, d))
         return den > 0.0 and float(np.dot(d[1:], d[:-1])) / den < SMOOTH_SCATTER
@@ -487,7 +492,8 @@ def align(
     one_column = len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_dev)  # one CSV's rows
     if not one_column and (dev.testable(timebase) or ref.testable(reference_timebase)):
         first = _lay(ref, x_ref, dev, y_dev, shift_s, modes, shares)
-        shares = _stamp_test(first, ref, dev)
+        shares = _stamp_test(first, ref, dev, (dev.testable(timebase),
+                                               ref.testable(reference_timebase)))
         for i, (mode, stream) in enumerate(((timebase, dev), (reference_timebase, ref))):
             if mode == "auto" and stream.testable(mode) and shares[i].measured:
                 modes[i] = "fitted" if shares[i].beta >= AUTO_SHARE else "given"
@@ -499,24 +505,22 @@ def align(
     return dataclasses.replace(out, modes=(modes[0], modes[1]), choice=choice)
 
 
-def _stamp_test(al: Aligned, ref: _Stream, dev: _Stream) -> tuple[StampShare, StampShare]:
-    """``β`` of the device's and the reference's scatter, from the record laid on the stamps
-    (``timing.stamp_shares``)."""
+def _stamp_test(al: Aligned, ref: _Stream, dev: _Stream, on_stamps: tuple[bool, bool]
+                ) -> tuple[StampShare, StampShare]:
+    """``β`` of the device's and the reference's scatter, from the record laid on their stamps
+    (``timing.stamp_shares``); a stream not on its stamps (``on_stamps``) is not tested."""
     from scipy.interpolate import make_interp_spline
 
     m = al.mask
     ts = al.t[m]
-    d_dev = dev.scatter[np.clip(np.searchsorted(dev.t, ts), 0, len(dev.t) - 1)]
-    d_dev = np.where(dev.t[np.clip(np.searchsorted(dev.t, ts), 0, len(dev.t) - 1)] == ts,
-                     d_dev, 0.0)
-    if ref.label is None:
-        d_ref = make_interp_spline(ref.t, ref.scatter, k=3)(ts - al.shift)
-    else:
-        d_ref = np.zeros(len(ts))
-    if dev.label is not None:
-        d_dev = np.zeros(len(ts))
+    zero = np.zeros(len(ts))
+    d_dev = zero
+    if on_stamps[0]:  # the slots' instants are the device's own stamps, in order
+        i = np.clip(np.searchsorted(dev.t, ts), 0, len(dev.t) - 1)
+        d_dev = np.where(dev.t[i] == ts, dev.scatter[i], 0.0)
+    d_ref = make_interp_spline(ref.t, ref.scatter, k=3)(ts - al.shift) if on_stamps[1] else zero
     eps = (al.y - al.x)[m]
-    rate = al.xdot[m] if al.xdot is not None else np.zeros(len(ts))
+    rate = al.xdot[m] if al.xdot is not None else zero
     return stamp_shares(eps, al.x[m], rate, d_dev, d_ref)
 
 
