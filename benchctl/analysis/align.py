@@ -151,6 +151,11 @@ class Aligned:
         r = np.nan_to_num(self.reference_residual_s)
         return float(self.rate_rms**2 * (d**2 + r**2) + self.bridge_variance)
 
+    def rate(self) -> FloatArray:
+        """The reference's rate at every slot (deg/s): the spline's where the reference was
+        interpolated, else differences on the grid (``_rate``)."""
+        return self.xdot if self.xdot is not None else _rate(self.x, self.mask, self.dt)
+
     @property
     def offset_u_s(self) -> float:
         """Standard uncertainty (s) of an offset common to the record between the streams'
@@ -358,17 +363,15 @@ def _bridgeable(
 def _rate(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> FloatArray:
     """The reference's rate (deg/s) in each valid slot from its neighbours: central
     differences where both are there, one-sided where one is, 0 where none."""
-    n = len(x)
-    fwd = np.zeros(n, dtype=bool)
-    fwd[:-1] = mask[1:] & mask[:-1]
-    back = np.zeros(n, dtype=bool)
-    back[1:] = fwd[:-1]
-    d = np.zeros(n)
-    d[:-1] = np.diff(x) / dt
-    prev = np.zeros(n)
-    prev[1:] = d[:-1]
-    both = fwd & back
-    return np.where(both, 0.5 * (d + prev), np.where(fwd, d, np.where(back, prev, 0.0)))
+    if bool(mask.all()):  # no gap: numpy's own (one array, not five)
+        return np.asarray(np.gradient(x, dt), dtype=float)
+    d = np.diff(x) / dt
+    d[~(mask[1:] & mask[:-1])] = np.nan
+    back = np.concatenate(([np.nan], d))
+    fwd = np.concatenate((d, [np.nan]))
+    with np.errstate(invalid="ignore"):
+        out = np.where(np.isnan(back), fwd, np.where(np.isnan(fwd), back, 0.5 * (back + fwd)))
+    return np.nan_to_num(out, copy=False)
 
 
 def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
@@ -520,8 +523,7 @@ def _stamp_test(al: Aligned, ref: _Stream, dev: _Stream, on_stamps: tuple[bool, 
         d_dev = np.where(dev.t[i] == ts, dev.scatter[i], 0.0)
     d_ref = make_interp_spline(ref.t, ref.scatter, k=3)(ts - al.shift) if on_stamps[1] else zero
     eps = (al.y - al.x)[m]
-    rate = al.xdot[m] if al.xdot is not None else zero
-    return stamp_shares(eps, al.x[m], rate, d_dev, d_ref)
+    return stamp_shares(eps, al.x[m], al.rate()[m], d_dev, d_ref)
 
 
 def _lay(
@@ -581,9 +583,8 @@ def _lay(
     x[k_rel[sel]] = x_at[first : last + 1][sel]
     y[k_rel[sel]] = y_dev[first : last + 1][sel]
     t[k_rel[sel]] = t_use[first : last + 1][sel]
-    if rate_at is None:
-        xdot = _rate(x, mask, dev_timing.dt)
-    else:
+    xdot = None  # one time column: the rate from the grid when asked (Aligned.rate)
+    if rate_at is not None:
         xdot = np.zeros(n)
         xdot[k_rel[sel]] = rate_at[first : last + 1][sel]
     return Aligned(

@@ -499,10 +499,12 @@ def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
     bases' (``Aligned.offset_u_s``) and, for a skew taken out, the correction's own: a slope
     off by its standard error leaves a delay off by that × (t − t₀), on average × T/2."""
     m = al.mask
-    rate = al.xdot[m] if al.xdot is not None else np.zeros(int(m.sum()))
-    cov = error_rate_covariance(eps[m], rate)
-    n = max(int(m.sum()), 1)
-    random = 2.0 * float(np.sqrt(np.mean((eps[m] * rate) ** 2))) * al.random_residual_s / n**0.5
+    full = bool(m.all())  # no gap: no copies of ε and ẋ at the samples
+    rate = al.rate() if full else al.rate()[m]
+    e = eps if full else eps[m]
+    cov = error_rate_covariance(e, rate)
+    n = max(len(e), 1)
+    random = 2.0 * float(np.sqrt(np.mean(np.square(e * rate)))) * al.random_residual_s / n**0.5
     offset = al.offset_u_s
     if skew is not None:  # the correction's own (its mean less its start), or what a skew
         offset = math.hypot(offset, skew.anchor_se_s if skew.significant  # left uncorrected
