@@ -21,7 +21,11 @@ multisine (lines k/100 s, 0.05 … 0.6 Hz, 5° rms), plus white noise, so
    the share of σ's 95 % intervals holding the truth, by default and with the stamps forced
    as given.
 
-    python benchmarks/timing_drift.py [--coverage 200] [--csv]
+4. **Skew coverage** (``--skew-coverage N``): N records per case (50 and 200 ppm, periodic or
+   not; each its own motion and noise): the skew's error, σ's error, the share of σ's 95 %
+   intervals holding the truth and their mean width over the spread of σ (×3.92).
+
+    python benchmarks/timing_drift.py [--coverage 200] [--skew-coverage 40] [--csv]
 
 ``--csv`` runs the skew and jitter cases through ``benchctl analyze`` on CSV files instead of
 the Python API (the same numbers; slower).
@@ -145,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--coverage", type=int, default=0, metavar="N",
                     help="also the coverage of σ's interval over N jittered records")
+    ap.add_argument("--skew-coverage", type=int, default=0, metavar="N",
+                    help="also the skew cases over N records each")
     ap.add_argument("--csv", action="store_true", help="through benchctl analyze on CSVs")
     a = ap.parse_args(argv)
     print("1. instrument clock skew, default options (900 s, reference 100 Hz, instrument 50 Hz,"
@@ -193,6 +199,25 @@ def main(argv: list[str] | None = None) -> int:
                 errs.append(sigma / truth - 1)
             print(f"   {label:<16} coverage {hits / a.coverage:.3f}  mean σ error "
                   f"{100 * float(np.mean(errs)):+.3f} %  ({time.time() - t0:.0f} s)")
+    if a.skew_coverage:
+        n = a.skew_coverage
+        print(f"4. skew over {n} records per case (each its own motion and noise), default options")
+        for ppm in (50.0, 200.0):
+            for label, period in (("periodic", 100.0), ("one 900 s period", 900.0)):
+                hits, dskew, errs, width = 0, [], [], []
+                for seed in range(n):
+                    rec, truth = skewed(ppm, Multisine(period, 0.05, 0.6, 5.0, seed=seed),
+                                        seed=seed)
+                    sigma, tm, ci = measure(rec, False)
+                    hits += ci[0] <= truth <= ci[1]
+                    dskew.append(tm["skew_ppm"] - ppm)
+                    errs.append(sigma / truth - 1)
+                    width.append((ci[1] - ci[0]) / truth)
+                e = np.asarray(errs)
+                print(f"   {ppm:>5.0f} ppm {label:<18} skew error {np.mean(dskew):+.3f} ± "
+                      f"{np.std(dskew):.3f} ppm  σ error {100 * e.mean():+.3f} ± "
+                      f"{100 * e.std():.3f} % (max {100 * np.abs(e).max():.3f} %)  coverage "
+                      f"{hits / n:.3f}  width / spread {np.mean(width) / (3.92 * e.std()):.2f}")
     return 0
 
 

@@ -23,7 +23,8 @@ drift (σ +143 … +485 %). The instrument's own response does not change over t
    (s per s) with its standard error from the line's residuals; and, for a delay that changes
    *slowly* rather than steadily (a clock whose rate drifts as it warms), a polynomial in time
    of the highest degree up to ``MAX_DEGREE`` whose top term is beyond ``CURVE_SIGNIFICANT``
-   standard errors with ``MIN_DOF`` segments to spare. A segment's phase turns with the mean
+   standard errors, its terms beyond the line passing an F test at ``CURVE_P`` together, with
+   ``MIN_DOF`` segments to spare. A segment's phase turns with the mean
    delay over it (weighted by the windows' product), not the delay at its middle, so the
    model is fitted to its columns averaged over each segment (``_design``). A curve found on
    few whole periods is sought again on ``SEGMENTS_MAX`` windowed segments, which can hold a
@@ -55,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.fft import rfft
+from scipy.special import fdtri
 
 FloatArray = NDArray[np.float64]
 
@@ -68,8 +70,9 @@ MIN_PPM = 0.1  # … and at least this (noise-free data: not a rounding). A lagg
 UNEXPLAINED = 2.0  # a slope beyond this many standard errors, not corrected: in σ's interval
 MAX_DEGREE = 8  # a delay that changes slowly: a polynomial of degree up to this …
 MIN_DOF = 6  # … leaving this many segments beyond its terms, its top term beyond
-CURVE_SIGNIFICANT = 5.0  # this many standard errors (several degrees are tried: a stricter
-# test than a line's, or segments' noise reads as a curve)
+CURVE_SIGNIFICANT = 5.0  # this many standard errors, and the curve as a whole beyond the line
+CURVE_P = 1e-3  # at this level (F test): several degrees are tried, so a stricter test than a
+# line's, or segments' noise reads as a curve (a 300 s record's 15 windowed segments: degree 8)
 WARN_PPM = 20.0  # a skew above this is a warning (the clocks should be fixed)
 MIN_PERIODS = 4  # a known period: segments of whole periods when the record holds this many
 MIN_R2 = 0.9  # the model must explain this share of the delays' spread …
@@ -247,7 +250,8 @@ def _poly(tau: FloatArray, a: FloatArray) -> tuple[FloatArray, FloatArray, float
 def _fit(tau: FloatArray, mids: FloatArray, span: float, whole: bool, t0_s: float) -> Skew:
     """The line through the delays (the skew and its standard error), and the degree of the
     curve they follow: the highest up to ``MAX_DEGREE`` whose top term is beyond
-    ``CURVE_SIGNIFICANT`` standard errors (``MIN_DOF`` segments left beyond its terms)."""
+    ``CURVE_SIGNIFICANT`` standard errors and whose terms beyond the line, together, pass an
+    F test at ``CURVE_P`` (``MIN_DOF`` segments left beyond its terms)."""
     count = len(tau)
     half = 0.5 * span
     seg = float(mids[1] - mids[0]) if count > 1 else span
@@ -258,7 +262,10 @@ def _fit(tau: FloatArray, mids: FloatArray, span: float, whole: bool, t0_s: floa
         if count - (d + 1) < MIN_DOF:  # even, has no odd term: degree 3 alone would miss it)
             break
         c, v, r = _poly(tau, _design(mids, seg, half, d, whole))
-        if abs(c[-1]) > CURVE_SIGNIFICANT * math.sqrt(max(v[-1, -1], 0.0)):
+        dof = count - d - 1
+        f_stat = (rss1 - r) / (d - 1) / (r / dof) if r > 0.0 else math.inf
+        if (abs(c[-1]) > CURVE_SIGNIFICANT * math.sqrt(max(v[-1, -1], 0.0))
+                and f_stat > float(fdtri(d - 1, dof, 1.0 - CURVE_P))):
             degree, coef, cov, rss = d, c, v, r
     spread = float(np.dot(tau - tau.mean(), tau - tau.mean()))
     r2 = 1.0 - rss / spread if spread > 0.0 else 0.0
