@@ -186,10 +186,13 @@ class Aligned:
             (self.reference_timebase, self.reference_residual_s)) if base in RANDOM_STAMPS]
         return math.hypot(*parts) if parts else 0.0
 
-    def timing_warning(self, variance: float, cross: float = 0.0) -> str:
+    def timing_warning(self, variance: float, cross: float = 0.0,
+                       offset_s: float | None = None) -> str:
         """The warning when timing moves σ's interval noticeably: the variance the instants'
         residual errors add, and (``cross``, deg²) the standard uncertainty of σ² from an
-        offset of ``offset_u_s`` between the streams (``timing.timing_budget``)."""
+        offset of ``offset_s`` (default ``offset_u_s``) between the streams
+        (``timing.timing_budget``)."""
+        offset = self.offset_u_s if offset_s is None else offset_s
         text = (
             f"timing: the instants' residual errors (device {1e3 * self.device_residual_s:.3g} "
             f"ms {self.device_timebase}, reference {1e3 * self.reference_residual_s:.3g} ms "
@@ -201,7 +204,7 @@ class Aligned:
                  else f"{self.timing_variance:.3g} deg² to a σ² of 0")
         text += f" add {share} (σ_ẋ²·jitter²)"
         if cross > 0.0 and variance > 0:
-            text += (f"; an offset of ±{1e3 * self.offset_u_s:.3g} ms between the streams moves "
+            text += (f"; an offset of ±{1e3 * offset:.3g} ms between the streams moves "
                      f"σ² by ±{100 * cross / variance:.3g} % (2·|cov(ε, ẋ)|·offset: first-order "
                      "for a lagging instrument)")
         text += "; σ's interval includes them"

@@ -780,7 +780,7 @@ def _result(
     budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)), skew)
     ci = budget.ci
     if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
-        warnings.append(al.timing_warning(variance, budget.cross))
+        warnings.append(al.timing_warning(variance, budget.cross, budget.offset_u_s))
     if al.device.gap_count:
         warnings.append(
             f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "

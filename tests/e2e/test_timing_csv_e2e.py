@@ -45,6 +45,11 @@ def test_skewed_jittered_csv_pair_by_default(tmp_path: Path,
     said = [re.search(r"stamps drift against the reference's by \+([0-9.]+) ppm", w)
             for w in out["warnings"]]
     assert any(m and float(m.group(1)) == pytest.approx(200.0, abs=1.0) for m in said)
+    # the correction's own uncertainty is in σ's interval, and the warning states the offset
+    assert tm["timing_in_interval"] is True
+    off = [re.search(r"an offset of ±([0-9.]+) ms between the streams", w) for w in out["warnings"]]
+    assert any(m and float(m.group(1)) == pytest.approx(1e3 * tm["timing_offset_u_s"], rel=0.01)
+               for m in off)
     assert main(args) == 0
     text = capsys.readouterr().out
     m = re.search(r"clock skew: \+([0-9.]+) ppm .*, corrected", text)
