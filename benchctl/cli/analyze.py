@@ -46,12 +46,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--device-col", help="device angle column (default device, or the only "
                    "angle column of --device)")
     p.add_argument("--units", choices=("deg", "rad"), default="deg", help="angle units of CSVs")
-    p.add_argument("--timebase", choices=("given", "fitted"), default="given",
-                   help="device instants as given, or fitted to a uniform clock (jittery "
-                   "receipt times)")
-    p.add_argument("--reference-timebase", choices=("given", "fitted"), default="given",
-                   help="reference instants as given, or fitted to a uniform clock (a "
-                   "reference sampled on its own clock whose stamps jitter)")
+    p.add_argument("--timebase", choices=("auto", "given", "fitted"), default="auto",
+                   help="device instants: chosen from the data (default: fitted when the "
+                   "stamps jitter about a uniform clock, else as given), as given, or fitted "
+                   "to a uniform clock (jittery receipt times)")
+    p.add_argument("--reference-timebase", choices=("auto", "given", "fitted"), default="auto",
+                   help="reference instants: chosen from the data (default), as given, or "
+                   "fitted to a uniform clock (a reference sampled on its own clock whose "
+                   "stamps jitter)")
     p.add_argument("--recording-timebase", default="best",
                    choices=("best", "device", "adapter", "fitted", "receipt"),
                    help="a recording's instrument instants: the best time base it has "
@@ -409,6 +411,39 @@ def _departures_block(r: AnalysisResult) -> list[str]:
     return out
 
 
+def _timing_block(tm: dict[str, Any]) -> list[str]:
+    """The time bases (how "auto" chose them), the clock skew, timing in σ's interval."""
+    if "device_timebase" not in tm:
+        return []
+    choice = tm.get("timebase_choice") or {}
+
+    def why(entry: str) -> str:
+        c = choice.get(entry) or {}
+        if c.get("asked") != "auto" or c.get("stamp_share") is None:
+            return ""
+        return (f", auto: {100 * c['stamp_share']:.0f} ± {100 * c['stamp_share_se']:.0f} % of "
+                "the stamps' scatter is their own error")
+
+    out = [
+        f"  timing: device {tm['device_timebase']} (±{1e3 * tm['device_time_residual_s']:.2g}"
+        f" ms{why('device')}), reference {tm['reference_timebase']} "
+        f"(±{1e3 * tm['reference_time_residual_s']:.2g} ms{why('reference')}): "
+        f"σ_ẋ²·jitter² = {100 * tm['timing_share']:.2g} % of σ²"
+    ]
+    if tm.get("skew_ppm") is not None:
+        lo, hi = tm["skew_ci95_ppm"]
+        out.append(
+            f"  clock skew: {tm['skew_ppm']:+.4g} ppm (95 % {lo:+.4g} … {hi:+.4g}), "
+            + (f"{1e3 * tm['skew_drift_s']:+.4g} ms over the record, corrected"
+               if tm.get("skew_corrected") else "not corrected (not significant)"))
+    if tm.get("timing_in_interval"):
+        slo, shi = tm["sigma_ci95_statistical"]
+        out.append(
+            f"  σ's interval includes timing (statistical alone {slo:.5g} … {shi:.5g}°; offset "
+            f"between the streams ±{1e3 * tm['timing_offset_u_s']:.2g} ms)")
+    return out
+
+
 def summary(r: AnalysisResult) -> str:
     """A readable summary of one result."""
     g = r.gaps
@@ -456,13 +491,6 @@ def summary(r: AnalysisResult) -> str:
              f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "
              + ("agrees" if c["welch_agrees"] else "DISAGREES"))
     lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
-    tm = r.timing
-    if "device_timebase" in tm:
-        lines.append(
-            f"  timing: device {tm['device_timebase']} (±{1e3 * tm['device_time_residual_s']:.2g}"
-            f" ms), reference {tm['reference_timebase']} "
-            f"(±{1e3 * tm['reference_time_residual_s']:.2g} ms): σ_ẋ²·jitter² = "
-            f"{100 * tm['timing_share']:.2g} % of σ²"
-        )
+    lines.extend(_timing_block(r.timing))
     lines.extend(f"  warning: {w}" for w in r.warnings)
     return "\n".join(lines)

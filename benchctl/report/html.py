@@ -193,10 +193,20 @@ def _analysis_warnings(axis: str, an: Mapping[str, Any]) -> list[str]:
                        f"{_num(g.get('longest_s'), '.3g')} s")
     if gaps.get("excluded_samples"):
         out.append(f"{axis}: {gaps['excluded_samples']} sample(s) excluded from the analysis")
-    share = (an.get("timing") or {}).get("timing_share")
+    tm = an.get("timing") or {}
+    share = tm.get("timing_share")
     if isinstance(share, int | float) and math.isfinite(share):
         out.append(f"{axis}: timing (time-stamp jitter × angular rate) contributes "
                    f"{_pct(share)} of σ²")
+    ppm = tm.get("skew_ppm")
+    if tm.get("skew_corrected") and isinstance(ppm, int | float):
+        out.append(f"{axis}: the instrument's stamps drift {ppm:+.4g} ppm against the stand's "
+                   f"({1e3 * float(tm.get('skew_drift_s') or 0.0):+.3g} ms over the record), "
+                   "corrected")
+    stat = tm.get("sigma_ci95_statistical")
+    if tm.get("timing_in_interval") and isinstance(stat, list | tuple) and len(stat) == 2:
+        out.append(f"{axis}: σ's interval includes timing (statistical alone "
+                   f"{_num(stat[0], '.5g')} … {_num(stat[1], '.5g')}°)")
     return out
 
 
