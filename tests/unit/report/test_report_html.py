@@ -396,16 +396,16 @@ def test_figures_of_the_same_content_drawn_once(passed: Path,
                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """A run draws its report twice (before and after its recording closes): the figures of
     the same analysis are drawn once; other content is drawn anew."""
-    import benchctl.report.figures as figures
+    import benchctl.report.html as html
 
     calls: list[str] = []
-    real = figures.psd_svg
+    real = html.psd_svg
 
     def counting(an: Any, limit: Any = None, title: str = "") -> str | None:
         calls.append(title)
         return real(an, limit, title)
 
-    monkeypatch.setattr(figures, "psd_svg", counting)
+    monkeypatch.setattr(html, "psd_svg", counting)
     report = json.loads((passed / "report.json").read_text())
     report["axes"]["roll"]["limit"] = 0.3999  # content not drawn before in this process
     first = render_html(build_context(passed, report=report, trace=False))
