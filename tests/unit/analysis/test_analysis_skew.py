@@ -114,17 +114,9 @@ def _slow(kind: str, periodic: bool) -> tuple[tuple[np.ndarray, ...], float]:
     stamps' delay a parabola, 90 ms at the end), or wandering up to ±200 ppm and back
     (``wander``: a delay ``A(1 − cos 2πt/T)``, 57 ms at its peak)."""
     from analysis_synthetic import Multisine
-    from timing_drift import MS, skewed
+    from timing_drift import MS, slowly
 
-    span = 900.0
-    (tr, x, td, y), truth = skewed(0.0, MS if periodic else Multisine(900.0, 0.05, 0.6, 5.0,
-                                                                      seed=3))
-    u = td - td[0]
-    if kind == "ramp":
-        delay = 200e-6 * u**2 / (2 * span)
-    else:
-        delay = 200e-6 * span / (2 * np.pi) * (1 - np.cos(2 * np.pi * u / span))
-    return (tr, x, td + delay, y), truth
+    return slowly(kind, MS if periodic else Multisine(900.0, 0.05, 0.6, 5.0, seed=3))
 
 
 @pytest.mark.parametrize("kind", ["ramp", "wander"])
