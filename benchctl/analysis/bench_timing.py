@@ -91,7 +91,8 @@ def measure_delay(
     t_ref, x_ref : array_like
         The reference (the stand's measured angle) at its instants (s, deg).
     t_dev, y_dev : array_like
-        The device's output at its instants (s, deg), over the same span.
+        The device's output at its instants (s, deg), over the same span (each stream is
+        cut to the span both cover).
     freq_hz : array_like
         The excited lines (Hz), e.g. a profile's ``harmonics / period_s``.
     resolution_s : float
@@ -116,8 +117,14 @@ def measure_delay(
     f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
     if f.size == 0 or np.any(f <= 0) or not np.all(np.isfinite(f)):
         raise ValueError("freq_hz: expected at least one finite line above 0 Hz")
-    xk = line_amplitudes(t_ref, x_ref, f)
-    yk = line_amplitudes(t_dev, y_dev, f)
+    tr, xr = np.asarray(t_ref, dtype=float), np.asarray(x_ref, dtype=float)
+    td, yd = np.asarray(t_dev, dtype=float), np.asarray(y_dev, dtype=float)
+    # both streams over the same span: the lines of a motion that fades in or out elsewhere
+    # are not the same lines
+    lo, hi = max(tr[0], td[0]), min(tr[-1], td[-1])
+    kr, kd = (tr >= lo) & (tr <= hi), (td >= lo) & (td <= hi)
+    xk = line_amplitudes(tr[kr], xr[kr], f)
+    yk = line_amplitudes(td[kd], yd[kd], f)
     ax = np.abs(xk)
     keep = ax >= MIN_LINE_SHARE * float(ax.max())
     f, xk, yk = f[keep], xk[keep], yk[keep]

@@ -9,8 +9,8 @@ One module per section of the file: ``stand`` (``stand:``), ``instrument``
 (``instrument:``), ``sim`` (``sim:``), ``run`` (``run:``), ``station`` (``unit:``,
 ``archive:``, ``panel:``), ``timing`` (``timing:``); ``bench`` holds the whole
 (``BenchConfig``), the checks that span sections, the loader and the JSON Schema; ``types``
-the strict base model and the bounded number types. Every field's meaning is on the field (an attribute docstring), and so in the
-schema (``benchctl schema config``).
+the strict base model and the bounded number types. Every field's meaning is on the field (an
+attribute docstring), and so in the schema (``benchctl schema config``).
 """
 
 from benchctl.config.bench import (
@@ -83,8 +83,8 @@ __all__ = [
     "SimStandFault",
     "StandConfig",
     "StandLimits",
-    "TimingConfig",
     "Strict",
+    "TimingConfig",
     "UnitConfig",
     "axis_map",
     "config_schema",

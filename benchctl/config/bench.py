@@ -18,8 +18,8 @@ from benchctl.config.instrument import InstrumentConfig
 from benchctl.config.run import RunConfig
 from benchctl.config.sim import SimConfig
 from benchctl.config.stand import StandConfig, exchange_bound_s
-from benchctl.config.timing import TimingConfig
 from benchctl.config.station import ArchiveConfig, PanelConfig, UnitConfig, plain_text
+from benchctl.config.timing import TimingConfig
 from benchctl.config.types import (
     Strict,
 )

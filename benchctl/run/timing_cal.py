@@ -21,6 +21,7 @@ from typing import Any
 
 from benchctl.analysis.bench_timing import DelayFit, measure_delay
 from benchctl.analysis.lines import line_set_from_recording
+from benchctl.clock import REAL, Clock
 from benchctl.errors import DataError
 from benchctl.recording import Recording
 
@@ -71,8 +72,10 @@ def calibrate_recording(
     *,
     axis: str | None = None,
     date: datetime.date | None = None,
+    clock: Clock = REAL,
 ) -> TimingCalibration:
-    """The bench's offset from ``rec``, a run of a reference of latency ``reference_latency_s``.
+    """The bench's offset from ``rec``, a run of a reference of latency ``reference_latency_s``,
+    dated ``date`` (default: today on ``clock``).
 
     Raises ``DataError`` when the recording has no profile lines to measure on or no samples.
     """
@@ -103,7 +106,7 @@ def calibrate_recording(
         axis=ax,
         fit=fit,
         recording=str(rec.path),
-        date=date or datetime.date.today(),
+        date=date or clock.now_utc().date(),
         warnings=tuple(warnings),
     )
 

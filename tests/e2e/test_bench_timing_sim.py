@@ -1,0 +1,89 @@
+"""The bench's own timing on the simulated bench, on simulated time.
+
+- The calibration run (``benchctl.run.timing_cal``) of a reference of known latency measures the
+  delay the simulated chain adds — the instrument's slcan line at its byte time
+  (``SimInstrument.wire_delay_s``: 31 bytes of a J1939 frame with its timestamp at 115200 Bd,
+  2.69 ms), the stand's link symmetric — plus a latency injected into the reference and not
+  told to the calibration, within 20 µs (``TOLERANCE_S``).
+- Every shipped simulated config, run on simulated time with the ``timing:`` its own
+  calibration stored: σ's 95 % interval holds the simulated instrument's exact σ (its model as
+  configured on the stand's measured motion: ``benchmarks/bench_timing.py``'s ``exact_sigma``),
+  over one 120 s period of the paper's profile; without the offset the same run reads σ above
+  its interval.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from bench_timing import CONFIGS, exact_sigma, virtual_config
+from live_bench import ROLL, live_bench
+
+from benchctl.cli import main
+from benchctl.clock.virtual import VirtualClock
+from benchctl.config import SimInstrumentConfig
+from benchctl.recording import load_recording
+from benchctl.run import RunOptions, run_test
+from benchctl.run.timing_cal import calibrate_recording
+from repo_paths import ROOT
+
+pytestmark = pytest.mark.slow
+#: the calibration's tolerance on the simulated bench (s): its lines' scatter is a few µs
+TOLERANCE_S = 20e-6
+PROFILE = ROOT / "profiles/paper_vessel_roll_short120.yaml"
+
+
+@pytest.mark.parametrize("injected_s", [0.0, 0.0073])
+def test_calibration_measures_the_chain_and_an_injected_latency(
+    tmp_path: Path, vclock: VirtualClock, injected_s: float
+) -> None:
+    reference = SimInstrumentConfig(gain=1.0, lag_s=0.0, latency_s=injected_s, noise_deg=0.0,
+                                    bias_deg=0.0, rate_hz=100.0)
+    profile = tmp_path / "roll.yaml"
+    profile.write_text(ROLL)
+    # J1939's 0.002° on the wire (CiA 410's 0.01° would leave ~30 µs of scatter on 16 s)
+    with live_bench(tmp_path, instrument="j1939", model=reference, clock=vclock) as b:
+        res = run_test(b.cfg, profile, RunOptions("REF-1", "ci"), clock=vclock)
+        assert res.state == "done", res.reason
+        wire = b.instrument.wire_delay_s
+    rec = load_recording(res.recording)  # type: ignore[arg-type]
+    told = calibrate_recording(rec, 0.0)  # the injected latency not told: it is the bench's
+    assert told.offset_s == pytest.approx(wire + injected_s, abs=TOLERANCE_S)
+    assert told.uncertainty_s < TOLERANCE_S / 2
+    cal = calibrate_recording(rec, injected_s)  # told: the chain's alone
+    assert cal.offset_s == pytest.approx(wire, abs=TOLERANCE_S)
+    assert wire == pytest.approx(31 * 10 / 115200)  # a 31-byte slcan line at 115200 Bd
+
+
+def _stored_timing(name: str) -> dict[str, Any]:
+    data = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())
+    timing: dict[str, Any] = data["timing"]
+    return timing
+
+
+def _run(cfg: Path, out: Path) -> dict[str, Any]:
+    code = main(["run", "--config", str(cfg), "--profile", str(PROFILE), "--serial", "T-1",
+                 "--operator", "ci", "--out", str(out), "--duration", "140", "--json"])
+    assert code in (0, 1)
+    (rec,) = [p.parent for p in out.glob("*/meta.json")]
+    return json.loads((rec / "report.json").read_text())  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize("name", CONFIGS)
+def test_every_simulated_config_holds_the_exact_sigma(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    timing = _stored_timing(name)
+    assert timing["calibrated"] and timing["offset_s"] > 0
+    src = ROOT / "config" / f"{name}.yaml"
+    rep = _run(virtual_config(src, tmp_path / "bench.yaml", timing=timing), tmp_path / "runs")
+    capsys.readouterr()
+    roll = rep["axes"]["roll"]
+    exact = exact_sigma(rep["recording"])
+    lo, hi = roll["sigma_ci95"]
+    assert lo <= exact <= hi, (name, roll["sigma"], lo, hi, exact)
+    assert rep["timing"]["offset_s"] == timing["offset_s"]
