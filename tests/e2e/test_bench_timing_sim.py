@@ -22,6 +22,7 @@ import pytest
 import yaml
 from bench_timing import CONFIGS, exact_sigma, virtual_config
 from live_bench import ROLL, live_bench
+from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
@@ -29,7 +30,6 @@ from benchctl.config import SimInstrumentConfig
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run.timing_cal import calibrate_recording
-from repo_paths import ROOT
 
 pytestmark = pytest.mark.slow
 #: the calibration's tolerance on the simulated bench (s): its lines' scatter is a few µs
