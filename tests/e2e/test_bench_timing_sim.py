@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 import yaml
-from bench_timing import CONFIGS, exact_sigma, virtual_config
+from bench_timing import CONFIGS, LEVEL, exact_sigma, virtual_config
 from live_bench import ROLL, live_bench
 from repo_paths import ROOT
 
@@ -95,8 +95,8 @@ def test_every_simulated_config_holds_the_exact_sigma(
     timing = _stored_timing(name)
     assert timing["calibrated"] and timing["offset_s"] > 0
     src = ROOT / "config" / f"{name}.yaml"
-    profile = tmp_path / "paper40.yaml"
-    profile.write_text(PAPER_40)
+    profile = tmp_path / "paper40.yaml"  # the resonant stand at half the level (LEVEL)
+    profile.write_text(PAPER_40.replace("sigma_deg: 3.0", f"sigma_deg: {3.0 * LEVEL.get(name, 1)}"))
     rep = _run(virtual_config(src, tmp_path / "bench.yaml", timing=timing), profile,
                tmp_path / "runs")
     capsys.readouterr()
