@@ -26,7 +26,7 @@ from repo_paths import ROOT
 
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
-from benchctl.config import SimInstrumentConfig
+from benchctl.config import SimInstrumentConfig, load_config
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run.timing_cal import calibrate_recording
@@ -54,7 +54,7 @@ axes:
 
 @pytest.mark.parametrize("injected_s", [0.0, 0.0073])
 def test_calibration_measures_the_chain_and_an_injected_latency(
-    tmp_path: Path, vclock: VirtualClock, injected_s: float
+    tmp_path: Path, vclock: VirtualClock, capsys: pytest.CaptureFixture[str], injected_s: float
 ) -> None:
     reference = SimInstrumentConfig(gain=1.0, lag_s=0.0, latency_s=injected_s, noise_deg=0.0,
                                     bias_deg=0.0, rate_hz=100.0)
@@ -72,6 +72,18 @@ def test_calibration_measures_the_chain_and_an_injected_latency(
     cal = calibrate_recording(rec, injected_s)  # told: the chain's alone
     assert cal.offset_s == pytest.approx(wire, abs=TOLERANCE_S)
     assert wire == pytest.approx(31 * 10 / 115200)  # a 31-byte slcan line at 115200 Bd
+    # the command: the same figure, written into a bench config that then loads with it
+    cfg = tmp_path / "bench.yaml"
+    before = cfg.read_text()
+    assert main(["timing", "calibrate", str(rec.path), "--reference-latency-s", str(injected_s),
+                 "--reference", "REF-1", "--write", str(cfg), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["offset_s"] == pytest.approx(cal.offset_s, rel=1e-12)
+    assert out["written"] == str(cfg) and cfg.read_text().startswith(before)
+    timing = load_config(cfg).timing
+    assert timing.offset_s == pytest.approx(cal.offset_s, abs=1e-7)
+    assert timing.calibrated is not None and timing.reference is not None
+    assert timing.reference.startswith("REF-1")
 
 
 def _stored_timing(name: str) -> dict[str, Any]:
