@@ -119,3 +119,17 @@ def test_the_record_states_the_timing_it_was_analysed_with(tmp_path: Path) -> No
                            "calibrated": "2026-11-27", "reference": "REF"}
     old = load_recording(_recording(tmp_path, None))
     assert build_record(old.meta, recording=old.path, outcome=Outcome.PASS)["timing"] is None
+
+
+def test_the_report_states_the_offset_it_applied(tmp_path: Path) -> None:
+    from benchctl.run.report import Report, format_report
+
+    timing = {"offset_s": 0.0015605, "uncertainty_s": 1.06e-5, "calibrated": "2026-11-27",
+              "reference": "REF"}
+    rep = Report({}, tmp_path, {"serial": "S", "timing": timing}, {}, (0.0, 60.0))
+    assert rep.to_dict()["timing"] == timing
+    assert ("bench timing offset +1.5605 ms (± 0.0106 ms, calibrated 2026-11-27) subtracted "
+            "from the instrument's instants") in format_report(rep)
+    none = Report({}, tmp_path, {"serial": "S", "timing": {**timing, "offset_s": 0.0}}, {},
+                  (0.0, 60.0))
+    assert "bench timing offset" not in format_report(none)
