@@ -218,7 +218,9 @@ def recording_status(rec: Any) -> dict[str, Any]:
     if integrity.status != "verified" and state != "incomplete":
         note = (note + "; " if note else "") + f"integrity {integrity.text()}"
     return {"state": state, "reason": reason or None, "note": note or None,
-            "integrity": integrity.to_dict()}
+            "integrity": integrity.to_dict(),
+            # the bench's calibrated offset its instrument instants were moved by (s; 0: none)
+            "timing_offset_s": rec.timing_offset_s}
 
 
 def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:

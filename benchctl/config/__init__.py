@@ -7,10 +7,10 @@ was expected; it is always fatal.
 
 One module per section of the file: ``stand`` (``stand:``), ``instrument``
 (``instrument:``), ``sim`` (``sim:``), ``run`` (``run:``), ``station`` (``unit:``,
-``archive:``, ``panel:``); ``bench`` holds the whole (``BenchConfig``), the checks that span
-sections, the loader and the JSON Schema; ``types`` the strict base model and the bounded
-number types. Every field's meaning is on the field (an attribute docstring), and so in the
-schema (``benchctl schema config``).
+``archive:``, ``panel:``), ``timing`` (``timing:``); ``bench`` holds the whole
+(``BenchConfig``), the checks that span sections, the loader and the JSON Schema; ``types``
+the strict base model and the bounded number types. Every field's meaning is on the field (an
+attribute docstring), and so in the schema (``benchctl schema config``).
 """
 
 from benchctl.config.bench import (
@@ -44,6 +44,7 @@ from benchctl.config.sim import (
 )
 from benchctl.config.stand import StandConfig, StandLimits, exchange_bound_s
 from benchctl.config.station import ArchiveConfig, PanelConfig, UnitConfig
+from benchctl.config.timing import TimingConfig
 from benchctl.config.types import (
     MAX_DEVICE_RATE_HZ,
     MAX_HOST_RATE_HZ,
@@ -83,6 +84,7 @@ __all__ = [
     "StandConfig",
     "StandLimits",
     "Strict",
+    "TimingConfig",
     "UnitConfig",
     "axis_map",
     "config_schema",

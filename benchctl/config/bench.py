@@ -19,6 +19,7 @@ from benchctl.config.run import RunConfig
 from benchctl.config.sim import SimConfig
 from benchctl.config.stand import StandConfig, exchange_bound_s
 from benchctl.config.station import ArchiveConfig, PanelConfig, UnitConfig, plain_text
+from benchctl.config.timing import TimingConfig
 from benchctl.config.types import (
     Strict,
 )
@@ -46,6 +47,9 @@ class BenchConfig(Strict):
     """The instrument under test: its protocol, link and expected rate."""
     run: RunConfig
     """The run: its verdict limit, decision rule, checks and outputs."""
+    timing: TimingConfig = TimingConfig()
+    """The bench's own stream-to-stream delay, as its timing calibration measured it (applied
+    to every run's analysis)."""
     sim: SimConfig | None = None
     """Present: a simulated bench (`benchctl run` starts the simulators itself)."""
     archive: ArchiveConfig = ArchiveConfig()

@@ -232,6 +232,7 @@ def build_record(
         "station": str(meta.get("station") or ""),
         "stand": {"identity": devices.get("stand"),
                   "calibration_due": None if due is None else str(due)[:10]},
+        "timing": _timing(config.get("timing")),
         "instruments": [{"role": "dut", "identity": dut,
                          "axes": _instrument_axes(config.get("instrument") or {})}],
         "profile": {
@@ -255,6 +256,18 @@ def build_record(
         del record["exit_code"]
     out: dict[str, Any] = plain(record)
     return out
+
+
+def _timing(timing: Any) -> dict[str, Any] | None:
+    """The config's ``timing:`` section as the record states it (None: a config without one,
+    from a benchctl before the bench's timing calibration)."""
+    if not isinstance(timing, Mapping):
+        return None
+    cal = timing.get("calibrated")
+    return {"offset_s": float(timing.get("offset_s") or 0.0),
+            "uncertainty_s": float(timing.get("uncertainty_s") or 0.0),
+            "calibrated": None if cal is None else str(cal)[:10],
+            "reference": timing.get("reference")}
 
 
 def _instrument_axes(instrument: Mapping[str, Any]) -> dict[str, Any] | None:

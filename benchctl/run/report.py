@@ -221,6 +221,11 @@ def format_report(rep: Report) -> str:
     scale = m.get("scale")
     if scale is not None and scale != 1.0:
         lines.append(f"  profile scaled by {scale:g} to fit the stand limits")
+    timing = m.get("timing") or {}
+    if timing.get("offset_s"):
+        lines.append(f"  bench timing offset {timing['offset_s'] * 1e3:+.4f} ms "
+                     f"(± {(timing.get('uncertainty_s') or 0.0) * 1e3:.4f} ms, calibrated "
+                     f"{timing.get('calibrated')}) subtracted from the instrument's instants")
     lines.extend(f"  DEVIATION: {d}" for d in rep.deviations)
     for v in rep.axes.values():
         lo, hi = v.sigma_ci95_deg

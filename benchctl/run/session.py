@@ -967,6 +967,7 @@ class Session:
                     res.warnings.append(why)
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
+        meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
         measurements, warnings = self._measurements(verdicts, results)
         report = Report(verdicts, self.path, meta, self._stats(), window,
                         decision_rule=self.rule, measurements=measurements,

@@ -265,14 +265,21 @@ class SimStand(StandFirmware):
     def true_angles(self, t: float) -> dict[str, float]:
         """True (unquantised) angles in degrees at host monotonic time ``t``, interpolated.
 
-        The history reaches back about 4 s; earlier or later times are clamped to its ends.
+        The history reaches back about 4 s; earlier times are clamped to its start. A time
+        after the last physics tick (the present, between two ticks) is the last tick's angle
+        carried on at its rate, as the encoder's feedback has it: never the last tick's angle
+        itself, which would be up to a tick old (a delay the instrument does not have).
         """
         with self._lock:
             self._advance(min(t + self._tick_s, self.clock.monotonic()))  # a late physics thread
             k_end = self._k
             n = self._hist.shape[0]
             u = (t - self._t0) / self._tick_s
-            u = min(max(u, max(0, k_end - n + 2)), k_end)
+            if u > k_end:
+                ahead = (u - k_end) * self._tick_s
+                return {a: self._state[a].angle_deg + self._state[a].rate_deg_s * ahead
+                        for a in self.axes}
+            u = max(u, max(0, k_end - n + 2))
             k0 = math.floor(u)
             k1 = min(k0 + 1, k_end)
             w = u - k0
@@ -286,13 +293,19 @@ class SimStand(StandFirmware):
             self._advance(min(float(ts[-1]) + self._tick_s, self.clock.monotonic()))
             k_end = self._k
             n = self._hist.shape[0]
-            u = (ts - self._t0) / self._tick_s
-            u = np.minimum(np.maximum(u, max(0, k_end - n + 2)), k_end)
+            u_all = (ts - self._t0) / self._tick_s
+            u = np.minimum(np.maximum(u_all, max(0, k_end - n + 2)), k_end)
             k0 = np.floor(u).astype(np.int64)
             k1 = np.minimum(k0 + 1, k_end)
             w = (u - k0)[:, None]
             hist = self._hist  # rows k0 % n and k1 % n
             rows = (1.0 - w) * hist.take(k0, 0, mode="wrap") + w * hist.take(k1, 0, mode="wrap")
+            later = u_all > k_end  # after the last tick: carried on at its rate (true_angles)
+            if later.any():
+                ahead = (u_all[later] - k_end) * self._tick_s
+                for i, a in enumerate(self.axes):
+                    st = self._state[a]
+                    rows[later, i] = st.angle_deg + st.rate_deg_s * ahead
         return {a: rows[:, i] for i, a in enumerate(self.axes)}
 
     def servo_response(self, f_hz: float) -> complex:
