@@ -17,8 +17,10 @@ import json
 import math
 import sys
 from collections.abc import Callable, Mapping
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import IO, Any
+
+from benchctl.errors import DataError
 
 
 def plain(obj: Any) -> Any:
@@ -87,9 +89,6 @@ def load_object(path: str | PurePath, name: str, what: str,
     """A JSON object from ``path`` (or ``path/name`` when it is a folder), parsed strictly and
     checked by ``validate`` (which raises ``DataError``); every failure is a ``DataError``
     naming the file and ``what`` it should have held."""
-    from pathlib import Path
-
-    from benchctl.errors import DataError
 
     p = Path(path)
     if p.is_dir():

@@ -20,7 +20,7 @@ from pathlib import Path
 from live_bench import ROLL, expected_sigma, live_bench
 
 from benchctl.run import RunOptions, run_test
-from benchctl.run.session import prepare_motion
+from benchctl.run.prepare import prepare_motion
 
 
 def one(tmp: Path, transport: str, baud: int) -> tuple[float, float]:

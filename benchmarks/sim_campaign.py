@@ -73,7 +73,9 @@ sys.path.insert(0, str(ROOT))
 from benchctl.clock.virtual import VirtualClock  # noqa: E402
 from benchctl.config import BenchConfig, load_config  # noqa: E402
 from benchctl.errors import BenchError  # noqa: E402
-from benchctl.run.session import RunOptions, open_devices, run_test  # noqa: E402
+from benchctl.run.devices import open_devices  # noqa: E402
+from benchctl.run.prepare import RunOptions  # noqa: E402
+from benchctl.run.session import run_test  # noqa: E402
 from benchctl.run.supervisor import Supervisor  # noqa: E402
 from benchctl.sim.bench import SimBench  # noqa: E402
 from benchctl.sim.disturb import Disturbances  # noqa: E402

@@ -90,8 +90,9 @@ def child(tree: Path, args: argparse.Namespace) -> None:
     sys.path.insert(0, str(tree))
     from benchctl.clock import virtual
     from benchctl.config import load_config
+    from benchctl.run import RunOptions
     from benchctl.run import state as run_state
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.session import run_test
 
     out: Path = args.out
     cfg_path = bench_config(tree, args, out)

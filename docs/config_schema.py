@@ -1,9 +1,10 @@
 """A Sphinx directive, ``bench-config-schema``: the bench config's fields, generated.
 
-The bench config is validated by the pydantic models in ``benchctl/config.py``
+The bench config is validated by the pydantic models in the package ``benchctl/config/``
 (``BenchConfig`` and the models of its sections). This renders their JSON Schema
-(``BenchConfig.model_json_schema()``) as one table per section — every field with its type,
-its default (or *required*) and its bounds — so the reference cannot drift from the code.
+(``benchctl.config.config_schema()``, what ``benchctl schema config`` prints) as one table per
+section — every field with its type, its default (or *required*), its bounds and its meaning —
+so the reference cannot drift from the code.
 Documentation only: nothing in the product is changed.
 """
 
@@ -86,11 +87,12 @@ def _refs(spec: Any) -> list[str]:
     return out
 
 
-def schema_tables() -> list[tuple[str, list[str], list[list[str]]]]:
-    """(model, where it appears, rows of field / type / default / bounds) per model."""
-    from benchctl.config import BenchConfig
+def schema_tables() -> list[tuple[str, list[str], str, list[list[str]]]]:
+    """(model, where it appears, what it is, rows of field / type / default / bounds / meaning)
+    per model."""
+    from benchctl.config import config_schema
 
-    schema = BenchConfig.model_json_schema(mode="validation")
+    schema = config_schema()
     defs: dict[str, Any] = schema.get("$defs", {})
     models: dict[str, dict[str, Any]] = {"BenchConfig": schema, **defs}
     # each model with the places it appears at, in the order they are first met
@@ -109,7 +111,7 @@ def schema_tables() -> list[tuple[str, list[str], list[list[str]]]]:
                     paths[ref] = []
                     queue.append(ref)
                 paths[ref] += [w for w in where if w not in paths[ref]]
-    tables: list[tuple[str, list[str], list[list[str]]]] = []
+    tables: list[tuple[str, list[str], str, list[list[str]]]] = []
     for name, where in paths.items():
         model = models[name]
         required = set(model.get("required", []))
@@ -121,8 +123,9 @@ def schema_tables() -> list[tuple[str, list[str], list[list[str]]]]:
                 default = _lit(spec["default"])
             else:
                 default = ""
-            rows.append([f"``{field}``", _type(spec), default, _bounds(spec)])
-        tables.append((name, where, rows))
+            meaning = spec.get("description", "").replace("`", "``").replace("````", "``")
+            rows.append([f"``{field}``", _type(spec), default, _bounds(spec), meaning])
+        tables.append((name, where, model.get("description", ""), rows))
     return tables
 
 
@@ -140,11 +143,11 @@ def _inline(text: str) -> list[nodes.Node]:
 
 
 def _table(rows: list[list[str]]) -> nodes.table:
-    head = ["field", "type", "default", "bounds"]
+    head = ["field", "type", "default", "bounds", "meaning"]
     table = nodes.table()
     group = nodes.tgroup(cols=len(head))
     table += group
-    for width in (25, 35, 20, 20):
+    for width in (16, 18, 10, 12, 44):
         group += nodes.colspec(colwidth=width)
     thead, tbody = nodes.thead(), nodes.tbody()
     group += thead
@@ -167,8 +170,11 @@ class BenchConfigSchema(SphinxDirective):
 
     def run(self) -> list[nodes.Node]:
         out: list[nodes.Node] = []
-        for name, where, rows in schema_tables():
+        for name, where, about, rows in schema_tables():
             out.append(nodes.rubric(name, name))
+            if about:
+                first = about.split("\n\n")[0].replace("`", "``").replace("````", "``")
+                out.append(nodes.paragraph("", "", *_inline(first)))
             at = ", ".join(f"``{w}``" if w != "(top level)" else w for w in where)
             out.append(nodes.paragraph("", "", *_inline(f"At: {at}")))
             out.append(_table(rows))

@@ -3,7 +3,8 @@
 Public API::
 
     analyze(t_ref, x_ref_deg, t_dev, y_dev_deg, *, max_lag_s=None, band_hz=None,
-            compensate_delay="none", timebase="given", lines="auto", period_s=None,
+            compensate_delay="none", timebase="auto", reference_timebase="auto",
+            lines="auto", period_s=None,
             departures=None) -> AnalysisResult
     analyze_recording(path, axis, **same options) -> AnalysisResult
     departures_of(recording) -> Departures  (underruns and rejoins, see ``departures``)

@@ -32,9 +32,14 @@ What is done, in order:
 
 With ``timebase="fitted"`` the device instants are replaced by the instants of the robust
 clock at their slots, ``t₀ + k_i·dt + w(k_i)`` (for an instrument that samples on its own
-clock but whose samples carry jittery receipt times); the default ``"given"`` takes the given
-times as the sample instants. ``reference_timebase`` does the same for the reference (a
-stream sampled on a uniform clock whose stamps jitter). Instants labelled by their time base
+clock but whose samples carry jittery receipt times); ``"given"`` takes the given times as the
+sample instants; the default ``"auto"`` lays the record on the stamps, measures which share
+``β`` of each stream's scatter about its clock is the stamps' own error
+(``timing.stamp_shares``: the error formed at the stamps follows ``ẋ·scatter`` with slope β) and
+takes the fitted clock when ``β ≥ 0.5``, the stamps otherwise. Stamps used as given count
+``β`` of their scatter as their residual error (all of it when it cannot be measured).
+``reference_timebase`` does the same for the reference (a stream sampled on a uniform clock
+whose stamps jitter). Instants labelled by their time base
 (``timebase.Instants``, as a recording's ``pair`` gives them) are used as given and carry their
 own label and residual error.
 
@@ -49,14 +54,17 @@ clock's own error, for labelled ones their label's.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+import functools
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.analysis.timebase import Clock, fit_slots
+from benchctl.analysis.timebase import WANDER_BLOCK, Clock, fit_slots
+from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
@@ -75,6 +83,15 @@ MIN_STEP_S = 1e-6  # median step at least 1 µs …
 MAX_STEP_S = 1e6  # … and at most 10⁶ s
 MAX_ABS_TIME_S = 1e12  # |time| at most 10¹² s
 MAX_ABS_ANGLE_DEG = 1e6  # |angle| at most 10⁶ deg
+
+
+SMOOTH_SCATTER = 0.5  # lag-1 correlation of a scatter above which it is a wander, not jitter
+GRID_SCATTER = 1e-6  # stamps within this share of a step of their clock: a grid, no test
+Mode = Literal["auto", "given", "fitted"]
+MODES = ("auto", "given", "fitted")
+#: time bases whose error is a random scatter per sample (not an offset of the record)
+RANDOM_STAMPS = ("given", "receipt", "midpoint", "request_end")
+FITTED_CLOCKS = ("fitted", "device", "adapter")  # clocks fitted through stamps (wander blocks)
 
 
 @dataclass(frozen=True)
@@ -118,6 +135,9 @@ class Aligned:
     rate_rms: float = 0.0
     bridged: int = 0
     bridge_variance: float = 0.0
+    xdot: FloatArray | None = None  # the reference's rate at the device instants (deg/s)
+    modes: tuple[Mode, Mode] = ("given", "given")  # the modes used (device, reference)
+    choice: dict[str, Any] | None = None  # how they were chosen (``align``)
 
     @property
     def n_valid(self) -> int:
@@ -131,8 +151,48 @@ class Aligned:
         r = np.nan_to_num(self.reference_residual_s)
         return float(self.rate_rms**2 * (d**2 + r**2) + self.bridge_variance)
 
-    def timing_warning(self, variance: float) -> str:
-        """The warning when the timing contribution is a noticeable share of ``variance``."""
+    def rate(self) -> FloatArray:
+        """The reference's rate at every slot (deg/s): the spline's where the reference was
+        interpolated, else differences on the grid (``_rate``)."""
+        return self.xdot if self.xdot is not None else _rate(self.x, self.mask, self.dt)
+
+    @property
+    def offset_u_s(self) -> float:
+        """Standard uncertainty (s) of an offset common to the record between the streams'
+        instants, from the residual error of each time base that is a clock: a clock fitted
+        through stamps (fitted, device, adapter) errs independently from block to block of
+        ``WANDER_BLOCK`` samples (at its knots by √(3/2) × its rms error, which is averaged
+        along the interpolation), so over the record by that / √(blocks); another
+        (the stand's) by its error. Stamps used as they are scatter at random: their error is
+        in ``timing_variance`` and ``random_residual_s``, not an offset."""
+        span = len(self.mask) * self.dt
+        parts = []
+        for base, r, step in ((self.device_timebase, self.device_residual_s, self.dt),
+                              (self.reference_timebase, self.reference_residual_s,
+                               self.reference.dt)):
+            if base in RANDOM_STAMPS:
+                continue
+            r = float(np.nan_to_num(r))
+            if base in FITTED_CLOCKS and step > 0:  # its knots err by √(3/2) of its rms error
+                r *= math.sqrt(1.5 / max(1.0, span / step / WANDER_BLOCK))
+            parts.append(r)
+        return math.hypot(*parts) if parts else 0.0
+
+    @property
+    def random_residual_s(self) -> float:
+        """rms error (s) of the instants that scatter at random (stamps used as they are)."""
+        parts = [float(np.nan_to_num(r)) for base, r in (
+            (self.device_timebase, self.device_residual_s),
+            (self.reference_timebase, self.reference_residual_s)) if base in RANDOM_STAMPS]
+        return math.hypot(*parts) if parts else 0.0
+
+    def timing_warning(self, variance: float, cross: float = 0.0,
+                       offset_s: float | None = None) -> str:
+        """The warning when timing moves σ's interval noticeably: the variance the instants'
+        residual errors add, and (``cross``, deg²) the standard uncertainty of σ² from an
+        offset of ``offset_s`` (default ``offset_u_s``) between the streams
+        (``timing.timing_budget``)."""
+        offset = self.offset_u_s if offset_s is None else offset_s
         text = (
             f"timing: the instants' residual errors (device {1e3 * self.device_residual_s:.3g} "
             f"ms {self.device_timebase}, reference {1e3 * self.reference_residual_s:.3g} ms "
@@ -142,13 +202,23 @@ class Aligned:
             text += f" and {self.bridged} samples on a reference bridged across its gaps"
         share = (f"about {100 * self.timing_variance / variance:.3g} % to σ²" if variance > 0
                  else f"{self.timing_variance:.3g} deg² to a σ² of 0")
-        return (
-            text + f" add {share} "
-            "(σ_ẋ²·jitter²); stamps that jitter about a uniform clock: use a fitted time base "
-            "(--timebase fitted, --reference-timebase fitted)"
-        )
+        text += f" add {share} (σ_ẋ²·jitter²)"
+        if cross > 0.0 and variance > 0:
+            text += (f"; an offset of ±{1e3 * offset:.3g} ms between the streams moves "
+                     f"σ² by ±{100 * cross / variance:.3g} % (2·|cov(ε, ẋ)|·offset: first-order "
+                     "for a lagging instrument)")
+        text += "; σ's interval includes them"
+        given = [name for name, base, entry in (
+            ("--timebase", self.device_timebase, "device"),
+            ("--reference-timebase", self.reference_timebase, "reference"))
+            if base == "given" and (self.choice or {}).get(entry, {}).get("stamp_share") is not None
+            and (self.choice or {})[entry]["stamp_share"] >= AUTO_SHARE]
+        if given:
+            text += (": the stamps jitter about a uniform clock, a fitted time base would take "
+                     "it out (" + ", ".join(f"{o} fitted" for o in given) + ")")
+        return text
 
-    def timing_fields(self) -> dict[str, float | str]:
+    def timing_fields(self) -> dict[str, Any]:
         """The time bases and the timing contribution, for the result's ``timing``."""
         return {
             "device_timebase": self.device_timebase,
@@ -160,6 +230,7 @@ class Aligned:
             "bridge_variance": self.bridge_variance,
             "reference_rate_rms": self.rate_rms,
             "timing_variance": self.timing_variance,
+            "timebase_choice": self.choice,
         }
 
 
@@ -292,6 +363,20 @@ def _bridgeable(
     return out
 
 
+def _rate(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> FloatArray:
+    """The reference's rate (deg/s) in each valid slot from its neighbours: central
+    differences where both are there, one-sided where one is, 0 where none."""
+    if bool(mask.all()):  # no gap: numpy's own (one array, not five)
+        return np.asarray(np.gradient(x, dt), dtype=float)
+    d = np.diff(x) / dt
+    d[~(mask[1:] & mask[:-1])] = np.nan
+    back = np.concatenate(([np.nan], d))
+    fwd = np.concatenate((d, [np.nan]))
+    with np.errstate(invalid="ignore"):
+        out = np.where(np.isnan(back), fwd, np.where(np.isnan(fwd), back, 0.5 * (back + fwd)))
+    return np.nan_to_num(out, copy=False)
+
+
 def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
     """rms rate of the reference (deg/s) from differences over consecutive valid slots."""
     pair = mask[1:] & mask[:-1]
@@ -304,20 +389,65 @@ def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
 Label = tuple[str, float, dict[str, Any]] | None
 
 
-def _instants(
-    t: FloatArray, mode: str, label: Label
-) -> tuple[FloatArray, NDArray[np.int64], StreamTiming, str, float]:
-    """(instants used, slots, timing, time base, residual error) of one stream."""
-    k, clk = fit_slots(t)
-    timing = _timing(t, k, clk)
-    if mode == "fitted":
-        return clk.at(k), k, timing, "fitted", clk.error_rms
-    if label is not None:  # its own fit's late stamps, not those of a re-fit of the instants
-        late = label[2].get("late")
-        if isinstance(late, int):
-            timing = dataclasses.replace(timing, late=late)
-        return t, k, timing, label[0], label[1]
-    return t, k, timing, "given", timing.jitter_rms
+@dataclass(frozen=True)
+class _Stream:
+    """One stream's stamps, slots, fitted clock and timing."""
+
+    t: FloatArray
+    k: NDArray[np.int64]
+    clk: Clock
+    timing: StreamTiming
+    label: Label
+
+    @classmethod
+    def of(cls, t: FloatArray, label: Label) -> _Stream:
+        k, clk = fit_slots(t)
+        return cls(t, k, clk, _timing(t, k, clk), label)
+
+    @property
+    def scatter(self) -> FloatArray:
+        """The stamps' scatter about their fitted clock, s."""
+        return np.asarray(self.t - self.clk.at(self.k), dtype=float)
+
+    def testable(self, mode: str) -> bool:
+        """Unlabelled stamps used (or maybe used) as given that scatter about their clock by
+        more than ``GRID_SCATTER`` of a step (a grid written with its rounding is a grid), and
+        at random: a scatter that follows itself from sample to sample (lag-1 correlation over
+        ``SMOOTH_SCATTER``) is a clock's slow wander the fitted clock follows anyway — a
+        skewed clock's curve, say —, not jitter to test."""
+        return (self.label is None and mode != "fitted"
+                and self.timing.jitter_rms > GRID_SCATTER * self.timing.dt
+                and self.random_scatter)
+
+    @functools.cached_property
+    def random_scatter(self) -> bool:
+        """The scatter's lag-1 correlation is under ``SMOOTH_SCATTER``."""
+        d = self.scatter - float(np.mean(self.scatter))
+        den = float(np.dot(d, d))
+        return den > 0.0 and float(np.dot(d[1:], d[:-1])) / den < SMOOTH_SCATTER
+
+    def instants(self, mode: str, share: StampShare) -> tuple[FloatArray, StreamTiming, str,
+                                                                 float]:
+        """(instants used, timing, time base, residual error) in ``mode`` (given or fitted).
+        Stamps used as given: their residual error is the share ``β`` of their scatter that
+        the data show to be the stamps' own (all of it when not measured)."""
+        if mode == "fitted":
+            return self.clk.at(self.k), self.timing, "fitted", self.clk.error_rms
+        if self.label is not None:  # its own fit's late stamps, not those of a re-fit
+            late = self.label[2].get("late")
+            timing = self.timing
+            if isinstance(late, int):
+                timing = dataclasses.replace(timing, late=late)
+            return self.t, timing, self.label[0], self.label[1]
+        res = self.timing.jitter_rms
+        if share.measured:
+            res *= math.sqrt(min(max(share.beta, 0.0), 1.0))
+        return self.t, self.timing, "given", res
+
+
+def _check_mode(mode: str, name: str) -> None:
+    if mode not in MODES:
+        raise DataError(f"{name}: expected one of {', '.join(MODES)}, got {mode!r}")
 
 
 def align(
@@ -327,8 +457,8 @@ def align(
     y_dev: FloatArray,
     *,
     shift_s: float = 0.0,
-    timebase: Literal["given", "fitted"] = "given",
-    reference_timebase: Literal["given", "fitted"] = "given",
+    timebase: Mode = "auto",
+    reference_timebase: Mode = "auto",
     labels: tuple[Label, Label] = (None, None),
 ) -> Aligned:
     """Evaluate the reference at the device's instants and lay both on the device's grid.
@@ -341,9 +471,10 @@ def align(
         Device instants, s, and angles, deg.
     shift_s : float
         Delay to compensate, s: the reference is evaluated at ``t_dev − shift_s``.
-    timebase, reference_timebase : {"given", "fitted"}
-        Use the given device (reference) instants, or those of the robust clock fitted
-        through them.
+    timebase, reference_timebase : {"auto", "given", "fitted"}
+        Use the given device (reference) instants, those of the robust clock fitted through
+        them, or (``auto``) the one the data call for: the fitted clock when the stamps'
+        scatter about it is mostly the stamps' own error (``timing.stamp_shares``).
     labels : (label, label)
         ``timebase.label_of`` of the reference's and the device's instants as the caller
         had them (a recording's time bases), else None.
@@ -352,14 +483,65 @@ def align(
     -------
     Aligned
     """
+    _check_mode(timebase, "timebase")
+    _check_mode(reference_timebase, "reference timebase")
     for t, v, name in ((t_ref, x_ref, "reference"), (t_dev, y_dev, "device")):
         if len(t) != len(v):
             raise DataError(f"{name}: {len(t)} times but {len(v)} angles")
         check_times(t, f"{name} time")
         check_grid(t, f"{name} time")
         check_values(v, f"{name} angle")
-    t_use, k, dev_timing, dev_base, dev_res = _instants(t_dev, timebase, labels[1])
-    t_ref, _, ref_timing, ref_base, ref_res = _instants(t_ref, reference_timebase, labels[0])
+    dev = _Stream.of(np.asarray(t_dev, dtype=float), labels[1])
+    ref = _Stream.of(np.asarray(t_ref, dtype=float), labels[0])
+    modes: list[Mode] = ["given" if m == "auto" else m for m in (timebase, reference_timebase)]
+    shares = (NOT_MEASURED, NOT_MEASURED)
+    one_column = len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_dev)  # one CSV's rows
+    if not one_column and (dev.testable(timebase) or ref.testable(reference_timebase)):
+        first = _lay(ref, x_ref, dev, y_dev, shift_s, modes, shares)
+        shares = _stamp_test(first, ref, dev, (dev.testable(timebase),
+                                               ref.testable(reference_timebase)))
+        for i, (mode, stream) in enumerate(((timebase, dev), (reference_timebase, ref))):
+            if mode == "auto" and stream.testable(mode) and shares[i].measured:
+                modes[i] = "fitted" if shares[i].beta >= AUTO_SHARE else "given"
+    out = _lay(ref, x_ref, dev, y_dev, shift_s, modes, shares)
+    choice = {
+        "device": {"asked": timebase, "used": modes[0], **shares[0].to_dict()},
+        "reference": {"asked": reference_timebase, "used": modes[1], **shares[1].to_dict()},
+    }
+    return dataclasses.replace(out, modes=(modes[0], modes[1]), choice=choice)
+
+
+def _stamp_test(al: Aligned, ref: _Stream, dev: _Stream, on_stamps: tuple[bool, bool]
+                ) -> tuple[StampShare, StampShare]:
+    """``β`` of the device's and the reference's scatter, from the record laid on their stamps
+    (``timing.stamp_shares``); a stream not on its stamps (``on_stamps``) is not tested."""
+    from scipy.interpolate import make_interp_spline
+
+    m = al.mask
+    ts = al.t[m]
+    zero = np.zeros(len(ts))
+    d_dev = zero
+    if on_stamps[0]:  # the slots' instants are the device's own stamps, in order
+        i = np.clip(np.searchsorted(dev.t, ts), 0, len(dev.t) - 1)
+        d_dev = np.where(dev.t[i] == ts, dev.scatter[i], 0.0)
+    d_ref = make_interp_spline(ref.t, ref.scatter, k=3)(ts - al.shift) if on_stamps[1] else zero
+    eps = (al.y - al.x)[m]
+    return stamp_shares(eps, al.x[m], al.rate()[m], d_dev, d_ref)
+
+
+def _lay(
+    ref: _Stream,
+    x_ref: FloatArray,
+    dev: _Stream,
+    y_dev: FloatArray,
+    shift_s: float,
+    modes: Sequence[str],
+    shares: tuple[StampShare, StampShare],
+) -> Aligned:
+    """Both streams on the device's grid, each on the instants of its mode."""
+    t_use, dev_timing, dev_base, dev_res = dev.instants(modes[0], shares[0])
+    t_ref, ref_timing, ref_base, ref_res = ref.instants(modes[1], shares[1])
+    k, t_dev = dev.k, dev.t
     same = shift_s == 0.0 and len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_use)
     t_eval = t_use - shift_s
     ok = (t_eval >= t_ref[0]) & (t_eval <= t_ref[-1])
@@ -381,6 +563,7 @@ def align(
         in_bridge = bridged[seg] & inside
         bridge_sq[in_bridge] = bridge_err[seg[in_bridge]] ** 2
         ok &= ~(gap_ref[seg] & inside)
+    rate_at = None
     if same:
         x_at = np.asarray(x_ref, dtype=float)
     else:
@@ -389,6 +572,8 @@ def align(
         spline = make_interp_spline(t_ref, x_ref, k=3)
         x_at = np.full(len(t_eval), np.nan)
         x_at[ok] = spline(t_eval[ok])
+        rate_at = np.zeros(len(t_eval))
+        rate_at[ok] = spline.derivative()(t_eval[ok])
     first, last = int(np.argmax(ok)), len(ok) - int(np.argmax(ok[::-1])) - 1
     k_rel = k[first : last + 1] - k[first]
     n = int(k_rel[-1]) + 1
@@ -401,6 +586,10 @@ def align(
     x[k_rel[sel]] = x_at[first : last + 1][sel]
     y[k_rel[sel]] = y_dev[first : last + 1][sel]
     t[k_rel[sel]] = t_use[first : last + 1][sel]
+    xdot = None  # one time column: the rate from the grid when asked (Aligned.rate)
+    if rate_at is not None:
+        xdot = np.zeros(n)
+        xdot[k_rel[sel]] = rate_at[first : last + 1][sel]
     return Aligned(
         t=t,
         x=x,
@@ -418,4 +607,5 @@ def align(
         rate_rms=_rate_rms(x, mask, dev_timing.dt),
         bridged=int(np.count_nonzero(bridge_sq[ok])),
         bridge_variance=float(bridge_sq[ok].sum() / max(1, int(ok.sum()))),
+        xdot=xdot,
     )

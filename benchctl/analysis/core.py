@@ -70,6 +70,7 @@ from benchctl.analysis.result import AnalysisResult
 from benchctl.analysis.skew import WARN_PPM as SKEW_WARN_PPM
 from benchctl.analysis.skew import Skew, deskewed, estimate_skew
 from benchctl.analysis.timebase import label_of
+from benchctl.analysis.timing import TimingBudget, error_rate_covariance, timing_budget
 from benchctl.analysis.uncertainty import (
     density_interval,
     dof_of_variance,
@@ -85,7 +86,6 @@ LinesMode = LineSet | Literal["auto", "off"]
 MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
-TIMING_SHARE_WARN = 0.01  # warn when the timing contribution exceeds 1 % of σ²
 SKEW_PASSES = 3  # a skew is measured again after its correction, at most this many times
 TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
 
@@ -344,8 +344,8 @@ def analyze(
     max_lag_s: float | None = None,
     band_hz: tuple[float, float] | None = None,
     compensate_delay: DelayMode = "none",
-    timebase: Literal["given", "fitted"] = "given",
-    reference_timebase: Literal["given", "fitted"] = "given",
+    timebase: Literal["auto", "given", "fitted"] = "auto",
+    reference_timebase: Literal["auto", "given", "fitted"] = "auto",
     lines: LinesMode = "auto",
     period_s: float | None = None,
     source: str = "",
@@ -369,9 +369,11 @@ def analyze(
         Remove an acquisition delay (s, positive when the device lags) before the analysis:
         the reference is evaluated at ``t_dev − delay``. "auto" uses the delay estimated from
         the cross-correlation peak. The delay found before compensation is always reported.
-    timebase : {"given", "fitted"}
-        Device instants as given, or fitted to a uniform clock (jittery receipt times).
-    reference_timebase : {"given", "fitted"}
+    timebase : {"auto", "given", "fitted"}
+        Device instants as given, or fitted to a uniform clock (jittery receipt times), or
+        (``auto``, the default) the fitted clock when the data show the stamps' scatter
+        about it to be the stamps' own error (``benchctl.analysis.timing``), else as given.
+    reference_timebase : {"auto", "given", "fitted"}
         The same for the reference's instants (a reference sampled on a uniform clock whose
         stamps jitter). Instants labelled with their time base (``timebase.Instants``, as
         ``Recording.pair`` gives them) are used as given and keep their label.
@@ -424,22 +426,35 @@ def analyze(
     labels = (label_of(t_ref), label_of(t_dev))
     al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                labels=labels)
+    asked = (timebase, reference_timebase)
+    timebase, reference_timebase = al.modes  # "auto" chosen once, from the stamps as given …
+    choice = al.choice
     al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     # the instrument's stamps drifting against the reference's (its own clock fast or slow):
     # measured from the cross-spectrum's phase turning over the record, taken out (skew.py)
     motion_period = _known_period(al, lines, period_s)
-    skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
+    skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
     if skew is not None and skew.significant:
-        td_stamped, total = td, skew
-        for _ in range(SKEW_PASSES):  # each pass measures what the last one left
-            td = deskewed(td_stamped, total)
-            al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
+        total, pending = None, skew
+        for i in range(SKEW_PASSES):  # each pass measures what the last one left
+            td = deskewed(td, pending)
+            total = pending if total is None else total.plus(pending)
+            # … or, with a skew, on the stamps without it (a drift of the delay swamps the
+            # error's slope on rate × scatter that tells stamps' errors from true instants)
+            modes = asked if i == 0 else (timebase, reference_timebase)
+            al = align(tr, xr, td, yd, timebase=modes[0], reference_timebase=modes[1],
                        labels=labels)
+            if i == 0:
+                timebase, reference_timebase = al.modes
+                choice = al.choice
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
-            rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period)
-            if rest is None or abs(rest.ppm) <= rest.se_ppm:
+            # the period again: a motion periodic on the reference's clock is periodic on
+            # the corrected grid, not on the skewed one (whole periods, no window's leakage)
+            motion_period = _known_period(al, lines, period_s)
+            rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
+            if rest is None or not rest.left:
                 break
-            total = total.plus(rest)
+            pending = rest
         skew = total
     _check_band(band_hz, al, sp.grid.resolution_hz)
     delay_raw = _delay(sp, al)
@@ -452,8 +467,15 @@ def analyze(
             al = align(tr, xr, td, yd, shift_s=shift, timebase=timebase,
                        reference_timebase=reference_timebase, labels=labels)
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
+    al = dataclasses.replace(al, choice=choice)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s,
                    ex, skew)
+
+
+def _t0(al: Aligned) -> float:
+    """The grid's first instant (its first slot always holds a sample)."""
+    ok = np.flatnonzero(np.isfinite(al.t))
+    return float(al.t[ok[0]]) if ok.size else 0.0
 
 
 def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> float | None:
@@ -470,12 +492,33 @@ def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> floa
     return None if count is None else len(al.mask) * al.dt / count
 
 
+def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
+                   centre: float, skew: Skew | None) -> TimingBudget:
+    """σ's interval with timing in it (``timing.timing_budget``): the variance the instants'
+    residual errors add, and an offset between the streams through cov(ε, ẋ) — the time
+    bases' (``Aligned.offset_u_s``) and, for a skew taken out, the correction's own: a slope
+    off by its standard error leaves a delay off by that × (t − t₀), on average × T/2."""
+    m = al.mask
+    full = bool(m.all())  # no gap: no copies of ε and ẋ at the samples
+    rate = al.rate() if full else al.rate()[m]
+    e = eps if full else eps[m]
+    cov = error_rate_covariance(e, rate)
+    n = max(len(e), 1)
+    random = 2.0 * float(np.sqrt(np.mean(np.square(e * rate)))) * al.random_residual_s / n**0.5
+    offset = al.offset_u_s
+    if skew is not None:  # the correction's own (its mean less its start), or what a skew
+        offset = math.hypot(offset, skew.anchor_se_s if skew.significant  # left uncorrected
+                            else skew.unexplained_s)
+    return timing_budget(centre, ci, al.timing_variance, cov, offset, random)
+
+
 def _skew_fields(skew: Skew | None) -> dict[str, Any]:
     """The skew for the result's ``timing`` (None fields: the record too short to measure it)."""
     if skew is None:
         return {"skew_ppm": None, "skew_ci95_ppm": None, "skew_corrected": False}
     return {"skew_ppm": skew.ppm, "skew_ci95_ppm": list(skew.ci95_ppm),
-            "skew_corrected": skew.significant, "skew_drift_s": skew.drift_s}
+            "skew_corrected": skew.significant, "skew_drift_s": skew.drift_s,
+            "skew_degree": skew.degree, "skew_wander_s": skew.wander_s}
 
 
 def _line_set(
@@ -575,11 +618,26 @@ def _line_analysis(
                                  "known line set")
             lines, period_s = ex.line_set, None
         period = (lines.period_s if isinstance(lines, LineSet) else period_s)
-        trimmed = _whole_part(al, period) if period is not None else None
-        if trimmed is not None:
-            al, note = trimmed
-            warnings.append(note)
-        ls, x_spectrum = _line_set(al, lines, period_s)
+        # completed with a gap only for known lines: found in the reference, a gap's edge
+        # leaks into every harmonic and they would be found everywhere
+        whole = (_whole_part(al, period, pad=isinstance(lines, LineSet))
+                 if period is not None else None)
+        ls, x_spectrum = _line_set(al if whole is None else whole[0], lines, period_s)
+        if whole is not None and ls is not None and whole[2] * _line_span(ls) > PAD_CYCLES:
+            # the gap at the end too long for the lines' band: their fit would amplify the
+            # noise (a band B holds ≈ 2·B·gap functions that live mostly in the gap)
+            assert period is not None
+            whole = _whole_part(al, period, pad=False)
+            if whole is None:
+                raise LinesError(
+                    f"the record ({len(al.mask) * al.dt:.6g} s) is short of whole periods of "
+                    f"{period:.6g} s by more than a gap the lines' band "
+                    f"({_line_span(ls):.4g} Hz) lets the fit bridge ({PAD_CYCLES:g}/band = "
+                    f"{PAD_CYCLES / _line_span(ls):.3g} s), and holds no whole period")
+            ls, x_spectrum = _line_set(whole[0], lines, period_s)
+        if whole is not None:
+            al = whole[0]
+            warnings.append(whole[1])
         if ls is None:
             return None
         la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum, band_hz)
@@ -590,14 +648,52 @@ def _line_analysis(
         return None
 
 
-def _whole_part(al: Aligned, period: float) -> tuple[Aligned, str] | None:
-    """A record just short of (or past) whole periods of ``period``: its first whole periods,
-    and the note that says so; None when it holds whole periods already, or not one."""
+PAD_SHARE = 0.02  # a record short of whole periods by at most this share of them: completed
+PAD_CYCLES = 1.5  # … and by a gap of at most this / the lines' band (Hz), s
+WHOLE_REL = 1e-4  # a record this close to whole periods is whole (a stand's clock ppm off)
+
+
+def _line_span(ls: LineSet) -> float:
+    """The band of a line set, Hz (its lowest to its highest line, one spacing at least)."""
+    f = ls.freq
+    return float(f.max() - f.min()) + 1.0 / ls.period_s
+
+
+def _whole_part(al: Aligned, period: float,
+                pad: bool = True) -> tuple[Aligned, str, float] | None:
+    """A record just short of (or past) whole periods of ``period``: on whole periods, and the
+    note that says so; None when it holds whole periods already, or not one and not nearly one.
+
+    Short of whole periods by at most ``PAD_SHARE`` of them, with ``pad`` (known lines: a
+    recording's profile; a run stopped half a second early, the usual one-period record of a
+    sea state included): the grid is completed to the
+    next whole period with empty slots, a gap at the end that the line fit handles as any
+    other (every sample used), unless the lines' band makes that gap too long to bridge
+    (``PAD_CYCLES``, judged by the caller, who then asks again with ``pad=False``). Otherwise its
+    first whole periods (the rest left out). Returns the record, the note and the seconds
+    missing at the end (0 when trimmed)."""
     n = len(al.mask)
     span = n * al.dt
     nf = span / period
-    whole = math.floor(nf + WHOLE_PERIODS_TOL)
-    if whole < 1 or abs(nf - round(nf)) <= WHOLE_PERIODS_TOL:
+    near = round(nf)
+    m_near = round(near * period / al.dt)
+    if near >= 1 and (abs(n - m_near) <= 1 or abs(nf - near) <= WHOLE_REL * near):
+        return None  # whole periods: to a slot, or to a clock's ppm (the lines then refine it)
+    if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE * near
+            and int(al.mask.sum()) >= 2):
+        missing = m_near - n
+        part = dataclasses.replace(
+            al, t=np.concatenate((al.t, np.full(missing, np.nan))),
+            x=np.concatenate((al.x, np.zeros(missing))),
+            y=np.concatenate((al.y, np.zeros(missing))),
+            mask=np.concatenate((al.mask, np.zeros(missing, dtype=bool))))
+        return (part, (f"the record ({span:.6g} s) holds {nf:.6g} periods of {period:.6g} s: "
+                      f"the line-wise estimate is made over {near} whole period"
+                      f"{'s' if near > 1 else ''} ({m_near * al.dt:.6g} s), the last "
+                      f"{missing * al.dt:.4g} s of which are missing (a gap at the end)"),
+                missing * al.dt)
+    whole = near if n > m_near else math.floor(nf)
+    if whole < 1:
         return None
     m = round(whole * period / al.dt)
     if m < 2 or abs(m * al.dt / period - whole) > WHOLE_PERIODS_TOL / max(whole, 1):
@@ -605,10 +701,10 @@ def _whole_part(al: Aligned, period: float) -> tuple[Aligned, str] | None:
     part = dataclasses.replace(al, t=al.t[:m], x=al.x[:m], y=al.y[:m], mask=al.mask[:m])
     if int(part.mask.sum()) < 2:
         return None
-    return part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
-                  f"line-wise estimate is made over its first {whole} whole period"
-                  f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
-                  f"{span - m * al.dt:.4g} s left out of it")
+    return (part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
+                   f"line-wise estimate is made over its first {whole} whole period"
+                   f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
+                   f"{span - m * al.dt:.4g} s left out of it"), 0.0)
 
 
 def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
@@ -638,12 +734,16 @@ def _result(
 ) -> AnalysisResult:
     grid = sp.grid
     warnings: list[str] = []
-    if skew is not None and skew.significant and abs(skew.ppm) > SKEW_WARN_PPM:
+    if skew is not None and skew.significant and (abs(skew.ppm) > SKEW_WARN_PPM
+                                                  or skew.degree > 1):
         lo_p, hi_p = skew.ci95_ppm
+        curve = (f"; its rate changes over the record: the delay follows a curve of degree "
+                 f"{skew.degree}, up to {1e3 * skew.wander_s:.3g} ms off a steady drift"
+                 if skew.degree > 1 else "")
         warnings.append(
             f"timing: the instrument's stamps drift against the reference's by "
             f"{skew.ppm:+.4g} ppm (95 % {lo_p:+.4g} … {hi_p:+.4g}; {1e3 * skew.drift_s:+.4g} ms "
-            "over the record): its clock runs fast or slow. Corrected, anchored at the "
+            f"over the record{curve}): its clock runs fast or slow. Corrected, anchored at the "
             "record's start (its clock taken as right when the record began); set the "
             "instrument's clock, or record its stamps with the host's receipt times")
     eps_raw = np.where(al.mask, al.y - al.x, 0.0)
@@ -676,8 +776,12 @@ def _result(
         mean_removal = la.mean_removal
         ci = la.sigma_ci95
         dof = la.dof
-        # the record just short of whole periods: the lines over its whole periods (_whole_part)
-        part = la.n_periods * la.lines.period_s < (len(al.mask) - 1) * al.dt
+        # the record just short of whole periods: the lines over its whole periods, or over
+        # whole periods that hold a gap at the end (_whole_part); either way σ over the
+        # samples present is not over whole periods, and reads the lines' motion unevenly
+        span = la.n_periods * la.lines.period_s
+        part = span < (len(al.mask) - 1) * al.dt or span > len(al.mask) * al.dt + max(
+            2.0 * al.dt, 1e-4 * la.lines.period_s)
         if n < len(al.mask) or part:
             # samples missing (gaps, exclusions): the σ over the samples present weighs the
             # motion's phases unevenly (an error that depends on the motion then reads off);
@@ -729,9 +833,11 @@ def _result(
             "variance_ci95": None,
             "sigma_ci95": None,
         }
-    # (an error of exactly zero: only a timing contribution above rounding is worth a word)
-    if al.timing_variance > max(TIMING_SHARE_WARN * variance, TIMING_FLOOR_DEG2):
-        warnings.append(al.timing_warning(variance))
+    # timing in σ's interval; a warning when it moves the interval noticeably (timing.py)
+    budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)), skew)
+    ci = budget.ci
+    if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
+        warnings.append(al.timing_warning(variance, budget.cross, budget.offset_u_s))
     if al.device.gap_count:
         warnings.append(
             f"device stream has {al.device.gap_count} gap(s), {al.device.missing_samples} "
@@ -747,12 +853,14 @@ def _result(
             keep = (la.freq >= band_hz[0]) & (la.freq <= band_hz[1])
         frf_arrays = (la.freq[keep], la.gain[keep], la.phase_deg[keep], la.coherence[keep],
                       la.gain_ci95[keep], la.phase_ci95_deg[keep])
+        frf_reliable: NDArray[np.bool_] | None = la.reliable[keep]
         periods = periods_from_lines(la, frf_mod.TRADITIONAL_PERIODS_S)
         frf_source = "lines"
         split = (la.linear, la.incoherent, "lines")
     else:
         gci, pci = frf_mod.h1_intervals(resp, dof_f)
         frf_arrays = (resp.freq, resp.gain, resp.phase_deg, resp.coherence, gci, pci)
+        frf_reliable = None
         periods = frf_mod.at_periods(resp, dof_f, grid.freq, sp.gxx, grid.resolution_hz)
         frf_source = "h1"
         split = (linear, variance - linear, "lag_window")
@@ -786,6 +894,7 @@ def _result(
         frf_gain_ci95=frf_arrays[4],
         frf_phase_ci95_deg=frf_arrays[5],
         frf_source=frf_source,
+        frf_reliable=frf_reliable,
         periods=periods,
         linear=split[0],
         incoherent=split[1],
@@ -802,6 +911,7 @@ def _result(
             **al.timing_fields(),
             "timing_share": al.timing_variance / variance if variance > 0 else 0.0,
             **_skew_fields(skew),
+            **budget.fields(),
         },
         cross_checks=cross,
         uncertainty={

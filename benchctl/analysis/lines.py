@@ -928,23 +928,32 @@ def _band(band_hz: tuple[float, float], span: float, bins: IntArray, lin_k: Floa
           groups: list[tuple[int, int]]) -> dict[str, Any]:
     """The error's variance in ``band_hz`` from the record's DFT bins there: over whole periods
     the bins split the variance exactly (Parseval), so the band's share is the lines' power in
-    the band (``Σ (P̂_k − s_k) + s_k``) plus the residual's bins in it — no smoothing, so no
-    leakage in or out of the band (the lag-window PSD's area reads a band of a few tenths of a
-    Hz 1–8 % low). Interval as σ²'s: the lines' cross term Gaussian, the noise bins by groups,
-    scaled χ², combined by the modified large-sample method."""
+    the band (``Σ (P̂_k − s_k)``, a line in or out whole) plus the noise's: the residual's bins
+    and the noise at the lines ``s_k``, each bin weighted by the share of its width
+    ``f_j ± 1/(2T)`` inside the band (an edge on a bin takes half of it: counting it whole read
+    a noise-only band ``1/(T·width)`` high) — no smoothing, so no leakage in or out of the band
+    (the lag-window PSD's area reads a band of a few tenths of a Hz 1–8 % low). The truth it
+    estimates: the lines' power in ``[lo, hi]`` plus ``∫_lo^hi G_noise df``. Interval as σ²'s:
+    the lines' cross term Gaussian, the noise bins by groups, scaled χ², combined by the
+    modified large-sample method."""
     lo, hi = band_hz
     nb = len(level)
-    f = np.arange(nb) / span
-    inb = (f >= lo) & (f <= hi)
-    inb[0] = False
-    on = inb[bins]
-    lev = np.where(inb, level, 0.0)  # the residual's bins and the noise at the lines
-    var = np.where(inb, var_bin, 0.0)
+    df = 1.0 / span
+    f = np.arange(nb) * df
+    tol = 1e-9 * max(hi, df)
+    # the noise's density counts over [lo, hi] only: bin j stands for f_j ± Δf/2, weighted by
+    # its overlap with the band (an edge on a bin: half of it); a line is in or out whole
+    w = np.clip((np.minimum(hi, f + 0.5 * df) - np.maximum(lo, f - 0.5 * df)) / df, 0.0, 1.0)
+    w[0] = 0.0
+    on = (f[bins] >= lo - tol) & (f[bins] <= hi + tol)
+    lev = w * level  # the residual's bins and the noise at the lines
+    var = w**2 * var_bin
     theta = float(lin_k[on].sum()) + float(lev.sum())
     cross = max(0.0, float(np.sum(2.0 * lin_k[on] * s[on])))
     parts = [p for p in _parts(lev, var, groups, np.ones(nb)) if p[0] > 0.0]
     lo_v, hi_v = mls_interval(theta, parts, cross) if theta > 0.0 else (0.0, 0.0)
     lo_v = max(lo_v, 0.0)
+    inb = w > 0.0
     return {
         "lo": float(lo), "hi": float(hi), "method": "lines",
         "variance": theta, "variance_ci95": [lo_v, hi_v],

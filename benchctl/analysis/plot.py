@@ -66,13 +66,17 @@ def plot_result(result: AnalysisResult, dest: str | Path, *, serial: str | None 
         h2, l2 = ax2.get_legend_handles_labels()
         handles, labels = handles + h2, labels + l2
     ax.legend(handles, labels, loc="best", fontsize=8)
-    ff = result.frf_freq
+    # lines below the SNR floor are not drawn: their noise-made gains would set the scale
+    ok = (np.ones(len(result.frf_freq), dtype=bool) if result.frf_reliable is None
+          else np.asarray(result.frf_reliable, dtype=bool))
+    ff = result.frf_freq[ok]
     axes[1].axhline(1.0, color="black", lw=0.8, label="gain = 1")
-    axes[1].plot(ff, result.frf_gain, ".-", label="gain")
+    axes[1].plot(ff, result.frf_gain[ok], ".-", label="gain" + (
+        f" ({int((~ok).sum())} lines below the SNR floor not drawn)" if not ok.all() else ""))
     axes[1].set_ylabel("gain")
-    axes[2].plot(ff, result.frf_phase_deg, ".-")
+    axes[2].plot(ff, result.frf_phase_deg[ok], ".-")
     axes[2].set_ylabel("phase, deg")
-    axes[3].plot(ff, result.frf_coherence, ".-")
+    axes[3].plot(ff, result.frf_coherence[ok], ".-")
     axes[3].set_ylabel("coherence γ²")
     axes[3].set_ylim(0, 1.05)
     for i, p in enumerate(result.periods):

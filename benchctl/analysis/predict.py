@@ -24,7 +24,8 @@ motion is a table of lines ``A_j`` at ``f_j``, so the exact discrete form is use
   incoherent error that grows with the motion (distortion, the time bases' error ``σ_ẋ²δ²``):
   the CLI states the measurement's timing contribution beside the prediction.
 - **Interval** (``sigma_ci95``): the delta method for the linear part — Gaussian with variance
-  ``2 Σ_k c_k |g_k|² + Σ_kl M_kl² c_k c_l + Σ_k M_kk² c_k²·2/ν_k`` (``c_k = 2 s_k/|c^x_k|²`` the
+  ``2 Σ_k c_k |g_k|² + Σ_kl M_kl² c_k c_l + Σ_k M_kk² c_k²·2/ν_k``, ``|g_k|²`` estimated
+  without its noise bias as ``max(|ĝ_k|² − Σ_l M_kl² c_l, 0)`` (``c_k = 2 s_k/|c^x_k|²`` the
   complex variance of ``Ĥ_k``, ``g_k = Σ_j P_j a_jk D̂_j`` and ``M_kl = Σ_j P_j a_jk a_jl``
   with ``a_jk`` the interpolation weights; the last term the estimation error of ``v_j`` from
   the noise estimates' ν_k); the noise part a scaled χ² whose ν reproduces the measurement's
@@ -39,10 +40,15 @@ motion is a table of lines ``A_j`` at ``f_j``, so the exact discrete form is use
   line a few 1e-8° high reads gains like 20 000), and multiplied by a heavier sea's real motion
   there it would make σ anything. The target's lines there count as not measured.
 - **σ or a bound.** What the lines where H was not measured could add is bounded line by line,
-  ``Σ P_j b_j²``: below the tested band ``b_j`` is the upper 95 % end of ``|1 − Ĥ|`` at its
-  lowest line (|1 − H| not growing toward low frequencies: a lag, a latency, a gain error); in
-  a hole between measured lines the larger of the two sides'; above the band 1 (an instrument
-  that follows the motion no worse than not at all). ``sigma_bound`` = √(upper end of the
+  ``Σ P_j b_j²``. Below the tested band, with |1 − H| not growing toward low frequencies (a
+  lag, a latency, a gain error) up to the band's lowest octave, ``b_j`` is the smallest upper
+  end of ``|1 − Ĥ_k|`` over the M measured lines of that octave (``f_k ≤ 2 f_lowest``), each
+  ``|1 − Ĥ_k| + √(c_k·F)`` with F the upper ``0.025/M`` point of an F(2, ν_k)
+  (``|Ĥ_k − H_k|²/c_k`` is one): all M hold together with 97.5 % (Bonferroni), so their
+  smallest does — the lowest reliable line alone, often barely above the SNR floor, gave a
+  bound several times |1 − H|. In a hole between measured lines the larger of the two sides'
+  upper 95 % ends; above the band 1 (an instrument that follows the motion no worse than not
+  at all). ``sigma_bound`` = √(upper end of the
   variance's interval + that). When it exceeds σ by more than ``BOUND_SMALL`` (5 %), σ is not
   an estimate of the target's σ: the prediction is **bounded** (``bounded``; the JSON form
   gives ``sigma`` null and the bound), and says where the unmeasured motion lies. Otherwise σ
@@ -81,6 +87,8 @@ CURVATURE_REACH = 7  # |H''| from the second differences of the lines within ± 
 OUTSIDE_WARN = 0.01  # warn when this share of the target's variance lies outside the band
 BOUND_SMALL = 0.05  # σ is given as a bound when what was not measured could add more than this
 Z95 = float(ndtri(0.975))
+BELOW_OCTAVE = 2.0  # below the band: |1 − H| bounded by the lines up to this × the lowest
+BELOW_ALPHA = 0.025  # … all of them holding together with 1 − this (one-sided)
 
 
 @dataclass(frozen=True)
@@ -336,6 +344,7 @@ def predict(
     # what |1 − H| could be where it was not measured (module notes): below the tested band
     # no more than at its lowest line, in a hole no more than at either side, above it 1
     d_up = np.abs(resp.h - 1.0) + Z95 * np.sqrt(resp.cvar)
+    b_below = below_band_bound(resp)
     out_bound = np.zeros(n_t)
     basis = np.full(n_t, "", dtype=object)
     for j, f in enumerate(fq):
@@ -345,7 +354,7 @@ def predict(
             lo_idx[j], inside[j] = i, True
             continue
         if i == 0:
-            out_bound[j], basis[j] = float(d_up[0]), "below"
+            out_bound[j], basis[j] = b_below, "below"
             continue
         if i >= kk:
             out_bound[j], basis[j] = 1.0, "above"
@@ -382,8 +391,14 @@ def predict(
     c = resp.cvar
     dof_inv = np.where(np.isfinite(resp.dof) & (resp.dof > 0), 2.0 / np.maximum(resp.dof, 1e-300),
                        0.0)
+    # |ĝ_k|² holds the noise of the D̂ it is made of, E|ĝ_k|² = |g_k|² + Σ_l M_kl² c_l: taken
+    # out (clipped at 0), or a line measured near the SNR floor under a heavy target motion
+    # made the first-order term up to 3× too large (σ's interval twice as wide as its spread)
+    g_noise = m_diag**2 * c
+    g_noise[:-1] += m_off[:-1] ** 2 * c[1:]
+    g_noise[1:] += m_off[:-1] ** 2 * c[:-1]
     lin_var = (
-        2.0 * float(np.sum(c * np.abs(g) ** 2))
+        max(2.0 * float(np.sum(c * (np.abs(g) ** 2 - g_noise))), 0.0)
         + float(np.sum(m_diag**2 * c**2))
         + 2.0 * float(np.sum(m_off[:-1] ** 2 * c[:-1] * c[1:]))
         + float(np.sum(m_diag**2 * c**2 * dof_inv))
@@ -412,8 +427,9 @@ def predict(
     bands = outside_bands(fq, ~inside, power)
     bases = sorted({str(b) for b in basis[~inside & (power > 0.0)]})
     assumed = "; ".join({
-        "below": "below the tested band |1 − H| no larger than at its lowest line (a lag, "
-                 "latency or gain error, not an error that grows toward low frequencies)",
+        "below": "below the tested band |1 − H| no larger than at any line of its lowest "
+                 "octave (a lag, latency or gain error, not an error that grows toward low "
+                 "frequencies)",
         "hole": "in a hole between measured lines |1 − H| no larger than at either side",
         "above": "above the tested band |1 − H| ≤ 1",
     }[b] for b in bases)
@@ -426,7 +442,7 @@ def predict(
         warnings.append(
             f"σ not predicted, only bounded: {100 * share:.3g} % of the target's variance "
             f"({outside:.4g} deg²) lies at {where}, where H was {why}; from the lines measured "
-            f"σ = {sigma:.4g}°, and with {assumed}: σ ≤ {sigma_bound:.4g}° (95 %). "
+            f"σ = {sigma:.4g}°, and taking {assumed}: σ ≤ {sigma_bound:.4g}° (95 %). "
             "Record a profile that excites that band to predict σ"
         )
     elif share > OUTSIDE_WARN:
@@ -471,6 +487,32 @@ def predict(
         weak_lines_hz=weak_hz,
         outside_bands_hz=bands,
     )
+
+
+def f2_upper(p: float, dof: float) -> float:
+    """The upper ``p`` point of an F(2, ν): ``(ν/2)(p^(−2/ν) − 1)`` (``−ln p`` for ν = ∞)."""
+    if not math.isfinite(dof):
+        return -math.log(p)
+    return 0.5 * dof * (p ** (-2.0 / dof) - 1.0)
+
+
+def below_band_bound(resp: MeasuredResponse) -> float:
+    """A 97.5 % upper bound on ``|1 − H(f)|`` below the lowest measured line, with |1 − H| not
+    decreasing from 0 Hz up to the band's lowest octave: the smallest of
+    ``|1 − Ĥ_k| + √(c_k F_k)`` over the M lines ``f_k ≤ BELOW_OCTAVE·f_0``, F_k the upper
+    ``BELOW_ALPHA/M`` point of F(2, ν_k) (``|Ĥ_k − H_k|²/c_k`` is an F(2, ν_k) when the noise
+    at the line is estimated with ν_k degrees of freedom; the M bounds hold together with
+    1 − BELOW_ALPHA, Bonferroni). ``resp`` sorted by frequency, reliable lines only."""
+    near = np.flatnonzero(resp.freq <= BELOW_OCTAVE * resp.freq[0])
+    m = near.size
+    ends = [
+        abs(complex(resp.h[k]) - 1.0)
+        + math.sqrt(max(float(resp.cvar[k]), 0.0)
+                    * f2_upper(BELOW_ALPHA / m, float(resp.dof[k])
+                               if resp.dof[k] > 0 else math.inf))
+        for k in near
+    ]
+    return float(min(ends))
 
 
 def outside_bands(freq: FloatArray, outside: NDArray[np.bool_],

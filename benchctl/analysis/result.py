@@ -98,6 +98,8 @@ class AnalysisResult:
     source: str = ""
     axis: str | None = None
     warnings: list[str] = field(default_factory=list)
+    # per frf point from the lines: SNR at least the floor (None from H1: no such test)
+    frf_reliable: NDArray[np.bool_] | None = None
     steps: StepsAnalysis | None = None  # sine_steps: the linearity table and its verdict
     # this axis's output against the other axis's motion (benchctl.analysis.crossaxis)
     cross_axis: dict[str, Any] | None = None
@@ -147,6 +149,8 @@ class AnalysisResult:
                 "coherence": _list(self.frf_coherence),
                 "gain_ci95": _list(self.frf_gain_ci95),
                 "phase_ci95_deg": _list(self.frf_phase_ci95_deg),
+                "reliable": None if self.frf_reliable is None
+                else [bool(v) for v in self.frf_reliable],
                 "source": self.frf_source,
             },
             "lines": None if self.lines is None else _clean(self.lines.to_dict()),

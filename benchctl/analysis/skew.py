@@ -15,29 +15,48 @@ drift (σ +143 … +485 %). The instrument's own response does not change over t
 2. between consecutive segments the delay changed by the phase turn of ``C_s·C_{s−1}*``,
    ``Δτ_s = −Σ w_f ω_f Δφ_s(f) / Σ w_f ω_f²`` (weights ``w_f = |C_s||C_{s−1}|``); consecutive
    segments differ by little, so the phases never wrap, whatever the drift over the record;
-3. the delays ``τ_s`` (cumulated) against the segments' mid-times: a least-squares line, its
-   slope the skew ``b`` (s per s) with its standard error from the line's residuals.
+3. cumulated, these turns give a first delay per segment, each then read again against the
+   record's mean cross-spectrum ``C̄ = Σ_s C_s e^{jωτ_s}`` (``_against_mean``): cumulating
+   the consecutive turns carries each step's error into every later segment (a random walk a
+   line reads as a skew of a few ppm); against the mean each segment has only its own;
+4. the delays ``τ_s`` against the segments: a least-squares line, its slope the skew ``b``
+   (s per s) with its standard error from the line's residuals; and, for a delay that changes
+   *slowly* rather than steadily (a clock whose rate drifts as it warms), a polynomial in time
+   of the highest degree up to ``MAX_DEGREE`` whose top term is beyond ``CURVE_SIGNIFICANT``
+   standard errors, its terms beyond the line passing an F test at ``CURVE_P`` together, with
+   ``MIN_DOF`` segments to spare. A segment's phase turns with the mean
+   delay over it (weighted by the windows' product), not the delay at its middle, so the
+   model is fitted to its columns averaged over each segment (``_design``). A curve found on
+   few whole periods is sought again on ``SEGMENTS_MAX`` windowed segments, which can hold a
+   higher degree.
 
-The skew is corrected when it is significant (``|b| > SIGNIFICANT``·its standard error), at
-least ``MIN_PPM``, measured on ``MIN_SEGMENTS`` segments or more, and the line explains
-``MIN_R2`` of the delays' spread — a steady drift, not the steps that bursts of late receipts
-make, nor the beating of lines that leak (a 600 s record of three 200 s periods cut in 37.5 s
-segments read −29 ppm of it). The device's instants then become ``t − b·(t − t₀)``, anchored
+The skew is corrected when it is significant (``|b| > SIGNIFICANT``·its standard error, at
+least ``MIN_PPM``) or a curve is, measured on ``MIN_SEGMENTS`` segments or more, and the model
+explains ``MIN_R2`` of the delays' spread — a steady or slowly changing drift, not the steps
+that bursts of late receipts make, nor the beating of lines that leak. A lagging instrument's σ
+moves with the delay left on average over the record (``b·T/2``: 3 ppm over 15 minutes,
+1.35 ms, against an 80 ms lag: σ +1.5 %), so there is no floor beyond significance. The
+device's instants then become ``t − b·(t − t₀)`` (a curve: ``t − (τ(t) − τ(t₀))``), anchored
 at the record's first device instant — the instrument's clock taken as right when the record
-began (a logger started with the test); the delay there stays, as the instrument's own. Above
-``WARN_PPM`` the result warns.
+began (a logger started with the test); the delay there stays, as the instrument's own. What
+the correction leaves uncertain (``anchor_se_s``: the model's mean over the record less its
+start), or a slope beyond ``UNEXPLAINED`` standard errors left uncorrected
+(``unexplained_s``), goes into σ's interval (``timing.timing_budget``). Above ``WARN_PPM``, or
+with a curve, the result warns.
 
 Pure computation on arrays: :func:`estimate_skew`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.fft import rfft
+from scipy.special import fdtri
 
 FloatArray = NDArray[np.float64]
 
@@ -45,11 +64,18 @@ SEGMENTS_MAX = 16  # segments of the record (fewer when a segment would be too s
 SEGMENT_MIN_S = 20.0  # … at least this long …
 SEGMENT_MIN_SAMPLES = 256  # … and holding this many slots
 POWER_SHARE = 0.99  # the reference's strongest bins holding this share of its power
-SIGNIFICANT = 4.0  # standard errors a skew must exceed to be corrected …
-MIN_PPM = 5.0  # … and at least this (a smaller one moves nothing measurable)
+SIGNIFICANT = 4.0  # standard errors a skew (or a curve's term) must exceed to be corrected …
+MIN_PPM = 0.1  # … and at least this (noise-free data: not a rounding). A lagging instrument's
+# σ moves by about b·T/τ: 5 ppm over 15 minutes against a 90 ms lag, +2.5 % (once the floor)
+UNEXPLAINED = 2.0  # a slope beyond this many standard errors, not corrected: in σ's interval
+MAX_DEGREE = 8  # a delay that changes slowly: a polynomial of degree up to this …
+MIN_DOF = 6  # … leaving this many segments beyond its terms, its top term beyond
+CURVE_SIGNIFICANT = 5.0  # this many standard errors, and the curve as a whole beyond the line
+CURVE_P = 1e-3  # at this level (F test): several degrees are tried, so a stricter test than a
+# line's, or segments' noise reads as a curve (a 300 s record's 15 windowed segments: degree 8)
 WARN_PPM = 20.0  # a skew above this is a warning (the clocks should be fixed)
 MIN_PERIODS = 4  # a known period: segments of whole periods when the record holds this many
-MIN_R2 = 0.98  # the line must explain this share of the delays' spread …
+MIN_R2 = 0.9  # the model must explain this share of the delays' spread …
 MIN_SEGMENTS = 6  # … over at least this many segments
 
 
@@ -64,25 +90,51 @@ class Skew:
     drift_s: float  # over the record: b × its span
     delays_s: FloatArray  # τ_s − τ_0 per segment
     mids_s: FloatArray  # the segments' mid-times from the record's start
-    r2: float = 1.0  # the share of the delays' spread the line explains
+    r2: float = 1.0  # the share of the delays' spread the model explains
     whole_periods: bool = False  # segments of whole periods of the motion
+    degree: int = 1  # the delay's model: a line (1), or a curve (a rate that changes)
+    coef: tuple[float, ...] = ()  # the model's delay (s) in s from the record's start, c₀ + c₁u …
+    t0_s: float = 0.0  # the record's start on the device's clock (its first grid instant)
+    half_s: float = 0.0  # half the record's span (the curve's time scale)
+    wander_s: float = 0.0  # the curve's largest departure from the line over the record
+    anchor_se_s: float = 0.0  # se of the model's mean delay over the record less its start's
 
     @property
     def significant(self) -> bool:
-        """Worth correcting: beyond its noise, at least ``MIN_PPM``, measured on at least
-        ``MIN_SEGMENTS`` segments, and a line that explains ``MIN_R2`` of the delays' spread
-        (a steady drift, not the steps of bursts of late stamps, nor — cut where the motion's
-        lines leak — their beating)."""
-        return (abs(self.ppm) > SIGNIFICANT * self.se_ppm and abs(self.ppm) >= MIN_PPM
-                and self.segments >= MIN_SEGMENTS and self.r2 >= MIN_R2)
+        """Worth correcting: a line beyond its noise and at least ``MIN_PPM``, or a curve
+        whose terms beyond the line are (each beyond ``CURVE_SIGNIFICANT`` standard errors);
+        measured on at least ``MIN_SEGMENTS`` segments, and a model that explains ``MIN_R2``
+        of the delays' spread (a steady or slowly changing drift, not the steps of bursts of
+        late stamps, nor — cut where the motion's lines leak — their beating)."""
+        line = abs(self.ppm) > SIGNIFICANT * self.se_ppm and abs(self.ppm) >= MIN_PPM
+        return ((line or self.degree > 1) and self.segments >= MIN_SEGMENTS
+                and self.r2 >= MIN_R2)
+
+    @property
+    def unexplained_s(self) -> float:
+        """A slope beyond ``UNEXPLAINED`` standard errors that is not corrected (under
+        ``SIGNIFICANT`` of them, or a model that explains too little of the delays, or too
+        few segments): the delay it may leave on average over the record, ``|b|·T/2`` (s),
+        for σ's interval; 0 otherwise."""
+        if self.significant or not abs(self.ppm) > UNEXPLAINED * self.se_ppm:
+            return 0.0
+        return abs(self.drift_s) / 2.0
+
+    @property
+    def left(self) -> bool:
+        """What a corrected record still shows is worth another pass: a slope beyond one
+        standard error, or a curve."""
+        return abs(self.ppm) > self.se_ppm or self.degree > 1
 
     def plus(self, rest: Skew) -> Skew:
         """This skew with ``rest`` (what a record corrected by this one still shows) added:
-        ``(1 + b)(1 + b') − 1``; the standard error is ``rest``'s (the last measurement)."""
+        ``(1 + b)(1 + b') − 1``; the standard errors are ``rest``'s (the last measurement)."""
         b = (1.0 + self.ppm * 1e-6) * (1.0 + rest.ppm * 1e-6) - 1.0
-        return Skew(ppm=b * 1e6, se_ppm=rest.se_ppm, segments=rest.segments,
-                    drift_s=self.drift_s + rest.drift_s, delays_s=rest.delays_s,
-                    mids_s=rest.mids_s, r2=self.r2, whole_periods=self.whole_periods)
+        return dataclasses.replace(
+            self, ppm=b * 1e6, se_ppm=rest.se_ppm, segments=rest.segments,
+            drift_s=self.drift_s + rest.drift_s, delays_s=rest.delays_s, mids_s=rest.mids_s,
+            degree=max(self.degree, rest.degree), wander_s=self.wander_s + rest.wander_s,
+            anchor_se_s=rest.anchor_se_s)
 
     @property
     def ci95_ppm(self) -> tuple[float, float]:
@@ -103,16 +155,36 @@ def _segments(n: int, dt: float, period_s: float | None) -> tuple[int, int, bool
 
 
 def estimate_skew(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: float,
-                  period_s: float | None = None) -> Skew | None:
+                  period_s: float | None = None, t0_s: float = 0.0) -> Skew | None:
     """The skew of ``y``'s instants against ``x``'s (both on one grid of step ``dt``, meaningful
     where ``mask``), or None when the record is too short to cut into three segments.
     ``period_s``: the motion's period, when known — segments of whole periods then hold its
-    lines exactly (no window, no leakage)."""
+    lines exactly (no window, no leakage). ``t0_s``: the grid's first instant on the device's
+    clock (where a curve's time starts)."""
     n = len(mask)
     span = n * dt
     count, m, whole = _segments(n, dt, period_s)
     if count < 3:
         return None
+    found = _delays(x, y, mask, dt, count, m, whole)
+    if found is None:
+        return None
+    sk = _fit(*found, span, whole, t0_s)
+    if sk.degree > 1 and whole and count < SEGMENTS_MAX:
+        # a curve on few whole periods: the windowed segments, more of them, may follow it
+        # further (a rate wandering over the record wants a degree its periods cannot hold)
+        c2, m2, _ = _segments(n, dt, None)
+        more = _delays(x, y, mask, dt, c2, m2, False) if c2 > count else None
+        if more is not None:
+            alt = _fit(*more, span, False, t0_s)
+            if alt.degree > sk.degree and alt.r2 >= MIN_R2:
+                return alt
+    return sk
+
+
+def _delays(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: float, count: int,
+            m: int, whole: bool) -> tuple[FloatArray, FloatArray] | None:
+    """Each segment's delay (less the first's) and its mid-time (module notes, steps 1–2)."""
     xs = np.where(mask, x, 0.0)[: m * count].reshape(count, m)
     ys = np.where(mask, y, 0.0)[: m * count].reshape(count, m)
     ms = mask[: m * count].reshape(count, m)
@@ -142,26 +214,110 @@ def estimate_skew(x: FloatArray, y: FloatArray, mask: NDArray[np.bool_], dt: flo
     if not np.all(den > 0.0):
         return None
     step = -np.sum(w * omega * dphi, axis=1) / den  # τ_s − τ_{s−1}
-    tau = np.concatenate(([0.0], np.cumsum(step)))
+    tau = _against_mean(c, np.asarray(omega, dtype=float),
+                        np.asarray(np.concatenate(([0.0], np.cumsum(step))), dtype=float))
     mids = np.asarray((np.arange(count) + 0.5) * m * dt, dtype=float)
-    mc = mids - mids.mean()
-    b = float(np.dot(mc, tau - tau.mean()) / np.dot(mc, mc))
-    resid = tau - tau.mean() - b * mc
-    dof = count - 2
-    s2 = float(np.dot(resid, resid)) / dof if dof > 0 else 0.0
-    se = math.sqrt(s2 / float(np.dot(mc, mc)))
+    return tau, mids
+
+
+def _design(mids: FloatArray, seg_s: float, half: float, degree: int,
+            whole: bool) -> FloatArray:
+    """Columns ``u^j`` (``u = (t − half)/half``, j ≤ ``degree``) averaged over each segment as
+    its delay is: a segment's cross-spectrum turns with the mean delay over it, weighted by the
+    product of the windows (uniform for whole periods, Hann² otherwise). The mid-point value
+    is not that mean where the delay curves (by ``τ''·L²/24``: 6 ms for a rate wandering by
+    200 ppm over 900 s read in 100 s segments)."""
+    k = 65
+    frac = (np.arange(k) + 0.5) / k
+    w = np.ones(k) if whole else np.sin(np.pi * frac) ** 4
+    w = w / w.sum()
+    t = mids[:, None] + (frac[None, :] - 0.5) * seg_s
+    u = (t - half) / half
+    return np.stack([(u**j) @ w for j in range(degree + 1)], axis=1)
+
+
+def _poly(tau: FloatArray, a: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """Least squares ``τ ≈ a·c``: the coefficients, their covariance, the residual sum of
+    squares."""
+    coef, *_ = np.linalg.lstsq(a, tau, rcond=None)
+    resid = tau - a @ coef
+    rss = float(np.dot(resid, resid))
+    dof = len(tau) - a.shape[1]
+    cov = (rss / dof if dof > 0 else 0.0) * np.linalg.inv(a.T @ a)
+    return np.asarray(coef, dtype=float), np.asarray(cov, dtype=float), rss
+
+
+def _fit(tau: FloatArray, mids: FloatArray, span: float, whole: bool, t0_s: float) -> Skew:
+    """The line through the delays (the skew and its standard error), and the degree of the
+    curve they follow: the highest up to ``MAX_DEGREE`` whose top term is beyond
+    ``CURVE_SIGNIFICANT`` standard errors and whose terms beyond the line, together, pass an
+    F test at ``CURVE_P`` (``MIN_DOF`` segments left beyond its terms)."""
+    count = len(tau)
+    half = 0.5 * span
+    seg = float(mids[1] - mids[0]) if count > 1 else span
+    coef1, cov1, rss1 = _poly(tau, _design(mids, seg, half, 1, whole))
+    b, se = coef1[1] / half, math.sqrt(max(cov1[1, 1], 0.0)) / half
+    degree, coef, cov, rss = 1, coef1, cov1, rss1
+    for d in range(2, MAX_DEGREE + 1):  # the highest whose top term is significant (a bump,
+        if count - (d + 1) < MIN_DOF:  # even, has no odd term: degree 3 alone would miss it)
+            break
+        c, v, r = _poly(tau, _design(mids, seg, half, d, whole))
+        dof = count - d - 1
+        f_stat = (rss1 - r) / (d - 1) / (r / dof) if r > 0.0 else math.inf
+        if (abs(c[-1]) > CURVE_SIGNIFICANT * math.sqrt(max(v[-1, -1], 0.0))
+                and f_stat > float(fdtri(d - 1, dof, 1.0 - CURVE_P))):
+            degree, coef, cov, rss = d, c, v, r
     spread = float(np.dot(tau - tau.mean(), tau - tau.mean()))
-    r2 = 1.0 - float(np.dot(resid, resid)) / spread if spread > 0.0 else 0.0
+    r2 = 1.0 - rss / spread if spread > 0.0 else 0.0
+    # the model in seconds from the record's start: τ(t) = Σ c_j ((t − half)/half)^j
+    grid = np.linspace(-1.0, 1.0, 201)
+    curve = np.polynomial.polynomial.polyval(grid, coef)
+    line = coef1[0] + coef1[1] * grid
+    wander = float(np.max(np.abs(curve - line - np.mean(curve - line)))) if degree > 1 else 0.0
+    # the model's mean delay over the record less its value at the start (the anchor): a
+    # correction off by this leaves an offset between the streams (timing.timing_budget)
+    g = np.array([np.mean(grid**j) - (-1.0) ** j for j in range(degree + 1)])
+    anchor_se = math.sqrt(max(float(g @ cov @ g), 0.0))
     return Skew(ppm=1e6 * b, se_ppm=1e6 * se, segments=count, drift_s=b * span,
-                delays_s=tau, mids_s=mids, r2=r2, whole_periods=whole)
+                delays_s=tau, mids_s=mids, r2=r2, whole_periods=whole, degree=degree,
+                coef=tuple(float(c) for c in coef), t0_s=t0_s, half_s=half, wander_s=wander,
+                anchor_se_s=anchor_se)
+
+
+def _against_mean(c: NDArray[np.complex128], omega: FloatArray, tau: FloatArray,
+                  rounds: int = 3) -> FloatArray:
+    """Each segment's delay against the record's mean cross-spectrum, starting from ``tau``
+    (the consecutive turns cumulated, which never wrap): ``C̄ = Σ_s C_s e^{jωτ_s}``, then
+    ``τ_s += −Σ w ω ∠(C_s e^{jωτ_s} C̄*) / Σ w ω²`` (``w = |C_s||C̄|``), ``rounds`` times.
+    Cumulated turns carry each step's error into every later segment (a random walk that a
+    line through them reads as a skew of a few ppm); against the mean each segment's error
+    is its own."""
+    for _ in range(rounds):
+        rot = c * np.exp(1j * omega[None, :] * tau[:, None])
+        mean = rot.sum(axis=0)
+        z = rot * np.conj(mean)[None, :]
+        w = np.abs(z)
+        den = np.sum(w * omega**2, axis=1)
+        if not np.all(den > 0.0):
+            break
+        tau = tau - np.sum(w * omega * np.angle(z), axis=1) / den
+    return np.asarray(tau - tau[0], dtype=float)
 
 
 def deskewed(t_dev: FloatArray, skew: Skew) -> FloatArray:
-    """The device's instants with the skew taken out, anchored at its first instant: the
-    slope ``b`` is measured against the device's own instants, so ``t − b·(t − t₀)`` is exact
-    (stamps ``s = t₀ + (t − t₀)(1 + ε)``: ``b = ε/(1 + ε)``)."""
-    b = skew.ppm * 1e-6
-    return np.asarray(t_dev - b * (t_dev - t_dev[0]), dtype=float)
+    """The device's instants with the skew taken out, anchored at its first instant.
+
+    A line: the slope ``b`` is measured against the device's own instants, so
+    ``t − b·(t − t₀)`` is exact (stamps ``s = t₀ + (t − t₀)(1 + ε)``: ``b = ε/(1 + ε)``). A
+    curve (a rate that changes): the delay it gives at each instant on the device's clock,
+    less the delay at the first, ``t − (τ(t) − τ(t₀))``."""
+    if skew.degree <= 1 or not skew.coef or not skew.half_s > 0.0:
+        b = skew.ppm * 1e-6
+        return np.asarray(t_dev - b * (t_dev - t_dev[0]), dtype=float)
+    half = skew.half_s
+    u = (t_dev - skew.t0_s - half) / half
+    tau = np.polynomial.polynomial.polyval(u, np.asarray(skew.coef))
+    return np.asarray(t_dev - (tau - tau[0]), dtype=float)
 
 
 __all__ = ["Skew", "deskewed", "estimate_skew"]

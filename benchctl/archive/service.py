@@ -32,7 +32,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from benchctl.archive.ingest import incomplete_recordings, record_of, recording_sha256
+from benchctl.archive.ingest import (
+    incomplete_recordings,
+    is_live,
+    record_of,
+    recording_sha256,
+    recordings_under,
+)
 from benchctl.archive.store import DEFAULT_CONNECT_TIMEOUT_S, Archive, shown
 from benchctl.errors import ArchiveError, BenchError, DataError
 from benchctl.fileout import atomic_write_bytes
@@ -527,7 +533,6 @@ def rebuild(archive: Archive, root: Path,
     its files; a killed run ABORTED). A run still being written is skipped; a record the
     database refuses is listed (``refused``) and the others still go; any other failure
     (locked, read-only, out of reach) is an ``ArchiveError``: nothing more could be stored."""
-    from benchctl.archive.ingest import is_live, recordings_under
 
     if not root.is_dir():
         raise DataError(f"{root}: not a folder of recordings")

@@ -15,6 +15,8 @@ which it was (``classify``): ``refused`` (this record), ``locked``, ``timed out`
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
 import logging
 import math
@@ -367,8 +369,6 @@ class Archive:
         if self.backend != "sqlite":
             yield
             return
-        import errno
-        import fcntl
 
         path = Path(str(self.engine.url.database) + ".migrate.lock")
         try:

@@ -29,7 +29,8 @@ from benchctl.text import terminal_lines
 
 # subcommands, in the order --help lists them (each a module here, its "-" a "_")
 SUBCOMMANDS = (
-    "run", "plan", "analyze", "report", "predict", "profile", "sim", "stand", "recording",
+    "run", "plan", "analyze", "report", "predict", "timing", "profile", "sim", "stand",
+    "recording",
     "schema", "archive", "history", "show", "host-check", "serve", "serve-line",
 )
 

@@ -46,12 +46,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--device-col", help="device angle column (default device, or the only "
                    "angle column of --device)")
     p.add_argument("--units", choices=("deg", "rad"), default="deg", help="angle units of CSVs")
-    p.add_argument("--timebase", choices=("given", "fitted"), default="given",
-                   help="device instants as given, or fitted to a uniform clock (jittery "
-                   "receipt times)")
-    p.add_argument("--reference-timebase", choices=("given", "fitted"), default="given",
-                   help="reference instants as given, or fitted to a uniform clock (a "
-                   "reference sampled on its own clock whose stamps jitter)")
+    p.add_argument("--timebase", choices=("auto", "given", "fitted"), default="auto",
+                   help="device instants: chosen from the data (default: fitted when the "
+                   "stamps jitter about a uniform clock, else as given), as given, or fitted "
+                   "to a uniform clock (jittery receipt times)")
+    p.add_argument("--reference-timebase", choices=("auto", "given", "fitted"), default="auto",
+                   help="reference instants: chosen from the data (default), as given, or "
+                   "fitted to a uniform clock (a reference sampled on its own clock whose "
+                   "stamps jitter)")
     p.add_argument("--recording-timebase", default="best",
                    choices=("best", "device", "adapter", "fitted", "receipt"),
                    help="a recording's instrument instants: the best time base it has "
@@ -216,7 +218,9 @@ def recording_status(rec: Any) -> dict[str, Any]:
     if integrity.status != "verified" and state != "incomplete":
         note = (note + "; " if note else "") + f"integrity {integrity.text()}"
     return {"state": state, "reason": reason or None, "note": note or None,
-            "integrity": integrity.to_dict()}
+            "integrity": integrity.to_dict(),
+            # the bench's calibrated offset its instrument instants were moved by (s; 0: none)
+            "timing_offset_s": rec.timing_offset_s}
 
 
 def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:
@@ -342,10 +346,25 @@ def _lines_block(r: AnalysisResult) -> list[str]:
         f"    linear {la.linear:.5g} deg² (95 % CI {la.linear_ci95[0]:.5g} … "
         f"{la.linear_ci95[1]:.5g}), incoherent {la.incoherent:.5g} deg² "
         f"({la.incoherent_ci95[0]:.5g} … {la.incoherent_ci95[1]:.5g})",
-        f"    gain {float(la.gain.min()):.4f} … {float(la.gain.max()):.4f}, phase "
-        f"{float(la.phase_deg.min()):.3f} … {float(la.phase_deg.max()):.3f}° over "
-        f"{float(la.freq.min()):.4g} … {float(la.freq.max()):.4g} Hz",
+        *_gain_range(la),
     ]
+
+
+def _gain_range(la: Any) -> list[str]:
+    """The gain and phase ranges over the reliable lines (SNR ≥ the floor); the weak lines'
+    count and band said, never their noise-made gains."""
+    import numpy as np
+
+    ok = la.reliable if la.reliable.size == len(la.freq) else np.ones(len(la.freq), dtype=bool)
+    weak = int((~ok).sum())
+    note = (f" ({weak} line{'s' if weak > 1 else ''} over {float(la.freq[~ok].min()):.4g} … "
+            f"{float(la.freq[~ok].max()):.4g} Hz below SNR {la.snr_floor:g}: not measured "
+            "reliably, not shown)" if weak else "")
+    if not ok.any():
+        return [f"    no line measured reliably{note}"]
+    return [f"    gain {float(la.gain[ok].min()):.4f} … {float(la.gain[ok].max()):.4f}, phase "
+            f"{float(la.phase_deg[ok].min()):.3f} … {float(la.phase_deg[ok].max()):.3f}° over "
+            f"{float(la.freq[ok].min()):.4g} … {float(la.freq[ok].max()):.4g} Hz{note}"]
 
 
 def _distortion_block(r: AnalysisResult) -> list[str]:
@@ -391,6 +410,39 @@ def _departures_block(r: AnalysisResult) -> list[str]:
     why = sigma_inconclusive(dep)
     if why is not None:
         out.append(f"  σ NOT TO BE JUDGED: {why}")
+    return out
+
+
+def _timing_block(tm: dict[str, Any]) -> list[str]:
+    """The time bases (how "auto" chose them), the clock skew, timing in σ's interval."""
+    if "device_timebase" not in tm:
+        return []
+    choice = tm.get("timebase_choice") or {}
+
+    def why(entry: str) -> str:
+        c = choice.get(entry) or {}
+        if c.get("asked") != "auto" or c.get("stamp_share") is None:
+            return ""
+        return (f", auto: {100 * c['stamp_share']:.0f} ± {100 * c['stamp_share_se']:.0f} % of "
+                "the stamps' scatter is their own error")
+
+    out = [
+        f"  timing: device {tm['device_timebase']} (±{1e3 * tm['device_time_residual_s']:.2g}"
+        f" ms{why('device')}), reference {tm['reference_timebase']} "
+        f"(±{1e3 * tm['reference_time_residual_s']:.2g} ms{why('reference')}): "
+        f"σ_ẋ²·jitter² = {100 * tm['timing_share']:.2g} % of σ²"
+    ]
+    if tm.get("skew_ppm") is not None:
+        lo, hi = tm["skew_ci95_ppm"]
+        out.append(
+            f"  clock skew: {tm['skew_ppm']:+.4g} ppm (95 % {lo:+.4g} … {hi:+.4g}), "
+            + (f"{1e3 * tm['skew_drift_s']:+.4g} ms over the record, corrected"
+               if tm.get("skew_corrected") else "not corrected (not significant)"))
+    if tm.get("timing_in_interval"):
+        slo, shi = tm["sigma_ci95_statistical"]
+        out.append(
+            f"  σ's interval includes timing (statistical alone {slo:.5g} … {shi:.5g}°; offset "
+            f"between the streams ±{1e3 * tm['timing_offset_u_s']:.2g} ms)")
     return out
 
 
@@ -441,13 +493,6 @@ def summary(r: AnalysisResult) -> str:
              f"{c['welch_area']:.5g} deg² (tolerance ±{c['welch_tolerance']:.2g}): "
              + ("agrees" if c["welch_agrees"] else "DISAGREES"))
     lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
-    tm = r.timing
-    if "device_timebase" in tm:
-        lines.append(
-            f"  timing: device {tm['device_timebase']} (±{1e3 * tm['device_time_residual_s']:.2g}"
-            f" ms), reference {tm['reference_timebase']} "
-            f"(±{1e3 * tm['reference_time_residual_s']:.2g} ms): σ_ẋ²·jitter² = "
-            f"{100 * tm['timing_share']:.2g} % of σ²"
-        )
+    lines.extend(_timing_block(r.timing))
     lines.extend(f"  warning: {w}" for w in r.warnings)
     return "\n".join(lines)

@@ -167,6 +167,7 @@ def _doc(args: argparse.Namespace, profile: Any, tab: HarmonicTable, res: Analys
             "period_s": la.lines.period_s,
             "lines_source": la.lines.source,
             "timing_variance": timing,
+            "warnings": list(res.warnings),
         },
         "assumptions": {
             "noise": "independent of the motion (carried over whole)",
@@ -206,7 +207,8 @@ def _summary(doc: dict[str, Any], pred: Prediction) -> str:
         f"{pred.freq.max():.4g} Hz, {pred.target_variance:.5g} deg²; "
         + (f"outside the tested band {100 * pred.outside_share:.3g} % "
            f"({pred.outside_variance:.4g} deg², {len(pred.freq) - pred.n_inside} lines): not in "
-           f"σ; with |1 − H| ≤ 1 there σ ≤ {pred.sigma_outside_bound:.5g}°"
+           f"σ" + ("" if pred.bounded else ", what it could add held in σ's interval")
+           + f"; with no more than |1 − H| ≤ 1 there σ ≤ {pred.sigma_outside_bound:.5g}°"
            if pred.n_inside < len(pred.freq) else "all inside the tested band"),
         "  assumes: the noise independent of the motion (carried over whole); H between "
         "measured lines interpolated, never outside them",
@@ -220,4 +222,5 @@ def _summary(doc: dict[str, Any], pred: Prediction) -> str:
             "which grows with the motion's rate (not scaled here)"
         )
     lines.extend(f"  warning: {w}" for w in pred.warnings)
+    lines.extend(f"  the recording: {w}" for w in m["warnings"])
     return "\n".join(lines)

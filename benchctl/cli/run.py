@@ -112,7 +112,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.options import MAX_RUN_DURATION_S, MAX_SEED, check_option
     from benchctl.run import RunOptions, run_test
     from benchctl.run.display import make_display
-    from benchctl.run.plan import check_setpoints
+    from benchctl.run.prepare import check_motion_length
     from benchctl.text import check_operator, check_part_number, check_serial
     from benchctl.web.live import live_display
 
@@ -131,8 +131,7 @@ def handle(args: argparse.Namespace) -> int:
         )
     cfg = load_config(args.config)
     if args.duration is not None:  # before asking anything (the run checks every motion)
-        rate = max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz)  # any mode
-        check_setpoints(args.duration, rate, f"--duration {args.duration:g}")
+        check_motion_length(cfg.stand, args.duration, f"--duration {args.duration:g}")
     pattern, where = cfg.unit.serial_pattern, f"unit.serial_pattern of {cfg.source}"
     serial = ask_value(args.serial, "Serial number of the instrument", "--serial",
                        lambda v, o: check_serial(v, o, pattern, where))

@@ -8,9 +8,12 @@ the clock the driver was handed (``benchctl.clock``; the operating system's by d
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
 
 from benchctl.harmonics import HarmonicTable
 
@@ -160,6 +163,22 @@ class Stand(Protocol):
     def stop(self) -> None: ...
     def estop(self) -> None: ...
     def reset_fault(self) -> None: ...
+
+
+@runtime_checkable
+class TrajectoryStand(Stand, Protocol):
+    """A stand with a trajectory queue (``stand.mode: buffered``): the host pushes points
+    ahead, one per period, and the stand plays them on its own clock."""
+
+    @property
+    def trajectory_limits(self) -> tuple[int, int]:  # (the queue's capacity, points per push)
+        ...
+
+    def begin_trajectory(self) -> None: ...
+    def push_points(  # the feedback block read in the same transaction with ``read``
+        self, first_index: int, points: Mapping[str, NDArray[np.float64]], *, read: bool = True
+    ) -> StandSample | None: ...
+    def start_trajectory(self) -> float: ...  # returns the host time the stand was told to start
 
 
 SampleCallback = Callable[[InstrumentSample], None]

@@ -16,6 +16,8 @@ from typing import Any
 from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
 from benchctl.devices.base import AngleSensor
+from benchctl.devices.can.bus import open_can_bus, shutdown_bus
+from benchctl.devices.nmea0183 import open_serial
 from benchctl.errors import ConfigError, DeviceError
 
 #: driver name -> (module, class); the module is imported when the driver is used
@@ -63,15 +65,12 @@ def open_instrument(
     """
     cls = _load(cfg.driver)
     if cfg.driver == "nmea0183":
-        from benchctl.devices.nmea0183 import open_serial
-
         port = open_serial(cfg)
         try:
             return cls(port, cfg, clock=clock)
         except BaseException:
             port.close()
             raise
-    from benchctl.devices.can.bus import open_can_bus, shutdown_bus
 
     bus = open_can_bus(cfg, clock=clock)
     try:

@@ -39,6 +39,7 @@ out); a prompt answered no in the setup a ``<failure>``; an action skipped a ``<
 from __future__ import annotations
 
 import io
+import json
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -159,7 +160,6 @@ def _timings(s: StepResult) -> dict[str, float]:
     the excitation) the motion and its analysis, from the last precheck to the verdict — the
     time it took to measure them, the same for each. Without the events, the step's whole
     time for what the motion measured."""
-    import json
 
     out: dict[str, float] = {}
     events: list[dict[str, Any]] = []

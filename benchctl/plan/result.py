@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchctl import __version__
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.results.record import sha256_file
 
@@ -96,8 +97,6 @@ class PlanResult:
     junit: Path | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        from benchctl import __version__
-
         return {
             "schema": PLAN_SCHEMA_ID,
             "software": {"name": "benchctl", "version": str(__version__)},

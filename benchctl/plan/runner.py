@@ -58,13 +58,21 @@ from pydantic import ValidationError
 from benchctl.clock import REAL, Clock, EventLike, ThreadLike
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, RunConfig, load_config
+from benchctl.devices.modbus import open_stand
 from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.plan.junit import write_junit
+from benchctl.plan.record import validate_plan_record
 from benchctl.plan.result import PLAN_SCHEMA_ID, ActionResult, PlanResult, StepResult
 from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
 from benchctl.results.record import load_record
+from benchctl.run import RunOptions, run_test
+from benchctl.run import prechecks as pc
+from benchctl.run.devices import recording_dir, simulators
+from benchctl.run.lock import stand_lock
+from benchctl.run.prepare import prepare_motion
+from benchctl.run.supervisor import Supervisor
 from benchctl.text import check_operator, check_serial
 
 log = logging.getLogger(__name__)
@@ -189,9 +197,6 @@ def stand_action(
       every axis at zero within ``stand.zero_tolerance_deg`` (the run's own prechecks);
     - ``ramp_to_zero``: from wherever it is, a ramp to zero within the limits, at rest, then
       disabled."""
-    from benchctl.devices.modbus import open_stand
-    from benchctl.run import prechecks as pc
-    from benchctl.run.lock import stand_lock
 
     with stand_lock(cfg, holder):
         stand = open_stand(cfg.stand, clock=clock)
@@ -342,8 +347,6 @@ def _prepare(plan: Plan, cfg: BenchConfig, serial: str, operator: str,
              out_dir: Path | None) -> list[BenchConfig]:
     """Every step's config and motion checked before anything opens (bad input never moves
     the stand): ``ConfigError`` naming the plan, the step and the problem."""
-    from benchctl.run import RunOptions
-    from benchctl.run.session import prepare_motion
 
     where = f"{plan.source}: " if plan.source is not None else ""
     cfgs = []
@@ -392,9 +395,6 @@ def run_plan(
     Raises ``BenchError`` only for bad input found before anything opens (the plan, the
     config, a step's profile or limits, prompts that cannot be answered); every later outcome
     is in the result."""
-    from benchctl.run import RunOptions, run_test
-    from benchctl.run.session import recording_dir, simulators
-    from benchctl.run.supervisor import Supervisor
 
     p = plan if isinstance(plan, Plan) else load_plan(plan)
     where = f"{p.source}: " if p.source is not None else ""
@@ -703,7 +703,6 @@ def _conclude(result: PlanResult, stop_reason: str) -> None:
 def _write_outputs(result: PlanResult, folder: Path, junit: str | Path | None) -> None:
     """plan.json (validated) and the JUnit XML; a file that cannot be written is an error
     line in the log and leaves its path None (the steps' records stand without it)."""
-    from benchctl.plan.record import validate_plan_record
 
     if junit is not None:
         try:

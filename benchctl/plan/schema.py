@@ -48,16 +48,13 @@ from pydantic import (
     model_validator,
 )
 
-from benchctl.config import (
-    MAX_WAIT_S,
-    field_path,
-    read_yaml,
-    shown_value,
-)
+from benchctl.config import MAX_WAIT_S
 from benchctl.errors import ConfigError
 from benchctl.options import MAX_RUN_DURATION_S
 from benchctl.text import OPERATOR_MAX
 from benchctl.text import problem as text_problem
+from benchctl.validation import invalid
+from benchctl.yamlfile import read_yaml
 
 MAX_PLAN_S = 7 * 86400.0  # a plan's or a step's timeout: at most a week
 MAX_STEPS = 100
@@ -160,16 +157,6 @@ class Plan(_Strict):
         return [a.prompt for a in (*self.setup, *self.cleanup) if a.prompt is not None]
 
 
-def _format_error(source: Path | str, err: ValidationError) -> str:
-    parts = []
-    for e in err.errors():
-        where = field_path(tuple(e["loc"])) or "(top level)"
-        value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
-        parts.append(f"field {where}{shown}: {e['msg']}")
-    return f"{source}: invalid plan: " + "; ".join(parts)
-
-
 def parse_plan(data: Any, source: Path | None = None) -> Plan:
     """Validate a plan mapping; ``config`` and each step's ``profile``, when relative, resolve
     against ``source``'s folder (else the working directory)."""
@@ -183,7 +170,7 @@ def parse_plan(data: Any, source: Path | None = None) -> Plan:
     try:
         plan = Plan.model_validate({**data, "source": source})
     except ValidationError as err:
-        raise ConfigError(_format_error(label, err)) from None
+        raise ConfigError(invalid(label, "plan", err)) from None
     base = source.parent if source is not None else Path.cwd()
 
     def resolve(p: Path) -> Path:

@@ -17,16 +17,18 @@ from typing import Any
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
-from benchctl.config import field_path, read_yaml, shown_value
 from benchctl.errors import ConfigError, DataError
 from benchctl.profiles.records import RecordedSpectrum, estimate_psd
 from benchctl.profiles.schema import (
+    KINDS,
     ProfileSpec,
     RecordedAxisSpec,
     RecordedProfile,
     SineStepsProfile,
 )
 from benchctl.textfile import MAX_CSV_BYTES, decode_utf8, read_input
+from benchctl.validation import invalid
+from benchctl.yamlfile import read_yaml
 
 _ADAPTER: TypeAdapter[Any] = TypeAdapter(ProfileSpec)
 
@@ -93,26 +95,7 @@ def sine_steps_duration(spec: SineStepsProfile) -> float:
     return len(spec.axes) * one_axis + spec.rest_s
 
 
-def _format_error(source: Path | str, err: ValidationError, kind: object) -> str:
-    """One line: the file, then each failing field with its value and what was expected."""
-    parts = []
-    for e in err.errors():
-        loc = list(e["loc"])
-        if loc and isinstance(kind, str) and loc[0] == kind:
-            loc = loc[1:]  # the discriminator's tag, not a field
-        where = field_path(tuple(loc)) or "(top level)"
-        value = e.get("input")
-        shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
-        msg = e["msg"]
-        if e["type"] == "union_tag_invalid":
-            where, shown = "kind", f" = {shown_value(kind)}"
-            msg = f"unknown kind; expected one of {', '.join(_kinds())}"
-        parts.append(f"field {where}{shown}: {msg}")
-    return f"{source}: invalid profile: " + "; ".join(parts)
-
-
 def _kinds() -> tuple[str, ...]:
-    from benchctl.profiles.schema import KINDS
 
     return KINDS
 
@@ -129,7 +112,8 @@ def parse_profile(data: Any, source: Path | str | None = None) -> Profile:
     try:
         spec = _ADAPTER.validate_python(data)
     except ValidationError as err:
-        raise ConfigError(_format_error(label, err, data.get("kind"))) from None
+        msg = invalid(label, "profile", err, tag=data.get("kind"), tags=_kinds)
+        raise ConfigError(msg) from None
     src = Path(source) if source is not None else None
     recorded: dict[str, RecordedSpectrum] = {}
     if isinstance(spec, RecordedProfile):

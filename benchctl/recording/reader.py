@@ -30,6 +30,7 @@ from benchctl.recording.format import (
     META_FILE,
     STREAM_FILES,
 )
+from benchctl.redact import redact
 
 if TYPE_CHECKING:
     from benchctl.analysis.timebase import Instants
@@ -319,10 +320,9 @@ class Recording:
             c = inst.get(name)
             return None if c is None else c[okd]
 
-        if td_ok.size < 2:
-            return t_ref, x_ref, Instants(td_ok, "receipt"), yd[okd]
-        if np.any(np.diff(td_ok) <= 0):  # decreasing receipts: left for the analysis to reject
-            return t_ref, x_ref, Instants(td_ok, "receipt"), yd[okd]
+        if td_ok.size < 2 or np.any(np.diff(td_ok) <= 0):
+            # too few, or decreasing receipts: left for the analysis to reject
+            return t_ref, x_ref, self._timing_applied(Instants(td_ok, "receipt")), yd[okd]
         try:
             tb = instrument_timebase(
                 td_ok,
@@ -334,7 +334,28 @@ class Recording:
             )
         except ValueError as e:
             raise DataError(f"{self.path}: instrument: {e}") from None
-        return t_ref, x_ref, tb.instants(), yd[okd]
+        return t_ref, x_ref, self._timing_applied(tb.instants()), yd[okd]
+
+    @property
+    def timing_offset_s(self) -> float:
+        """The bench's stream-to-stream offset its config's timing calibration states
+        (``timing.offset_s``, s; 0 when none): how late the bench stamps the instrument's
+        samples relative to the stand's."""
+        cfg = self.meta.get("config")
+        timing = cfg.get("timing") if isinstance(cfg, dict) else None
+        off = timing.get("offset_s") if isinstance(timing, dict) else None
+        return float(off) if isinstance(off, (int, float)) and math.isfinite(off) else 0.0
+
+    def _timing_applied(self, t: Instants) -> Instants:
+        """The instrument's instants moved earlier by the bench's calibrated offset
+        (``timing_offset_s``), labelled with it (``info["timing_offset_s"]``)."""
+        from benchctl.analysis.timebase import Instants
+
+        off = self.timing_offset_s
+        if off == 0.0:
+            return t
+        return Instants(np.asarray(t) - off, t.timebase, t.residual_s,
+                        {**t.info, "timing_offset_s": off})
 
     def _stand_clock(self, rows: NDArray[np.bool_]) -> Any:
         """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.
@@ -409,8 +430,6 @@ class Recording:
     def export_mat(self, dest: str | Path) -> Path:
         """All streams and metadata into one MATLAB .mat file (struct per stream)."""
         from scipy.io import savemat
-
-        from benchctl.redact import redact
 
         d = Path(dest)
         payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}

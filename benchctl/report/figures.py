@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.uncertainty import density_interval
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -108,7 +110,6 @@ def psd_figure(analysis: Mapping[str, Any], limit_deg: float | None = None,
     analysis band (deg²/Hz, log); below, on its own axis in deg, σ accumulated over frequency
     and the σ limit — the limit is drawn against the axis whose unit it has, never beside a
     density axis it could be read against."""
-    from benchctl.analysis.uncertainty import density_interval
 
     psd = analysis.get("psd") or {}
     f, s = _arr(psd.get("freq")), _arr(psd.get("error"))
@@ -173,10 +174,22 @@ def frf_svg(analysis: Mapping[str, Any], title: str = "") -> str | None:
         frf.get("coherence"))
     glo, ghi = _pairs(frf.get("gain_ci95"), f.size)
     plo, phi = _pairs(frf.get("phase_ci95_deg"), f.size)
+    # lines below the SNR floor (a profile's band edges, 1e-8° high) read gains up to 1e10:
+    # not drawn, or they would set the scale; their count goes into the legend
+    rel = frf.get("reliable")
+    weak = 0
+    if isinstance(rel, Sequence) and len(rel) == f.size:
+        keep = np.array([bool(v) for v in rel])
+        weak = int((~keep).sum())
+        if not keep.any():
+            return None
+        f, gain, phase, coh = f[keep], gain[keep], phase[keep], coh[keep]
+        glo, ghi, plo, phi = glo[keep], ghi[keep], plo[keep], phi[keep]
     fig, (a1, a2, a3) = _figure(FIG_W, 3.4, 3)
     a1.axhline(1.0, color="black", lw=0.8, label="gain = 1")
     a1.fill_between(f, glo, ghi, color="tab:blue", alpha=0.25, label="95 % interval")
-    a1.plot(f, gain, ".-", color="tab:blue", label="gain")
+    a1.plot(f, gain, ".-", color="tab:blue",
+            label="gain" + (f" ({weak} lines below the SNR floor not drawn)" if weak else ""))
     a1.set_ylabel("gain")
     a2.axhline(0.0, color="black", lw=0.8)
     a2.fill_between(f, plo, phi, color="tab:orange", alpha=0.25, label="95 % interval")

@@ -30,11 +30,15 @@ from functools import cache
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
+
 from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, loads_strict
 from benchctl.outcomes import Outcome
+from benchctl.recording import load_recording
+from benchctl.report.figures import excitation_svg, frf_svg, psd_svg, trace_svg
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -189,10 +193,20 @@ def _analysis_warnings(axis: str, an: Mapping[str, Any]) -> list[str]:
                        f"{_num(g.get('longest_s'), '.3g')} s")
     if gaps.get("excluded_samples"):
         out.append(f"{axis}: {gaps['excluded_samples']} sample(s) excluded from the analysis")
-    share = (an.get("timing") or {}).get("timing_share")
+    tm = an.get("timing") or {}
+    share = tm.get("timing_share")
     if isinstance(share, int | float) and math.isfinite(share):
         out.append(f"{axis}: timing (time-stamp jitter × angular rate) contributes "
                    f"{_pct(share)} of σ²")
+    ppm = tm.get("skew_ppm")
+    if tm.get("skew_corrected") and isinstance(ppm, int | float):
+        out.append(f"{axis}: the instrument's stamps drift {ppm:+.4g} ppm against the stand's "
+                   f"({1e3 * float(tm.get('skew_drift_s') or 0.0):+.3g} ms over the record), "
+                   "corrected")
+    stat = tm.get("sigma_ci95_statistical")
+    if tm.get("timing_in_interval") and isinstance(stat, list | tuple) and len(stat) == 2:
+        out.append(f"{axis}: σ's interval includes timing (statistical alone "
+                   f"{_num(stat[0], '.5g')} … {_num(stat[1], '.5g')}°)")
     return out
 
 
@@ -266,11 +280,6 @@ def _trace(folder: Path, axes: Sequence[str], window: Sequence[float] | None,
            motion_start: float | None, title: str) -> dict[str, str]:
     """A ``TRACE_EXCERPT_S`` excerpt per axis: the middle of the analysis window, or the last
     seconds recorded (an aborted run)."""
-    import numpy as np
-
-    from benchctl.recording import load_recording
-    from benchctl.report.figures import trace_svg
-
     out: dict[str, str] = {}
     try:
         rec = load_recording(folder)
@@ -342,7 +351,6 @@ def _cached(key: str, make: Callable[[], T]) -> T:
 def _figures_of(name: str, an: Mapping[str, Any], lim: Any, exc: Any,
                 title: str) -> dict[str, str | None]:
     """An axis's PSD, frequency response and excitation figures (SVG), drawn once per content."""
-    from benchctl.report.figures import excitation_svg, frf_svg, psd_svg
 
     limit = lim if isinstance(lim, int | float) else None
 

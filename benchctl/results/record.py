@@ -32,7 +32,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from benchctl import __version__
 from benchctl.clock import REAL, Clock
+from benchctl.config import axis_map
 from benchctl.errors import AnalysisError, BenchError, DataError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, load_object, plain
@@ -195,7 +197,6 @@ def build_record(
     station, devices, profile, seed, config, start time, software version, hashes) and its
     results. ``abort``: {kind, reason, …} for an aborted run (``outcome`` ABORTED).
     ``end_utc``: else now on ``clock`` (the run's)."""
-    from benchctl import __version__
 
     devices = meta.get("devices") or {}
     dut = devices.get("instrument")
@@ -231,6 +232,7 @@ def build_record(
         "station": str(meta.get("station") or ""),
         "stand": {"identity": devices.get("stand"),
                   "calibration_due": None if due is None else str(due)[:10]},
+        "timing": _timing(config.get("timing")),
         "instruments": [{"role": "dut", "identity": dut,
                          "axes": _instrument_axes(config.get("instrument") or {})}],
         "profile": {
@@ -256,10 +258,21 @@ def build_record(
     return out
 
 
+def _timing(timing: Any) -> dict[str, Any] | None:
+    """The config's ``timing:`` section as the record states it (None: a config without one,
+    from a benchctl before the bench's timing calibration)."""
+    if not isinstance(timing, Mapping):
+        return None
+    cal = timing.get("calibrated")
+    return {"offset_s": float(timing.get("offset_s") or 0.0),
+            "uncertainty_s": float(timing.get("uncertainty_s") or 0.0),
+            "calibrated": None if cal is None else str(cal)[:10],
+            "reference": timing.get("reference")}
+
+
 def _instrument_axes(instrument: Mapping[str, Any]) -> dict[str, Any] | None:
     """``instrument.axes`` of the run's config as {stand axis: {output, sign}} (the axis
     mapping every sample was read with); an older config's list of names is the identity."""
-    from benchctl.config import axis_map
 
     axes = instrument.get("axes")
     if not axes:

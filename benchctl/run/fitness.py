@@ -34,6 +34,7 @@ from benchctl.run.latency import (
 )
 from benchctl.run.prechecks import CheckResult
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, request_realtime
+from benchctl.run.stand_loop import SEND_WINDOW
 
 NAME = "host latency"  # the precheck's name
 SKIP_VIRTUAL = "simulated time: host latency not measured"
@@ -121,7 +122,6 @@ def watchdog_s(cfg: BenchConfig) -> float | None:
 
 
 def bounds(cfg: BenchConfig) -> list[Bound]:
-    from benchctl.run.stand_loop import SEND_WINDOW
 
     st = cfg.stand
     return stand_bounds(mode=st.mode, buffer_s=st.buffer_s, setpoint_rate_hz=st.setpoint_rate_hz,

@@ -63,6 +63,7 @@ from typing import Any
 from benchctl.config import BenchConfig, StandConfig
 from benchctl.errors import ConfigError, StandInUse
 from benchctl.jsonout import dumps
+from benchctl.textfile import file_kind
 
 DEFAULT_LOCK_DIR = Path("/run/benchctl-locks")  # only root can create it: see the docstring
 HOLDER_WAIT_S = 1.0  # a holder that has just taken the lock writes its details within this
@@ -379,7 +380,6 @@ class StandLock:
 
 
 def _kind(mode: int) -> str:
-    from benchctl.textfile import file_kind
 
     return f"{file_kind(mode)}, not a lock file"
 

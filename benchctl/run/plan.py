@@ -19,9 +19,10 @@ from benchctl.options import MAX_PROFILE_SAMPLES
 from benchctl.run.state import RunState
 
 
-@dataclass
+@dataclass(frozen=True)
 class MotionPlan:
-    """The profile on the loop's grid: ``values[axis][k]`` is the angle at ``k·period_s``."""
+    """The profile on the loop's grid: ``values[axis][k]`` is the angle at ``k·period_s``.
+    Immutable: a plan changed (equalised, say) is a new plan."""
 
     axes: tuple[str, ...]
     period_s: float

@@ -35,6 +35,7 @@ import numpy as np
 
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import SafetyAbort
+from benchctl.results.measurements import serial_match
 
 REST_RATE_DEG_S = 0.5
 
@@ -63,7 +64,6 @@ def require(result: CheckResult) -> CheckResult:
 def check_serial(typed: str, reported: str | None) -> CheckResult:
     """The serial typed against the one the instrument reports, as a precheck (``unit.
     serial_check: require``): a mismatch, or no serial reported, refuses the run."""
-    from benchctl.results.measurements import serial_match
 
     values = {"typed": typed, "reported": reported}
     match = serial_match(typed, reported)

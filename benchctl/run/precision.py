@@ -23,8 +23,14 @@ from typing import Any
 
 import numpy as np
 
+from benchctl.analysis import analyze
+from benchctl.analysis.departures import departures_of
+from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
+from benchctl.analysis.lines import line_set_from_tables
 from benchctl.clock import REAL, Clock, ThreadLike
-from benchctl.errors import BenchError, ConfigError
+from benchctl.errors import BenchError, ConfigError, DataError
+from benchctl.recording import load_recording
+from benchctl.recording.reader import WINDOW_MARGIN_S
 
 MIN_PERIODS = 1  # never a stop before this many whole periods (every line excited)
 CHECK_DELAY_S = 1.5  # a period is checked this long after its end (the streams' last samples)
@@ -158,13 +164,6 @@ def check_window(
     """σ and its interval per axis on the recording at ``path`` as written so far, over
     ``window`` (host time, whole periods): the verdict's analysis (``Session._analyse``: the
     same crop, line set and options), and the excitation judgement over the same window."""
-    from benchctl.analysis import analyze
-    from benchctl.analysis.departures import departures_of
-    from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
-    from benchctl.analysis.lines import line_set_from_tables
-    from benchctl.errors import DataError
-    from benchctl.recording import load_recording
-    from benchctl.recording.reader import WINDOW_MARGIN_S
 
     a = cfg.run.analysis
     rec = load_recording(path)
@@ -183,8 +182,12 @@ def check_window(
                       compensate_delay=a.compensate_delay, source=str(path), axis=axis,
                       lines=ls if ls is not None else "auto", departures=departures)
         ci = (float(res.sigma_ci95[0]), float(res.sigma_ci95[1]))
+        # the stop is judged on the part of the interval more motion narrows: timing's share
+        # (an offset between the streams, benchctl.analysis.timing) does not shrink with time
+        stat = res.timing.get("sigma_ci95_statistical") or ci
         # departures that leave too little to judge σ on: no stop, the motion goes on
-        reached = relative_halfwidth(float(res.sigma), ci) if res.judgeable else math.inf
+        reached = (relative_halfwidth(float(res.sigma), (float(stat[0]), float(stat[1])))
+                   if res.judgeable else math.inf)
         check = AxisCheck(float(res.sigma), ci, reached)
         try:
             fid = fidelity_of_table(tr[kr], xr[kr], tables[axis], window, t_motion_start,

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.analysis.departures import departure_text, sigma_inconclusive
+from benchctl.analysis.excitation import format_fidelity
 from benchctl.errors import RecordingError
 from benchctl.fileout import atomic_write_text
 from benchctl.jsonout import dumps, plain
@@ -220,6 +221,11 @@ def format_report(rep: Report) -> str:
     scale = m.get("scale")
     if scale is not None and scale != 1.0:
         lines.append(f"  profile scaled by {scale:g} to fit the stand limits")
+    timing = m.get("timing") or {}
+    if timing.get("offset_s"):
+        lines.append(f"  bench timing offset {timing['offset_s'] * 1e3:+.4f} ms "
+                     f"(± {(timing.get('uncertainty_s') or 0.0) * 1e3:.4f} ms, calibrated "
+                     f"{timing.get('calibrated')}) subtracted from the instrument's instants")
     lines.extend(f"  DEVIATION: {d}" for d in rep.deviations)
     for v in rep.axes.values():
         lo, hi = v.sigma_ci95_deg
@@ -234,8 +240,6 @@ def format_report(rep: Report) -> str:
             lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))
         if v.excitation is not None:
-            from benchctl.analysis.excitation import format_fidelity
-
             lines.append(f"        {format_fidelity(v.excitation)}")
     st = rep.stats
     lat = st.get("cycle_lateness_s", {})
@@ -336,7 +340,7 @@ def _plot(result: Any, dest: Path, meta: dict[str, Any] | None = None,
     and date in its title, the σ limit on its PSD panel."""
     m = meta or {}
     try:
-        from benchctl.analysis.plot import plot_result
+        from benchctl.analysis.plot import plot_result  # matplotlib: only when a plot is drawn
 
         plot_result(result, dest, serial=None if m.get("serial") is None else str(m["serial"]),
                     date=str(m.get("start_utc") or "")[:10] or None, limit_deg=limit_deg)

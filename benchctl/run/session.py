@@ -47,10 +47,11 @@ complete.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import shlex
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
@@ -59,10 +60,27 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from benchctl import __version__
+from benchctl.analysis import analyze
+from benchctl.analysis.crossaxis import cross_axis_for
+from benchctl.analysis.departures import departures_of
+from benchctl.analysis.equalise import (
+    corrected_table,
+    estimate_response,
+    response_at,
+)
+from benchctl.analysis.excitation import (
+    RunningFidelity,
+    breached,
+    fidelity_of_table,
+    limits_of,
+    reach_of,
+)
+from benchctl.analysis.lines import LineSet, line_set_from_tables
+from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
-from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
+from benchctl.devices.base import AngleSensor, Stand
 from benchctl.errors import (
     DISK_FULL_ERRNOS,
     AnalysisError,
@@ -75,8 +93,8 @@ from benchctl.errors import (
     is_disk_full,
 )
 from benchctl.exits import run_log, set_log_dir
-from benchctl.kinematics import profile_peaks
 from benchctl.outcomes import ExitCode, Outcome
+from benchctl.profiles import check_motion
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
@@ -92,9 +110,18 @@ from benchctl.results.measurements import (
 from benchctl.results.record import abort_kind, sha256_file, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
+from benchctl.run.devices import (
+    SIM_LOG,
+    DeviceFactory,
+    _identity,
+    open_devices,
+    recording_dir,
+    simulators,
+)
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
+from benchctl.run.mounting_check import mounting_result
 from benchctl.run.outputs import (
     Console,
     FinishedRun,
@@ -109,7 +136,7 @@ from benchctl.run.outputs import (
     record_in,
     stand_lines,
 )
-from benchctl.run.plan import MotionPlan, check_setpoints, make_plan
+from benchctl.run.plan import MotionPlan, make_plan
 from benchctl.run.precision import (
     PrecisionCheck,
     PrecisionWatch,
@@ -118,6 +145,13 @@ from benchctl.run.precision import (
     profile_period,
     relative_halfwidth,
     whole_periods_in,
+)
+from benchctl.run.prepare import (
+    PreparedMotion,
+    RunOptions,
+    motion_rate_hz,
+    mounting_plan,
+    prepare_motion,
 )
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
 from benchctl.run.recorder import Recorder
@@ -137,48 +171,23 @@ from benchctl.run.stand_loop import (
 )
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, shutdown
+from benchctl.sim.disturb import Disturbances
 from benchctl.text import (
-    check_operator,
-    check_part_number,
     check_serial,
-    file_name_part,
-    from_device,
 )
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
-    from benchctl.sim.disturb import Disturbances
+
 
 log = logging.getLogger(__name__)
 
-SIM_LOG = "sim.log"  # the simulators' output, in the recording
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
 STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
 FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
 REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
 
 
-@dataclass
-class RunOptions:
-    serial: str
-    operator: str
-    duration_s: float | None = None
-    out_dir: Path | None = None
-    seed: int | None = None
-    scale_to_fit: bool = False  # scale a profile over the limits down instead of refusing it
-    precision: float | None = None  # --precision: overrides run.precision (see run.precision)
-    decision_rule: str | None = None  # --decision-rule: overrides run.decision_rule
-    part_number: str | None = None  # --part-number: overrides unit.part_number
-    equalise: bool | None = None  # --equalise: overrides run.equalise.enabled
-
-    def __post_init__(self) -> None:
-        """The serial, the operator and the part number checked and stripped
-        (``benchctl.text``): a control character or an overlong value is an ``InputError``
-        here, before anything is read or opened."""
-        self.serial = check_serial(self.serial, "serial")
-        self.operator = check_operator(self.operator, "operator")
-        if self.part_number is not None:
-            self.part_number = check_part_number(self.part_number, "part_number")
 
 
 @dataclass
@@ -216,363 +225,28 @@ class RunResult:
         }
 
 
-# -------------------------------------------------------------------------- profile and motion
-@dataclass
-class PreparedMotion:
-    profile: Any
-    motion: Any
-    plan: MotionPlan
-    check: pc.CheckResult
-    meta: dict[str, Any]
-    # run.equalise: the pre-test (its designs per axis, its checked plan); None: no pre-test
-    pretest: Pretest | None = None
-    # run.mounting_check: the tilt, checked against the limits; None: planned when it is run
-    # (a caller's own PreparedMotion) or no check
-    tilt: MotionPlan | None = None
 
 
-def mounting_plan(cfg: BenchConfig, axes: tuple[str, ...], where: str) -> MotionPlan:
-    """The mounting check's tilt of ``axes`` (``benchctl.run.mounting.tilt_points``) as a plan
-    for a stand loop, checked step by step against the stand's limits; ``LimitError`` naming
-    ``where`` and the fields when it does not fit. Setpoints at the stand's setpoint rate,
-    streamed — or queued, on a buffered stand (a stand that plays tables takes setpoints too:
-    its ramp to zero is streamed)."""
-    from benchctl.kinematics import Limits
-    from benchctl.run import mounting as mt
-
-    mc, lim = cfg.run.mounting_check, cfg.stand.limits
-    period = 1.0 / cfg.stand.setpoint_rate_hz
-    try:
-        points = mt.tilt_points(axes, mc.tilt_deg, mc.hold_s,
-                                Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2), period)
-    except LimitError as e:
-        raise LimitError(
-            f"{where}: field run.mounting_check.tilt_deg = {mc.tilt_deg:g}°: {e} (field "
-            "stand.limits); expected a smaller tilt, or run.mounting_check.enabled: false"
-        ) from None
-    n = next(iter(points.values())).size
-    mode = "buffered" if cfg.stand.mode == "buffered" else "stream"
-    return MotionPlan(axes, period, points, (n - 1) * period, 0.0, 0.0, mode,
-                      peaks={a: profile_peaks(v, period) for a, v in points.items()})
 
 
-@dataclass
-class Pretest:
-    """The equalisation pre-test, checked against the limits like any motion."""
-
-    designs: dict[str, Any]  # axis → benchctl.analysis.equalise.PretestDesign
-    motion: Any
-    plan: MotionPlan
-    check: dict[str, Any]
 
 
-def prepare_pretest(cfg: BenchConfig, motion: Any, rate: float, where: str) -> Pretest:
-    """The low-level pre-test of ``motion`` (``run.equalise``), checked against the stand's
-    limits before anything moves; raises ``ConfigError``/``LimitError`` naming ``where``."""
-    import dataclasses
-
-    from benchctl.analysis.equalise import pretest_design
-    from benchctl.profiles import check_motion
-
-    eq = cfg.run.equalise
-    tables = getattr(motion, "tables", None) or {}
-    if not tables or getattr(motion, "segments", None):
-        raise ConfigError(
-            f"{where}: equalisation needs a profile of lines (one harmonic table per axis); "
-            f"profile kind {getattr(motion, 'kind', '?')!r} has none; expected no equalisation"
-        )
-    try:
-        designs = {
-            a: pretest_design(t, level=eq.level, periods=eq.periods,
-                              max_period_s=eq.max_period_s, fade_s=eq.fade_s,
-                              settle_s=eq.settle_s)
-            for a, t in tables.items()
-        }
-    except DataError as e:
-        raise ConfigError(f"{where}: {e}; expected a profile whose lines repeat") from None
-    duration = max(d.table.duration_s for d in designs.values())
-    pre_tables = {  # one duration for every axis: the longest pre-test
-        a: dataclasses.replace(d.table, duration_s=duration) for a, d in designs.items()}
-    pre_motion = dataclasses.replace(motion, name=f"{motion.name} (equalisation pre-test)",
-                                     table_by_axis=pre_tables)
-    try:  # a pre-test over the limits (another crest): scaled down, it only measures
-        result = check_motion(pre_motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=True)
-    except LimitError as e:
-        raise LimitError(f"{where}: the equalisation pre-test: {e}") from None
-    pre_motion = result.motion
-    tabs = dict(pre_motion.tables or {})
-    designs = {a: dataclasses.replace(d, table=tabs[a]) for a, d in designs.items()}
-
-    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-        return {a: np.asarray(v, dtype=float) for a, v in pre_motion.evaluate(t).items()}
-
-    fade = cfg.run.equalise.fade_s
-    plan = make_plan(evaluate, tuple(tabs), duration, rate, fade, fade, mode=cfg.stand.mode,
-                     tables=tabs)
-    return Pretest(designs, pre_motion, plan, result.to_dict())
 
 
-def _fades(motion: Any) -> tuple[float, float]:
-    for obj in (motion, *(getattr(motion, "tables", None) or {}).values()):
-        fi, fo = getattr(obj, "fade_in_s", None), getattr(obj, "fade_out_s", None)
-        if fi is not None and fo is not None:
-            return float(fi), float(fo)
-    return 0.0, 0.0
 
 
-def prepare_motion(cfg: BenchConfig, profile_path: Path, opts: RunOptions) -> PreparedMotion:
-    """Load, synthesise and check the profile against this bench; raises before anything moves."""
-    from benchctl.profiles import check_motion, load_profile, synthesize
-
-    profile = load_profile(profile_path)
-    rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
-    src = cfg.source or Path("<config>")
-    # every motion (the profile's own duration, a plan step's, --duration) capped before any
-    # of it is synthesised, at the stand's faster rate in any mode (as --duration is)
-    duration = profile.duration_s if opts.duration_s is None else opts.duration_s
-    check_setpoints(duration, max(cfg.stand.setpoint_rate_hz, cfg.stand.sample_rate_hz),
-                    f"{profile_path} on {src}")
-    motion = synthesize(profile, duration_s=opts.duration_s, seed=opts.seed, setpoint_rate_hz=rate)
-    axes = tuple(motion.axes)
-    for section, have in (("stand", cfg.stand.axes), ("instrument", cfg.instrument.axes)):
-        missing = [a for a in axes if a not in have]
-        if missing:
-            raise ConfigError(
-                f"{src}: field {section}.axes = {list(have)}: the profile {profile_path} moves "
-                f"{list(axes)}, expected {section}.axes to include {missing}"
-            )
-    if cfg.stand.mode == "buffered":
-        from benchctl.devices.modbus.regmap import load_register_map
-
-        if load_register_map(cfg.stand.register_map).trajectory is None:
-            raise ConfigError(
-                f"{src}: field stand.mode = 'buffered', but the register map "
-                f"{cfg.stand.register_map} has no trajectory queue (no `trajectory:` section); "
-                "expected mode 'stream' or 'table' for this stand"
-            )
-    if cfg.stand.mode == "table" and not getattr(motion, "tables", None):
-        raise ConfigError(
-            f"{src}: field stand.mode = 'table', but profile {profile_path} gives no harmonic "
-            "table; expected mode 'stream' for this profile"
-        )
-    if cfg.stand.mode == "table":
-        from benchctl.devices.modbus.regmap import load_register_map
-
-        axes_map = load_register_map(cfg.stand.register_map).axes
-        for a, tab in (motion.tables or {}).items():
-            room = axes_map[a].table_max_lines if a in axes_map else 0
-            if tab is not None and tab.n_lines > room:
-                raise LimitError(
-                    f"{profile_path} on {src} (field stand.mode = 'table'): the {a} table has "
-                    f"{tab.n_lines} lines over {duration:g} s, the stand's table takes at most "
-                    f"{room} (register map {cfg.stand.register_map}); expected mode 'buffered' "
-                    "or 'stream', or a profile with fewer lines"
-                )
-    # raises LimitError naming needed vs allowed, before anything opens
-    try:
-        result = check_motion(
-            motion, cfg.stand.limits, rate_hz=rate, scale_to_fit=opts.scale_to_fit
-        )
-    except LimitError as e:
-        raise LimitError(f"{profile_path} on {src} (field stand.limits): {e}") from None
-    motion = result.motion
-    figures = result.to_dict()
-    check = pc.CheckResult("profile within limits", True, "within the stand limits", figures)
-    fade_in, fade_out = _fades(motion)
-    tables = motion.tables
-    tables = dict(tables) if tables else None
-
-    def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-        return {a: np.asarray(v, dtype=float) for a, v in motion.evaluate(t).items()}
-
-    plan = make_plan(
-        evaluate,
-        axes,
-        float(motion.duration_s),
-        rate,
-        fade_in,
-        fade_out,
-        mode=cfg.stand.mode,
-        tables=tables,
-    )
-    pdict = profile.to_dict() if hasattr(profile, "to_dict") else {}
-    requested = opts.precision if opts.precision is not None else cfg.run.precision
-    equalise = opts.equalise if opts.equalise is not None else cfg.run.equalise.enabled
-    if requested is not None:  # a precision stop: whole periods of a multisine, not table mode
-        where = (f"--precision {requested:g}" if opts.precision is not None
-                 else f"{src}: field run.precision = {requested:g}")
-        if cfg.stand.mode == "table":
-            raise ConfigError(
-                f"{where}: a precision stop needs stand.mode 'stream' or 'buffered' (a stand "
-                "playing its table cannot be faded out early); expected no precision here"
-            )
-        profile_period(motion, axes, f"{where} with profile {profile_path}")
-    meta = {
-        "profile_path": str(profile_path),
-        "profile_name": getattr(profile, "name", profile_path.stem),
-        "profile": pdict,
-        "seed": opts.seed if opts.seed is not None else getattr(profile, "seed", None),
-        "duration_s": float(motion.duration_s),
-        "fade_in_s": fade_in,
-        "fade_out_s": fade_out,
-        "motion_check": figures,
-        "scale": result.scale,
-        "precision_requested": requested,
-        "equalise_requested": equalise,
-    }
-    tilt = mounting_plan(cfg, axes, f"{src}") if cfg.run.mounting_check.enabled else None
-    pretest = None
-    if equalise:
-        where = "--equalise" if opts.equalise else f"{src}: field run.equalise.enabled = true"
-        pretest = prepare_pretest(cfg, motion, rate, f"{where} with profile {profile_path}")
-        meta["equalise_pretest"] = {
-            "axes": {a: d.to_dict() for a, d in pretest.designs.items()},
-            "duration_s": pretest.plan.duration_s,
-            "check": pretest.check,
-        }
-    return PreparedMotion(profile, motion, plan, check, meta, pretest, tilt)
 
 
-# -------------------------------------------------------------------------- mounting check
-def mounting_result(
-    stand_rows: list[tuple[float, dict[str, float]]],
-    samples: list[Any],
-    axes: tuple[str, ...],
-    cfg: BenchConfig,
-) -> pc.CheckResult:
-    """The mounting check's precheck from the tilt's stand samples ((t_host, angles) each) and
-    instrument samples: the stand's measured angles interpolated at the instrument's instants,
-    the response fitted and judged (``benchctl.run.mounting``)."""
-    from benchctl.config import axis_map
-    from benchctl.run import mounting as mt
-
-    mc = cfg.run.mounting_check
-    mapping = axis_map(cfg.instrument.axes)
-    values: dict[str, Any] = {
-        "axes": list(axes), "tilt_deg": mc.tilt_deg, "gain_tolerance": mc.gain_tolerance,
-        "cross_tolerance": mc.cross_tolerance,
-        "instrument_axes": {a: {"output": o, "sign": sg} for a, (o, sg) in mapping.items()},
-    }
-    name = "mounting"
-    ts = np.array([t for t, _ in stand_rows], dtype=float)
-    order = np.argsort(ts, kind="stable")
-    readings = sorted({r for s in samples for r in s.angle_deg},
-                      key=lambda r: (r not in axes, axes.index(r) if r in axes else 0, r))
-    ti = np.array([s.t_host for s in samples], dtype=float)
-    try:
-        if not readings:
-            raise DataError("mounting check: no instrument sample during the tilt")
-        x = {a: np.array([stand_rows[i][1].get(a, math.nan) for i in order], dtype=float)
-             for a in axes}
-        y = {r: np.array([s.angle_deg.get(r, math.nan) for s in samples], dtype=float)
-             for r in readings}
-        resp, delay = mt.fit_sampled(ts[order], x, ti, y)
-    except DataError as e:
-        return pc.CheckResult(name, False, f"{e} (run.mounting_check)", values)
-    values["response"] = resp.to_dict()
-    values["delay_s"] = delay
-    where = str(cfg.source) if cfg.source is not None else "the bench config"
-    verdict = mt.judge(resp, axes, mapping, mc.gain_tolerance, mc.cross_tolerance, where)
-    values["findings"] = {f.reading: f.kind for f in verdict.findings}
-    if verdict.ok:
-        seen = ", ".join(f"{r} {resp.gain[r][a]:.3f}× the stand's {a}"
-                         for r in readings for a in axes if r == a)
-        return pc.CheckResult(name, True, f"mounted as configured: {seen}", values)
-    return pc.CheckResult(name, False, verdict.detail, values)
 
 
-# -------------------------------------------------------------------------- devices
-DeviceFactory = Callable[[BenchConfig, Path], tuple[Stand, AngleSensor]]
 
 
-def open_devices(
-    cfg: BenchConfig, recording: Path, *, clock: Clock = REAL
-) -> tuple[Stand, AngleSensor]:
-    """The real drivers for this config (also what talks to the simulators), on ``clock``."""
-    from benchctl.devices.instrument import open_instrument
-    from benchctl.devices.modbus import open_stand
-
-    can_log = None
-    if cfg.instrument.driver != "nmea0183" and cfg.instrument.can_log:
-        can_log = recording / cfg.instrument.can_log
-    stand = open_stand(cfg.stand, clock=clock)
-    try:
-        sensor = open_instrument(cfg.instrument, can_log_path=can_log, clock=clock)
-    except BaseException:
-        stand.close()
-        raise
-    return stand, sensor
 
 
-@contextlib.contextmanager
-def simulators(
-    cfg: BenchConfig,
-    log_path: Path | None = None,
-    clock: Clock = REAL,
-    disturb: Callable[[Disturbances], None] | None = None,
-    horizon_s: float = 3600.0,
-) -> Iterator[BenchConfig]:
-    """With a ``sim:`` section, run the simulators for the length of the run: a child process
-    (its output to ``log_path``, the recording's ``sim.log``), or, on simulated time
-    (``sim.clock: virtual``, ``clock`` a virtual clock), in this process on ``clock`` over
-    in-process links. Yields the config pointed at them.
-
-    On simulated time with ``sim.disturb``, the seeded disturbances (``benchctl.sim.disturb``)
-    over ``horizon_s`` seconds are applied to the clock, the links and the simulators' fault
-    schedule, and handed to ``disturb`` (the run records them and takes the operator's stop)."""
-    if cfg.sim is None:
-        yield cfg
-        return
-    if cfg.sim.clock == "virtual":
-        if not clock.virtual:
-            raise ConfigError(
-                f"{cfg.source}: field sim.clock = virtual: the run needs a virtual clock "
-                "(benchctl run makes one; a caller of Session passes one)"
-            )
-        from benchctl.sim.bench import SimBench
-        from benchctl.sim.disturb import Disturbances
-
-        plan = None
-        if cfg.sim.disturb is not None:
-            plan = Disturbances(cfg.sim.disturb, horizon_s)
-            cfg = plan.with_faults(cfg)
-        with SimBench(cfg, private=True, clock=clock) as bench:
-            if plan is not None:
-                bench.disturb(plan)
-                if disturb is not None:
-                    disturb(plan)
-            yield bench.config()
-        return
-    from benchctl.sim.launch import start_simulators
-
-    with start_simulators(cfg, log_path=log_path) as sim:
-        yield sim.config
 
 
-def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock = REAL) -> Path:
-    """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
-    taken), the serial as a safe file-name part of at most 64 bytes
-    (``benchctl.text.file_name_part``); the time is ``clock``'s."""
-    stamp = clock.now_utc().strftime("%Y%m%dT%H%M%SZ")
-    base = out_dir / f"{prefix}{stamp}_{file_name_part(serial)}"
-    p, i = base, 1
-    while p.exists():
-        i += 1
-        p = base.with_name(f"{base.name}_{i}")
-    return p
 
 
-def _identity(d: DeviceIdentity) -> dict[str, Any]:
-    """A device's identity for the metadata: what it reports, never refused, each string cut
-    to ``benchctl.text.DEVICE_TEXT_MAX`` (shown safe wherever it is printed)."""
-    return {
-        "vendor": from_device(d.vendor),
-        "model": from_device(d.model),
-        "serial": from_device(d.serial),
-        "firmware": from_device(d.firmware),
-        "protocol": from_device(d.protocol),
-        "extra": {from_device(k): from_device(v) for k, v in d.extra.items()},
-    }
 
 
 # -------------------------------------------------------------------------- the run
@@ -607,6 +281,8 @@ class Session:
         self.log_path: Path | None = None
         self.cfg = cfg
         self.prep = prepared
+        #: the plan the motion plays: the prepared one, or the one equalisation made of it
+        self.plan: MotionPlan = prepared.plan
         self.opts = opts
         self.display: Display = display or NullDisplay()
         self.device_factory: DeviceFactory = (
@@ -688,7 +364,7 @@ class Session:
             limit_deg=self.cfg.run.limit_sigma_deg,
             cycles=self.loop.cycles,
             rejoins=self.loop.rejoins,
-            mode=self.prep.plan.mode,
+            mode=self.plan.mode,
             underruns=self.loop.underruns,
             sigma_judged_after_s=self._sigma_judged_after(),
         )
@@ -696,7 +372,7 @@ class Session:
     def _sigma_judged_after(self) -> float | None:
         """Motion time from which the running σ is judged live: the fade-in and one whole
         period of a periodic multisine (every line excited once); None without a period."""
-        plan = self.prep.plan
+        plan = self.plan
         periods = [t.period_s for t in (plan.tables or {}).values()]
         if not periods or None in periods or getattr(self.prep.motion, "segments", None):
             return None
@@ -750,17 +426,17 @@ class Session:
             self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
         self._precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._realtime(self.loop)
         self._host_check()
         self._rate_and_zero()
         self._mounting_check()
-        if self.prep.plan.mode == "table" and self.prep.pretest is None:
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        if self.plan.mode == "table" and self.prep.pretest is None:
+            assert self.plan.tables is not None
+            stand.upload_table(self.plan.tables)
+            w.event("table_uploaded", axes=list(self.plan.tables))
 
     def _realtime(self, loop: StandLoop) -> None:
         """Record and say whether the stand loop thread got ``run.realtime_priority``."""
@@ -934,7 +610,7 @@ class Session:
         # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
         # own "moving" off, as a table or a pre-test needs to start
         stand.go_to_zero()
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         self.loop.start()  # hold until the motion (or the pre-test) begins
         result = mounting_result(stand_rows, samples, self.axes, cfg)
         w.update_meta(mounting_check=result.values)
@@ -945,11 +621,6 @@ class Session:
         recorded, the stand's response on the profile's lines estimated, the drive corrected
         and checked against the limits like any motion; the main motion's loop then waits in
         hold with the corrected plan."""
-        import dataclasses
-
-        from benchctl.analysis.equalise import corrected_table, estimate_response, response_at
-        from benchctl.analysis.excitation import reach_of
-        from benchctl.profiles import check_motion
 
         pre, w, stand = self.prep.pretest, self.writer, self.stand
         assert pre is not None and w is not None and stand is not None and self.loop is not None
@@ -977,7 +648,7 @@ class Session:
         # the response per axis, from the recording (the same instants the verdict will use)
         rec = load_recording(self.path)
         target = self.prep.motion
-        rate = cfg.stand.setpoint_rate_hz if cfg.stand.mode != "table" else cfg.stand.sample_rate_hz
+        rate = motion_rate_hz(cfg.stand)
         drives, report = {}, {}
         for axis, design in pre.designs.items():
             tr, xr, _, _ = rec.pair(axis, window=False)
@@ -1007,8 +678,8 @@ class Session:
         def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
             return {a: np.asarray(v, dtype=float) for a, v in result.motion.evaluate(t).items()}
 
-        old = self.prep.plan
-        self.prep.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
+        old = self.plan  # the prepared plan stays as it was: equalisation makes a new one
+        self.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
                                    old.fade_in_s, old.fade_out_s, mode=old.mode,
                                    tables=dict(result.motion.tables or {}))
         disturbed = {"missed_cycles": loop.missed_cycles, "rejoins": loop.rejoins,
@@ -1031,35 +702,56 @@ class Session:
                 f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
                 f" on {len(r['freq_hz'])} lines; "
                 + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
-        if self.prep.plan.mode == "table":
-            assert self.prep.plan.tables is not None
-            stand.upload_table(self.prep.plan.tables)
-            w.event("table_uploaded", axes=list(self.prep.plan.tables))
+        if self.plan.mode == "table":
+            assert self.plan.tables is not None
+            stand.upload_table(self.plan.tables)
+            w.event("table_uploaded", axes=list(self.plan.tables))
         self.supervisor.check()  # a fault while the correction was computed
         loop.stop()
-        self.loop = self._new_loop(self.prep.plan)
+        self.loop = self._new_loop(self.plan)
         self.loop.start()  # hold until the motion begins
 
     def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
         """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
         watching it as the motion is watched (faults, stalls, a silent instrument, a time
         limit)."""
+        self._watch(loop, what, loop.plan.duration_s)
+        self.supervisor.check()
+
+    def _watch(
+        self,
+        loop: StandLoop,
+        what: str,
+        duration_s: float,
+        before: Callable[[float, float], None] | None = None,
+        after: Callable[[float, float], None] | None = None,
+    ) -> None:
+        """The one watch loop over a stand loop playing ``what`` until its motion is done or a
+        fault is raised: every 0.1 s the loop's health (``_check_loop``), a time limit (the
+        motion's ``duration_s`` and a minute for settling and slack: a hung loop cannot hang
+        the run) and the display; ``before``/``after`` (given the time) add the motion's own
+        watches, before the health check and after the time limit (each called with the time
+        and the time the watch began)."""
         loop.begin_motion()
-        limit = loop.plan.duration_s + 60.0
+        limit = duration_s + 60.0
         t0 = self.clock.monotonic()
-        t_wake, resumed = t0, -math.inf
+        t_wake = t0
+        resumed = -math.inf  # this thread's last wake-up after a stall of the process
         while not loop.motion_done.wait(0.1):
             if self.supervisor.faulted:
                 break
             now = self.clock.monotonic()
-            if now - t_wake > 0.1 + HOST_STALL_S:
-                resumed = now
+            if before is not None:
+                before(now, t0)
+            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
+                resumed = now  # get a moment to catch up before their silence counts
             t_wake = now
             self._check_loop(loop, now, resumed, what)
             if now - t0 > limit:
                 raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
+            if after is not None:
+                after(now, t0)
             self.display.update(self._snapshot())
-        self.supervisor.check()
 
     def _check_loop(self, loop: StandLoop, now: float, resumed: float, what: str) -> None:
         """The main thread's watch over a stand loop playing ``what``: the loop alive, cycling,
@@ -1081,19 +773,13 @@ class Session:
     def _motion(self) -> None:
         loop = self.loop
         assert loop is not None and self.recorder is not None
-        loop.begin_motion()
-        limit = (
-            self.prep.plan.duration_s + 60.0
-        )  # settle and slack; a hung loop cannot hang the run
-        t0 = self.clock.monotonic()
-        t_wake = t0
-        resumed = -math.inf  # this thread's last wake-up after a stall of the process
         watch: list[Any] | None = None  # the running excitation estimates, once moving
-        t_fidelity = t0
-        while not loop.motion_done.wait(0.1):
-            if self.supervisor.faulted:
-                break
-            now = self.clock.monotonic()
+        t_fidelity: float | None = None  # the last update (first: the watch's start)
+
+        def excitation(now: float, t0: float) -> None:
+            nonlocal watch, t_fidelity
+            if t_fidelity is None:
+                t_fidelity = t0
             if watch is None and loop.t_motion_start is not None:
                 watch = self._excitation_watch()
             if watch and now - t_fidelity >= FIDELITY_EVERY_S:
@@ -1103,24 +789,20 @@ class Session:
                     why = rf.abort_reason()
                     if why:
                         raise SafetyAbort(why)
-            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
-                resumed = now  # get a moment to catch up before their silence counts
-            t_wake = now
-            self._check_loop(loop, now, resumed, "motion")
-            if now - t0 > limit:
-                raise SafetyAbort(f"motion did not finish within {limit:.0f} s")
+
+        def precision(now: float, _t0: float) -> None:
             if self.precision is None and loop.t_motion_start is not None:
                 self.precision = self._precision_watch()
             if self.precision is not None:
                 self._precision_poll(now)
-            self.display.update(self._snapshot())
+
+        self._watch(loop, "motion", self.plan.duration_s, excitation, precision)
         self.recorder.stand_taps.clear()
         self.supervisor.check()
 
     def _excitation_watch(self) -> list[Any]:
         """The running excitation estimates (``run.excitation.abort_run``): one per axis with
         a harmonic table and a band to judge, listening to the stand's samples from now on."""
-        from benchctl.analysis.excitation import RunningFidelity, limits_of, reach_of
 
         ex = self.cfg.run.excitation
         motion = self.prep.motion
@@ -1148,7 +830,7 @@ class Session:
     def _precision_watch(self) -> PrecisionWatch | None:
         """The precision checks, once moving (None when no precision was requested)."""
         requested = self.prep.meta.get("precision_requested")
-        loop, plan = self.loop, self.prep.plan
+        loop, plan = self.loop, self.plan
         if requested is None or loop is None or loop.t_motion_start is None:
             return None
         tables = dict(getattr(self.prep.motion, "tables", None) or {})
@@ -1220,7 +902,7 @@ class Session:
 
     def _window(self) -> tuple[float, float]:
         assert self.loop is not None and self.loop.t_motion_start is not None
-        p = self.prep.plan
+        p = self.plan
         t0 = self.loop.t_motion_start
         early = self.loop.ended_early
         if early is not None and self.precision is not None:  # the whole periods to the stop
@@ -1233,11 +915,6 @@ class Session:
         return lo, hi
 
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
-        from benchctl.analysis import analyze
-        from benchctl.analysis.crossaxis import cross_axis_for
-        from benchctl.analysis.departures import departures_of
-        from benchctl.analysis.lines import LineSet, line_set_from_tables
-
         a = self.cfg.run.analysis
         rec = load_recording(self.path)
         # underruns and rejoins: left out as gaps are, with the settling this bench states
@@ -1290,6 +967,7 @@ class Session:
                     res.warnings.append(why)
             verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
         meta = {k: self.meta.get(k) for k in _REPORT_META}
+        meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
         measurements, warnings = self._measurements(verdicts, results)
         report = Report(verdicts, self.path, meta, self._stats(), window,
                         decision_rule=self.rule, measurements=measurements,
@@ -1332,7 +1010,6 @@ class Session:
         """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
         against the profile's lines over the window's whole periods; a warning when a band is
         beyond the alarm level (run.excitation)."""
-        from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
 
         tables = getattr(self.prep.motion, "tables", None) or {}
         if axis not in tables or getattr(self.prep.motion, "segments", None):
@@ -1359,7 +1036,6 @@ class Session:
     def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
         """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
         whole full-amplitude cycles placed on the motion's start; its verdict joins σ's."""
-        from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 
         motion = self.prep.motion
         if not getattr(motion, "segments", None):
@@ -1438,7 +1114,7 @@ class Session:
                 if self.start_simulators:
                     self.cfg = stack.enter_context(simulators(
                         self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
-                        horizon_s=self.prep.plan.duration_s + 600.0,
+                        horizon_s=self.plan.duration_s + 600.0,
                     ))
                     self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
                 self.supervisor.check()  # a signal while the recording was being created

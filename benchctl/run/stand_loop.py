@@ -37,8 +37,8 @@ from typing import Any, cast
 import numpy as np
 
 from benchctl.clock import REAL, Clock, ThreadLike
-from benchctl.devices.base import AngleSensor, Stand, StandSample
-from benchctl.errors import LimitError, SafetyAbort, StandFault
+from benchctl.devices.base import AngleSensor, Stand, StandSample, TrajectoryStand
+from benchctl.errors import DeviceError, LimitError, SafetyAbort, StandFault
 from benchctl.kinematics import (
     AxisCommand,
     Limits,
@@ -533,8 +533,14 @@ class StandLoop:
         return rej
 
     # -- buffered trajectory -------------------------------------------------------------
-    def _traj_stand(self) -> Any:
-        return cast(Any, self.stand)
+    def _traj_stand(self) -> TrajectoryStand:
+        st = self.stand
+        if not isinstance(st, TrajectoryStand):
+            raise DeviceError(
+                "stand.mode buffered: the stand's driver has no trajectory queue (expected "
+                "trajectory_limits, begin_trajectory, push_points and start_trajectory)"
+            )
+        return st
 
     def _buffered(self) -> None:
         plan = self.plan

@@ -60,8 +60,8 @@ from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig, SimInstrumentConfig
 from benchctl.devices.base import AXES
 from benchctl.errors import ConfigError
+from benchctl.faultspec import FaultSpecError, check_params
 from benchctl.sim import nmea_talker
-from benchctl.sim.faults import FaultSpecError, check_params
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.motion import MotionSource
 from benchctl.sim.pty_port import PtyPort
@@ -168,6 +168,7 @@ class SimInstrument:
         self.serial_port: str | None = None
         self.channel: str | None = None
         self._wire_bytes = 0  # the outputs' bytes written (wire_delay_s)
+        self._line_end = 0.0  # when the line being written is in at the host (pty: emulated)
         self.counts = {"samples": 0, "sent": 0, "garbled": 0, "overflow": 0, "skipped": 0,
                        "sdo": 0, "raw": 0}
         self._raw: deque[bytes] = deque()
@@ -256,11 +257,12 @@ class SimInstrument:
 
     @property
     def wire_delay_s(self) -> float:
-        """The mean time an output spends on its in-process serial link (its bytes at the
-        link's byte time, 10 bits a byte): the host has it that long after its output instant,
-        as on a real serial line. 0 over a pty (no byte time there) and before any output."""
+        """The mean time an output spends on its serial link (its bytes at the link's byte
+        time, 10 bits a byte): the host has it that long after its output instant, as on a real
+        serial line — on an in-process link by its byte time, on a pty by the simulator holding
+        each line back that long (a pty has no byte time of its own). 0 before any output."""
         sent = self.counts["sent"]
-        if self.channel_name is None or not sent:
+        if not sent:
             return 0.0
         return self._wire_bytes / sent * 10.0 / self.cfg.baudrate
 
@@ -391,6 +393,7 @@ class SimInstrument:
 
     def _tick(self, k: int, t: float) -> None:
         """Produce the output for instant ``t`` and publish it."""
+        self._line_end = t  # the serial line is free from the output instant on
         y = self.model.output(t, self._motion_fn)
         self.counts["samples"] += 1
         with self._lock:
@@ -433,6 +436,13 @@ class SimInstrument:
     def _write(self, port: PtyPort, line: bytes | None, garbled: bool) -> None:
         if not line:
             return
+        if self.channel_name is None:
+            # a pty has no byte time: the line is handed over when its last byte would be in
+            # at the serial line's rate, as the in-process link has it (wire_delay_s)
+            self._line_end += len(line) * 10.0 / self.cfg.baudrate
+            wait = self._line_end - self.clock.monotonic()
+            if wait > 0:
+                self.clock.sleep(wait)
         if port.write(line):
             self.counts["sent"] += 1
             self.counts["garbled"] += garbled

@@ -25,18 +25,15 @@ import time
 import tty
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from benchctl.sim.stand_firmware import StandFirmware
 from benchctl.sim.stand_wire import StandWire
-
-if TYPE_CHECKING:
-    from benchctl.sim.stand import SimStand
 
 
 class TcpStandServer:
     """Modbus TCP for a simulated stand: MBAP frames to and from :class:`StandWire`."""
 
-    def __init__(self, stand: SimStand, host: str, port: int) -> None:
+    def __init__(self, stand: StandFirmware, host: str, port: int) -> None:
         self.stand = stand
         self._sock = socket.create_server((host, port), reuse_port=False)
         self._sock.setblocking(False)
@@ -127,7 +124,7 @@ class RtuStandServer:
 
     def __init__(
         self,
-        stand: SimStand,
+        stand: StandFirmware,
         byte_time_s: float,
         dead: Callable[[], bool],
         link_path: Path | None,

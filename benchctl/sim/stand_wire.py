@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Coroutine
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ModbusIOException
@@ -32,9 +32,8 @@ from pymodbus.simulator.simutils import DataType, SimUtils
 
 from benchctl.channels import Endpoint
 from benchctl.clock import EventLike
-
-if TYPE_CHECKING:
-    from benchctl.sim.stand import SimStand
+from benchctl.sim.stand_firmware import StandFirmware
+from benchctl.sim.stand_registers import MapDecoder, register_addresses
 
 
 def run_sync(coro: Coroutine[Any, Any, Any]) -> Any:
@@ -50,14 +49,12 @@ def run_sync(coro: Coroutine[Any, Any, Any]) -> Any:
 class StandWire:
     """Request bytes → reply bytes for one connection (or one serial line) of a stand."""
 
-    def __init__(self, stand: SimStand, framing: Literal["tcp", "rtu"]) -> None:
-        from benchctl.sim.stand import _MapDecoder, _register_addresses
-
+    def __init__(self, stand: StandFirmware, framing: Literal["tcp", "rtu"]) -> None:
         self.stand = stand
         self.framing = framing
-        simdata = stand._simdata()
-        self._core = SimCore(SimDevice(stand.device_id, simdata=simdata, action=stand._action))
-        decoder = _MapDecoder(stand.map, _register_addresses(simdata))
+        simdata = stand.simdata()
+        self._core = SimCore(SimDevice(stand.device_id, simdata=simdata, action=stand.action))
+        decoder = MapDecoder(stand.map, register_addresses(simdata))
         self._framer = FramerSocket(decoder) if framing == "tcp" else FramerRTU(decoder)
         self._buf = b""
         # the register model's memory (SimRuntime's one shared block: start address, size,
@@ -79,7 +76,7 @@ class StandWire:
             fast = self._fast(data)
             if fast is not None:
                 return fast
-        self._buf += stand._trace(False, data)
+        self._buf += stand.trace(False, data)
         out = bytearray()
         while self._buf:
             try:
@@ -88,12 +85,12 @@ class StandWire:
                 self._buf = b""
                 rsp = ExceptionResponse(exc.fcode or 0, ExcCodes.ILLEGAL_FUNCTION)
                 rsp.dev_id, rsp.transaction_id = exc.dev_id or 0, exc.transaction_id or 0
-                out += stand._trace(True, self._framer.buildFrame(rsp))
+                out += stand.trace(True, self._framer.buildFrame(rsp))
                 break
             self._buf = self._buf[used:]
             if pdu is None:
                 break
-            req = stand._trace_pdu(False, pdu)
+            req = stand.trace_pdu(False, pdu)
             if req is None:
                 continue  # RTU: another unit's frame, or a broadcast read: silence
             if self.framing == "rtu" and req.dev_id == 0:  # a broadcast write: acted on
@@ -104,7 +101,7 @@ class StandWire:
                 req.datastore_update(self._core, stand.device_id)  # type: ignore[arg-type]
             )
             rsp.transaction_id, rsp.dev_id = req.transaction_id, req.dev_id
-            out += stand._trace(True, self._framer.buildFrame(rsp))
+            out += stand.trace(True, self._framer.buildFrame(rsp))
         return bytes(out)
 
 
@@ -113,7 +110,7 @@ class StandWire:
         (FC23) for this stand within its registers — what nearly every request of a run is —
         with no pymodbus objects on the way; None for anything else (nothing done: the general
         path then takes it). The same checks in the same order, the same action calls and the
-        same reply bytes as the general path (framer, ``_MapDecoder``, the PDU's
+        same reply bytes as the general path (framer, ``MapDecoder``, the PDU's
         ``datastore_update``, ``SimRuntime``)."""
         stand = self.stand
         n = len(data)
@@ -155,13 +152,13 @@ class StandWire:
             w_off = w_addr - start
             if w_off < 0 or w_off >= len(self._writable) or self._writable[w_off] < len(w_values):
                 return None
-            code = stand._act(fc, start, w_addr, len(w_values), regs, w_values)
+            code = stand.act(fc, start, w_addr, len(w_values), regs, w_values)
             if not code:
                 regs[w_off : w_off + len(w_values)] = w_values
         else:
             code = None
         if not code:
-            code = stand._act(fc, start, address, count, regs, None)
+            code = stand.act(fc, start, address, count, regs, None)
         if code:
             reply = bytes((fc | 0x80, int(code)))
         else:
@@ -171,7 +168,7 @@ class StandWire:
         else:
             frame = bytes((dev_id,)) + reply
             frame += FramerRTU.compute_CRC(frame).to_bytes(2, "big")
-        return stand._trace(True, frame)
+        return stand.trace(True, frame)
 
 
 _U16X2 = struct.Struct(">HH")

@@ -52,6 +52,7 @@ from typing import Any
 from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 
+from benchctl.archive.history import html_page
 from benchctl.archive.store import Archive, shown, utc_naive
 from benchctl.clock import REAL, LockLike
 from benchctl.errors import ArchiveError
@@ -179,8 +180,6 @@ def line_router(source: LineArchive, *, stale_after_s: float = STALE_AFTER_S,
     @router.get("/history", name="history_page", response_class=HTMLResponse)
     def history_page(serial: str | None = None, station: str | None = None,
                      since: str | None = None) -> Response:
-        from benchctl.archive.history import html_page
-
         try:
             t = since_of(since)
         except ValueError:

@@ -16,6 +16,7 @@ from typing import Any
 
 from sqlalchemy import and_, func, select
 
+from benchctl.archive import history as h
 from benchctl.archive.schema import measurements, runs
 from benchctl.archive.store import Archive, iso
 from benchctl.web.linestations import (
@@ -296,7 +297,6 @@ def history(archive: Archive, serial: str | None = None, *, station: str | None 
     arguments of its page (``benchctl.archive.history.html_page``): ``runs``,
     ``yield_per_day`` (the unit's, or the stations'), with a serial ``sigma`` and ``yield``
     (and ``station_yield_per_day`` with a station too), and ``page_yields``, the page's bars."""
-    from benchctl.archive import history as h
 
     rows = archive.history(serial, since=since, station=station)
     listed = {r["run_id"] for r in rows}

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 
 from benchctl.errors import ConfigError
+from benchctl.web.app import create_app
 from benchctl.web.security import check_hash, is_loopback
 from benchctl.web.settings import PanelSettings
 
@@ -36,8 +37,6 @@ def serve(settings: PanelSettings) -> None:
     """Serve the panel until interrupted (Ctrl-C, SIGTERM). A run going on is not stopped by
     the server's end: it ends by itself, its stand at rest as always."""
     import uvicorn
-
-    from benchctl.web.app import create_app
 
     settings = check_access(settings)
     app = create_app(settings)

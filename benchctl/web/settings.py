@@ -27,8 +27,10 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from benchctl.config import PanelConfig, field_path, read_yaml, shown_value
+from benchctl.config import PanelConfig
 from benchctl.errors import ConfigError
+from benchctl.validation import invalid
+from benchctl.yamlfile import read_yaml
 
 LANGUAGES = ("en", "ru")
 DEFAULT_HOST = "127.0.0.1"
@@ -62,12 +64,7 @@ def read_panel_file(path: Path) -> PanelConfig:
     try:
         model = PanelConfig.model_validate(data)
     except ValidationError as e:
-        parts = []
-        for err in e.errors():
-            value = err.get("input")
-            shown = "" if isinstance(value, dict) else f" = {shown_value(value)}"
-            parts.append(f"field {field_path(err['loc']) or '(top level)'}{shown}: {err['msg']}")
-        raise ConfigError(f"{path}: invalid panel settings: " + "; ".join(parts)) from None
+        raise ConfigError(invalid(path, "panel settings", e)) from None
     return model.resolved(path.parent)
 
 

@@ -28,7 +28,7 @@ from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
-from benchctl.run.session import prepare_motion
+from benchctl.run.prepare import prepare_motion
 
 pytestmark = pytest.mark.slow
 TOL_DB = 0.1

@@ -183,7 +183,7 @@ def _no_step(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         return SimpleNamespace(state="done", reason="PASS", exit_code=0, recording=None,
                                record=None, abort=None)
 
-    monkeypatch.setattr("benchctl.run.run_test", run_test)
+    monkeypatch.setattr("benchctl.plan.runner.run_test", run_test)
     return ran
 
 
@@ -415,7 +415,7 @@ def test_the_consent_rule_holds_for_any_plan_and_any_answers(
                                record=None, abort=None)
 
     monkeypatch.setattr("benchctl.plan.runner.stand_action", stand_action)
-    monkeypatch.setattr("benchctl.run.run_test", run_test)
+    monkeypatch.setattr("benchctl.plan.runner.run_test", run_test)
     out = Path(tempfile.mkdtemp(dir=tmp_path))
     bench = tmp_path / "bench.yaml"
     if not bench.exists():

@@ -46,7 +46,7 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import SafetyAbort
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
-from benchctl.run.session import prepare_motion
+from benchctl.run.prepare import prepare_motion
 from benchctl.run.supervisor import Supervisor
 
 pytestmark = pytest.mark.slow

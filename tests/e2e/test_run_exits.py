@@ -42,7 +42,8 @@ from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import run_test
 from benchctl.run import session as session_mod
 from benchctl.run.lock import StandLock, endpoint_key, lock_file
-from benchctl.run.session import RunOptions, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import Session
 from benchctl.run.supervisor import Supervisor, shutdown
 
 CI_SHORT = ROOT / "profiles/ci_short.yaml"

@@ -31,7 +31,7 @@ from benchctl.config import load_config
 from benchctl.jsonout import dumps
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
-from benchctl.run.session import prepare_motion
+from benchctl.run.prepare import prepare_motion
 
 pytestmark = pytest.mark.slow
 

@@ -28,7 +28,7 @@ from benchctl.errors import ConnectionLost, DeviceTimeout
 from benchctl.harmonics import HarmonicTable
 from benchctl.run import prechecks as pc
 from benchctl.run.plan import make_plan
-from benchctl.run.session import PreparedMotion
+from benchctl.run.prepare import PreparedMotion
 
 #: a fake stand's round trip on simulated time (on the host's clock the call takes its own time)
 SIM_RTT_S = 0.0005

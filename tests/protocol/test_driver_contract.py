@@ -21,11 +21,17 @@ import pytest
 from live_bench import live_bench
 
 from benchctl.clock.virtual import VirtualClock
-from benchctl.devices.base import AngleSensor, DeviceIdentity, InstrumentSample, Stand
+from benchctl.devices.base import (
+    AngleSensor,
+    DeviceIdentity,
+    InstrumentSample,
+    Stand,
+    TrajectoryStand,
+)
 from benchctl.devices.instrument import DRIVERS, open_instrument
 from benchctl.devices.modbus.stand import open_stand
 from benchctl.errors import BenchError
-from benchctl.sim.faults import GARBLING, transport
+from benchctl.faultspec import GARBLING, transport
 
 INSTRUMENT_DRIVERS = sorted(DRIVERS)
 
@@ -88,6 +94,7 @@ def test_stand_driver_keeps_the_contract(link: str, tmp_path: Path, vclock: Virt
 
         stand = open_stand(b.cfg.stand, clock=vclock)
         assert isinstance(stand, Stand)
+        assert isinstance(stand, TrajectoryStand)  # the Modbus driver has the buffered mode's queue
         assert stand.axes == tuple(b.cfg.stand.axes)
         _identity_filled(stand.connect(), "modbus")
         first = stand.read_sample()

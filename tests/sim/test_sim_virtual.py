@@ -111,7 +111,8 @@ def test_a_seed_replays_exactly_and_another_seed_differs(tmp_path: Path) -> None
 def test_a_virtual_config_refuses_a_callers_real_time_supervisor(tmp_path: Path) -> None:
     from benchctl.config import load_config
     from benchctl.errors import ConfigError
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.prepare import RunOptions
+    from benchctl.run.session import run_test
     from benchctl.run.supervisor import Supervisor
 
     cfg = load_config(_config(tmp_path))

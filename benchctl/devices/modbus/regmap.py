@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from benchctl.config import read_yaml
 from benchctl.errors import ConfigError, LimitError
+from benchctl.yamlfile import read_yaml
 
 FieldType = Literal["uint16", "int16", "uint32", "int32", "float32", "string"]
 _TYPES: dict[str, int] = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}

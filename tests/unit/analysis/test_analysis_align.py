@@ -57,9 +57,12 @@ def test_fitted_timebase_removes_receipt_jitter() -> None:
     y0 = MS.through(gain(0.98), t_true)
     y = y0 + orthogonal_noise(rng, sn, y0 - MS.reference(t_true))
     truth = np.sqrt(MS.error_variance(gain(0.98)) + sn**2)
-    given = analyze(tr, MS.reference(tr), t_recv, y)
+    given = analyze(tr, MS.reference(tr), t_recv, y, timebase="given")
     fitted = analyze(tr, MS.reference(tr), t_recv, y, timebase="fitted")
+    default = analyze(tr, MS.reference(tr), t_recv, y)  # the stamps' jitter seen: fitted
     assert fitted.sigma == pytest.approx(truth, rel=0.01)
+    assert default.sigma == fitted.sigma
+    assert default.timing["timebase_choice"]["device"]["used"] == "fitted"
     assert given.sigma > 1.05 * truth  # rate × jitter is added error
     assert fitted.timing["device_jitter_rms"] == pytest.approx(0.02 / np.sqrt(12), rel=0.1)
 

@@ -159,7 +159,7 @@ def test_to_dict_has_the_documented_keys() -> None:
                 "psd", "gaps", "timing", "cross_checks", "uncertainty", "warnings", "lines"):
         assert key in d, key
     assert set(d["frf"]) == {"freq", "gain", "phase_deg", "coherence", "gain_ci95",
-                             "phase_ci95_deg", "source"}
+                             "phase_ci95_deg", "reliable", "source"}
     assert {"freq", "error", "dof"} <= set(d["psd"])
     assert {"linear", "incoherent", "static", "source"} == set(d["components"])
     assert {"source", "period_s", "period_nominal_s", "n_periods", "n_lines", "freq",

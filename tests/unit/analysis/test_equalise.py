@@ -9,6 +9,7 @@ than the stand's rate/acceleration is capped (reported) and the drive stays with
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError
 from benchctl.harmonics import HarmonicTable
 from benchctl.profiles import load_profile, synthesize
-from benchctl.run.session import RunOptions, prepare_motion
+from benchctl.run.prepare import RunOptions, prepare_motion
 from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.sim.servo import AxisState, ServoModel, servo_step
 
@@ -243,7 +244,8 @@ def _fake_session(
     from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
     from benchctl.profiles.synthesis import TableMotion
-    from benchctl.run.session import Session, prepare_pretest
+    from benchctl.run.prepare import prepare_pretest
+    from benchctl.run.session import Session
 
     cfg = bench_config(tmp_path, equalise={"enabled": True, "fade_s": 0.5, "settle_s": 0.5})
     cfg = cfg.model_copy(update={"stand": cfg.stand.model_copy(update={"mode": mode})})
@@ -251,10 +253,10 @@ def _fake_session(
                         5.0, 0.5, 0.5, 2.0)
     motion = TableMotion("fake-lines", "harmonics", {"roll": tab}, {"roll": None}, 1)
     prep = sine_motion(("roll",), duration_s=5.0, mode=mode, fade_s=0.5)
-    prep.motion = motion
-    prep.plan.tables = {"roll": tab}
-    prep.plan.values = {"roll": tab.evaluate(np.arange(prep.plan.n_slots) * prep.plan.period_s)}
-    prep.pretest = prepare_pretest(cfg, motion, 100.0, "test")
+    plan = dataclasses.replace(prep.plan, tables={"roll": tab}, values={
+        "roll": tab.evaluate(np.arange(prep.plan.n_slots) * prep.plan.period_s)})
+    prep = dataclasses.replace(prep, motion=motion, plan=plan,
+                               pretest=prepare_pretest(cfg, motion, 100.0, "test"))
     stand = FakeStand(("roll",), clock=clock)
     sensor = FakeSensor(stand)
     sess = Session(cfg, prep, RunOptions("SN-EQ", "tester"),

@@ -347,7 +347,7 @@ def test_jitter_on_both_streams_does_not_bias_sigma() -> None:
     assert fitted.timing["device_timebase"] == fitted.timing["reference_timebase"] == "fitted"
     assert fitted.timing["timing_share"] < 0.001
     assert not any("timing:" in w for w in fitted.warnings)
-    given_ = analyze(jr, x, jd, y, lines="off")
+    given_ = analyze(jr, x, jd, y, lines="off", timebase="given", reference_timebase="given")
     added = given_.variance - exact.variance
     assert added / exact.variance > 0.05  # 25·(1e-6 + 1e-6)/0.027² ≈ 6.9 %
     assert given_.timing["timing_variance"] == pytest.approx(added, rel=0.25)
@@ -397,9 +397,13 @@ def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert out["timing"]["device_timebase"] == out["timing"]["reference_timebase"] == "fitted"
     assert out["sigma"] == pytest.approx(0.027, rel=0.002)
     assert out["timing"]["timing_share"] < 0.001
-    assert main(args) == 0
+    assert main([*args, "--timebase", "given", "--reference-timebase", "given"]) == 0
     text = capsys.readouterr().out
     assert "timing: device given" in text and "warning: timing:" in text
+    assert main([*args, "--json"]) == 0  # no option: the jitter is seen, both fitted
+    out = json.loads(capsys.readouterr().out)
+    assert out["timing"]["device_timebase"] == out["timing"]["reference_timebase"] == "fitted"
+    assert out["sigma"] == pytest.approx(0.027, rel=0.002)
 
 
 def test_stamps_on_a_grid_take_the_short_way_to_the_same_slots() -> None:

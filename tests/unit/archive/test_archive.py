@@ -484,7 +484,8 @@ def test_a_run_is_archived_at_its_end_with_the_killed_and_queued_before_it(
     record.json."""
     from run_fakes import FakeSensor, FakeStand, bench_config
 
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.prepare import RunOptions
+    from benchctl.run.session import run_test
 
     cfg = bench_config(tmp_path)
     s = settings_for(cfg)
@@ -525,7 +526,8 @@ def test_an_aborted_run_is_archived_with_its_abort(tmp_path: Path, vclock: Virtu
     archived row."""
     from run_fakes import FakeSensor, FakeStand, bench_config
 
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.prepare import RunOptions
+    from benchctl.run.session import run_test
 
     cfg = bench_config(tmp_path)
     profile = tmp_path / "sine.yaml"

@@ -154,7 +154,8 @@ def test_a_locked_runs_table_costs_the_run_seconds_not_for_ever(
     import psycopg
     from run_fakes import FakeSensor, FakeStand, bench_config
 
-    from benchctl.run.session import RunOptions, run_test
+    from benchctl.run.prepare import RunOptions
+    from benchctl.run.session import run_test
 
     url = pg.create_database(f"l_{uuid.uuid4().hex[:12]}")
     with Archive(url):

@@ -52,7 +52,7 @@ def test_csv_json(single_csv: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert d["duration"] == pytest.approx(300.0) and d["max_lag"] == pytest.approx(30.0)
     assert d["band"]["lo"] == 0.05 and d["delay_compensated"] == 0.0
     assert set(d["frf"]) == {"freq", "gain", "phase_deg", "coherence", "gain_ci95",
-                             "phase_ci95_deg", "source"}
+                             "phase_ci95_deg", "reliable", "source"}
     assert np.allclose(d["frf"]["gain"], 0.98, atol=0.005)
     assert d["frf"]["source"] == "lines" and d["lines"]["source"] == "detected"
     assert d["lines"]["n_periods"] == 3 and d["lines"]["period_s"] == pytest.approx(100.0)
@@ -169,3 +169,26 @@ def test_api_matches_cli(single_csv: Path, capsys: pytest.CaptureFixture[str]) -
     r = analyze(data[:, 0], data[:, 1], data[:, 0], data[:, 2])
     d = json.loads(run_cli([str(single_csv), "--json"], capsys)[1])
     assert d == json.loads(json.dumps(r.to_dict() | {"source": d["source"]}))
+
+
+def test_summary_gain_range_leaves_the_weak_lines_out(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """A multisine whose three lowest lines are 0.002° high (a profile's band edge) through a
+    gain of 0.98 with 0.02° of noise: their Ĥ is mostly noise (SNR about 3). The summary's gain
+    range is the reliable lines' (0.98 ± their noise), and says how many lines it left out and
+    where."""
+    tp, fs = 40.0, 10.0
+    k = np.arange(2, 25)
+    f = k / tp
+    amp = np.where(k < 5, 2e-3, 1.0)
+    t = np.arange(round(3 * tp * fs)) / fs
+    ph = np.random.default_rng(3).uniform(0, 2 * np.pi, k.size)
+    x = (amp[:, None] * np.cos(2 * np.pi * f[:, None] * t + ph[:, None])).sum(0)
+    y = 0.98 * x + np.random.default_rng(4).normal(0.0, 0.02, t.size)
+    path = write_csv(tmp_path / "weak.csv", "time,reference,device", t, x, y)
+    code, out, _ = run_cli([str(path), "--period", str(tp)], capsys)
+    assert code == 0
+    line = next(s for s in out.splitlines() if s.strip().startswith("gain "))
+    lo, hi = (float(v) for v in line.split(",")[0].split()[1::2])
+    assert 0.95 < lo <= hi < 1.01, line
+    assert "(3 lines over 0.05 … 0.1 Hz below SNR 10: not measured reliably, not shown)" in line

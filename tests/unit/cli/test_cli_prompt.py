@@ -23,7 +23,7 @@ from benchctl import text
 from benchctl.cli import main
 from benchctl.cli.run import ask_value
 from benchctl.errors import InputError
-from benchctl.run.session import RunOptions
+from benchctl.run.prepare import RunOptions
 from benchctl.text import check_serial
 
 

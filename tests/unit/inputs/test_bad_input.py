@@ -18,22 +18,20 @@ import pytest
 import yaml
 from repo_paths import ROOT
 
+from benchctl import faultspec as faults
 from benchctl.analysis import analyze
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
 from benchctl.cli import main
 from benchctl.config import (
-    MAX_YAML_DEPTH,
-    MAX_YAML_NODES,
     SimStandConfig,
     StandLimits,
     load_config,
     parse_config,
-    read_yaml,
 )
 from benchctl.devices.modbus.regmap import load_register_map
 from benchctl.errors import ConfigError, DataError, InputError
 from benchctl.profiles import load_profile
-from benchctl.sim import faults
+from benchctl.yamlfile import MAX_YAML_DEPTH, MAX_YAML_NODES, read_yaml
 
 SLOW = 30.0  # a generous bound for "refused quickly" (was minutes, or a hang)
 
@@ -643,7 +641,7 @@ def test_inject_uses_the_same_table() -> None:
 
 def test_fault_table_matches_the_instrument_simulator() -> None:
     """Whoever adds a kind or a way of garbling to the simulator adds it to the table too
-    (benchctl/sim/faults.py), or the config refuses it."""
+    (benchctl/faultspec.py), or the config refuses it."""
     from benchctl.sim import instrument
 
     assert set(instrument.FAULTS) == set(faults.INSTRUMENT)

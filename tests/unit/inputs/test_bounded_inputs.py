@@ -36,7 +36,8 @@ from benchctl.plan import load_plan, run_plan
 from benchctl.profiles import load_profile
 from benchctl.profiles.loader import read_angle_csv
 from benchctl.run.plan import check_setpoints, make_plan, setpoint_count
-from benchctl.run.session import RunOptions, prepare_motion, run_test
+from benchctl.run.prepare import RunOptions, prepare_motion
+from benchctl.run.session import run_test
 from benchctl.textfile import MAX_CSV_BYTES, MAX_YAML_BYTES, read_input
 
 QUICK_S = 20.0  # a generous bound for "refused at once" (was a hang, or minutes of reading)

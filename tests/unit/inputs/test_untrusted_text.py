@@ -35,9 +35,11 @@ from benchctl.errors import ConfigError, InputError
 from benchctl.plan import parse_plan
 from benchctl.plan.junit import write_junit
 from benchctl.plan.runner import ActionResult, PlanResult, StepResult
+from benchctl.run.devices import recording_dir
 from benchctl.run.display import LogDisplay, Snapshot, TtyDisplay
+from benchctl.run.prepare import RunOptions
 from benchctl.run.report import format_report
-from benchctl.run.session import RunOptions, Session, recording_dir
+from benchctl.run.session import Session
 
 OSC52 = "\x1b]52;c;cm0gLXJmIH4K\x07"  # a clipboard write: "rm -rf ~"
 HOSTILE = ["x\r\nPASS", OSC52, "\x1b[2J\x1b[H", "\x1b]0;owned\x07", "A\x1dB", "\x9b31m",

@@ -24,7 +24,8 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.config import parse_config
 from benchctl.report.html import REPORT_HTML, build_context, render_html
 from benchctl.results.record import load_record
-from benchctl.run.session import RunOptions, RunResult, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import RunResult, Session
 
 NASTY_SERIAL = "<script>alert('x')</script>&SN"
 NASTY_OPERATOR = 'O"Brien <b>'
@@ -395,16 +396,16 @@ def test_figures_of_the_same_content_drawn_once(passed: Path,
                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """A run draws its report twice (before and after its recording closes): the figures of
     the same analysis are drawn once; other content is drawn anew."""
-    import benchctl.report.figures as figures
+    import benchctl.report.html as html
 
     calls: list[str] = []
-    real = figures.psd_svg
+    real = html.psd_svg
 
     def counting(an: Any, limit: Any = None, title: str = "") -> str | None:
         calls.append(title)
         return real(an, limit, title)
 
-    monkeypatch.setattr(figures, "psd_svg", counting)
+    monkeypatch.setattr(html, "psd_svg", counting)
     report = json.loads((passed / "report.json").read_text())
     report["axes"]["roll"]["limit"] = 0.3999  # content not drawn before in this process
     first = render_html(build_context(passed, report=report, trace=False))
@@ -447,3 +448,22 @@ def test_a_run_without_figures_says_so_and_benchctl_report_draws_them(
     for cls in ("psd", "frf", "trace"):
         assert f'<figure class="{cls}"><svg' in html, cls
     assert "run.figures: false" not in html
+
+
+def test_analysis_warnings_state_the_skew_and_timing_in_the_interval() -> None:
+    """The report's per-axis notes: a skew taken out (ppm, drift over the record) and σ's
+    interval holding timing (with the statistical one beside it); nothing of either when
+    there is none."""
+    from benchctl.report.html import _analysis_warnings
+
+    an = {"timing": {"timing_share": 0.002, "skew_ppm": 199.8, "skew_corrected": True,
+                     "skew_drift_s": 0.1798, "timing_in_interval": True,
+                     "sigma_ci95_statistical": [0.28101, 0.28312]}}
+    notes = _analysis_warnings("roll", an)
+    assert "roll: the instrument's stamps drift +199.8 ppm against the stand's (+180 ms over " \
+           "the record), corrected" in notes
+    assert "roll: σ's interval includes timing (statistical alone 0.28101 … 0.28312°)" in notes
+    quiet = _analysis_warnings("roll", {"timing": {"timing_share": 0.0, "skew_ppm": 0.3,
+                                                   "skew_corrected": False,
+                                                   "timing_in_interval": False}})
+    assert not any("drift" in n or "interval" in n for n in quiet)

@@ -56,8 +56,9 @@ from benchctl.results.record import (
     validate_record,
     write_record,
 )
+from benchctl.run.prepare import RunOptions, prepare_motion
 from benchctl.run.report import AxisVerdict, Report
-from benchctl.run.session import RunOptions, RunResult, Session, prepare_motion
+from benchctl.run.session import RunResult, Session
 from benchctl.run.supervisor import Supervisor
 
 finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)

@@ -38,9 +38,10 @@ from benchctl.run.latency import (
     stand_bounds,
     summary,
 )
+from benchctl.run.prepare import RunOptions
 from benchctl.run.realtime import RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
-from benchctl.run.session import RunOptions, RunResult, Session
+from benchctl.run.session import RunResult, Session
 from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop
 from benchctl.run.state import StateMachine
 from benchctl.run.supervisor import Supervisor

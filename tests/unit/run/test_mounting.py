@@ -34,7 +34,8 @@ from benchctl.kinematics import Limits, profile_peaks
 from benchctl.recording import load_recording
 from benchctl.run import RunOptions, run_test
 from benchctl.run import mounting as mt
-from benchctl.run.session import RunResult, Session, prepare_motion
+from benchctl.run.prepare import prepare_motion
+from benchctl.run.session import RunResult, Session
 
 IDENTITY = {"roll": ("roll", 1), "pitch": ("pitch", 1)}
 LIMITS = Limits(30.0, 30.0, 60.0)

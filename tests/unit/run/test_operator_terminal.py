@@ -29,7 +29,8 @@ from benchctl.run.display import (
     format_block,
     health_warning,
 )
-from benchctl.run.session import RunOptions, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import Session
 
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 LONG_SERIAL = "SN-" + "9" * 60
@@ -251,6 +252,7 @@ def test_analyze_says_aborted_or_incomplete(run_on_a_terminal: tuple[Path, str],
     assert main(["analyze", str(done), "--axis", "roll", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     integrity = doc["recording"].pop("integrity")
+    assert doc["recording"].pop("timing_offset_s") == 0.0  # no timing calibration in its config
     assert doc["recording"] == {"state": "done", "reason": "PASS", "note": None}
     assert integrity["status"] == "verified" and integrity["problems"] == []
 

@@ -31,8 +31,8 @@ from benchctl.run.precision import (
     decide_stop,
     relative_halfwidth,
 )
+from benchctl.run.prepare import prepare_motion
 from benchctl.run.report import Report, format_report
-from benchctl.run.session import prepare_motion
 from benchctl.run.state import RunState
 from benchctl.sim.instrument_model import InstrumentModel
 from benchctl.sim.servo import ServoModel

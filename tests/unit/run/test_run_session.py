@@ -22,7 +22,8 @@ from benchctl.clock import Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
 from benchctl.recording import load_recording
-from benchctl.run.session import RunOptions, RunResult, Session
+from benchctl.run.prepare import RunOptions
+from benchctl.run.session import RunResult, Session
 
 DURATION, FADE = 5.0, 0.5  # steady part 4 s: whole periods of 0.5 Hz and 1 Hz
 #: the fake instrument's white noise where a σ's interval is checked: on simulated time nothing

@@ -3,6 +3,7 @@ supervisor, recorder format extensions and the stream loop's deadline discipline
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -285,7 +286,7 @@ def test_table_loop_plays_and_polls(tmp_path: Path, vclock: VirtualClock) -> Non
     stand = FakeStand(clock=vclock)
     sensor = FakeSensor(stand)
     w, sup, rec, _sm, loop = _loop(tmp_path, stand, sensor)
-    loop.plan.mode = "table"
+    loop.plan = dataclasses.replace(loop.plan, mode="table")
     assert loop.plan.tables is not None
     stand.upload_table(loop.plan.tables)
     start_instrument(sensor, rec)
@@ -424,7 +425,7 @@ def test_buffered_mode_needs_a_stand_with_a_queue(tmp_path: Path) -> None:
 
     from benchctl.errors import ConfigError
     from benchctl.run import RunOptions
-    from benchctl.run.session import prepare_motion
+    from benchctl.run.prepare import prepare_motion
 
     root = ROOT
     raw = yaml.safe_load((root / "drivers/stand_generic.yaml").read_text())
