@@ -69,10 +69,12 @@ def axis_map(axes: Any) -> dict[str, tuple[str, int]]:
 
 def _axes_schema(schema: dict[str, Any]) -> None:
     """``instrument.axes`` in the JSON Schema: the list form (``[roll, pitch]``) besides the
-    mapping (as ``_axes_mapping`` reads both)."""
+    mapping (as ``_axes_mapping`` reads both), its keys the stand's axes (said here: pydantic
+    before 2.8 leaves ``propertyNames`` out)."""
     mapping = {k: v for k, v in schema.items() if k not in ("description", "title", "default")}
     for k in mapping:
         del schema[k]
+    mapping["propertyNames"] = {"enum": ["roll", "pitch"]}
     listed = {"type": "array", "items": {"enum": ["roll", "pitch"]}, "uniqueItems": True,
               "minItems": 1}
     schema["anyOf"] = [listed, mapping]

@@ -49,11 +49,28 @@ def test_every_section_and_field_is_explained() -> None:
     assert missing == []
 
 
+def _same_meaning(node: Any) -> Any:
+    """A schema as it means, not as a pydantic version spells it: 2.7 wraps a ``$ref`` that
+    has a description beside it in a one-element ``allOf``, later ones do not (and numbers
+    compare as numbers: 0 and 0.0)."""
+    if isinstance(node, dict):
+        out = {k: _same_meaning(v) for k, v in node.items()}
+        one = out.get("allOf")
+        if isinstance(one, list) and len(one) == 1 and set(one[0]) == {"$ref"}:
+            del out["allOf"]
+            out["$ref"] = one[0]["$ref"]
+        return out
+    if isinstance(node, list):
+        return [_same_meaning(v) for v in node]
+    return node
+
+
 def test_the_shipped_schema_is_the_models() -> None:
-    assert SHIPPED.read_text("utf-8") == config_schema_text(), (
+    shipped = json.loads(SHIPPED.read_text("utf-8"))
+    assert _same_meaning(shipped) == _same_meaning(config_schema()), (
         f"{SHIPPED} is out of date: benchctl schema config > {SHIPPED.relative_to(ROOT)}"
     )
-    Draft202012Validator.check_schema(json.loads(SHIPPED.read_text("utf-8")))
+    Draft202012Validator.check_schema(shipped)
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.name for p in CONFIGS])
