@@ -87,9 +87,10 @@ ROLL_5 = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=5.0 / math.sqrt(
     np.sum((RATE_1.amps * 2 * np.pi * RATE_1.freqs) ** 2 / 2))))
 
 
-def jittered(jitter_s: float = 1.15e-3, seed: int = 3) -> tuple[tuple[FloatArray, ...], float]:
-    """A 0.027° instrument (noise only) at 5°/s rms, 100 Hz, 300 s; both streams' stamps
-    jittered by ``jitter_s`` rms; the true σ 0.027°."""
+def jittered_streams(jitter_s: float = 1.15e-3, seed: int = 3) -> tuple[FloatArray, ...]:
+    """A 0.027° instrument (noise only) at 5°/s rms, 100 Hz, 300 s: (the reference's true
+    instants, its angle, the instrument's true instants, its angle, both streams' stamps
+    jittered by ``jitter_s`` rms)."""
     rng = np.random.default_rng(seed)
     t = 1000.0 + np.arange(30_000) / 100.0
     tr = 1000.0 + np.arange(-100, 30_100) / 100.0
@@ -97,7 +98,13 @@ def jittered(jitter_s: float = 1.15e-3, seed: int = 3) -> tuple[tuple[FloatArray
     y = y0 + orthogonal_noise(rng, 0.027, y0)
     jr = tr + rng.normal(0.0, jitter_s, tr.size)
     jd = t + rng.normal(0.0, jitter_s, t.size)
-    return (jr, ROLL_5.reference(tr), jd, y), 0.027
+    return tr, ROLL_5.reference(tr), t, y, jr, jd
+
+
+def jittered(jitter_s: float = 1.15e-3, seed: int = 3) -> tuple[tuple[FloatArray, ...], float]:
+    """``jittered_streams`` as the stamps give them; the true σ 0.027°."""
+    _, x, _, y, jr, jd = jittered_streams(jitter_s, seed)
+    return (jr, x, jd, y), 0.027
 
 
 def coverage_record(seed: int, jitter_s: float = 2e-3) -> tuple[tuple[FloatArray, ...], float]:

@@ -23,7 +23,7 @@ import ast
 from repo_paths import ROOT
 
 HEAVY = ("scipy", "matplotlib", "alembic", "jsonschema", "uvicorn", "jinja2", "babel",
-         "sqlalchemy.dialects", "sqlalchemy.exc", "sqlalchemy")
+         "sqlalchemy")
 CYCLE_BREAKERS = {
     ("benchctl/recording/reader.py", "benchctl.analysis.timebase"),
     ("benchctl/devices/modbus/link.py", "benchctl.devices.modbus.channel_client"),

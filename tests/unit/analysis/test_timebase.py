@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_synthetic import Multisine, first_order, orthogonal_noise
+from analysis_synthetic import Multisine, first_order
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from timing_drift import jittered_streams
 
 from benchctl.analysis import analyze
 from benchctl.analysis.timebase import (
@@ -317,28 +318,11 @@ def test_stand_stamp_error_from_the_round_trips() -> None:
 
 
 # ------------------------------------------------------------------------------ the analysis
-RATE_MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=1.0)
-#: amplitude for a 5°/s rms rate
-ROLL_5 = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=5.0 / math.sqrt(float(
-    np.sum((RATE_MS.amps * 2 * np.pi * RATE_MS.freqs) ** 2 / 2))))
-
-
-def _jittered(jitter_s: float, seed: int = 3) -> tuple[np.ndarray, ...]:
-    rng = np.random.default_rng(seed)
-    t = 1000 + np.arange(30_000) / 100.0
-    tr = 1000 + np.arange(-100, 30_100) / 100.0
-    y0 = ROLL_5.reference(t)
-    y = y0 + orthogonal_noise(rng, 0.027, y0)
-    jr = tr + rng.normal(0, jitter_s, tr.size)
-    jd = t + rng.normal(0, jitter_s, t.size)
-    return tr, ROLL_5.reference(tr), t, y, jr, jd
-
-
 def test_jitter_on_both_streams_does_not_bias_sigma() -> None:
     """0.027° instrument, 5°/s rms roll rate, 100 Hz, 1 ms rms jitter on both streams' stamps:
     with fitted time bases σ changes by less than 0.2 %; as given it is inflated by about the
     timing contribution the result states, and warned about."""
-    tr, x, t, y, jr, jd = _jittered(1e-3)
+    tr, x, t, y, jr, jd = jittered_streams(1e-3)
     exact = analyze(tr, x, t, y, lines="off")
     assert exact.sigma == pytest.approx(0.027, rel=1e-3)
     assert exact.timing["reference_rate_rms"] == pytest.approx(5.0, rel=0.01)
@@ -385,7 +369,7 @@ def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[
 
     from benchctl.cli import main
 
-    _, x, _, y, jr, jd = _jittered(1e-3)
+    _, x, _, y, jr, jd = jittered_streams(1e-3)
     np.savetxt(tmp_path / "ref.csv", np.column_stack([jr, x]), delimiter=",",
                header="time,angle", comments="", fmt="%.12f")
     np.savetxt(tmp_path / "dev.csv", np.column_stack([jd, y]), delimiter=",",
