@@ -138,6 +138,11 @@ class Aligned:
     xdot: FloatArray | None = None  # the reference's rate at the device instants (deg/s)
     modes: tuple[Mode, Mode] = ("given", "given")  # the modes used (device, reference)
     choice: dict[str, Any] | None = None  # how they were chosen (``align``)
+    # a bench timing calibration applied to the device's instants: its standard uncertainty
+    # (s; None: none applied), and the share of the reference's residual error that is the
+    # stand clock's anchor in the exchanges' windows (s; what the calibration measured too)
+    calibration_u_s: float | None = None
+    anchor_u_s: float = 0.0
 
     @property
     def n_valid(self) -> int:
@@ -164,15 +169,25 @@ class Aligned:
         ``WANDER_BLOCK`` samples (at its knots by √(3/2) × its rms error, which is averaged
         along the interpolation), so over the record by that / √(blocks); another
         (the stand's) by its error. Stamps used as they are scatter at random: their error is
-        in ``timing_variance`` and ``random_residual_s``, not an offset."""
+        in ``timing_variance`` and ``random_residual_s``, not an offset.
+
+        A bench timing calibration applied (``calibration_u_s``) adds its own uncertainty, and
+        takes the place of the stand clock's anchor (``anchor_u_s``: where in the exchanges'
+        windows the stand took its samples): the calibration measured the delay between the
+        streams as this bench dates them, that anchor included; the stand clock's rate error
+        stays."""
         span = len(self.mask) * self.dt
         parts = []
+        if self.calibration_u_s is not None:
+            parts.append(self.calibration_u_s)
         for base, r, step in ((self.device_timebase, self.device_residual_s, self.dt),
                               (self.reference_timebase, self.reference_residual_s,
                                self.reference.dt)):
             if base in RANDOM_STAMPS:
                 continue
             r = float(np.nan_to_num(r))
+            if base == "stand" and self.calibration_u_s is not None:
+                r = math.sqrt(max(r * r - self.anchor_u_s**2, 0.0))
             if base in FITTED_CLOCKS and step > 0:  # its knots err by √(3/2) of its rms error
                 r *= math.sqrt(1.5 / max(1.0, span / step / WANDER_BLOCK))
             parts.append(r)
@@ -445,6 +460,22 @@ class _Stream:
         return self.t, self.timing, "given", res
 
 
+def _calibration_u(label: Label) -> float | None:
+    """The standard uncertainty (s) of a bench timing calibration applied to instants
+    labelled ``label`` (the recording's ``info["timing_offset_u_s"]``), None when none was."""
+    if label is None or "timing_offset_s" not in label[2]:
+        return None
+    u = label[2].get("timing_offset_u_s", 0.0)
+    return float(u) if isinstance(u, (int, float)) and math.isfinite(u) and u >= 0 else 0.0
+
+
+def _anchor_u(label: Label) -> float:
+    """The share (s) of a stand clock's residual error that is its anchor in the exchanges'
+    windows: a uniform offset in the interval they leave (``timebase.stand_clock``)."""
+    room = label[2].get("offset_interval_s", 0.0) if label is not None else 0.0
+    return float(room) / math.sqrt(12.0) if isinstance(room, (int, float)) else 0.0
+
+
 def _check_mode(mode: str, name: str) -> None:
     if mode not in MODES:
         raise DataError(f"{name}: expected one of {', '.join(MODES)}, got {mode!r}")
@@ -608,4 +639,6 @@ def _lay(
         bridged=int(np.count_nonzero(bridge_sq[ok])),
         bridge_variance=float(bridge_sq[ok].sum() / max(1, int(ok.sum()))),
         xdot=xdot,
+        calibration_u_s=_calibration_u(dev.label),
+        anchor_u_s=_anchor_u(ref.label) if ref_base == "stand" else 0.0,
     )

@@ -346,16 +346,27 @@ class Recording:
         off = timing.get("offset_s") if isinstance(timing, dict) else None
         return float(off) if isinstance(off, (int, float)) and math.isfinite(off) else 0.0
 
+    @property
+    def timing_offset_u_s(self) -> float:
+        """The standard uncertainty the timing calibration states for ``timing_offset_s``
+        (``timing.uncertainty_s``, s; 0 when none)."""
+        cfg = self.meta.get("config")
+        timing = cfg.get("timing") if isinstance(cfg, dict) else None
+        u = timing.get("uncertainty_s") if isinstance(timing, dict) else None
+        return float(u) if isinstance(u, (int, float)) and math.isfinite(u) and u >= 0 else 0.0
+
     def _timing_applied(self, t: Instants) -> Instants:
         """The instrument's instants moved earlier by the bench's calibrated offset
-        (``timing_offset_s``), labelled with it (``info["timing_offset_s"]``)."""
+        (``timing_offset_s``), labelled with it and its uncertainty (``info["timing_offset_s"]``,
+        ``info["timing_offset_u_s"]``)."""
         from benchctl.analysis.timebase import Instants
 
         off = self.timing_offset_s
         if off == 0.0:
             return t
         return Instants(np.asarray(t) - off, t.timebase, t.residual_s,
-                        {**t.info, "timing_offset_s": off})
+                        {**t.info, "timing_offset_s": off,
+                         "timing_offset_u_s": self.timing_offset_u_s})
 
     def _stand_clock(self, rows: NDArray[np.bool_]) -> Any:
         """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.

@@ -135,3 +135,31 @@ def test_an_offset_between_the_streams_moves_a_lagging_instruments_sigma_first_o
     assert cov < 0  # ε ≈ −τ·ẋ
     assert late.variance - base.variance == pytest.approx(-2 * d * cov, rel=0.02)
     assert lagging(np.array([0.3]))[0].imag < 0
+
+
+def _aligned_with_labels(dev_info: dict, ref_label: tuple) -> object:
+    from benchctl.analysis.align import align
+
+    t = 1000.0 + np.arange(0, 60, 0.01)
+    x = 2 * np.sin(2 * np.pi * 0.2 * t)
+    return align(t, x, t + 0.003, x, labels=(ref_label, ("receipt", 1e-4, dev_info)))
+
+
+def test_a_timing_calibration_takes_the_place_of_the_stand_clocks_anchor() -> None:
+    """A calibration applied to the instrument's instants: the offset between the streams is
+    known to the calibration's uncertainty plus the stand clock's rate error — the clock's
+    anchor in the exchanges' windows (a uniform offset in their room, room/√12) is part of what
+    the calibration measured. Exact closed forms."""
+    room, rate_err, u_cal = 1e-3, 2e-5, 1.06e-5
+    r = math.hypot(room / math.sqrt(12.0), rate_err)
+    stand = ("stand", r, {"offset_interval_s": room})
+    cal = {"timing_offset_s": 0.0015, "timing_offset_u_s": u_cal}
+    plain = _aligned_with_labels({}, stand)
+    assert plain.calibration_u_s is None
+    assert plain.offset_u_s == pytest.approx(r, rel=1e-12)
+    calibrated = _aligned_with_labels(cal, stand)
+    assert calibrated.offset_u_s == pytest.approx(math.hypot(u_cal, rate_err), rel=1e-9)
+    # stamps used as given (random, no offset of their own): the calibration's alone
+    midpoint = _aligned_with_labels(cal, ("midpoint", 1e-4, {}))
+    assert midpoint.offset_u_s == pytest.approx(u_cal, rel=1e-12)
+    assert _aligned_with_labels({}, ("midpoint", 1e-4, {})).offset_u_s == 0.0

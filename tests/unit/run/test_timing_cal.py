@@ -133,3 +133,12 @@ def test_the_report_states_the_offset_it_applied(tmp_path: Path) -> None:
     none = Report({}, tmp_path, {"serial": "S", "timing": {**timing, "offset_s": 0.0}}, {},
                   (0.0, 60.0))
     assert "bench timing offset" not in format_report(none)
+
+
+def test_the_calibrations_uncertainty_reaches_the_analysis(tmp_path: Path) -> None:
+    """The stated uncertainty travels with the offset into the analysis's offset budget."""
+    cal = load_recording(_recording(tmp_path, 0.0015))
+    assert cal.timing_offset_u_s == 1e-5
+    _, _, td, _ = cal.pair("roll")
+    assert td.info["timing_offset_u_s"] == 1e-5
+    assert load_recording(_recording(tmp_path, None)).timing_offset_u_s == 0.0
