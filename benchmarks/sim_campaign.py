@@ -6,6 +6,7 @@ the profile and its duration, and the disturbances (``benchctl.sim.disturb``): h
 tens of milliseconds to several seconds, send jitter, slow replies, and — in a third of the
 runs — up to a few lost replies at random moments, lost and garbled frames, stand and
 instrument faults and an operator's Ctrl-C.
+Each run's bench has the timing calibration of its link and instrument (``bench_timing``).
 The simulators and the run share one VirtualClock in this process; the run is the product's own
 (``run_test`` with the drivers on in-process links), the same code a run on hardware takes.
 
@@ -53,6 +54,7 @@ import argparse
 import csv
 import hashlib
 import json
+import math
 import multiprocessing
 import os
 import random
@@ -126,6 +128,7 @@ def config_for(draw: dict[str, Any], out: Path, disturb: dict[str, Any] | None) 
     proto = yaml.safe_load((ROOT / "config" / PROTOCOLS[draw["protocol"]]).read_text())
     base["instrument"] = proto["instrument"]
     base["sim"]["instrument"] = proto.get("sim", {}).get("instrument", base["sim"]["instrument"])
+    base["timing"] = bench_timing(draw["link"], draw["protocol"])
     base["stand"]["mode"] = draw["mode"]
     # stream mode: the stand's own drive is set to the stand's limits, as a real stand's is:
     # when commands stop (a missed slot) it brakes within them, not at the servo's physical
@@ -151,6 +154,28 @@ def config_for(draw: dict[str, Any], out: Path, disturb: dict[str, Any] | None) 
     path = out / "bench.yaml"
     path.write_text(yaml.safe_dump(base))
     return path
+
+
+def bench_timing(link: str, protocol: str) -> dict[str, Any]:
+    """The bench's timing calibration for a link and an instrument protocol: the protocol's
+    shipped config's (calibrated over Modbus TCP); over RTU, plus what the RTU link adds to the
+    CANopen bench's (``sim_rtu.yaml`` less ``sim.yaml``), the uncertainties in quadrature."""
+    def timing(name: str) -> dict[str, Any]:
+        doc: dict[str, Any] = yaml.safe_load((ROOT / "config" / name).read_text())["timing"]
+        return doc
+
+    own = timing(PROTOCOLS[protocol])
+    if link == "tcp":
+        return own
+    if protocol == "canopen":
+        return timing("sim_rtu.yaml")
+    rtu, tcp = timing("sim_rtu.yaml"), timing("sim.yaml")
+    return {**own,
+            "offset_s": round(own["offset_s"] + rtu["offset_s"] - tcp["offset_s"], 9),
+            "uncertainty_s": round(math.hypot(own["uncertainty_s"], rtu["uncertainty_s"],
+                                              tcp["uncertainty_s"]), 9),
+            "reference": f"{own.get('reference')}; plus the RTU link's share (sim_rtu.yaml "
+                         "less sim.yaml)"}
 
 
 def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) -> dict[str, Any]:
