@@ -315,6 +315,8 @@ class Recording:
             elif reference_timebase == "stand":
                 raise DataError(f"{self.path}: the stand's samples carry no usable clock "
                                 "(stand_time_s with its wrap, t_lo, t_hi)")
+        t_ref = Instants(t_ref, t_ref.timebase, t_ref.residual_s,
+                         {**t_ref.info, **self.encoder})
 
         def col(name: str) -> NDArray[np.float64] | None:
             c = inst.get(name)
@@ -354,6 +356,23 @@ class Recording:
         timing = cfg.get("timing") if isinstance(cfg, dict) else None
         u = timing.get("uncertainty_s") if isinstance(timing, dict) else None
         return float(u) if isinstance(u, (int, float)) and math.isfinite(u) and u >= 0 else 0.0
+
+    @property
+    def encoder(self) -> dict[str, float | None]:
+        """The reference angle's resolution and standard uncertainty its bench config states
+        (``stand.encoder_resolution_deg``, ``stand.encoder_uncertainty_deg``, deg; None: not
+        stated, or not a finite number ≥ 0), as the reference's instants carry them into σ's
+        uncertainty budget (``info``, ``benchctl.analysis.budget.Reference.of``)."""
+        cfg = self.meta.get("config")
+        stand = cfg.get("stand") if isinstance(cfg, dict) else None
+        out: dict[str, float | None] = {}
+        for key in ("encoder_resolution_deg", "encoder_uncertainty_deg"):
+            v = stand.get(key) if isinstance(stand, dict) else None
+            out[key] = None
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+                    and v >= 0:
+                out[key] = float(v)
+        return out
 
     def _timing_applied(self, t: Instants) -> Instants:
         """The instrument's instants moved earlier by the bench's calibrated offset
