@@ -126,21 +126,25 @@ class Contribution:
 
 
 def combined(us: Sequence[float]) -> float:
-    """Root sum of squares of standard uncertainties (deg)."""
-    return math.sqrt(math.fsum(u * u for u in us))
+    """Root sum of squares of standard uncertainties (deg; no underflow or overflow)."""
+    return math.hypot(*us)
 
 
 def effective_dof(us: Sequence[float], dofs: Sequence[float]) -> float:
     """Welch–Satterthwaite: ``u_c⁴ / Σ u_i⁴/ν_i`` (ν = ∞ adds nothing; ∞ when every term is
-    exact or u_c is 0)."""
+    exact or u_c is 0). Computed on the u's scaled by the largest, so that no fourth power
+    underflows or overflows."""
     if len(us) != len(dofs):
         raise AnalysisError(f"effective_dof: {len(us)} uncertainties but {len(dofs)} dofs")
-    den = math.fsum(u**4 / v for u, v in zip(us, dofs, strict=True)
-                    if math.isfinite(v) and u > 0.0)
-    uc = combined(us)
-    if den <= 0.0 or uc == 0.0:
+    top = max(us, default=0.0)
+    if not top > 0.0:
         return math.inf
-    return uc**4 / den
+    r = [u / top for u in us]
+    den = math.fsum(x**4 / v for x, v in zip(r, dofs, strict=True)
+                    if math.isfinite(v) and x > 0.0)
+    if den <= 0.0:
+        return math.inf
+    return combined(r) ** 4 / den
 
 
 def sigma_u(u_variance: float, sigma: float) -> float:
@@ -245,18 +249,18 @@ def uncertainty_budget(
         f"half the statistical 95 % interval [{lo:.6g}, {hi:.6g}]° ÷ 1.96, ν = {nu:.4g}",
         "scaled χ² (σ² of the record)", nu))
     out.append(Contribution(
-        "timing", "timing: offset between the streams and random instants", "B", EVALUATED,
+        "timing", "timing: offset and random instants", "B", EVALUATED,
         sigma_u(timing_cross_variance, s),
         f"u(σ²) = {timing_cross_variance:.3g} deg² (2|cov(ε, ẋ)|·u₀ ⊕ 2·rms(ε·ẋ)·δ/√N) "
         "÷ 2σ", "normal", math.inf, timing_cross_variance))
     tb = max(timing_bias_variance - bridge_variance, 0.0)
     out.append(Contribution(
-        "timing_bias", "timing: variance of random instant errors", "B", BIAS, None,
+        "timing_bias", "timing: random instants' variance", "B", BIAS, None,
         f"σ_ẋ²·δ² = {tb:.3g} deg² adds to σ²: σ reads high by about it ÷ 2σ (the interval's "
         "lower end moved down by it)", None, math.inf, None, sigma_u(tb, s)))
     mr = max(sigma_corrected * sigma_corrected - s * s, 0.0)
     out.append(Contribution(
-        "mean_removal", "mean removal (σ about the record's mean)", "A", BIAS, None,
+        "mean_removal", "mean removal", "A", BIAS, None,
         f"var(ε̄) ≈ G(0)/(2T) = {mr:.3g} deg² taken out of σ²: σ reads low by "
         f"{sigma_corrected - s:.3g}° (the interval is about sigma_corrected "
         f"{sigma_corrected:.6g}°)", None, math.inf, None, -(sigma_corrected - s)))
@@ -282,7 +286,7 @@ def uncertainty_budget(
             f"u_enc = {ue:.3g}°: enters ε directly; |σ(ε − e) − σ(ε)| ≤ σ(e), any correlation",
             "as stated", math.inf))
     out.append(Contribution(
-        "interpolation", "interpolation of the reference onto the instrument's instants", "B",
+        "interpolation", "reference interpolation", "B",
         EVALUATED, sigma_u(bridge_variance, s),
         ("no bridged reference gap" if bridge_variance == 0.0 else
          f"the spline's estimated mean square miss across bridged gaps {bridge_variance:.3g} "
@@ -293,6 +297,36 @@ def uncertainty_budget(
     return Budget(s, tuple(out))
 
 
+def budget_lines(budget: dict[str, Any] | None, indent: str = "        ") -> list[str]:
+    """σ's uncertainty budget as a compact table: each contribution's GUM type, its standard
+    uncertainty of σ (°) and ν, or what it is instead (a bias, not stated, not assessed); then
+    u_c, ν_eff, k and U, and which σ they belong to."""
+    if not budget:
+        return []
+
+    def g(v: Any) -> str:
+        return "—" if v is None else f"{v:.2g}"
+
+    out = [f"{indent}uncertainty budget of σ ({budget['sigma_of']}, the σ above; GUM, "
+           "standard uncertainties of σ in °):"]
+    for c in budget["contributions"]:
+        name = f"{c['name'][:34]:<34} {c['type'] or '–'}"
+        if c["status"] == "evaluated":
+            nu = "∞" if c["dof"] is None else f"{c['dof']:.3g}"
+            what = f"u {g(c['u']):>8}  ν {nu}"
+        elif c["status"] == "bias":
+            what = f"bias {c['bias']:+.2g}° (not in u_c)"
+        else:
+            what = str(c["status"])
+        out.append(f"{indent}  {name}  {what}")
+    nu = budget["dof_effective"]
+    missing = "" if budget["complete"] else "; left out: " + ", ".join(budget["left_out"])
+    out.append(f"{indent}  combined u_c {g(budget['combined'])}° (ν_eff "
+               f"{'∞' if nu is None else f'{nu:.3g}'}), expanded U = {g(budget['expanded'])}° "
+               f"(k = {budget['coverage_factor']:g}){missing}")
+    return out
+
+
 __all__ = ["BIAS", "COVERAGE_FACTOR", "EVALUATED", "NOT_ASSESSED", "NOT_STATED", "SIGMA_OF",
-           "Budget", "Contribution", "Reference", "combined", "effective_dof", "sigma_u",
-           "uncertainty_budget"]
+           "Budget", "Contribution", "Reference", "budget_lines", "combined", "effective_dof",
+           "sigma_u", "uncertainty_budget"]

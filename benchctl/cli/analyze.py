@@ -494,5 +494,9 @@ def summary(r: AnalysisResult) -> str:
              + ("agrees" if c["welch_agrees"] else "DISAGREES"))
     lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
     lines.extend(_timing_block(r.timing))
+    if r.budget is not None:
+        from benchctl.analysis.budget import budget_lines
+
+        lines.extend(budget_lines(r.budget.to_dict(), "  "))
     lines.extend(f"  warning: {w}" for w in r.warnings)
     return "\n".join(lines)

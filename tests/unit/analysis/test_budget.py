@@ -23,7 +23,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from benchctl.analysis import analyze
+from benchctl.analysis import AnalysisResult, analyze
 from benchctl.analysis.budget import (
     EVALUATED,
     NOT_ASSESSED,
@@ -37,9 +37,14 @@ from benchctl.analysis.budget import (
     sigma_u,
     uncertainty_budget,
 )
+from benchctl.cli import main
 from benchctl.errors import AnalysisError
+from benchctl.outcomes import Outcome
 from benchctl.recording import load_recording
 from benchctl.recording.format import FORMAT_NAME
+from benchctl.results.measurements import Limits, axis_measurements
+from benchctl.results.record import build_record, validate_record
+from benchctl.run.report import Report, axis_verdict, format_report
 
 Z95 = 1.959963984540054
 
@@ -228,3 +233,55 @@ def test_the_bench_configs_encoder_reaches_the_budget(tmp_path: Path) -> None:
     assert r.budget is not None
     assert [c.status for c in r.budget.contributions if c.key in ("resolution", "reference")] == [
         NOT_STATED, NOT_STATED]
+
+
+def _small_result(q: float | None = 0.001) -> AnalysisResult:
+    rng = np.random.default_rng(5)
+    t = np.arange(6000) * 0.05
+    x = 5 * np.sin(2 * np.pi * 0.1 * t)
+    return analyze(t, x, t, x + rng.normal(0, 0.03, t.size), lines="off", axis="roll",
+                   reference=Reference(q, None))
+
+
+def test_the_budget_in_the_report_and_the_record(tmp_path: Path) -> None:
+    """The report's axis, its text and the record's σ measurement carry the same budget, of
+    the σ they state (``sigma``)."""
+    r = _small_result()
+    v = axis_verdict("roll", r, 0.4)
+    d = v.to_dict(full=False)
+    assert d["budget"]["sigma_of"] == "sigma" and d["budget"]["sigma"] == d["sigma"]
+    assert d["budget"] == r.to_dict()["budget"]
+    text = format_report(Report({"roll": v}, tmp_path, {"serial": "S"}, {}, (0.0, 300.0)))
+    assert "uncertainty budget of σ (sigma, the σ above" in text
+    assert "non-stationarity" in text and "not assessed" in text
+    assert "reference uncertainty" in text and "not stated" in text
+    assert f"expanded U = {r.budget.expanded_deg:.2g}° (k = 2)" in text  # type: ignore[union-attr]
+    ms = axis_measurements("roll", v.to_dict(), Limits(sigma_deg=0.4))
+    sigma = ms[0]
+    assert sigma.name == "sigma" and sigma.value == v.sigma_deg
+    assert sigma.uncertainty == d["budget"]
+    assert all(m.uncertainty is None for m in ms[1:])
+    rec = build_record({"serial": "SN", "operator": "o", "station": "s"}, recording=tmp_path,
+                       outcome=Outcome.PASS, measurements=ms)
+    validate_record(json.loads(json.dumps(rec)))
+    assert rec["measurements"][0]["uncertainty"]["sigma_of"] == "sigma"
+    assert "uncertainty" not in rec["measurements"][1]
+
+
+def test_the_budget_in_analyze_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    t = np.arange(6000) * 0.05
+    x = 5 * np.sin(2 * np.pi * 0.1 * t)
+    y = x + np.random.default_rng(2).normal(0, 0.03, t.size)
+    csv = tmp_path / "run.csv"
+    np.savetxt(csv, np.column_stack([t, x, y]), delimiter=",", fmt="%.17g",
+               header="time,reference,device", comments="")
+    assert main(["analyze", str(csv), "--json", "--lines", "off"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    b = d["budget"]
+    assert b["sigma_of"] == "sigma" and b["sigma"] == d["sigma"] and b["coverage_factor"] == 2
+    assert b["expanded"] == pytest.approx(2 * b["combined"], rel=1e-12)
+    status = {c["key"]: c["status"] for c in b["contributions"]}
+    assert status["resolution"] == status["reference"] == "not stated"  # a CSV states none
+    assert status["nonstationarity"] == "not assessed"
+    assert main(["analyze", str(csv), "--lines", "off"]) == 0
+    assert "uncertainty budget of σ (sigma" in capsys.readouterr().out
