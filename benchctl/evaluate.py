@@ -47,6 +47,7 @@ from benchctl.analysis.excitation import (
     Fidelity,
     FidelityLimits,
     StandReach,
+    breached,
     fidelity_of_table,
     limits_of,
     reach_of,
@@ -129,6 +130,8 @@ class EvaluationRequest:
       config's settling), ``None`` (nothing left out) or given ``Departures``;
     - ``profile``: the profile as the run plays it (None: re-synthesised from the metadata);
     - ``steps``, ``excitation``, ``cross_axis``: what the profile adds, each on or off;
+      ``excitation_alarm``: a warning per axis with a band beyond the alarm level (the run's
+      verdict gives one, ``Evaluation.alarms``);
     - ``require_intact``: refuse a recording altered after its run closed it
       (``IntegrityError``);
     - ``label_errors``: an analysis's ``DataError`` gets ``"<source> [<axis>]: "`` in front;
@@ -142,6 +145,7 @@ class EvaluationRequest:
     profile: RunProfile | None = None
     steps: bool = True
     excitation: bool = True
+    excitation_alarm: bool = False
     cross_axis: bool = True
     require_intact: bool = True
     label_errors: bool = False
@@ -151,12 +155,14 @@ class EvaluationRequest:
 @dataclass
 class Evaluation:
     """Per axis, the analysis (``results``), the measured excitation (``fidelity``: a
-    ``Fidelity``, or why there is none) and the note on the profile's lines when they could not
-    be used (``line_notes``); the recording it came from."""
+    ``Fidelity``, or why there is none), the warning when a band is beyond its alarm level
+    (``alarms``, when asked) and the note on the profile's lines when they could not be used
+    (``line_notes``); the recording it came from."""
 
     recording: Recording
     results: dict[str, AnalysisResult] = field(default_factory=dict)
     fidelity: dict[str, Fidelity | str] = field(default_factory=dict)
+    alarms: dict[str, str] = field(default_factory=dict)
     line_notes: dict[str, str] = field(default_factory=dict)
 
 
@@ -214,8 +220,7 @@ def _run_excitation(profile: RunProfile,
     if not profile.tables or getattr(profile.motion, "segments", None):
         return None
     if window is None or profile.t_motion_start is None:
-        return ("no excitation fidelity: no analysis window or motion start (the run did not "
-                "finish)")
+        return "no analysis window or motion start (the run did not finish)"
     return _Excitation(profile.tables, window, profile.t_motion_start,
                        profile.excitation_limits, profile.reach)
 
@@ -224,7 +229,7 @@ def _recorded_excitation(rec: Recording,
                          window: tuple[float, float] | None) -> _Excitation | str | None:
     """A recording whose profile gives harmonic tables: its tables re-synthesised, the bench
     config's ``run.excitation`` settings and ``stand.limits`` as recorded (else the defaults);
-    None when there is nothing to judge, a warning when it cannot be judged."""
+    None when there is nothing to judge, why when it cannot be judged."""
     meta = rec.meta
     prof = meta.get("profile")
     if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
@@ -234,8 +239,8 @@ def _recorded_excitation(rec: Recording,
     window = window if window is not None else rec.analysis_window
     t0 = motion_start(rec.events)
     if window is None or t0 is None:
-        return ("no excitation fidelity: the recording has no analysis window or "
-                "motion_start event (the run did not finish)")
+        return ("the recording has no analysis window or motion_start event (the run did not "
+                "finish)")
     try:
         seed, duration = meta.get("seed"), meta.get("duration_s")
         motion = synthesize(
@@ -244,7 +249,7 @@ def _recorded_excitation(rec: Recording,
             seed=int(seed) if isinstance(seed, int) else None,
         )
     except (BenchError, OSError, ValueError, TypeError) as e:
-        return f"no excitation fidelity: the profile could not be re-synthesised ({e})"
+        return f"the profile could not be re-synthesised ({e})"
     cfg: Any = meta.get("config") if isinstance(meta.get("config"), dict) else {}
     limits, reach = FidelityLimits(), None
     with contextlib.suppress(ValueError, TypeError, KeyError, AttributeError):  # older ones
@@ -256,6 +261,17 @@ def _recorded_excitation(rec: Recording,
     scale = meta.get("scale")
     return _Excitation(dict(getattr(motion, "tables", None) or {}), window, t0, limits, reach,
                        float(scale) if isinstance(scale, int | float) else 1.0)
+
+
+def _alarm(axis: str, fid: Fidelity) -> str | None:
+    """The warning when a band of ``axis`` is beyond the alarm level (``run.excitation``)."""
+    bad = breached(fid)
+    if not bad:
+        return None
+    worst = fid.worst_band or {}
+    return (f"excitation {fid.judgement.upper()} on {axis}: {len(bad)} band(s) beyond "
+            f"±{fid.limits.alarm_db:g} dB, worst {worst.get('error_db', math.nan):+.2f} dB "
+            f"at {worst.get('centre_hz', math.nan):.3g} Hz (run.excitation)")
 
 
 def _steps(rec: Recording, req: EvaluationRequest, axis: str, res: AnalysisResult,
@@ -325,7 +341,7 @@ def evaluate(recording: Recording | str | Path,
         if request.steps:
             _steps(rec, request, axis, res, pairs[axis])
         if isinstance(excitation, str):
-            res.warnings.append(excitation)
+            res.warnings.append(f"no excitation fidelity: {excitation}")
             out.fidelity[axis] = excitation
         elif excitation is not None and axis in excitation.tables:
             e_ = excitation
@@ -340,6 +356,10 @@ def evaluate(recording: Recording | str | Path,
                 res.excitation = fid.to_dict()
                 res.warnings.extend(fid.warnings)
                 out.fidelity[axis] = fid
+                alarm = _alarm(axis, fid) if request.excitation_alarm else None
+                if alarm:
+                    res.warnings.append(alarm)
+                    out.alarms[axis] = alarm
         out.results[axis] = res
     if request.cross_axis and opts.lines != "off":
         _cross_axis(rec, request, out, pairs, profile_lines, span)
