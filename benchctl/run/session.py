@@ -92,6 +92,7 @@ from benchctl.errors import (
     SafetyAbort,
     is_disk_full,
 )
+from benchctl.evaluate import EvaluationOptions, EvaluationRequest, RunProfile
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.profiles import check_motion
@@ -833,13 +834,12 @@ class Session:
         loop, plan = self.loop, self.plan
         if requested is None or loop is None or loop.t_motion_start is None:
             return None
-        tables = dict(getattr(self.prep.motion, "tables", None) or {})
         period = profile_period(self.prep.motion, self.axes, "run.precision")
         t_start = loop.t_motion_start
         steady = plan.duration_s - plan.fade_in_s - plan.fade_out_s
 
         def analyse(window: tuple[float, float]) -> dict[str, Any]:
-            return check_window(self.path, self.cfg, tables, window, t_start, self.axes)
+            return check_window(self.path, self._evaluation(window, t_start))
 
         return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
                               whole_periods_in(steady, period), clock=self.clock)
@@ -913,6 +913,19 @@ class Session:
         if hi - lo < 0.5 * p.duration_s:  # mostly fades: analyse the whole motion
             lo, hi = t0, t0 + p.duration_s
         return lo, hi
+
+    def _evaluation(self, window: tuple[float, float], t_motion_start: float | None,
+                    **more: Any) -> EvaluationRequest:
+        """What the verdict and the precision checks evaluate over ``window``: every axis, the
+        bench config's analysis options and settling, the profile as this run plays it (its
+        motion started at ``t_motion_start``, host s); the recording is still open (no
+        integrity to check yet)."""
+        a = self.cfg.run.analysis
+        return EvaluationRequest(
+            axes=self.axes, window=window, options=EvaluationOptions.of_config(a),
+            settle_s=a.departure_settle_s,
+            profile=RunProfile.of_run(self.prep.motion, t_motion_start, self.cfg),
+            require_intact=False, source=str(self.path), **more)
 
     def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
         a = self.cfg.run.analysis
