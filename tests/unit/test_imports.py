@@ -11,9 +11,7 @@ A function-local import needs a measured reason, and each kind allowed is listed
 - the two imports that break a circle still listed in ``pyproject.toml``'s import-linter
   contracts (a recording's time bases, the Modbus link's in-process client);
 - an import inside a ``try`` whose handler guards an optional part of a run (an output sink,
-  a plot): a part that cannot even be imported fails alone, the run's verdict stands;
-- the analysis package, until its evaluation path is one (its own lazy imports are listed by
-  the layers contract's ``ignore_imports``).
+  a plot): a part that cannot even be imported fails alone, the run's verdict stands.
 """
 
 from __future__ import annotations
@@ -29,7 +27,7 @@ CYCLE_BREAKERS = {
     ("benchctl/devices/modbus/link.py", "benchctl.devices.modbus.channel_client"),
     ("benchctl/devices/modbus/link.py", "benchctl.channels"),
 }
-EXEMPT_DIRS = ("benchctl/cli/", "benchctl/analysis/")
+EXEMPT_DIRS = ("benchctl/cli/",)
 
 
 def _local_imports(tree: ast.Module) -> list[tuple[int, str]]:
