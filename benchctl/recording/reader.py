@@ -15,11 +15,12 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error, stand_clock
 from benchctl.errors import DataError
 from benchctl.jsonout import dumps
 from benchctl.recording.format import (
@@ -31,9 +32,6 @@ from benchctl.recording.format import (
     STREAM_FILES,
 )
 from benchctl.redact import redact
-
-if TYPE_CHECKING:
-    from benchctl.analysis.timebase import Instants
 
 
 class IntegrityError(DataError):
@@ -293,8 +291,6 @@ class Recording:
         self, axis: str, timebase: str = "best", reference_timebase: str = "best"
     ) -> tuple[Instants, NDArray[np.float64], Instants, NDArray[np.float64]]:
         """Both streams of one axis on their time bases, whole (see ``pair``)."""
-        from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error
-
         tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
         td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
         okr = np.isfinite(tr) & np.isfinite(xr)
@@ -378,8 +374,6 @@ class Recording:
         """The instrument's instants moved earlier by the bench's calibrated offset
         (``timing_offset_s``), labelled with it and its uncertainty (``info["timing_offset_s"]``,
         ``info["timing_offset_u_s"]``)."""
-        from benchctl.analysis.timebase import Instants
-
         off = self.timing_offset_s
         if off == 0.0:
             return t
@@ -391,8 +385,6 @@ class Recording:
         """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.
         stand_clock``) and which of them it could date, or None when the recording has no such
         clock or it contradicts the exchanges' windows."""
-        from benchctl.analysis.timebase import Instants, stand_clock
-
         st = self.streams["stand"]
         ts, lo, hi = st.get("stand_time_s"), st.get("t_lo"), st.get("t_hi")
         extra = ((self.meta.get("devices") or {}).get("stand") or {}).get("extra") or {}
