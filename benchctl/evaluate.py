@@ -362,24 +362,25 @@ def evaluate(recording: Recording | str | Path,
                     out.alarms[axis] = alarm
         out.results[axis] = res
     if request.cross_axis and opts.lines != "off":
-        _cross_axis(rec, request, out, pairs, profile_lines, span)
+        _cross_axis(rec, request, out, pairs, profile_lines, span, label)
     return out
 
 
 def _cross_axis(rec: Recording, req: EvaluationRequest, out: Evaluation, pairs: dict[str, Pair],
                 profile_lines: dict[str, tuple[LineSet | None, str | None]],
-                span: tuple[float, float] | None) -> None:
+                span: tuple[float, float] | None, label: str) -> None:
     """A two-axis record: each output against the other axis's motion on the profile's lines
-    (``result.cross_axis``), or a warning why not."""
+    (``result.cross_axis``), or a warning why not (the first axis whose lines are not known,
+    when the recording's metadata says why)."""
     every = list(rec.axes)
     if len(every) < 2:
         return
     for a in every:  # an axis recorded but not asked for: its motion is still the input
         if a not in pairs:
-            pairs[a] = _pair(rec, a, req.window, req.options.recording_timebase, str(rec.path))
+            pairs[a] = _pair(rec, a, req.window, req.options.recording_timebase, label)
         if a not in profile_lines:
             profile_lines[a] = _profile_lines(rec, req, a, span)
-    missing = next((why for a in every for ls, why in [profile_lines[a]] if ls is None), None)
+    missing = next((profile_lines[a][1] for a in every if profile_lines[a][0] is None), None)
     lines = {a: ls for a, (ls, _) in profile_lines.items() if ls is not None}
     for axis, res in out.results.items():
         cross: dict[str, Any] | None = None
