@@ -42,6 +42,7 @@ from scipy.fft import rfft
 
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
+from benchctl.analysis.budget import Reference, uncertainty_budget
 from benchctl.analysis.correlation import Correlations, correlations, demean
 from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
 from benchctl.analysis.lines import (
@@ -351,6 +352,7 @@ def analyze(
     source: str = "",
     axis: str | None = None,
     departures: Departures | None = None,
+    reference: Reference | None = None,
 ) -> AnalysisResult:
     """Dynamic error of an instrument from its output and the measured stand angle.
 
@@ -390,6 +392,11 @@ def analyze(
         Where the stand's motion was not the profile's (on the instants' clock, e.g.
         :func:`benchctl.analysis.departures.departures_of` a recording): left out as gaps are
         (module notes); the result's ``departures`` says how many, how long and why.
+    reference : Reference, optional
+        The reference angle's resolution and standard uncertainty, for σ's uncertainty budget
+        (``benchctl.analysis.budget``). Default: what labelled reference instants carry
+        (``info["encoder_resolution_deg"]``, ``info["encoder_uncertainty_deg"]``, as
+        ``Recording.pair`` gives them from the bench config), else not stated.
 
     Returns
     -------
@@ -424,6 +431,8 @@ def analyze(
     if not isinstance(lines, LineSet) and lines not in ("auto", "off"):
         raise DataError(f"lines: expected a LineSet, 'auto' or 'off', got {lines!r}")
     labels = (label_of(t_ref), label_of(t_dev))
+    if reference is None:
+        reference = Reference.of(None if labels[0] is None else labels[0][2])
     al = align(tr, xr, td, yd, timebase=timebase, reference_timebase=reference_timebase,
                labels=labels)
     asked = (timebase, reference_timebase)
@@ -469,7 +478,7 @@ def analyze(
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     al = dataclasses.replace(al, choice=choice)
     return _result(al, sp, lag, band_hz, delay_raw, shift, mode, source, axis, lines, period_s,
-                   ex, skew)
+                   ex, skew, reference)
 
 
 def _t0(al: Aligned) -> float:
@@ -731,6 +740,7 @@ def _result(
     period_s: float | None = None,
     ex: _Exclusion | None = None,
     skew: Skew | None = None,
+    reference: Reference | None = None,
 ) -> AnalysisResult:
     grid = sp.grid
     warnings: list[str] = []
@@ -836,6 +846,12 @@ def _result(
     # timing in σ's interval; a warning when it moves the interval noticeably (timing.py)
     budget = _timing_budget(al, eps, ci, float(np.sqrt(variance + mean_removal)), skew)
     ci = budget.ci
+    # σ's uncertainty budget (budget.py): the same sources, GUM style, for the headline σ
+    sigma_corrected = float(np.sqrt(variance + mean_removal))
+    gum = uncertainty_budget(
+        sigma=sigma, sigma_corrected=sigma_corrected, ci_statistical=budget.ci_statistical,
+        dof=dof, timing_cross_variance=budget.cross, timing_bias_variance=budget.bias,
+        bridge_variance=al.bridge_variance, reference=reference or Reference())
     if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
         warnings.append(al.timing_warning(variance, budget.cross, budget.offset_u_s))
     if al.device.gap_count:
@@ -917,7 +933,7 @@ def _result(
         uncertainty={
             "method": "lines" if la is not None else "lag_window",
             "mean_removal": mean_removal,
-            "sigma_corrected": float(np.sqrt(variance + mean_removal)),
+            "sigma_corrected": sigma_corrected,
             "dof_parts": None if la is None else dict(la.dof_parts),
             "dof_motion_random": dof_rand if np.isfinite(dof_rand) else None,
             "sigma_ci95_motion_random": [ci_rand[0], ci_rand[1]],
@@ -927,6 +943,7 @@ def _result(
         source=source,
         axis=axis,
         warnings=warnings,
+        budget=gum,
     )
 
 

@@ -181,22 +181,3 @@ def cross_axis_for(
     return cross_axis_response(td, yd, (tr, xr), (to, xo), lines[axis], lines[other],
                                axis=axis, other_axis=other)
 
-
-def recording_cross_axis(
-    rec: Any, axis: str, timebase: str = "best"
-) -> tuple[dict[str, Any] | None, str | None]:
-    """:func:`cross_axis_for` on a loaded recording (``Recording``: its pairs and its
-    profile's lines re-synthesised from the metadata); ``(None, None)`` for one axis."""
-    from benchctl.analysis.lines import line_set_from_recording
-
-    axes = list(rec.axes)
-    if len(axes) < 2 or axis not in axes:
-        return None, None
-    pairs = {a: rec.pair(a, timebase=timebase) for a in axes}
-    lines: dict[str, LineSet] = {}
-    for a in axes:
-        ls, why = line_set_from_recording(rec.meta, a, rec.analysis_window)
-        if ls is None:
-            return None, f"no cross-axis estimate: {why}"
-        lines[a] = ls
-    return cross_axis_for(pairs, lines, axis)

@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from benchctl.analysis.excitation import StandReach, fidelity_of_table
 from benchctl.errors import DataError
 from benchctl.harmonics import HarmonicTable
+from benchctl.profiles.synthesis import evaluate_table, sample_times
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -260,8 +261,6 @@ class Correction:
 
 
 def _peaks(table: HarmonicTable, rate_hz: float) -> tuple[float, float, float]:
-    from benchctl.profiles.synthesis import evaluate_table, sample_times
-
     t = sample_times(table.duration_s, rate_hz)
     return tuple(float(np.max(np.abs(evaluate_table(table, t, d)))) for d in range(3))  # type: ignore[return-value]
 

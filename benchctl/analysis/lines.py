@@ -58,7 +58,10 @@ from scipy.fft import fft, ifft, irfft, next_fast_len, rfft
 from scipy.special import stdtrit
 
 from benchctl.analysis.distortion import Distortion, analyze_distortion
+from benchctl.analysis.frf import not_excited
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
+from benchctl.errors import BenchError
+from benchctl.profiles import parse_profile, synthesize
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -438,9 +441,6 @@ def line_set_from_recording(
     prof = meta.get("profile")
     if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
         return None, "the recording holds no profile"
-    from benchctl.errors import BenchError
-    from benchctl.profiles import parse_profile, synthesize
-
     try:
         profile = parse_profile(prof["spec"], prof.get("source"))
         seed = meta.get("seed")
@@ -977,8 +977,6 @@ def periods_from_lines(
     are only the two), is added to the half-widths. Otherwise ``excited`` is false and gain,
     phase, coherence and intervals are None.
     """
-    from benchctl.analysis.frf import not_excited
-
     k = la.lines.harmonics
     tp = la.lines.period_s
     reliable = la.reliable if la.reliable.size == len(k) else np.ones(len(k), dtype=bool)

@@ -70,6 +70,7 @@ from scipy.optimize import brentq
 from scipy.special import ndtri
 
 from benchctl.analysis.lines import SNR_FLOOR
+from benchctl.analysis.result import _clean, _list
 from benchctl.analysis.uncertainty import chi2_ppf, mls_interval
 from benchctl.errors import DataError
 
@@ -188,8 +189,6 @@ class Prediction:
         return int(self.inside.sum())
 
     def to_dict(self) -> dict[str, Any]:
-        from benchctl.analysis.result import _clean, _list
-
         return {
             # bounded: σ is not predicted (what was not measured could add more than 5 %);
             # the measured lines' part stays in sigma_measured_lines

@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.budget import Budget
+
 if TYPE_CHECKING:
     from benchctl.analysis.lines import LineAnalysis
     from benchctl.analysis.steps import StepsAnalysis
@@ -108,6 +110,9 @@ class AnalysisResult:
     # where the stand's motion was not the profile's, left out (benchctl.analysis.departures;
     # the keys: docs/reference/analyze.md, "JSON"); None when no departure touches the record
     departures: dict[str, Any] | None = None
+    # σ's uncertainty budget, GUM style (benchctl.analysis.budget); None only for a result
+    # made otherwise than by ``analyze``
+    budget: Budget | None = None
 
     @property
     def judgeable(self) -> bool:
@@ -168,6 +173,7 @@ class AnalysisResult:
             "timing": _clean(self.timing),
             "cross_checks": _clean(self.cross_checks),
             "uncertainty": _clean(self.uncertainty),
+            "budget": None if self.budget is None else _clean(self.budget.to_dict()),
             "warnings": list(self.warnings),
             **(
                 {"steps": None, "linearity": None}

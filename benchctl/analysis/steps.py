@@ -46,8 +46,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
-from benchctl.errors import DataError
+from benchctl.analysis.frf import TRADITIONAL_PERIODS_S, not_excited
+from benchctl.errors import BenchError, DataError
 from benchctl.outcomes import Outcome
+from benchctl.profiles import parse_profile, synthesize
 
 FloatArray = NDArray[np.float64]
 
@@ -102,9 +104,6 @@ def step_windows_from_recording(
         return None, None
     if prof["spec"].get("kind") != "sine_steps":
         return None, None
-    from benchctl.errors import BenchError
-    from benchctl.profiles import parse_profile, synthesize
-
     try:
         motion = synthesize(parse_profile(prof["spec"], prof.get("source")))
         scale = meta.get("scale")
@@ -291,8 +290,6 @@ class StepsAnalysis:
         takes its largest-amplitude step's estimate (the least noise), ``source`` ``steps``;
         one that was not is not excited — never a number from the frequency response of a
         sequence that never moved at that period."""
-        from benchctl.analysis.frf import not_excited
-
         out: list[dict[str, Any]] = []
         for period in periods_s:
             rows = [s for s in self.steps if s.gain is not None
@@ -465,7 +462,5 @@ def format_steps(sa: StepsAnalysis, indent: str = "  ") -> list[str]:
 def attach_steps(result: Any, sa: StepsAnalysis) -> None:
     """Put the linearity table on an analysis result (``steps``) and take its gain and phase
     at the traditional periods from it (``periods``): a sine-steps run is measured there."""
-    from benchctl.analysis.frf import TRADITIONAL_PERIODS_S
-
     result.steps = sa
     result.periods = sa.periods(TRADITIONAL_PERIODS_S)

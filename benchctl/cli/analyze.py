@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import sys
@@ -11,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from benchctl.errors import BenchError, DataError
+from benchctl.errors import DataError
 from benchctl.outcomes import ExitCode
 
 if TYPE_CHECKING:
@@ -111,8 +110,8 @@ def _named(label: str, fn: Callable[..., AnalysisResult], *a: Any, **kw: Any) ->
 
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis import analyze
-    from benchctl.analysis.departures import departures_of
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
+    from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
     from benchctl.recording import is_recording, load_recording
 
     _check_options(args)
@@ -144,25 +143,15 @@ def run(args: argparse.Namespace) -> int:
         rec = load_recording(args.source)
         rec.require_intact()  # an altered recording: exit 2 naming the file, never a σ
         status = recording_status(rec)
-        axes = list(rec.axes) if args.axis == "all" else [args.axis]
         single_axis = args.axis != "all"
-        departures = departures_of(rec)  # underruns and rejoins: left out as gaps are
-        for ax in axes:
-            tr, xr, td, yd = rec.pair(ax, timebase=args.recording_timebase)
-            ax_opts, note = _recording_lines(rec, ax, opts)
-            res = _named(f"{args.source} [{ax}]", analyze, tr, xr, td, yd,
-                         source=str(args.source), axis=ax, departures=departures, **ax_opts)
-            if note:
-                res.warnings.append(note)
-            _recording_steps(rec, ax, res, tr, xr, td, yd)
-            _recording_excitation(rec, ax, res, tr, xr)
-            if args.lines != "off":
-                from benchctl.analysis.crossaxis import recording_cross_axis
-
-                res.cross_axis, why = recording_cross_axis(rec, ax, args.recording_timebase)
-                if why:
-                    res.warnings.append(why)
-            results[ax] = res
+        ev = evaluate(rec, EvaluationRequest(
+            axes=None if args.axis == "all" else [args.axis],
+            options=EvaluationOptions(
+                **{k: v for k, v in opts.items() if k != "lines"},
+                lines=None if args.lines == "auto" else args.lines,
+                recording_timebase=args.recording_timebase),
+            label_errors=True, source=str(args.source)))
+        results.update(ev.results)
     else:
         src = Path(args.source)
         if src.is_dir():
@@ -221,90 +210,6 @@ def recording_status(rec: Any) -> dict[str, Any]:
             "integrity": integrity.to_dict(),
             # the bench's calibrated offset its instrument instants were moved by (s; 0: none)
             "timing_offset_s": rec.timing_offset_s}
-
-
-def _recording_lines(rec: Any, axis: str, opts: dict[str, Any]) -> tuple[dict[str, Any], str]:
-    """The options for one axis of a recording: its profile's lines unless ``--period`` or
-    ``--lines off`` says otherwise; and a note when the profile's lines cannot be used."""
-    from benchctl.analysis.lines import line_set_from_recording
-
-    if opts["lines"] == "off" or opts["period_s"] is not None:
-        return opts, ""
-    ls, why = line_set_from_recording(rec.meta, axis, rec.analysis_window)
-    if ls is None:
-        return opts, f"lines not taken from the profile: {why}"
-    return {**opts, "lines": ls}, ""
-
-
-def _recording_excitation(rec: Any, axis: str, res: AnalysisResult, t: Any, x: Any) -> None:
-    """A finished run's recording whose profile gives harmonic tables: the measured excitation
-    fidelity of ``axis`` (``res.excitation``) over its analysis window, with the bench config's
-    ``run.excitation`` settings and ``stand.limits`` as recorded (else the defaults)."""
-    from benchctl.analysis.excitation import (
-        FidelityLimits,
-        StandReach,
-        fidelity_of_table,
-        limits_of,
-        reach_of,
-    )
-    from benchctl.analysis.steps import motion_start
-    from benchctl.config import ExcitationConfig, StandLimits
-    from benchctl.profiles import parse_profile, synthesize
-
-    meta = rec.meta
-    prof = meta.get("profile")
-    if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
-        return
-    if prof["spec"].get("kind") == "sine_steps":
-        return  # its steps have their own table
-    window, t0 = rec.analysis_window, motion_start(rec.events)
-    if window is None or t0 is None:
-        res.warnings.append("no excitation fidelity: the recording has no analysis window or "
-                            "motion_start event (the run did not finish)")
-        return
-    try:
-        seed, duration = meta.get("seed"), meta.get("duration_s")
-        motion = synthesize(
-            parse_profile(prof["spec"], prof.get("source")),
-            duration_s=float(duration) if isinstance(duration, int | float) else None,
-            seed=int(seed) if isinstance(seed, int) else None,
-        )
-    except (BenchError, OSError, ValueError, TypeError) as e:
-        res.warnings.append(f"no excitation fidelity: the profile could not be "
-                            f"re-synthesised ({e})")
-        return
-    tables = getattr(motion, "tables", None) or {}
-    if axis not in tables:
-        return
-    cfg = meta.get("config") if isinstance(meta.get("config"), dict) else {}
-    limits, reach = FidelityLimits(), None
-    with contextlib.suppress(ValueError, TypeError, KeyError, AttributeError):  # older ones
-        limits = limits_of(ExcitationConfig(**cfg["run"]["excitation"]))
-    with contextlib.suppress(ValueError, TypeError, KeyError, AttributeError):
-        reach = reach_of(StandLimits(**cfg["stand"]["limits"]))
-    if reach is None:
-        reach = StandReach(math.inf, math.inf, math.inf)
-    scale = meta.get("scale")
-    try:
-        fid = fidelity_of_table(t, x, tables[axis], window, t0, limits=limits, reach=reach,
-                                scale=float(scale) if isinstance(scale, int | float) else 1.0)
-    except DataError as e:
-        res.warnings.append(f"no excitation fidelity: {e}")
-        return
-    res.excitation = fid.to_dict()
-    res.warnings.extend(fid.warnings)
-
-
-def _recording_steps(rec: Any, axis: str, res: AnalysisResult, *pair: Any) -> None:
-    """A sine_steps recording: the linearity table (``res.steps``) on the same samples."""
-    from benchctl.analysis.steps import attach_steps, steps_for_recording
-
-    sa, why = steps_for_recording(rec.meta, rec.events, axis, *pair)
-    if why:
-        res.warnings.append(why)
-    if sa is not None:
-        attach_steps(res, sa)
-        res.warnings.extend(sa.warnings)
 
 
 def _fmt(v: float | None, spec: str) -> str:
@@ -494,5 +399,9 @@ def summary(r: AnalysisResult) -> str:
              + ("agrees" if c["welch_agrees"] else "DISAGREES"))
     lines.append(f"  checks: Parseval rel. diff {c['parseval_rel_diff']:.1e}; Welch area {welch}")
     lines.extend(_timing_block(r.timing))
+    if r.budget is not None:
+        from benchctl.analysis.budget import budget_lines
+
+        lines.extend(budget_lines(r.budget.to_dict(), "  "))
     lines.extend(f"  warning: {w}" for w in r.warnings)
     return "\n".join(lines)

@@ -58,21 +58,20 @@ def _tables(profile_path: str, duration: float | None) -> tuple[Any, dict[str, H
 
 
 def _measure(rec: Any, source: str, axis: str, timebase: str) -> AnalysisResult:
-    from benchctl.analysis import analyze
-    from benchctl.analysis.lines import line_set_from_recording
+    """The recording's line-wise estimate of ``axis`` on the one evaluation path
+    (``benchctl.evaluate``): the profile's lines, nothing left out for departures, no sine
+    steps, excitation or cross-axis response (a prediction uses none of them)."""
+    from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
 
-    tr, xr, td, yd = rec.pair(axis, timebase=timebase)
-    ls, why = line_set_from_recording(rec.meta, axis, rec.analysis_window)
-    try:
-        res = analyze(tr, xr, td, yd, source=source, axis=axis,
-                      lines=ls if ls is not None else "auto")
-    except DataError as e:
-        raise DataError(f"{source} [{axis}]: {e}") from None
+    ev = evaluate(rec, EvaluationRequest(
+        axes=[axis], options=EvaluationOptions(recording_timebase=timebase), departures=None,
+        steps=False, excitation=False, cross_axis=False, label_errors=True, source=source))
+    res = ev.results[axis]
     if res.lines is None:
         head = "no line-wise estimate: "
         reasons = [w[len(head):] for w in res.warnings if w.startswith(head)]
-        if why:
-            reasons.insert(0, f"lines not taken from the profile: {why}")
+        if axis in ev.line_notes:
+            reasons.insert(0, ev.line_notes[axis])
         raise DataError(
             f"{source} [{axis}]: no line-wise estimate of H "
             f"({'; '.join(reasons) or 'no whole periods of known lines detected'}); a "

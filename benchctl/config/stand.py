@@ -14,6 +14,7 @@ from pydantic import (
 from benchctl.config.types import (
     Baud,
     HostRate,
+    NonNegative,
     Positive,
     Seconds,
     Strict,
@@ -96,6 +97,15 @@ class StandConfig(Strict):
     """Log every Modbus frame sent and received (debug level)."""
     calibration_due: datetime.date | None = None
     """The stand's calibration due date (YYYY-MM-DD), into the run's record and report."""
+    encoder_resolution_deg: NonNegative | None = None
+    """The reference angle's quantisation step (°): the smallest change of the encoder angle the
+    stand reports (its encoder's count, or the register's scaling if coarser). Into σ's
+    uncertainty budget (its quantisation adds about q²/12 to σ²); unset: the budget says the
+    resolution is not stated."""
+    encoder_uncertainty_deg: NonNegative | None = None
+    """The standard uncertainty of the reference angle (°, type B: the stand's calibration
+    certificate, or its maker's accuracy taken as a rectangular bound ÷ √3), its error beyond the
+    quantisation. Into σ's uncertainty budget; unset: the budget says it is not stated."""
 
     @model_validator(mode="after")
     def _transport(self) -> StandConfig:

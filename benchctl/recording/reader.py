@@ -15,11 +15,12 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error, stand_clock
 from benchctl.errors import DataError
 from benchctl.jsonout import dumps
 from benchctl.recording.format import (
@@ -31,9 +32,6 @@ from benchctl.recording.format import (
     STREAM_FILES,
 )
 from benchctl.redact import redact
-
-if TYPE_CHECKING:
-    from benchctl.analysis.timebase import Instants
 
 
 class IntegrityError(DataError):
@@ -293,8 +291,6 @@ class Recording:
         self, axis: str, timebase: str = "best", reference_timebase: str = "best"
     ) -> tuple[Instants, NDArray[np.float64], Instants, NDArray[np.float64]]:
         """Both streams of one axis on their time bases, whole (see ``pair``)."""
-        from benchctl.analysis.timebase import Instants, instrument_timebase, stamp_error
-
         tr, xr = self.column("stand", "t_host"), self.column("stand", f"{axis}_deg")
         td, yd = self.column("instrument", "t_host"), self.column("instrument", f"{axis}_deg")
         okr = np.isfinite(tr) & np.isfinite(xr)
@@ -315,6 +311,8 @@ class Recording:
             elif reference_timebase == "stand":
                 raise DataError(f"{self.path}: the stand's samples carry no usable clock "
                                 "(stand_time_s with its wrap, t_lo, t_hi)")
+        t_ref = Instants(t_ref, t_ref.timebase, t_ref.residual_s,
+                         {**t_ref.info, **self.encoder})
 
         def col(name: str) -> NDArray[np.float64] | None:
             c = inst.get(name)
@@ -355,12 +353,27 @@ class Recording:
         u = timing.get("uncertainty_s") if isinstance(timing, dict) else None
         return float(u) if isinstance(u, (int, float)) and math.isfinite(u) and u >= 0 else 0.0
 
+    @property
+    def encoder(self) -> dict[str, float | None]:
+        """The reference angle's resolution and standard uncertainty its bench config states
+        (``stand.encoder_resolution_deg``, ``stand.encoder_uncertainty_deg``, deg; None: not
+        stated, or not a finite number ≥ 0), as the reference's instants carry them into σ's
+        uncertainty budget (``info``, ``benchctl.analysis.budget.Reference.of``)."""
+        cfg = self.meta.get("config")
+        stand = cfg.get("stand") if isinstance(cfg, dict) else None
+        out: dict[str, float | None] = {}
+        for key in ("encoder_resolution_deg", "encoder_uncertainty_deg"):
+            v = stand.get(key) if isinstance(stand, dict) else None
+            out[key] = None
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+                    and v >= 0:
+                out[key] = float(v)
+        return out
+
     def _timing_applied(self, t: Instants) -> Instants:
         """The instrument's instants moved earlier by the bench's calibrated offset
         (``timing_offset_s``), labelled with it and its uncertainty (``info["timing_offset_s"]``,
         ``info["timing_offset_u_s"]``)."""
-        from benchctl.analysis.timebase import Instants
-
         off = self.timing_offset_s
         if off == 0.0:
             return t
@@ -372,8 +385,6 @@ class Recording:
         """The stand's samples (``rows``) dated by its own clock (``analysis.timebase.
         stand_clock``) and which of them it could date, or None when the recording has no such
         clock or it contradicts the exchanges' windows."""
-        from benchctl.analysis.timebase import Instants, stand_clock
-
         st = self.streams["stand"]
         ts, lo, hi = st.get("stand_time_s"), st.get("t_lo"), st.get("t_hi")
         extra = ((self.meta.get("devices") or {}).get("stand") or {}).get("extra") or {}

@@ -467,6 +467,7 @@ def build_context(
             "departures": departure_text(an["departures"])
             if isinstance(an.get("departures"), Mapping) else None,
             "sigma_inconclusive": a.get("sigma_inconclusive"),
+            "budget": a.get("budget") if isinstance(a.get("budget"), Mapping) else None,
             **(_figures_of(name, an, lim, exc, title) if figures else
                {"psd_svg": None, "frf_svg": None, "excitation_svg": None}),
         })

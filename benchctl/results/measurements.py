@@ -128,8 +128,11 @@ class Measurement:
     rule: str  # simple | guarded | check (a precheck: pass or fail as such)
     decisive: bool = True
     note: str | None = None
+    # σ's uncertainty budget (benchctl.analysis.budget): on the σ measurement, of its value
+    uncertainty: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        extra = {} if self.uncertainty is None else {"uncertainty": self.uncertainty}
         return {
             "name": self.name,
             "axis": self.axis,
@@ -142,6 +145,7 @@ class Measurement:
             "rule": self.rule,
             "decisive": self.decisive,
             "note": self.note,
+            **extra,
         }
 
 
@@ -226,6 +230,9 @@ def axis_measurements(
     why = _sigma_inconclusive(verdict)
     if why is not None and sigma.outcome != Outcome.NOT_JUDGED:
         sigma.outcome, sigma.note = Outcome.INCONCLUSIVE, f"not judged: {why}"
+    budget = verdict.get("budget", (verdict.get("analysis") or {}).get("budget"))
+    if isinstance(budget, Mapping):
+        sigma.uncertainty = dict(budget)
     out = [
         sigma,
         _measure("mean error", axis, verdict.get("mean_error"), "deg",

@@ -10,27 +10,24 @@ band is beyond its alarm level, the stand fades out from where it is (the profil
 
 The rule itself is :func:`decide_stop` (pure); :class:`PrecisionWatch` schedules the checks
 and runs each one in a worker thread, so the stand loop and the main thread's watchdog are
-never held up by an analysis; :func:`check_window` is one check.
+never held up by an analysis; :func:`check_window` is one check, on the one evaluation path
+(``benchctl.evaluate``) the verdict takes.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchctl.analysis import analyze
-from benchctl.analysis.departures import departures_of
-from benchctl.analysis.excitation import breached, fidelity_of_table, limits_of, reach_of
-from benchctl.analysis.lines import line_set_from_tables
+from benchctl.analysis.excitation import breached
 from benchctl.clock import REAL, Clock, ThreadLike
-from benchctl.errors import BenchError, ConfigError, DataError
-from benchctl.recording import load_recording
-from benchctl.recording.reader import WINDOW_MARGIN_S
+from benchctl.errors import BenchError, ConfigError
+from benchctl.evaluate import EvaluationRequest, evaluate
 
 MIN_PERIODS = 1  # never a stop before this many whole periods (every line excited)
 CHECK_DELAY_S = 1.5  # a period is checked this long after its end (the streams' last samples)
@@ -153,34 +150,16 @@ def profile_period(motion: Any, axes: Sequence[str], where: str) -> float:
     return periods.pop()
 
 
-def check_window(
-    path: Path,
-    cfg: Any,
-    tables: Mapping[str, Any],
-    window: tuple[float, float],
-    t_motion_start: float,
-    axes: Sequence[str],
-) -> dict[str, AxisCheck]:
+def check_window(path: Path, request: EvaluationRequest) -> dict[str, AxisCheck]:
     """σ and its interval per axis on the recording at ``path`` as written so far, over
-    ``window`` (host time, whole periods): the verdict's analysis (``Session._analyse``: the
-    same crop, line set and options), and the excitation judgement over the same window."""
+    ``request.window`` (host time, whole periods): the verdict's evaluation
+    (``Session._evaluation``: the same crop, line set and options; no sine steps nor
+    cross-axis response, which the stop does not look at), and the excitation judgement over
+    the same window."""
 
-    a = cfg.run.analysis
-    rec = load_recording(path)
-    departures = departures_of(rec, a.departure_settle_s)
-    lo, hi = window
+    ev = evaluate(path, replace(request, steps=False, cross_axis=False, excitation=True))
     out: dict[str, AxisCheck] = {}
-    for axis in axes:
-        tr, xr, td, yd = rec.pair(axis, window=False)
-        kr = (tr >= lo - WINDOW_MARGIN_S) & (tr <= hi + WINDOW_MARGIN_S)
-        kd = (td >= lo) & (td <= hi)
-        if kd.sum() < 16 or kr.sum() < 16:
-            raise DataError(f"too few samples for axis {axis} in {lo:.3f} … {hi:.3f} s")
-        others = [t for ax, t in tables.items() if ax != axis]
-        ls, _why = line_set_from_tables(tables[axis], hi - lo, others)
-        res = analyze(tr[kr], xr[kr], td[kd], yd[kd], max_lag_s=a.max_lag_s, band_hz=a.band_hz,
-                      compensate_delay=a.compensate_delay, source=str(path), axis=axis,
-                      lines=ls if ls is not None else "auto", departures=departures)
+    for axis, res in ev.results.items():
         ci = (float(res.sigma_ci95[0]), float(res.sigma_ci95[1]))
         # the stop is judged on the part of the interval more motion narrows: timing's share
         # (an offset between the streams, benchctl.analysis.timing) does not shrink with time
@@ -189,14 +168,12 @@ def check_window(
         reached = (relative_halfwidth(float(res.sigma), (float(stat[0]), float(stat[1])))
                    if res.judgeable else math.inf)
         check = AxisCheck(float(res.sigma), ci, reached)
-        try:
-            fid = fidelity_of_table(tr[kr], xr[kr], tables[axis], window, t_motion_start,
-                                    limits=limits_of(cfg.run.excitation),
-                                    reach=reach_of(cfg.stand.limits))
+        fid = ev.fidelity.get(axis)
+        if isinstance(fid, str):
+            check.excitation = f"not judged ({fid})"
+        elif fid is not None:
             check.excitation = fid.judgement
             check.alarm = bool(breached(fid))
-        except DataError as e:
-            check.excitation = f"not judged ({e})"
         out[axis] = check
     return out
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchctl.analysis.budget import budget_lines
 from benchctl.analysis.departures import departure_text, sigma_inconclusive
 from benchctl.analysis.excitation import format_fidelity
 from benchctl.errors import RecordingError
@@ -64,6 +65,9 @@ class AxisVerdict:
     # why σ is not judged (the stand's motion departed from the profile for too much of the
     # window: benchctl.analysis.departures): σ is then INCONCLUSIVE under either rule
     sigma_inconclusive: str | None = None
+    # σ's uncertainty budget (benchctl.analysis.budget, its JSON form): of the headline σ,
+    # the one ``sigma`` and ``sigma_ci95`` are; None when the analysis gave none
+    budget: dict[str, Any] | None = None
 
     @property
     def sigma_outcome(self) -> Outcome:
@@ -103,6 +107,7 @@ class AxisVerdict:
             "delay": self.delay_s,
             "sigma_verdict": self.sigma_outcome,
             "sigma_inconclusive": self.sigma_inconclusive,
+            "budget": self.budget,
         }
         if self.linearity is not None:
             d["linearity"] = self.linearity
@@ -120,6 +125,7 @@ def axis_verdict(axis: str, result: Any, limit_deg: float, rule: str = "simple")
     ci = tuple(float(v) for v in result.sigma_ci95)
     steps = getattr(result, "steps", None)
     table = None if steps is None else steps.to_dict()
+    analysis = result.to_dict() if hasattr(result, "to_dict") else {}
     return AxisVerdict(
         axis=axis,
         sigma_deg=float(result.sigma),
@@ -129,12 +135,13 @@ def axis_verdict(axis: str, result: Any, limit_deg: float, rule: str = "simple")
         rms_error_deg=float(result.rms_error),
         delay_s=None if getattr(result, "delay", None) is None else float(result.delay),
         limit_deg=limit_deg,
-        analysis=result.to_dict() if hasattr(result, "to_dict") else {},
+        analysis=analysis,
         steps=None if table is None else table["steps"],
         linearity=None if table is None else table["linearity"],
         excitation=getattr(result, "excitation", None),
         rule=rule,
         sigma_inconclusive=sigma_inconclusive(getattr(result, "departures", None)),
+        budget=analysis.get("budget"),
     )
 
 
@@ -236,6 +243,7 @@ def format_report(rep: Report) -> str:
             f"dof {v.dof:.0f})"
         )
         lines.extend(_departure_lines(v))
+        lines.extend(budget_lines(v.budget))
         if v.steps is not None and v.linearity is not None:
             lines.extend(_steps_lines(v.steps, v.linearity))
         lines.extend(_extra_lines(v.analysis))

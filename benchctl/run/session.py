@@ -60,9 +60,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from benchctl import __version__
-from benchctl.analysis import analyze
-from benchctl.analysis.crossaxis import cross_axis_for
-from benchctl.analysis.departures import departures_of
 from benchctl.analysis.equalise import (
     corrected_table,
     estimate_response,
@@ -70,13 +67,9 @@ from benchctl.analysis.equalise import (
 )
 from benchctl.analysis.excitation import (
     RunningFidelity,
-    breached,
-    fidelity_of_table,
     limits_of,
     reach_of,
 )
-from benchctl.analysis.lines import LineSet, line_set_from_tables
-from benchctl.analysis.steps import analyze_steps, attach_steps, step_windows
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
@@ -92,11 +85,11 @@ from benchctl.errors import (
     SafetyAbort,
     is_disk_full,
 )
+from benchctl.evaluate import EvaluationOptions, EvaluationRequest, RunProfile, evaluate
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.profiles import check_motion
 from benchctl.recording import RecordingWriter, load_recording
-from benchctl.recording.reader import WINDOW_MARGIN_S
 from benchctl.redact import redact
 from benchctl.results.measurements import (
     WARNING,
@@ -833,13 +826,12 @@ class Session:
         loop, plan = self.loop, self.plan
         if requested is None or loop is None or loop.t_motion_start is None:
             return None
-        tables = dict(getattr(self.prep.motion, "tables", None) or {})
         period = profile_period(self.prep.motion, self.axes, "run.precision")
         t_start = loop.t_motion_start
         steady = plan.duration_s - plan.fade_in_s - plan.fade_out_s
 
         def analyse(window: tuple[float, float]) -> dict[str, Any]:
-            return check_window(self.path, self.cfg, tables, window, t_start, self.axes)
+            return check_window(self.path, self._evaluation(window, t_start))
 
         return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
                               whole_periods_in(steady, period), clock=self.clock)
@@ -914,58 +906,30 @@ class Session:
             lo, hi = t0, t0 + p.duration_s
         return lo, hi
 
-    def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
+    def _evaluation(self, window: tuple[float, float], t_motion_start: float | None,
+                    **more: Any) -> EvaluationRequest:
+        """What the verdict and the precision checks evaluate over ``window``: every axis, the
+        bench config's analysis options and settling, the profile as this run plays it (its
+        motion started at ``t_motion_start``, host s); the recording is still open (no
+        integrity to check yet)."""
         a = self.cfg.run.analysis
-        rec = load_recording(self.path)
-        # underruns and rejoins: left out as gaps are, with the settling this bench states
-        departures = departures_of(rec, a.departure_settle_s)
-        lo, hi = window
-        results: dict[str, Any] = {}
-        verdicts = {}
-        pairs: dict[str, Any] = {}
-        line_sets: dict[str, LineSet] = {}
-        for axis in self.axes:
-            tr, xr, td, yd = rec.pair(axis, window=False)
-            margin = WINDOW_MARGIN_S  # the same crop as Recording.pair once end.json is written
-            kr = (tr >= lo - margin) & (tr <= hi + margin)
-            kd = (td >= lo) & (td <= hi)
-            if kd.sum() < 16 or kr.sum() < 16:
-                raise DataError(
-                    f"{self.path}: too few samples for axis {axis} in the analysis window "
-                    f"({int(kr.sum())} stand, {int(kd.sum())} instrument)"
-                )
-            # the line-wise estimate on the profile's own lines (whole periods in the window)
-            tables = getattr(self.prep.motion, "tables", None) or {}
-            lines: Any = "auto"
-            if axis in tables:
-                others = [t for ax, t in tables.items() if ax != axis]
-                ls, _why = line_set_from_tables(tables[axis], hi - lo, others)
-                lines = ls if ls is not None else "auto"
-                if ls is not None:
-                    line_sets[axis] = ls
-            pairs[axis] = (tr[kr], xr[kr], td[kd], yd[kd])
-            res = analyze(
-                tr[kr],
-                xr[kr],
-                td[kd],
-                yd[kd],
-                max_lag_s=a.max_lag_s,
-                band_hz=a.band_hz,
-                compensate_delay=a.compensate_delay,
-                source=str(self.path),
-                axis=axis,
-                lines=lines,
-                departures=departures,
-            )
-            self._steps(axis, res, (tr[kr], xr[kr], td[kd], yd[kd]))
-            self._excitation(axis, res, tr[kr], xr[kr], window)
-            results[axis] = res
-        for axis, res in results.items():
-            if len(pairs) > 1:  # both axes moved: each output against the other axis's motion
-                res.cross_axis, why = cross_axis_for(pairs, line_sets, axis)
-                if why:
-                    res.warnings.append(why)
-            verdicts[axis] = axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
+        return EvaluationRequest(
+            axes=self.axes, window=window, options=EvaluationOptions.of_config(a),
+            settle_s=a.departure_settle_s,
+            profile=RunProfile.of_run(self.prep.motion, t_motion_start, self.cfg),
+            require_intact=False, source=str(self.path), **more)
+
+    def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
+        """The verdict: the recording evaluated over ``window`` (``benchctl.evaluate``: the
+        profile as this run plays it, the bench config's analysis options, the underruns and
+        rejoins left out with the settling it states), each axis judged, the report."""
+        t0 = self.loop.t_motion_start if self.loop is not None else None
+        ev = evaluate(self.path, self._evaluation(window, t0, excitation_alarm=True))
+        results: dict[str, Any] = dict(ev.results)
+        for msg in ev.alarms.values():
+            log.warning("%s", msg)
+        verdicts = {axis: axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
+                    for axis, res in results.items()}
         meta = {k: self.meta.get(k) for k in _REPORT_META}
         meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
         measurements, warnings = self._measurements(verdicts, results)
@@ -1004,49 +968,6 @@ class Session:
             warnings.append(f"serial mismatch: {sm.note}")
             log.warning("serial mismatch: %s", sm.note)
         return out, warnings
-
-    def _excitation(self, axis: str, res: Any, t: Any, x: Any,
-                    window: tuple[float, float]) -> None:
-        """The measured excitation fidelity of ``axis`` (``res.excitation``): the stand's angle
-        against the profile's lines over the window's whole periods; a warning when a band is
-        beyond the alarm level (run.excitation)."""
-
-        tables = getattr(self.prep.motion, "tables", None) or {}
-        if axis not in tables or getattr(self.prep.motion, "segments", None):
-            return
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        try:
-            fid = fidelity_of_table(t, x, tables[axis], window, self.loop.t_motion_start,
-                                    limits=limits_of(self.cfg.run.excitation),
-                                    reach=reach_of(self.cfg.stand.limits))
-        except DataError as e:
-            res.warnings.append(f"no excitation fidelity: {e}")
-            return
-        res.excitation = fid.to_dict()
-        res.warnings.extend(fid.warnings)
-        bad = breached(fid)
-        if bad:
-            worst = fid.worst_band or {}
-            msg = (f"excitation {fid.judgement.upper()} on {axis}: {len(bad)} band(s) beyond "
-                   f"±{fid.limits.alarm_db:g} dB, worst {worst.get('error_db', math.nan):+.2f} dB "
-                   f"at {worst.get('centre_hz', math.nan):.3g} Hz (run.excitation)")
-            res.warnings.append(msg)
-            log.warning("%s", msg)
-
-    def _steps(self, axis: str, res: Any, pair: tuple[Any, Any, Any, Any]) -> None:
-        """A sine_steps profile: the linearity table of ``axis`` (``res.steps``), each step's
-        whole full-amplitude cycles placed on the motion's start; its verdict joins σ's."""
-
-        motion = self.prep.motion
-        if not getattr(motion, "segments", None):
-            return
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        wins = step_windows(motion, axis, self.loop.t_motion_start)
-        if not wins:
-            return
-        sa = analyze_steps(*pair, wins, spread_limit=self.cfg.run.linearity_spread_limit)
-        attach_steps(res, sa)
-        res.warnings.extend(sa.warnings)
 
     # ---- the outputs
     def _sinks(self) -> list[Sink]:

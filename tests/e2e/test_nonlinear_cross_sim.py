@@ -10,9 +10,9 @@ from typing import Any
 import pytest
 from live_bench import live_bench
 
-from benchctl.analysis import analyze_recording
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import CrossAxisConfig, SimInstrumentConfig
+from benchctl.evaluate import analyze_recording
 from benchctl.run import RunOptions, run_test
 
 # T_p 18 s, two whole periods; roll on k ≡ 1, pitch on k ≡ 3 (mod 4) of 1/18 Hz, 0.06–1 Hz

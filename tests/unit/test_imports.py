@@ -8,12 +8,10 @@ A function-local import needs a measured reason, and each kind allowed is listed
   and SQLAlchemy's dialects (an optional extra's, or a database's, module);
 - the command line (``benchctl/cli/``): each command's module is imported when that command
   runs, so that ``benchctl --help`` or ``benchctl run`` does not import what the others need;
-- the two imports that break a circle still listed in ``pyproject.toml``'s import-linter
-  contracts (a recording's time bases, the Modbus link's in-process client);
+- the imports that break a circle still listed in ``pyproject.toml``'s import-linter
+  contracts (the Modbus link's in-process client);
 - an import inside a ``try`` whose handler guards an optional part of a run (an output sink,
-  a plot): a part that cannot even be imported fails alone, the run's verdict stands;
-- the analysis package, until its evaluation path is one (its own lazy imports are listed by
-  the layers contract's ``ignore_imports``).
+  a plot): a part that cannot even be imported fails alone, the run's verdict stands.
 """
 
 from __future__ import annotations
@@ -25,11 +23,10 @@ from repo_paths import ROOT
 HEAVY = ("scipy", "matplotlib", "alembic", "jsonschema", "uvicorn", "jinja2", "babel",
          "sqlalchemy")
 CYCLE_BREAKERS = {
-    ("benchctl/recording/reader.py", "benchctl.analysis.timebase"),
     ("benchctl/devices/modbus/link.py", "benchctl.devices.modbus.channel_client"),
     ("benchctl/devices/modbus/link.py", "benchctl.channels"),
 }
-EXEMPT_DIRS = ("benchctl/cli/", "benchctl/analysis/")
+EXEMPT_DIRS = ("benchctl/cli/",)
 
 
 def _local_imports(tree: ast.Module) -> list[tuple[int, str]]:

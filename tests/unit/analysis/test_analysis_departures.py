@@ -23,10 +23,11 @@ import numpy as np
 import pytest
 from analysis_synthetic import Multisine, orthogonal_noise
 
-from benchctl.analysis import analyze, analyze_recording
+from benchctl.analysis import analyze
 from benchctl.analysis.departures import SETTLE_S, departures_of, find_departures, settle_of
 from benchctl.cli import main
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
+from benchctl.evaluate import analyze_recording
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.results.measurements import INCONCLUSIVE, Limits, axis_measurements
 from benchctl.run.report import Report, axis_verdict

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from analysis_synthetic import Multisine, first_order, gain, orthogonal_noise
 
-from benchctl.analysis import analyze, analyze_recording
+from benchctl.analysis import analyze
 from benchctl.cli import main
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
+from benchctl.evaluate import analyze_recording
 from benchctl.recording import RecordingWriter
 
 MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=5.0)

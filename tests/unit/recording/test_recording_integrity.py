@@ -27,10 +27,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from benchctl.analysis import analyze_recording
 from benchctl.cli import main
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
 from benchctl.errors import RecordingError
+from benchctl.evaluate import analyze_recording
 from benchctl.recording import IntegrityError, RecordingWriter, load_recording, verify_recording
 
 STATUS = StandStatus(ready=True, enabled=True, moving=True, fault=False, estop=False,

@@ -12,6 +12,7 @@ import hashlib
 import json
 import re
 import shutil
+from html import unescape
 from pathlib import Path
 from typing import Any
 
@@ -467,3 +468,17 @@ def test_analysis_warnings_state_the_skew_and_timing_in_the_interval() -> None:
                                                    "skew_corrected": False,
                                                    "timing_in_interval": False}})
     assert not any("drift" in n or "interval" in n for n in quiet)
+
+
+def test_the_budget_of_sigma_per_axis(passed: Path) -> None:
+    """σ's uncertainty budget, as report.json states it, in a table under σ's: each
+    contribution with its type and u (or what it is instead), u_c, U and k."""
+    html = (passed / REPORT_HTML).read_text(encoding="utf-8")
+    b = json.loads((passed / "report.json").read_text())["axes"]["roll"]["budget"]
+    assert b["sigma_of"] == "sigma"
+    assert '<p class="budget"><strong>Uncertainty budget of σ</strong>' in html
+    assert "(sigma, the σ above" in html
+    for c in b["contributions"]:
+        assert c["name"] in unescape(html), c["name"]
+    assert "non-stationarity (–) <em>not assessed</em>" in html  # a flag, never a number
+    assert f"expanded U = {b['expanded']:.2g}° (k = 2)" in html

@@ -167,7 +167,7 @@ def _assert_aborted(
     assert not stand.enabled and "disable" in stand.calls
     assert stand.closed and sensor.stopped
     # what the recording holds is readable by the analysis
-    from benchctl.analysis import analyze_recording
+    from benchctl.evaluate import analyze_recording
 
     if rec.streams["instrument"]["t_host"].size > 50:
         r = analyze_recording(rec.path, stand.axes[0])
