@@ -1,4 +1,4 @@
-"""Figures for clocks that drift and timing by default: a clock that drifts, and timing by default.
+"""Figures for clocks that drift and for timing by default.
 
 Every figure is with the default options of ``benchctl analyze`` (nothing about time bases
 given), against a truth computed independently of the analysis: the instrument is a known
