@@ -34,11 +34,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", metavar="FILE.png", help="draw error PSD, gain, phase, coherence")
     p.add_argument("--max-lag", type=float, metavar="SECONDS",
-                   help="maximum correlation lag (default: a tenth of the record)")
+                   help="maximum correlation lag (default: a recording's run.analysis, else "
+                   "a tenth of the record)")
     p.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="band (Hz) for the band-limited σ and the frequency-response grid")
-    p.add_argument("--compensate-delay", metavar="SECONDS|auto", default="none",
-                   help="remove an acquisition delay (s, device lagging) or 'auto'")
+                   help="band (Hz) for the band-limited σ and the frequency-response grid "
+                   "(default: a recording's run.analysis, else none)")
+    p.add_argument("--compensate-delay", metavar="SECONDS|auto", default=None,
+                   help="remove an acquisition delay (s, device lagging) or 'auto' (default: a "
+                   "recording's run.analysis, else none)")
     p.add_argument("--time-col", default="time", help="time column name (default time)")
     p.add_argument("--reference-col", help="reference angle column (default reference, or "
                    "the only angle column of --reference)")
@@ -84,6 +87,29 @@ def _delay_option(text: str) -> str | float:
     return value
 
 
+def recorded_analysis(rec: Any) -> Any:
+    """The analysis options of the bench config a recording keeps (``run.analysis`` in
+    meta.json; ``benchctl.config.AnalysisConfig``): what ``analyze`` takes for an option not
+    given on its command line, so that it reads a recording as the run's own verdict did. A
+    recording whose kept options are not valid ones: ``DataError`` naming the file and field."""
+    from pydantic import ValidationError
+
+    from benchctl.config.run import AnalysisConfig
+
+    cfg = rec.meta.get("config")
+    run = cfg.get("run") if isinstance(cfg, dict) else None
+    doc = run.get("analysis") if isinstance(run, dict) else None
+    try:
+        return AnalysisConfig.model_validate(doc if isinstance(doc, dict) else {})
+    except ValidationError as e:
+        err = e.errors()[0]
+        where = ".".join(str(x) for x in err["loc"])
+        raise DataError(
+            f"{rec.path / 'meta.json'}: config.run.analysis.{where} = {err.get('input')!r}: "
+            f"{err['msg']}; expected the options of a bench config's run.analysis"
+        ) from None
+
+
 def _check_options(args: argparse.Namespace) -> None:
     """The numeric options' ranges (docs/reference/analyze.md, the option table), before any
     file is read."""
@@ -118,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     opts: dict[str, Any] = {
         "max_lag_s": args.max_lag,
         "band_hz": tuple(args.band) if args.band else None,
-        "compensate_delay": _delay_option(args.compensate_delay),
+        "compensate_delay": _delay_option(args.compensate_delay or "none"),
         "timebase": args.timebase,
         "reference_timebase": args.reference_timebase,
         "period_s": args.period,
@@ -144,10 +170,14 @@ def run(args: argparse.Namespace) -> int:
         rec.require_intact()  # an altered recording: exit 2 naming the file, never a σ
         status = recording_status(rec)
         single_axis = args.axis != "all"
+        stated = recorded_analysis(rec)  # the options the run's own verdict used
+        given = {"max_lag_s": args.max_lag is not None, "band_hz": args.band is not None,
+                 "compensate_delay": args.compensate_delay is not None}
         ev = evaluate(rec, EvaluationRequest(
             axes=None if args.axis == "all" else [args.axis],
             options=EvaluationOptions(
-                **{k: v for k, v in opts.items() if k != "lines"},
+                **{k: (v if given.get(k, True) else getattr(stated, k))
+                   for k, v in opts.items() if k != "lines"},
                 lines=None if args.lines == "auto" else args.lines,
                 recording_timebase=args.recording_timebase),
             label_errors=True, source=str(args.source)))

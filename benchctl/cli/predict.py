@@ -59,12 +59,13 @@ def _tables(profile_path: str, duration: float | None) -> tuple[Any, dict[str, H
 
 def _measure(rec: Any, source: str, axis: str, timebase: str) -> AnalysisResult:
     """The recording's line-wise estimate of ``axis`` on the one evaluation path
-    (``benchctl.evaluate``): the profile's lines, nothing left out for departures, no sine
+    (``benchctl.evaluate``): the profile's lines, the intervals where the stand's motion was not
+    the profile's (underruns, rejoins) left out as every other path leaves them out, no sine
     steps, excitation or cross-axis response (a prediction uses none of them)."""
     from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
 
     ev = evaluate(rec, EvaluationRequest(
-        axes=[axis], options=EvaluationOptions(recording_timebase=timebase), departures=None,
+        axes=[axis], options=EvaluationOptions(recording_timebase=timebase),
         steps=False, excitation=False, cross_axis=False, label_errors=True, source=source))
     res = ev.results[axis]
     if res.lines is None:

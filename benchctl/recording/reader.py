@@ -334,24 +334,29 @@ class Recording:
             raise DataError(f"{self.path}: instrument: {e}") from None
         return t_ref, x_ref, self._timing_applied(tb.instants()), yd[okd]
 
+    def _config_number(self, section: str, key: str, *, nonneg: bool) -> float | None:
+        """``<section>.<key>`` of the bench config the recording keeps (meta.json), when it is a
+        finite number (≥ 0 with ``nonneg``); None when absent or anything else."""
+        cfg = self.meta.get("config")
+        sec = cfg.get(section) if isinstance(cfg, dict) else None
+        v = sec.get(key) if isinstance(sec, dict) else None
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+                and (v >= 0 or not nonneg):
+            return float(v)
+        return None
+
     @property
     def timing_offset_s(self) -> float:
         """The bench's stream-to-stream offset its config's timing calibration states
         (``timing.offset_s``, s; 0 when none): how late the bench stamps the instrument's
         samples relative to the stand's."""
-        cfg = self.meta.get("config")
-        timing = cfg.get("timing") if isinstance(cfg, dict) else None
-        off = timing.get("offset_s") if isinstance(timing, dict) else None
-        return float(off) if isinstance(off, (int, float)) and math.isfinite(off) else 0.0
+        return self._config_number("timing", "offset_s", nonneg=False) or 0.0
 
     @property
     def timing_offset_u_s(self) -> float:
         """The standard uncertainty the timing calibration states for ``timing_offset_s``
         (``timing.uncertainty_s``, s; 0 when none)."""
-        cfg = self.meta.get("config")
-        timing = cfg.get("timing") if isinstance(cfg, dict) else None
-        u = timing.get("uncertainty_s") if isinstance(timing, dict) else None
-        return float(u) if isinstance(u, (int, float)) and math.isfinite(u) and u >= 0 else 0.0
+        return self._config_number("timing", "uncertainty_s", nonneg=True) or 0.0
 
     @property
     def encoder(self) -> dict[str, float | None]:
@@ -359,16 +364,8 @@ class Recording:
         (``stand.encoder_resolution_deg``, ``stand.encoder_uncertainty_deg``, deg; None: not
         stated, or not a finite number ≥ 0), as the reference's instants carry them into σ's
         uncertainty budget (``info``, ``benchctl.analysis.budget.Reference.of``)."""
-        cfg = self.meta.get("config")
-        stand = cfg.get("stand") if isinstance(cfg, dict) else None
-        out: dict[str, float | None] = {}
-        for key in ("encoder_resolution_deg", "encoder_uncertainty_deg"):
-            v = stand.get(key) if isinstance(stand, dict) else None
-            out[key] = None
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
-                    and v >= 0:
-                out[key] = float(v)
-        return out
+        return {key: self._config_number("stand", key, nonneg=True)
+                for key in ("encoder_resolution_deg", "encoder_uncertainty_deg")}
 
     def _timing_applied(self, t: Instants) -> Instants:
         """The instrument's instants moved earlier by the bench's calibrated offset

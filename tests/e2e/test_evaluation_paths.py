@@ -74,3 +74,35 @@ def test_five_paths_one_sigma(tmp_path: Path, vclock: VirtualClock,
     sigmas = {"verdict": verdict, "precision check": check, "analyze_recording": api,
               "benchctl analyze": cli, "benchctl predict": predicted_from}
     assert all(s == pytest.approx(verdict, rel=1e-12) for s in sigmas.values()), sigmas
+
+
+def test_benchctl_analyze_reads_a_recording_with_the_runs_own_options(
+        tmp_path: Path, vclock: VirtualClock, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bench whose ``run.analysis`` removes the instrument's delay and limits a band: the
+    run's verdict and ``benchctl analyze <recording>`` (no option given) read the same σ, the
+    same delay removed and the same band; an option given on the command line overrides the
+    recording's (``--compensate-delay none``: the delay kept, σ larger — the simulated
+    instrument lags 80 ms)."""
+    profile = tmp_path / "one_path.yaml"
+    profile.write_text(PROFILE)
+    analysis = {"compensate_delay": "auto", "band_hz": [0.2, 0.4], "max_lag_s": 2.0}
+    with live_bench(tmp_path, stand={"mode": "buffered"}, clock=vclock,
+                    run={"analysis": analysis}) as bench:
+        run = run_test(bench.cfg, profile, RunOptions("OWN-OPTIONS", "op"), clock=vclock)
+        assert run.state == "done", run.reason
+    assert run.report is not None and run.recording is not None
+    verdict = run.report.axes["roll"].sigma_deg
+
+    assert main(["analyze", str(run.recording), "--axis", "roll", "--json"]) == 0
+    own = json.loads(capsys.readouterr().out)
+    assert own["sigma"] == pytest.approx(verdict, rel=1e-12)
+    assert own["max_lag"] == pytest.approx(2.0, rel=0.02)
+    assert (own["band"]["lo"], own["band"]["hi"]) == (0.2, 0.4)
+    assert own["uncertainty"]["compensate_delay"] == "auto"
+
+    assert main(["analyze", str(run.recording), "--axis", "roll", "--json",
+                 "--compensate-delay", "none"]) == 0
+    kept = json.loads(capsys.readouterr().out)
+    assert kept["uncertainty"]["compensate_delay"] == "none"
+    assert kept["sigma"] > 1.5 * verdict
+    assert (kept["band"]["lo"], kept["band"]["hi"]) == (0.2, 0.4)  # the others still the run's
