@@ -43,9 +43,16 @@ Usage: python benchmarks/sim_campaign.py --runs 1000 [--seed0 1] [--jobs 2]
        [--durations 120,300,600,900] [--modes buffered,stream,table] [--keep DIR] [--json F]
        [--ref-cache DIR] [--append] [--hours H]
        python benchmarks/sim_campaign.py --summarize F.jsonl [F2.jsonl ...]
+       python benchmarks/sim_campaign.py --replay F.jsonl [--sample 20] [--jobs 2]
 
 ``--append`` adds to ``--json``'s file and skips the seeds it holds (a campaign stopped and
 resumed); ``--hours H`` stops once the runs done hold H simulated hours.
+
+Each run's line carries the digest of what it recorded (``benchctl.recording.digest``: the
+streams and the events, but for the recording's path and the software version).
+``--replay F.jsonl`` runs again every seed of ``F`` that had a violation and ``--sample`` of the
+others, and compares each new line with the old: the same draw, verdict, violations, simulated
+time and digest — the same run, byte for byte — or exit 1 naming what differs.
 """
 
 from __future__ import annotations
@@ -75,6 +82,7 @@ sys.path.insert(0, str(ROOT))
 from benchctl.clock.virtual import VirtualClock  # noqa: E402
 from benchctl.config import BenchConfig, load_config  # noqa: E402
 from benchctl.errors import BenchError  # noqa: E402
+from benchctl.recording.digest import combined_digest  # noqa: E402
 from benchctl.run.devices import open_devices  # noqa: E402
 from benchctl.run.prepare import RunOptions  # noqa: E402
 from benchctl.run.session import run_test  # noqa: E402
@@ -525,6 +533,10 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
             "rejoins": (res.stats or {}).get("rejoins") if res is not None else None,
             "t_sim_s": round(got["t_sim"], 3),
             "violations": bad,
+            # what the run recorded, as one digest (benchctl.recording.digest): a replay of the
+            # seed, or another code version, recorded the same run exactly when it is equal
+            "digest": (combined_digest(res.recording, ROOT)
+                       if res is not None and res.recording is not None else None),
         }
     except Exception as e:  # a crash of the harness or the product is a violation too
         import traceback
@@ -564,7 +576,16 @@ def main() -> int:
                          "campaign resumed)")
     ap.add_argument("--hours", type=float,
                     help="stop once the runs done hold this many simulated hours")
+    ap.add_argument("--replay", type=Path, metavar="JSONL",
+                    help="run again seeds of an earlier campaign's --json file (every seed with "
+                         "a violation, and --sample others spread over it) with this code, and "
+                         "compare each run's line: what it drew, its verdict, its violations "
+                         "and its recording's digest; exit 1 on any difference")
+    ap.add_argument("--sample", type=int, default=20,
+                    help="--replay: how many seeds without a violation to replay")
     a = ap.parse_args()
+    if a.replay:
+        return replay(a)
     if a.summarize:
         saved = [json.loads(x) for f in a.summarize for x in f.read_text().splitlines() if x]
         versions = sorted({str(x.get("version")) for x in saved})
@@ -623,6 +644,48 @@ def main() -> int:
             sink.close()
         shutil.rmtree(work, ignore_errors=True)
     return totals(lines, time.perf_counter() - t0, "wall")
+
+
+#: the fields of a run's line a replay must reproduce (wall_s and version may differ)
+REPLAYED = ("mode", "link", "protocol", "profile", "duration", "faulty", "stalls", "faults",
+            "verdict", "reason", "underruns", "rejoins", "t_sim_s", "violations", "digest")
+
+
+def replay(a: argparse.Namespace) -> int:
+    """``--replay``: the chosen seeds of an earlier campaign run again, each compared with its
+    line (:data:`REPLAYED`); the campaign's ``--durations`` and ``--modes`` must be the
+    earlier ones (a seed's draw depends on them). Exit 0 when every line is reproduced."""
+    saved = [json.loads(x) for x in a.replay.read_text().splitlines() if x]
+    failing = [x for x in saved if x.get("violations")]
+    clean = [x for x in saved if not x.get("violations")]
+    step = max(1, len(clean) // max(1, a.sample))
+    chosen = failing + clean[::step][:a.sample]
+    durations = [int(x) for x in a.durations.split(",")]
+    modes = tuple(a.modes.split(","))
+    version = code_version()
+    old = sorted({str(x.get("version")) for x in chosen})
+    print(f"replaying {len(chosen)} of {len(saved)} runs ({len(failing)} with a violation) of "
+          f"{', '.join(old)} with {version}", flush=True)
+    work = tempfile.mkdtemp(prefix="benchctl-replay-")
+    cache = str(a.ref_cache) if a.ref_cache else None
+    jobs = [(int(x["seed"]), durations, work, None, modes, cache, version) for x in chosen]
+    by_seed = {int(x["seed"]): x for x in chosen}
+    differ = 0
+    try:
+        with multiprocessing.get_context("spawn").Pool(max(1, a.jobs)) as pool:
+            for line in pool.imap_unordered(one, jobs):
+                was = by_seed[int(line["seed"])]
+                diff = [k for k in REPLAYED if k in was and was.get(k) != line.get(k)]
+                differ += bool(diff)
+                print(f"seed {line['seed']}: " + (
+                    "the same run" + (" (no digest in the earlier line)"
+                                      if "digest" not in was else "")
+                    if not diff else "DIFFERS in " + ", ".join(
+                        f"{k} ({was.get(k)!r} -> {line.get(k)!r})" for k in diff)), flush=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    print(f"{len(chosen) - differ} of {len(chosen)} runs reproduced exactly")
+    return 1 if differ else 0
 
 
 def totals(lines: list[dict[str, Any]], wall: float, what: str) -> int:

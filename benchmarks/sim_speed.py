@@ -28,7 +28,6 @@ Usage: python benchmarks/sim_speed.py [--profile profiles/paper_vessel_roll_shor
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import resource
@@ -58,7 +57,6 @@ FAULTS = {
                                  "instrument:garbled"],
     "operator_stop_p": 0.2,
 }
-DATA = ("stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl")
 
 
 def bench_config(tree: Path, args: argparse.Namespace, out: Path) -> Path:
@@ -131,23 +129,7 @@ def child(tree: Path, args: argparse.Namespace) -> None:
         "pre_wall": a[0] - t0, "motion_wall": b[0] - a[0], "motion_sim": b[1] - a[1],
         "motion_switches": b[2] - a[2], "motion_user": b[3] - a[3], "motion_sys": b[4] - a[4],
         "motion_csw": b[5] - a[5], "after_wall": t_end - b[0], "total_wall": t_end - t0,
-        "digests": {} if rec is None else {n: digest(Path(rec) / n, tree) for n in DATA},
     }))
-
-
-def digest(path: Path, tree: Path) -> str | None:
-    if not path.exists():
-        return None
-    data = path.read_bytes()
-    if path.name == "events.jsonl":  # the two fields that cannot be fixed, and the checkout's
-        lines = []  # path (a driver file's, in the instrument's identity)
-        for line in data.decode().replace(str(tree), "<checkout>").splitlines():
-            ev = json.loads(line)
-            ev.pop("recording", None)
-            ev.pop("software_version", None)
-            lines.append(json.dumps(ev, sort_keys=True))
-        data = "\n".join(lines).encode()
-    return hashlib.sha256(data).hexdigest()
 
 
 def one(tree: Path, args: argparse.Namespace) -> dict[str, Any]:
@@ -165,6 +147,13 @@ def one(tree: Path, args: argparse.Namespace) -> dict[str, Any]:
         if proc.returncode != 0 or not lines:
             raise SystemExit(f"{tree}: exit {proc.returncode}\n{proc.stderr[-3000:]}")
         got: dict[str, Any] = json.loads(lines[-1])
+        # this checkout's digest of either tree's recording (a baseline may predate it; imported
+        # here, not at the top: a child imports benchctl from the tree it measures)
+        sys.path.insert(0, str(ROOT))
+        from benchctl.recording.digest import data_digest
+
+        rec = got["recording"]
+        got["digests"] = {} if rec in (None, "None") else data_digest(rec, tree)
         return got
 
 
@@ -220,7 +209,7 @@ def main() -> int:
             show(name, r)
         if len(trees) == 2:
             d0, d1 = got["baseline"][-1]["digests"], got["this"][-1]["digests"]
-            diff = [n for n in DATA if d0.get(n) != d1.get(n)]
+            diff = [n for n in d1 if d0.get(n) != d1.get(n)]
             same = same and not diff
             print("  recordings: " + (f"DIFFER in {', '.join(diff)}" if diff else
                                       "the same bytes"))
