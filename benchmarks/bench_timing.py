@@ -21,8 +21,12 @@ the calibration measured against what the simulated chain adds (``SimInstrument`
 ``sim_resonant`` runs the profile at half its level (its resonant stand trails the paper's 3° roll
 beyond its tracking tolerance, equalised or not).
 
+``--clock real`` runs each config on the clock its file says instead: ``config/sim.yaml`` on the
+host's clock, as the README's first command runs it, its simulators a child process over a
+socket and pseudo-terminals — a calibration of that bench as it runs, load and all.
+
 Usage: python benchmarks/bench_timing.py [--profile profiles/paper_vessel_roll_short120.yaml]
-       [--configs config/sim_virtual.yaml,...] [--duration S] [--json F]
+       [--configs config/sim_virtual.yaml,...] [--duration S] [--json F] [--clock real]
 """
 
 from __future__ import annotations
@@ -53,8 +57,9 @@ REFERENCE = {"gain": 1.0, "lag_s": 0.0, "latency_s": 0.0, "bias_deg": 0.0, "nois
 
 
 def virtual_config(src: Path, dest: Path, *, timing: dict[str, Any] | None = None,
-                   reference_latency_s: float | None = None) -> Path:
-    """``src`` on simulated time, its runs into ``dest``'s folder, its paths absolute;
+                   reference_latency_s: float | None = None, clock: str = "virtual") -> Path:
+    """``src`` on simulated time (``clock="real"``: on the clock the file says), its runs into
+    ``dest``'s folder, its paths absolute;
     ``timing``: its timing section (None: none); ``reference_latency_s``: the simulated
     instrument replaced by a pure delay of that latency."""
     data = yaml.safe_load(src.read_text())
@@ -63,7 +68,8 @@ def virtual_config(src: Path, dest: Path, *, timing: dict[str, Any] | None = Non
         if v is not None:
             data[sec][key] = str((src.parent / v).resolve())
     data["run"]["output_dir"] = str(dest.parent / "runs")
-    data["sim"]["clock"] = "virtual"
+    if clock == "virtual":
+        data["sim"]["clock"] = "virtual"
     data.pop("timing", None)
     if timing is not None:
         data["timing"] = timing
@@ -145,7 +151,7 @@ def judged(rep: dict[str, Any], axis: str = "roll") -> dict[str, Any]:
 
 
 def one_config(name: str, profile: Path, duration: float | None, ref_latency_s: float,
-               work: Path) -> dict[str, Any]:
+               work: Path, clock: str = "virtual") -> dict[str, Any]:
     from benchctl.recording import load_recording
     from benchctl.run.timing_cal import calibrate_recording
 
@@ -156,15 +162,16 @@ def one_config(name: str, profile: Path, duration: float | None, ref_latency_s: 
     extra: tuple[str, ...] = ()
     if name in LEVEL:
         profile = scaled_profile(profile, LEVEL[name], d / "profile.yaml")
-    before = judged(run(virtual_config(src, d / "before.yaml"), profile, d / "before", duration,
-                        extra))
-    ref_cfg = virtual_config(src, d / "reference.yaml", reference_latency_s=ref_latency_s)
+    before = judged(run(virtual_config(src, d / "before.yaml", clock=clock), profile,
+                        d / "before", duration, extra))
+    ref_cfg = virtual_config(src, d / "reference.yaml", reference_latency_s=ref_latency_s,
+                             clock=clock)
     ref = run(ref_cfg, profile, d / "reference", duration, extra)
     cal = calibrate_recording(load_recording(ref["recording"]), ref_latency_s)
     timing = {"offset_s": cal.offset_s, "uncertainty_s": cal.uncertainty_s,
               "calibrated": cal.date.isoformat(), "reference": cal.reference_text()}
-    after = judged(run(virtual_config(src, d / "after.yaml", timing=timing), profile,
-                       d / "after", duration, extra))
+    after = judged(run(virtual_config(src, d / "after.yaml", timing=timing, clock=clock),
+                       profile, d / "after", duration, extra))
     return {"config": name, "before": before, "after": after,
             "offset_s": cal.offset_s, "offset_u_s": cal.uncertainty_s,
             "wall_s": time.monotonic() - t0}
@@ -179,13 +186,17 @@ def main() -> int:
     ap.add_argument("--reference-latency-s", type=float, default=0.005,
                     help="the calibration reference's latency (s)")
     ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--clock", choices=("virtual", "real"), default="virtual",
+                    help="virtual (default): every config on simulated time; real: on the "
+                    "clock its file says (a config without sim.clock: the host's, the "
+                    "simulators a child process over a socket and pseudo-terminals)")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-timing-") as tmp:
         for name in args.configs.split(","):
             try:
                 r = one_config(name, args.profile, args.duration, args.reference_latency_s,
-                               Path(tmp))
+                               Path(tmp), args.clock)
             except RuntimeError as e:
                 print(f"{name:<13} FAILED: {str(e).splitlines()[0]}", flush=True)
                 rows.append({"config": name, "error": str(e)[-2000:]})

@@ -61,7 +61,6 @@ from benchctl.analysis.distortion import Distortion, analyze_distortion
 from benchctl.analysis.frf import not_excited
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 from benchctl.errors import BenchError
-from benchctl.profiles import parse_profile, synthesize
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -438,6 +437,10 @@ def line_set_from_recording(
 ) -> tuple[LineSet | None, str | None]:
     """Re-synthesise the lines of ``axis`` from a recording's metadata (``profile``, ``seed``,
     ``duration_s``): ``(LineSet, None)``, or ``(None, reason)`` when it cannot be done."""
+    # imported here: the profile schema (pydantic) costs `benchctl analyze` of a CSV, which
+    # never needs it, about 0.6 s of its 2.4 s (python -X importtime)
+    from benchctl.profiles import parse_profile, synthesize
+
     prof = meta.get("profile")
     if not isinstance(prof, dict) or not isinstance(prof.get("spec"), dict):
         return None, "the recording holds no profile"

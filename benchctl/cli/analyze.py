@@ -137,7 +137,6 @@ def _named(label: str, fn: Callable[..., AnalysisResult], *a: Any, **kw: Any) ->
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis import analyze
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
-    from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
     from benchctl.recording import is_recording, load_recording
 
     _check_options(args)
@@ -166,6 +165,10 @@ def run(args: argparse.Namespace) -> int:
         results[""] = _named(s.source, analyze, s.t_ref, s.x_ref, s.t_dev, s.y_dev,
                              source=s.source, **opts)
     elif is_recording(args.source):
+        # imported here: a CSV needs none of it (the profile and config schemas cost `analyze`
+        # of a CSV about a third of its wall time)
+        from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
+
         rec = load_recording(args.source)
         rec.require_intact()  # an altered recording: exit 2 naming the file, never a σ
         status = recording_status(rec)

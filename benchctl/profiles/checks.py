@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchctl.config import StandLimits
 from benchctl.errors import LimitError
 from benchctl.profiles.synthesis import Motion, sample_times
+
+if TYPE_CHECKING:  # a type only: the bench config's pydantic models cost `analyze` ~0.5 s
+    from benchctl.config import StandLimits
 
 _QUANTITIES = (
     ("angle_deg", "peak angle", "deg", "angle_deg"),
