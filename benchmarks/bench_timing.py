@@ -45,8 +45,10 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = ("sim_virtual", "sim", "sim_j1939", "sim_nmea0183", "sim_nmea2000", "sim_resonant",
-           "sim_rtu")
+#: every shipped simulated config calibrated on simulated time (config/sim.yaml, the README's
+#: first command's bench, is calibrated on the host's clock it runs on: ``--configs sim --clock
+#: real``; on simulated time it is config/sim_virtual.yaml)
+CONFIGS = ("sim_virtual", "sim_j1939", "sim_nmea0183", "sim_nmea2000", "sim_resonant", "sim_rtu")
 PROFILE = ROOT / "profiles/paper_vessel_roll_short120.yaml"
 _PATHS = (("stand", "register_map"), ("instrument", "eds"), ("instrument", "dbc"))
 #: a config's profile at a lower level (its axes' sigma_deg times this): the resonant stand

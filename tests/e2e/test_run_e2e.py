@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from bench_timing import exact_sigma
 from live_bench import (
     FOCUSED,
     ROLL,
@@ -340,6 +341,11 @@ def test_default_config_through_the_cli_starts_its_simulators(tmp_path: Path) ->
     assert roll["sigma"] == pytest.approx(math.sqrt(var), rel=0.05)
     lo, hi = roll["sigma_ci95"]
     assert lo * (1 - SYSTEMATIC) <= math.sqrt(var) <= hi * (1 + SYSTEMATIC)
+    # the model's exact σ on the stand's measured motion, inside σ's own interval: the bench's
+    # timing calibration (config/sim.yaml's, measured on the host's clock this run is on) holds
+    exact = exact_sigma(rep["recording"])
+    assert lo <= exact <= hi, (roll["sigma"], lo, hi, exact)
+    assert cfg.timing is not None and rep["timing"]["offset_s"] == cfg.timing.offset_s
     assert roll["mean_error"] == pytest.approx(cfg.sim.instrument.bias_deg, abs=0.01)
     for key in ("serial", "operator", "station", "seed", "stats", "recording", "analysis_window"):
         assert key in rep
