@@ -38,7 +38,7 @@ from collections import deque
 from typing import Any
 
 import can
-from can.exceptions import error_check
+from can.exceptions import CanOperationError
 from can.interfaces.slcan import slcanBus
 
 from benchctl.clock import REAL, Clock
@@ -246,13 +246,15 @@ class SlcanBus(slcanBus):
                 if msg is not None:
                     return msg, False
                 continue
-            with error_check("Could not read from serial device"):
+            try:  # python-can's error_check, without a context manager per read
                 read_within = getattr(port, "read_within", None)
                 if read_within is not None:  # a port that can wait for the first byte itself
                     left = None if deadline is None else max(0.0, deadline - clock.monotonic())
                     chunk = read_within(left)
                 else:
                     chunk = port.read(max(1, port.in_waiting))
+            except Exception as error:
+                raise CanOperationError("Could not read from serial device") from error
             if chunk:
                 self._rx += chunk
             elif deadline is not None and clock.monotonic() >= deadline:
