@@ -109,6 +109,11 @@ class InstrumentModel:
         self._collapsed_cache: dict[
             tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
         ] = {}
+        #: ``_collapsed``'s answers by the exact sub-step (a float key is cheaper than rounding
+        #: it); emptied with ``_collapsed_cache``, so it only ever holds what that would give
+        self._collapsed_by_h: dict[
+            tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
+        ] = {}
         self._x: NDArray[np.float64] | None = None  # states x axes
         self._u: NDArray[np.float64] | None = None  # last input per axis
         self._tm: float | None = None  # last measurement instant
@@ -237,10 +242,26 @@ class InstrumentModel:
         Each sub-step is x_{i+1} = Φ x_i + B0 u_i + B1 u_{i+1} (B0 = Γ0 − Γ1/h, B1 = Γ1/h,
         the input linear between samples), so u_j enters x_N through C_0 = Φ^{N−1} B0,
         C_j = Φ^{N−1−j} B0 + Φ^{N−j} B1 (0 < j < N) and C_N = B1."""
-        key = (round(h, 12), steps)
-        got = self._collapsed_cache.get(key)
+        exact = (h, steps)
+        got = self._collapsed_by_h.get(exact)  # what the lookup below gave this very h
         if got is not None:
             return got
+        key = (round(h, 12), steps)
+        got = self._collapsed_cache.get(key)
+        if got is None:
+            got = self._collapsed_new(h, steps)
+            if len(self._collapsed_cache) > 32:
+                self._collapsed_cache.clear()
+                self._collapsed_by_h.clear()  # its entries are the cleared ones
+            self._collapsed_cache[key] = got
+        if len(self._collapsed_by_h) > 256:
+            self._collapsed_by_h.clear()
+        self._collapsed_by_h[exact] = got
+        return got
+
+    def _collapsed_new(self, h: float,
+                       steps: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``_collapsed``'s map, computed."""
         phi, g0, g1 = self._discrete(h)
         b0, b1 = g0 - g1 / h, g1 / h
         n = phi.shape[0]
@@ -250,11 +271,7 @@ class InstrumentModel:
         cols = [powers[steps - 1] @ b0]
         cols += [powers[steps - 1 - j] @ b0 + powers[steps - j] @ b1 for j in range(1, steps)]
         cols.append(b1)
-        got = (powers[steps], np.hstack(cols))
-        if len(self._collapsed_cache) > 32:
-            self._collapsed_cache.clear()
-        self._collapsed_cache[key] = got
-        return got
+        return powers[steps], np.hstack(cols)
 
     def _input(self, motion: MotionFn, t: float) -> NDArray[np.float64]:
         angles = motion(t)
@@ -338,6 +355,10 @@ class InstrumentModel:
         stacked = np.empty((steps + 1, len(self.axes)))  # [u, the sub-steps' inputs]
         stacked[0] = self._u
         self._inputs(motion, self._tm + ramp * h, out=stacked[1:])
+        if n_states == 1:  # 1×1 factors: their products, exactly what ``@`` gives, cheaper
+            x = pn[0, 0] * self._x + cm @ stacked
+            self._x, self._u, self._tm = x, stacked[-1], tm
+            return self.cfg.gain * (self._c[0, 0] * x[0])
         x = pn @ self._x + cm @ stacked
         self._x, self._u, self._tm = x, stacked[-1], tm
         return self.cfg.gain * (self._c @ x)[0]
