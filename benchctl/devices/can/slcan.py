@@ -49,8 +49,8 @@ BEL = b"\a"
 MAX_LINE = 64
 #: answers of the adapter that are neither frames nor errors (transmit acks, OK)
 ANSWERS = frozenset({b"", b"z", b"Z"})
-#: hex digits and printable ASCII (but space): ``bytes.translate(None, these)`` deletes them, so
-#: an empty result is a field of nothing else
+#: ``field.translate(None, X)`` deletes the bytes of X: nothing left is a field of hex digits
+#: only (``_HEX_DIGITS``), a line of printable ASCII but space only (``_PRINTABLE``)
 _HEX_DIGITS = b"0123456789ABCDEFabcdef"
 _PRINTABLE = bytes(range(0x21, 0x7F))
 _LINE_END = re.compile(rb"[\r\a]")
