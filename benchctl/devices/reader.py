@@ -176,7 +176,8 @@ class SensorReader:
             sample = dataclasses.replace(sample, angle_deg={
                 a: s * got[o] for a, (o, s) in self._axis_map.items() if o in got})
         self.stats.good += 1
-        self._first_good.set()
+        if not self._first_good.is_set():  # once: a set event stays set
+            self._first_good.set()
         with self._lock:
             cb, err = self._on_sample, self._on_error
             # silence is judged from when the reader got it, not from the sample's own stamp

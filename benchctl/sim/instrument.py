@@ -78,6 +78,7 @@ N2K_PRIORITY = 2
 PGN_SSI = 61459
 PGN_ATTITUDE = 127257
 _MAX_CATCH_UP_S = 0.5  # further behind than this, the simulator skips instants (counted)
+_AXES = frozenset(AXES)
 
 
 def _clamp(v: int, lo: int, hi: int) -> int:
@@ -403,7 +404,7 @@ class SimInstrument:
                 if stuck["value"] is None:
                     stuck["value"] = dict(y)
                 y = stuck["value"]
-            self._last_y = dict(y)
+            self._last_y = y  # the model's own new dict (or the stuck one): never changed
         if "silent" in faults:
             return
         garbled = faults.get("garbled")
@@ -457,7 +458,7 @@ class SimInstrument:
     def _true_many(self, ts: Any) -> dict[str, Any]:
         """``_true`` at each of ``ts`` in one call (a motion with ``true_angles_many``)."""
         a = self.motion.true_angles_many(ts)  # type: ignore[attr-defined]
-        if not all(ax in a for ax in AXES):
+        if not _AXES.issubset(a):
             zero = np.zeros(len(ts))
             a = {ax: a.get(ax, zero) for ax in AXES}
         return self._mounted(a)

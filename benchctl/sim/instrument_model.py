@@ -39,6 +39,10 @@ from benchctl.devices.base import AXES
 
 MotionFn = Callable[[float], Mapping[str, float]]
 _OTHER = {"roll": "pitch", "pitch": "roll"}
+#: output samples whose noise is drawn in one call: the generator gives the same numbers in one
+#: call of ``size=(n, axes)`` as in n calls of ``size=(axes,)`` (each ``loc + scale · z``, z
+#: from the bit stream in order)
+_NOISE_BATCH = 256
 
 
 def _state_space(cfg: SimInstrumentConfig) -> tuple[NDArray[np.float64], NDArray[np.float64],
@@ -99,8 +103,15 @@ class InstrumentModel:
         self.period_s = 1.0 / cfg.rate_hz
         self._a, self._b, self._c = _state_space(cfg)
         self._rng = np.random.default_rng(cfg.seed)
+        self._noise: list[list[float]] = []  # drawn ahead, one row per output sample
+        self._noise_i = 0
         self._cache: dict[float, tuple[NDArray[np.float64], ...]] = {}
         self._collapsed_cache: dict[
+            tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
+        ] = {}
+        #: ``_collapsed``'s answers by the exact sub-step (a float key is cheaper than rounding
+        #: it); emptied with ``_collapsed_cache``, so it only ever holds what that would give
+        self._collapsed_by_h: dict[
             tuple[float, int], tuple[NDArray[np.float64], NDArray[np.float64]]
         ] = {}
         self._x: NDArray[np.float64] | None = None  # states x axes
@@ -231,10 +242,26 @@ class InstrumentModel:
         Each sub-step is x_{i+1} = Φ x_i + B0 u_i + B1 u_{i+1} (B0 = Γ0 − Γ1/h, B1 = Γ1/h,
         the input linear between samples), so u_j enters x_N through C_0 = Φ^{N−1} B0,
         C_j = Φ^{N−1−j} B0 + Φ^{N−j} B1 (0 < j < N) and C_N = B1."""
-        key = (round(h, 12), steps)
-        got = self._collapsed_cache.get(key)
+        exact = (h, steps)
+        got = self._collapsed_by_h.get(exact)  # what the lookup below gave this very h
         if got is not None:
             return got
+        key = (round(h, 12), steps)
+        got = self._collapsed_cache.get(key)
+        if got is None:
+            got = self._collapsed_new(h, steps)
+            if len(self._collapsed_cache) > 32:
+                self._collapsed_cache.clear()
+                self._collapsed_by_h.clear()  # its entries are the cleared ones
+            self._collapsed_cache[key] = got
+        if len(self._collapsed_by_h) > 256:
+            self._collapsed_by_h.clear()
+        self._collapsed_by_h[exact] = got
+        return got
+
+    def _collapsed_new(self, h: float,
+                       steps: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``_collapsed``'s map, computed."""
         phi, g0, g1 = self._discrete(h)
         b0, b1 = g0 - g1 / h, g1 / h
         n = phi.shape[0]
@@ -244,11 +271,7 @@ class InstrumentModel:
         cols = [powers[steps - 1] @ b0]
         cols += [powers[steps - 1 - j] @ b0 + powers[steps - j] @ b1 for j in range(1, steps)]
         cols.append(b1)
-        got = (powers[steps], np.hstack(cols))
-        if len(self._collapsed_cache) > 32:
-            self._collapsed_cache.clear()
-        self._collapsed_cache[key] = got
-        return got
+        return powers[steps], np.hstack(cols)
 
     def _input(self, motion: MotionFn, t: float) -> NDArray[np.float64]:
         angles = motion(t)
@@ -258,22 +281,37 @@ class InstrumentModel:
                               for a in self.axes])
         return self.static_curve(u) if self._static else u
 
-    def _inputs(self, motion: MotionFn, ts: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _inputs(self, motion: MotionFn, ts: NDArray[np.float64],
+                out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """``_input`` at each of ``ts`` (rows): through ``motion.many`` in one call when the
-        motion has it (the same numbers, element by element), else one call per instant."""
+        motion has it (the same numbers, element by element), else one call per instant.
+        ``out`` (rows × axes), if given, receives them (and is returned)."""
         many = getattr(motion, "many", None)
         if many is None:
-            return np.array([self._input(motion, float(t)) for t in ts]).reshape(len(ts), -1)
+            got = np.array([self._input(motion, float(t)) for t in ts]).reshape(len(ts), -1)
+            if out is None:
+                return got
+            out[...] = got
+            return out
         angles = many(ts)
-        u = np.empty((len(ts), len(self.axes)))  # np.stack(…, axis=1), without its overhead
+        plain = out is not None and not self._coupling and not self._static
+        # np.stack(…, axis=1), without its overhead: into ``out`` itself when nothing follows
+        u = out if plain else np.empty((len(ts), len(self.axes)))
+        assert u is not None
         for i, a in enumerate(self.axes):
             u[:, i] = angles[a]
+        if plain:
+            return u
         if self._coupling:
             zero = np.zeros(len(ts))
             u = u + np.stack(
                 [self._coupling.get(a, 0.0) * np.asarray(angles.get(_OTHER[a], zero), dtype=float)
                  for a in self.axes], axis=1)
-        return self.static_curve(u) if self._static else u
+        u = self.static_curve(u) if self._static else u
+        if out is None:
+            return u
+        out[...] = u
+        return out
 
     def static_curve(self, u: ArrayLike) -> NDArray[np.float64]:
         """The static nonlinearity on an input angle (deg): ``u + c·u³``, then clipped at
@@ -314,23 +352,41 @@ class InstrumentModel:
         ramp = self._ramps.get(steps)
         if ramp is None:
             ramp = self._ramps[steps] = np.arange(1, steps + 1, dtype=np.float64)
-        inputs = self._inputs(motion, self._tm + ramp * h)
-        stacked = np.empty((steps + 1, inputs.shape[1]))  # np.vstack([u, inputs])
+        stacked = np.empty((steps + 1, len(self.axes)))  # [u, the sub-steps' inputs]
         stacked[0] = self._u
-        stacked[1:] = inputs
+        self._inputs(motion, self._tm + ramp * h, out=stacked[1:])
+        if n_states == 1:  # 1×1 factors: their products, exactly what ``@`` gives, cheaper
+            x = pn[0, 0] * self._x + cm @ stacked
+            self._x, self._u, self._tm = x, stacked[-1], tm
+            return self.cfg.gain * (self._c[0, 0] * x[0])
         x = pn @ self._x + cm @ stacked
-        u0 = inputs[-1]
-        self._x, self._u, self._tm = x, u0, tm
+        self._x, self._u, self._tm = x, stacked[-1], tm
         return self.cfg.gain * (self._c @ x)[0]
 
     def output(self, t: float, motion: MotionFn) -> dict[str, float]:
-        """The instrument's output at its output instant ``t`` (deg by axis), all effects on."""
-        y = self.true_output(t, motion)
+        """The instrument's output at its output instant ``t`` (deg by axis), all effects on.
+
+        Per axis, in float64 as the arrays had it (the same operations in the same order, on
+        Python floats: cheaper for a few axes): ``(y + bias) + drift · (t − t0)``, then
+        ``+ noise``, then the quantisation (by numpy: its rounding and signed zeros)."""
+        cfg = self.cfg
+        y0 = self.true_output(t, motion)
         assert self._t0 is not None
-        y = y + self.cfg.bias_deg + self.cfg.drift_deg_s * (t - self._t0)
-        if self.cfg.noise_deg > 0:
-            y = y + self._rng.normal(0.0, self.cfg.noise_deg, size=y.shape)
-        q = self.cfg.quantisation_deg
+        bias, shift = cfg.bias_deg, cfg.drift_deg_s * (t - self._t0)
+        y = [v + bias + shift for v in y0.tolist()]
+        if cfg.noise_deg > 0:
+            y = [v + n for v, n in zip(y, self._next_noise(), strict=True)]
+        q = cfg.quantisation_deg
         if q > 0:
-            y = q * np.round(y / q)
-        return {a: float(v) for a, v in zip(self.axes, y, strict=True)}
+            y = (q * np.round(np.array(y) / q)).tolist()
+        return dict(zip(self.axes, y, strict=True))
+
+    def _next_noise(self) -> list[float]:
+        """This output sample's noise by axis: the next row of ``normal(0, σ)`` draws."""
+        i = self._noise_i
+        if i == len(self._noise):
+            self._noise = self._rng.normal(0.0, self.cfg.noise_deg,
+                                           size=(_NOISE_BATCH, len(self.axes))).tolist()
+            i = 0
+        self._noise_i = i + 1
+        return self._noise[i]

@@ -29,6 +29,7 @@ t_bus=…)`` with the frame's bus time on the host clock, or now.
 
 from __future__ import annotations
 
+import binascii
 from collections.abc import Callable
 
 import can
@@ -45,13 +46,16 @@ BITRATES = {0: 10_000, 1: 20_000, 2: 50_000, 3: 100_000, 4: 125_000, 5: 250_000,
 
 def frame_line(msg: can.Message, timestamp_ms: int | None = None) -> bytes:
     """The slcan line for a frame, e.g. ``b"t18A4E80318FC\\r"``."""
+    remote = msg.is_remote_frame
     if msg.is_extended_id:
-        head = f"{'R' if msg.is_remote_frame else 'T'}{msg.arbitration_id:08X}{msg.dlc:d}"
+        line = b"%s%08X%d" % (b"R" if remote else b"T", msg.arbitration_id, msg.dlc)
     else:
-        head = f"{'r' if msg.is_remote_frame else 't'}{msg.arbitration_id:03X}{msg.dlc:d}"
-    body = "" if msg.is_remote_frame else bytes(msg.data).hex().upper()
-    tail = "" if timestamp_ms is None else f"{timestamp_ms % 60000:04X}"
-    return (head + body + tail).encode("ascii") + OK
+        line = b"%s%03X%d" % (b"r" if remote else b"t", msg.arbitration_id, msg.dlc)
+    if not remote:
+        line += binascii.hexlify(msg.data).upper()
+    if timestamp_ms is not None:
+        line += b"%04X" % (timestamp_ms % 60000)
+    return line + OK
 
 
 def frame_bits(msg: can.Message) -> int:

@@ -16,16 +16,22 @@ answer, EMCY or heartbeat of another length is ``length``; a slope at the intege
 frame or any other id is ``id``; anything ``canopen`` raises on a frame is ``decode``.
 
 The reader thread feeds ``canopen.Network.notify`` (the library's hook for a custom receive
-loop), so the SDO client and the PDO decoding are the library's own.
+loop) with the node's service frames, so the SDO client is the library's own. TPDO1 is decoded
+from the mapping the library read from the EDS: where each slope is a whole, byte-aligned integer
+(the CiA 410 objects are), by ``struct`` straight from the frame — the value the library's
+``PdoMap`` would give, without its generic per-frame machinery; any other mapping through the
+library's ``PdoMap`` (``notify``, then its callback).
 """
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 from typing import Any
 
 import can
 import canopen
+from canopen.objectdictionary.datatypes import INTEGER_TYPES
 
 from benchctl.clock import REAL, Clock
 from benchctl.config import InstrumentConfig
@@ -76,6 +82,17 @@ def _sdo_on_clock(sdo: Any, clock: Clock) -> None:
     sdo.request_response = request_response
 
 
+def _slope_deg(raw: int, markers: tuple[int, int], resolution_deg: float) -> float:
+    """A slope's raw value in degrees; ``BadFrame(range)`` at an overflow marker (the integer's
+    extremes) or beyond ±``MAX_ABS_DEG``."""
+    if raw in markers:
+        raise BadFrame(BAD_RANGE)
+    deg = raw * resolution_deg
+    if abs(deg) > MAX_ABS_DEG:
+        raise BadFrame(BAD_RANGE)
+    return deg
+
+
 class CanopenInclinometer(CanInstrument):
     """A CiA 410 inclinometer on CANopen; implements ``AngleSensor``."""
 
@@ -119,12 +136,35 @@ class CanopenInclinometer(CanInstrument):
         self._tpdo_len = (self._tpdo.length + 7) // 8
         n = cfg.node_id
         self._tpdo_id = self._tpdo.cob_id
+        self._slope_fields = self._struct_slopes()
         self._known_ids = {0x580 + n, 0x80 + n, 0x700 + n}
         self.resolution_deg = self._od_resolution() / 1000.0
         self._rx_t = 0.0
+        self._rx_adapter_s: float | None = None
         self._last: InstrumentSample | None = None
         self._tpdo.add_callback(self._on_tpdo)
         super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus, clock=clock)
+
+    def _struct_slopes(self) -> list[tuple[str, Any, int, tuple[int, int]]] | None:
+        """Each slope of TPDO1 as (axis, its ``struct`` unpack_from, byte offset, overflow
+        markers) when ``struct`` reads them as the library's ``PdoMap`` does: the map receives
+        TPDO1 (enabled, subscribed) and every slope is an integer the library unpacks with a
+        ``struct`` format, mapped whole at a byte boundary inside the frame. None otherwise:
+        the frames then go through the library (``_on_tpdo``)."""
+        if self._tpdo.on_message not in self._net.subscribers.get(self._tpdo_id, ()):
+            return None
+        fields = []
+        for axis, var in self._slopes.items():
+            od = var.od
+            fmt = od.STRUCT_TYPES.get(od.data_type)
+            if (od.data_type not in INTEGER_TYPES or not isinstance(fmt, struct.Struct)
+                    or var.offset is None or var.offset % 8 or var.length != 8 * fmt.size
+                    or var.offset // 8 + fmt.size > self._tpdo_len):
+                return None
+            bits = var.length
+            fields.append((axis, fmt.unpack_from, var.offset // 8,
+                           (2 ** (bits - 1) - 1, -(2 ** (bits - 1)))))
+        return fields
 
     def _od_resolution(self) -> int:
         od = self._node.object_dictionary
@@ -193,11 +233,22 @@ class CanopenInclinometer(CanInstrument):
         except DECODE_ERRORS:
             raise BadFrame(BAD_DECODE) from None
 
-    def decode_tpdo(self, data: bytes, t_host: float) -> InstrumentSample:
-        """Decode a TPDO1 payload; ``BadFrame`` for a wrong length or an out-of-range slope."""
+    def decode_tpdo(self, data: bytes, t_host: float,
+                    adapter_time_s: float | None = None) -> InstrumentSample:
+        """Decode a TPDO1 payload (the sample's ``adapter_time_s``: the frame's adapter time, if
+        known); ``BadFrame`` for a wrong length or an out-of-range slope."""
         if len(data) != self._tpdo_len:
             raise BadFrame(BAD_LENGTH)
+        fields = self._slope_fields
+        if fields is not None:  # struct reads the slopes as the library would
+            resolution = self.resolution_deg
+            angles: dict[str, float] = {}
+            for axis, unpack_from, offset, markers in fields:
+                angles[axis] = _slope_deg(unpack_from(data, offset)[0], markers, resolution)
+            return InstrumentSample(t_host=t_host, angle_deg=angles,
+                                    adapter_time_s=adapter_time_s)
         self._rx_t = t_host
+        self._rx_adapter_s = adapter_time_s
         self._last = None
         self._notify(self._tpdo_id, data, t_host)
         if self._last is None:  # the library did not call back: not our TPDO's map
@@ -222,22 +273,18 @@ class CanopenInclinometer(CanInstrument):
     def _on_tpdo(self, pdo_map: Any) -> None:
         angles: dict[str, float] = {}
         for axis, var in self._slopes.items():
-            raw = int(var.raw)
             bits = var.length
-            if raw in (2 ** (bits - 1) - 1, -(2 ** (bits - 1))):
-                raise BadFrame(BAD_RANGE)
-            deg = raw * self.resolution_deg
-            if abs(deg) > MAX_ABS_DEG:
-                raise BadFrame(BAD_RANGE)
-            angles[axis] = deg
-        self._last = InstrumentSample(t_host=self._rx_t, angle_deg=angles)
+            angles[axis] = _slope_deg(int(var.raw), (2 ** (bits - 1) - 1, -(2 ** (bits - 1))),
+                                      self.resolution_deg)
+        self._last = InstrumentSample(t_host=self._rx_t, angle_deg=angles,
+                                      adapter_time_s=self._rx_adapter_s)
 
     def _handle(self, msg: can.Message, t_host: float) -> None:
         cid = msg.arbitration_id
         if msg.is_extended_id:
             raise BadFrame(BAD_ID)
         if cid == self._tpdo_id:
-            self._emit(self.decode_tpdo(bytes(msg.data), t_host))
+            self._emit(self.decode_tpdo(bytes(msg.data), t_host, self._adapter_s))
         else:
             self.decode_service(cid, bytes(msg.data), msg.timestamp)
 

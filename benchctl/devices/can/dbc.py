@@ -99,8 +99,10 @@ class DbcAngleInstrument(CanInstrument):
         self.source_address: int | None = None
         super().__init__(bus, cfg, can_log_path=can_log_path, owns_bus=owns_bus, clock=clock)
 
-    def decode(self, frame_id: int, data: bytes, t_host: float) -> InstrumentSample:
-        """Decode one frame to a sample; ``BadFrame(reason)`` if it must be counted and skipped."""
+    def decode(self, frame_id: int, data: bytes, t_host: float,
+               adapter_time_s: float | None = None) -> InstrumentSample:
+        """Decode one frame to a sample (its ``adapter_time_s``: the frame's adapter time, if
+        known); ``BadFrame(reason)`` if it must be counted and skipped."""
         if not 0 <= frame_id <= MAX_EXTENDED_ID or frame_id & FRAME_ID_MASK != self._pgn_id:
             raise BadFrame(BAD_ID)
         sa = frame_id & 0xFF
@@ -109,11 +111,12 @@ class DbcAngleInstrument(CanInstrument):
         if len(data) != self._msg.length:
             raise BadFrame(BAD_LENGTH)
         try:
-            return self._decode(sa, data, t_host)
+            return self._decode(sa, data, t_host, adapter_time_s)
         except DECODE_ERRORS:
             raise BadFrame(BAD_DECODE) from None
 
-    def _decode(self, sa: int, data: bytes, t_host: float) -> InstrumentSample:
+    def _decode(self, sa: int, data: bytes, t_host: float,
+                adapter_time_s: float | None) -> InstrumentSample:
         raw = self._msg.decode(data, decode_choices=False, scaling=False)
         spec = self.spec
         angles: dict[str, float] = {}
@@ -138,12 +141,12 @@ class DbcAngleInstrument(CanInstrument):
             device_time = t_host - latency_s
         self.source_address = sa
         return InstrumentSample(t_host=t_host, angle_deg=angles, device_time_s=device_time,
-                                counter=counter)
+                                counter=counter, adapter_time_s=adapter_time_s)
 
     def _handle(self, msg: can.Message, t_host: float) -> None:
         if not msg.is_extended_id:
             raise BadFrame(BAD_ID)
-        self._emit(self.decode(msg.arbitration_id, bytes(msg.data), t_host))
+        self._emit(self.decode(msg.arbitration_id, bytes(msg.data), t_host, self._adapter_s))
 
     def _identify(self) -> DeviceIdentity:
         self._wait_first_frame()

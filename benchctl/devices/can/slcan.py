@@ -32,12 +32,13 @@ reader counts it as a ``decode`` bad frame and reads on. A failing port (``Seria
 
 from __future__ import annotations
 
+import binascii
 import re
 from collections import deque
 from typing import Any
 
 import can
-from can.exceptions import error_check
+from can.exceptions import CanOperationError
 from can.interfaces.slcan import slcanBus
 
 from benchctl.clock import REAL, Clock
@@ -48,7 +49,10 @@ BEL = b"\a"
 MAX_LINE = 64
 #: answers of the adapter that are neither frames nor errors (transmit acks, OK)
 ANSWERS = frozenset({b"", b"z", b"Z"})
-_HEX = frozenset(b"0123456789ABCDEFabcdef")
+#: ``field.translate(None, X)`` deletes the bytes of X: nothing left is a field of hex digits
+#: only (``_HEX_DIGITS``), a line of printable ASCII but space only (``_PRINTABLE``)
+_HEX_DIGITS = b"0123456789ABCDEFabcdef"
+_PRINTABLE = bytes(range(0x21, 0x7F))
 _LINE_END = re.compile(rb"[\r\a]")
 
 
@@ -61,9 +65,12 @@ class SlcanLineError(ValueError):
 
 
 def _hex(field: bytes, line: bytes) -> int:
-    if not field or not all(b in _HEX for b in field):
+    if not field or field.translate(None, _HEX_DIGITS):
         raise SlcanLineError("not hex", line)
     return int(field, 16)
+
+
+_message_init = can.Message.__init__
 
 
 class SlcanMessage(can.Message):
@@ -74,6 +81,18 @@ class SlcanMessage(can.Message):
     def __init__(self, *args: Any, adapter_ms: int | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.adapter_ms = adapter_ms
+
+    @classmethod
+    def received(cls, arbitration_id: int, is_extended_id: bool, is_remote_frame: bool, dlc: int,
+                 data: bytes, timestamp: float, adapter_ms: int | None) -> SlcanMessage:
+        """The same message as ``cls(arbitration_id=…, …, adapter_ms=…)``, built without the
+        generic constructor's argument passing (``parse_line``: once per received frame)."""
+        msg = cls.__new__(cls)
+        _message_init(msg, timestamp=timestamp, arbitration_id=arbitration_id,
+                      is_extended_id=is_extended_id, is_remote_frame=is_remote_frame, dlc=dlc,
+                      data=data)
+        msg.adapter_ms = adapter_ms
+        return msg
 
 
 #: LAWICEL timestamps wrap at 60 000 ms (0…EA5F); a value beyond shows a 16-bit counter
@@ -121,7 +140,7 @@ def parse_line(line: bytes, clock: Clock = REAL) -> can.Message | None:
     """
     if line in ANSWERS:
         return None
-    if not all(0x20 < b < 0x7F for b in line):
+    if line.translate(None, _PRINTABLE):  # a byte left that is not 0x21…0x7E
         raise SlcanLineError("a byte that is not printable ASCII", line)
     kind = line[:1]
     if kind not in (b"t", b"T", b"r", b"R"):
@@ -144,10 +163,9 @@ def parse_line(line: bytes, clock: Clock = REAL) -> can.Message | None:
         raise SlcanLineError("length does not match the DLC", line)
     if rest:
         _hex(rest, line)
-    data = b"" if remote else bytes.fromhex(rest[:n_data].decode("ascii"))
+    data = b"" if remote else binascii.unhexlify(rest[:n_data])  # hex digits only: checked
     stamp = int(rest[n_data:], 16) if len(rest) > n_data else None
-    return SlcanMessage(arbitration_id=cid, is_extended_id=ext, is_remote_frame=remote,
-                        dlc=dlc, data=data, timestamp=clock.time(), adapter_ms=stamp)
+    return SlcanMessage.received(cid, ext, remote, dlc, data, clock.time(), stamp)
 
 
 class SlcanBus(slcanBus):
@@ -190,14 +208,22 @@ class SlcanBus(slcanBus):
         self._closed = True
 
     def _next_line(self) -> tuple[bytes, bytes] | None:
-        if not self._lines:
-            start = 0
-            for m in _LINE_END.finditer(self._rx):
-                self._lines.append((bytes(self._rx[start:m.start()]), m.group()))
-                start = m.end()
-            del self._rx[:start]
-        if self._lines:
-            return self._lines.popleft()
+        lines = self._lines
+        if not lines:
+            rx = self._rx
+            if BEL in rx:
+                start = 0
+                for m in _LINE_END.finditer(rx):
+                    lines.append((bytes(rx[start:m.start()]), m.group()))
+                    start = m.end()
+                del rx[:start]
+            elif OK in rx:  # CR only (every frame line, every OK): split at each
+                *whole, rest = bytes(rx).split(OK)
+                for line in whole:
+                    lines.append((line, OK))
+                del rx[:len(rx) - len(rest)]
+        if lines:
+            return lines.popleft()
         if len(self._rx) > MAX_LINE:
             garbage = bytes(self._rx)
             self._rx.clear()
@@ -220,13 +246,15 @@ class SlcanBus(slcanBus):
                 if msg is not None:
                     return msg, False
                 continue
-            with error_check("Could not read from serial device"):
+            try:  # python-can's error_check, without a context manager per read
                 read_within = getattr(port, "read_within", None)
                 if read_within is not None:  # a port that can wait for the first byte itself
                     left = None if deadline is None else max(0.0, deadline - clock.monotonic())
                     chunk = read_within(left)
                 else:
                     chunk = port.read(max(1, port.in_waiting))
+            except Exception as error:
+                raise CanOperationError("Could not read from serial device") from error
             if chunk:
                 self._rx += chunk
             elif deadline is not None and clock.monotonic() >= deadline:
