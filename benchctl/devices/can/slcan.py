@@ -230,6 +230,24 @@ class SlcanBus(slcanBus):
             raise SlcanLineError(f"no CR in {len(garbage)} bytes", garbage)
         return None
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """python-can's ``BusABC.recv`` on this bus's clock: a frame that passes the filters,
+        or None once ``timeout`` has passed. (The library's own counts the time left on the
+        host's wall clock: on simulated time a silent bus then waited for as long as the host
+        took to reach that much real time — a few tenths of simulated seconds, another amount
+        each run.)"""
+        clock = self._clock
+        start = clock.monotonic()
+        time_left = timeout
+        while True:
+            msg, already_filtered = self._recv_internal(timeout=time_left)
+            if msg is not None and (already_filtered or self._matches_filters(msg)):
+                return msg
+            if timeout is not None:
+                time_left = timeout - (clock.monotonic() - start)
+                if time_left <= 0:
+                    return None
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         clock = self._clock
         deadline = None if timeout is None else clock.monotonic() + timeout
