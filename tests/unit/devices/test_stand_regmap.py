@@ -85,6 +85,34 @@ def test_encode_decode_words(
     assert m.decode(f, words) == value
 
 
+@pytest.mark.parametrize("word_order", ["big", "little"])
+def test_block_decoder_gives_decode_in_values(raw: dict[str, Any], word_order: str) -> None:
+    """The feedback block decoded at once: the values decode_in gives, field by field, for
+    every type, scale and offset, signs and special floats included."""
+    import math
+    import random
+
+    raw["word_order"] = word_order
+    m = parse_register_map(raw, MAP)
+    addr, count = m.feedback_span()
+    extra = [Field("u", 1, "uint16", scale=0.5, offset=-3.0), Field("i", 3, "int32"),
+             Field("w", 6, "uint32", scale=1e-3), Field("h", 8, "int16", offset=0.25),
+             Field("f", 10, "float32")]  # gaps between them; and overlapping ones
+    rng = random.Random(1)
+    for fields, at, n in ((m.feedback_fields(), addr, count), (extra, 0, 12),
+                          ([*extra, Field("o", 4, "uint16")], 0, 12)):
+        dec = m.block_decoder(fields, at, n)
+        for block in ([0] * n, [0xFFFF] * n, ([0x7FC0, 0, 0x8000, 0] * n)[:n],
+                      *([rng.randrange(0x10000) for _ in range(n)] for _ in range(200))):
+            got = dec(block)
+            want = [float(m.decode_in(f, at, block)) for f in fields]
+            assert [repr(v) for v in got] == [repr(v) for v in want]
+            assert all(math.copysign(1, g) == math.copysign(1, w)
+                       for g, w in zip(got, want, strict=True))
+    with pytest.raises(ValueError, match="outside the block"):
+        m.block_decoder([Field("far", addr + count, "uint16")], addr, count)
+
+
 def test_scaled_integer_and_string(raw: dict[str, Any]) -> None:
     m = parse_register_map(raw, MAP)
     f = Field("angle", 0, "int32", scale=0.001)
