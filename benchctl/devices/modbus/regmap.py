@@ -290,6 +290,81 @@ class RegisterMap:
 
         return fast
 
+    def block_encoder(
+        self, fields: Sequence[Field], block_address: int
+    ) -> Callable[[list[int], Sequence[float | int]], None]:
+        """A function ``(regs, values)`` putting ``encode(f, v)`` of each of ``fields`` with its
+        value into ``regs`` (registers from ``block_address`` on) at the field's place, as
+        ``regs[i : i + n] = encode(f, v)`` one field after another would: the same words, the
+        registers between the fields left as they are, and the same ``LimitError`` (raised
+        where ``encode`` raises it, the fields before it written). Numeric fields that do not
+        overlap (big word order) are packed with one struct laid out once, the registers
+        between them packed back as they are; anything else field by field."""
+
+        def each(regs: list[int], values: Sequence[float | int]) -> None:
+            for f, v in zip(fields, values, strict=True):
+                i = f.address - block_address
+                regs[i : i + f.n_registers] = self.encode(f, v)
+
+        order = sorted(range(len(fields)), key=lambda k: fields[k].address)
+        if not fields or self.word_order != "big":
+            return each
+        first = fields[order[0]].address
+        i0 = first - block_address
+        if i0 < 0:
+            return each
+        # in address order: (kind, the caller's index or a kept register's, scale, offset, the
+        # integer range); kind 0 an integer field, 1 a float32 field, 2 a register kept
+        plan: list[tuple[int, int, float, float, int, int]] = []
+        fmt, at = ">", first
+        for k in order:
+            f = fields[k]
+            if f.type not in _STRUCT_CODES or f.address < at:
+                return each  # a string, or an overlap
+            for gap in range(at, f.address):
+                plan.append((2, gap - block_address, 1.0, 0.0, 0, 0))
+                fmt += "H"
+            lo, hi = _INT_RANGE.get(f.type, (0, 0))
+            plan.append((1 if f.type == "float32" else 0, k, f.scale, f.offset, lo, hi))
+            fmt += _STRUCT_CODES[f.type]
+            at = f.address + f.n_registers
+        n = at - first
+        pack = struct.Struct(fmt).pack
+        words_of = struct.Struct(f">{n}H").unpack
+        isfinite = math.isfinite
+
+        def fast(regs: list[int], values: Sequence[float | int]) -> None:
+            if len(values) != len(fields) or len(regs) < i0 + n:
+                return each(regs, values)
+            raws: list[float | int] = []
+            for kind, k, scale, offset, lo, hi in plan:
+                if kind == 2:
+                    raws.append(regs[k])
+                    continue
+                v = float(values[k])
+                if not isfinite(v):
+                    return each(regs, values)  # encode's error, the fields before it written
+                raw = (v - offset) / scale
+                if kind:
+                    if not abs(raw) <= _FLOAT32_MAX:
+                        return each(regs, values)
+                    raws.append(raw)
+                else:
+                    if not isfinite(raw):
+                        return each(regs, values)
+                    r = round(raw)
+                    if not lo <= r <= hi:
+                        return each(regs, values)
+                    raws.append(r)
+            try:
+                words = words_of(pack(*raws))
+            except (OverflowError, struct.error):  # float32 rounding to infinity; a kept
+                return each(regs, values)  # register that is no 16-bit word
+            regs[i0 : i0 + n] = words
+            return None
+
+        return fast
+
     # -- spans ----------------------------------------------------------------------------
     def feedback_fields(self) -> list[Field]:
         """Everything read each cycle: status, fault code, heartbeat echo, per-axis feedback."""
