@@ -739,9 +739,10 @@ class ModbusStand:
             words = {base + i: w for i, w in enumerate(m.encode(_U32(base), first_index))}
             words[base + 2] = n
             addr = base + 3
+            point = _F32(addr)  # encode reads the field's type, scale, offset and name only
             for row in rows:
                 for x in row:
-                    w0, w1 = m.encode(_F32(addr), x)
+                    w0, w1 = m.encode(point, x)
                     words[addr], words[addr + 1] = w0, w1
                     addr += 2
             runs = _chunks(words, self.map.max_write)
