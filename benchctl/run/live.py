@@ -33,8 +33,10 @@ class Histogram:
         self.total = 0.0
 
     def add(self, x: float) -> None:
-        x = max(0.0, x)
-        i = min(int(x / self.resolution_s), self._last)
+        x = x if x > 0.0 else 0.0  # max(0.0, x) and min(…, last), without the calls
+        i = int(x / self.resolution_s)
+        if self._last < i:
+            i = self._last
         self.counts[i] += 1
         self.n += 1
         self.total += x
