@@ -45,6 +45,7 @@ from typing import Any
 from benchctl.errors import SimulationHang
 
 log = logging.getLogger(__name__)
+_get_ident = threading.get_ident
 
 #: the default epoch of a simulated run's wall time: recordings made on simulated time carry
 #: stamps from here, never the host's date
@@ -302,9 +303,9 @@ class VirtualClock:
     # -- the scheduler ------------------------------------------------------------------------
     def _me(self) -> _Task:
         cur = self._current
-        if cur is not None and cur.ident == threading.get_ident():
+        if cur is not None and cur.ident == _get_ident():
             return cur
-        task = self._tasks.get(threading.get_ident())
+        task = self._tasks.get(_get_ident())
         if task is None:
             raise SimulationHang(
                 f"thread {threading.current_thread().name!r} used the virtual clock but was not "
@@ -561,8 +562,13 @@ class VRLock(VLock):
 
     def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
         task = self._c._me()
-        if self._owner is task:
+        owner = self._owner
+        if owner is task:
             self._count += 1
+            return True
+        if owner is None:  # uncontended: VLock.acquire's own first step
+            self._owner = task
+            self._count = 1
             return True
         if super().acquire(blocking, timeout):
             self._count = 1
@@ -574,6 +580,9 @@ class VRLock(VLock):
             raise RuntimeError("cannot release un-acquired lock")
         self._count -= 1
         if self._count == 0:
+            if not self._waiters:  # VLock.release's own first step
+                self._owner = None
+                return
             super().release()
 
     def _release_save(self) -> Any:

@@ -4,6 +4,7 @@ read by the main thread; no I/O."""
 
 from __future__ import annotations
 
+import array
 import math
 from collections import deque
 from collections.abc import Mapping
@@ -24,14 +25,18 @@ class Histogram:
 
     def __init__(self, resolution_s: float = 1e-5, max_s: float = 0.5) -> None:
         self.resolution_s = resolution_s
-        self.counts = np.zeros(int(max_s / resolution_s) + 1, dtype=np.int64)
+        self._last = int(max_s / resolution_s)
+        #: counts per bin (64-bit integers; a plain array: one add is no numpy scalar's work)
+        self.counts = array.array("q", bytes(8 * (self._last + 1)))
         self.n = 0
         self.max = 0.0
         self.total = 0.0
 
     def add(self, x: float) -> None:
-        x = max(0.0, x)
-        i = min(int(x / self.resolution_s), self.counts.size - 1)
+        x = x if x > 0.0 else 0.0  # max(0.0, x) and min(…, last), without the calls
+        i = int(x / self.resolution_s)
+        if self._last < i:
+            i = self._last
         self.counts[i] += 1
         self.n += 1
         self.total += x
@@ -41,7 +46,7 @@ class Histogram:
     def quantile(self, q: float) -> float:
         if self.n == 0:
             return math.nan
-        c = np.cumsum(self.counts)
+        c = np.cumsum(np.frombuffer(self.counts, dtype=np.int64))
         i = int(np.searchsorted(c, q * self.n, side="left"))
         return min((i + 0.5) * self.resolution_s, self.max)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -13,7 +14,7 @@ from pymodbus.simulator import SimData
 
 from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandLimits
-from benchctl.devices.modbus.regmap import Field
+from benchctl.devices.modbus.regmap import Field, RegisterMap
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.servo import quantise
 from benchctl.sim.stand_physics import (
@@ -52,6 +53,9 @@ class StandFirmware(StandPhysics):
         self.device_id = device_id
         self.transport = transport
         self._fb_span = self.map.feedback_span()
+        #: (register block start, the feedback fields' encoder for it): _fill_feedback's
+        self._fb_encode: tuple[int, Callable[[list[int], Sequence[float | int]], None]] | None
+        self._fb_encode = None
         self.requests = 0  # requests served (for tests and figures)
         self.enables = 0  # times the servo was switched on (for tests: was the stand touched?)
         self._regs: list[int] | None = None
@@ -169,36 +173,25 @@ class StandFirmware(StandPhysics):
             "trajectory_running": self._mode in ("trajectory", "traj_stop"),
         }
         word = m.word_from_bits(m.status_bits, [k for k, v in bits.items() if v])
-        put: list[tuple[Field, float | int]] = [
-            (m.status_word, word),
-            (m.fault_code, self._fault_code),
-            (m.heartbeat_echo, self._hb_value),
-        ]
+        put: list[float | int] = [word, self._fault_code, self._hb_value]
         st = m.sample_time
         if st is not None:  # the stand's clock at the latch (wrapping)
             ticks = round((now - self._t0) / st.scale) % (1 << (16 * st.n_registers))
-            put.append((st, ticks * st.scale))
-        for a, ax in m.axes.items():
+            put.append(ticks * st.scale)
+        resolution = self.cfg.encoder_resolution_deg
+        for a in m.axes:
             s = self._state[a]
             angle = s.angle_deg + s.rate_deg_s * since
-            put += [
-                (ax.angle, quantise(angle, self.cfg.encoder_resolution_deg)),
-                (ax.rate, s.rate_deg_s),
-                (ax.setpoint, self._target[a]),
-                (ax.fault_code, self._axis_fault[a]),
-            ]
+            put += [quantise(angle, resolution), s.rate_deg_s, self._target[a],
+                    self._axis_fault[a]]
         tr = m.trajectory
         if tr is not None:
             q = self._traj
-            put += [
-                (tr.level, q.level(self._traj_u(now))),
-                (tr.next_index, q.next_index),
-                (tr.played, q.played(self._traj_u(now))),
-                (tr.underruns, q.underruns & 0xFFFF),
-            ]
-        for f, v in put:
-            i = f.address - start
-            regs[i : i + f.n_registers] = m.encode(f, v)
+            u = self._traj_u(now)
+            put += [q.level(u), q.next_index, q.played(u), q.underruns & 0xFFFF]
+        if self._fb_encode is None or self._fb_encode[0] != start:
+            self._fb_encode = (start, m.block_encoder(_feedback_put_order(m), start))
+        self._fb_encode[1](regs, put)
 
     def _write(
         self, address: int, values: list[int] | list[bool], regs: list[int], start: int, now: float
@@ -385,3 +378,16 @@ class StandFirmware(StandPhysics):
         if all(t is None for t in out.values()):
             return None
         return out
+
+
+def _feedback_put_order(m: RegisterMap) -> list[Field]:
+    """The feedback fields in the order ``_fill_feedback`` puts their values: status word,
+    fault code, heartbeat echo, [sample time], per axis angle, rate, setpoint and fault code,
+    [the trajectory queue's level, next index, played and underruns]."""
+    out = [m.status_word, m.fault_code, m.heartbeat_echo]
+    out += [m.sample_time] if m.sample_time is not None else []
+    for ax in m.axes.values():
+        out += [ax.angle, ax.rate, ax.setpoint, ax.fault_code]
+    tr = m.trajectory
+    out += [tr.level, tr.next_index, tr.played, tr.underruns] if tr is not None else []
+    return out

@@ -247,15 +247,29 @@ class StandPhysics:
             pa, pb = points[0], points[1]
             t0_ = w0 * pa[0] + w * pb[0]
             acc = wn2 * (t0_ - x0) - c2 * v0
-            acc = min(max(acc, -a_max), a_max)
-            rate0 = min(max(v0 + acc * dt, -v_max), v_max)
+            if -a_max > acc:  # min(max(acc, -a_max), a_max), without the two calls
+                acc = -a_max
+            if a_max < acc:
+                acc = a_max
+            rate0 = v0 + acc * dt
+            if -v_max > rate0:
+                rate0 = -v_max
+            if v_max < rate0:
+                rate0 = v_max
             y0 = x0 + rate0 * dt
             if (y0 > soft or -y0 > soft) and y0 * rate0 > 0:
                 break  # a soft limit: _tick faults the stand
             t1_ = w0 * pa[1] + w * pb[1]
             acc = wn2 * (t1_ - x1) - c2 * v1
-            acc = min(max(acc, -a_max), a_max)
-            rate1 = min(max(v1 + acc * dt, -v_max), v_max)
+            if -a_max > acc:  # min(max(acc, -a_max), a_max), without the two calls
+                acc = -a_max
+            if a_max < acc:
+                acc = a_max
+            rate1 = v1 + acc * dt
+            if -v_max > rate1:
+                rate1 = -v_max
+            if v_max < rate1:
+                rate1 = v_max
             y1 = x1 + rate1 * dt
             if (y1 > soft or -y1 > soft) and y1 * rate1 > 0:
                 break
@@ -312,8 +326,15 @@ class StandPhysics:
             tgt = w0 * p0[j] + w * p1[j]
             v_before = s.rate_deg_s
             acc = wn2 * (tgt - s.angle_deg) - c2 * v_before
-            acc = min(max(acc, -a_max), a_max)
-            rate = min(max(v_before + acc * dt, -v_max), v_max)
+            if -a_max > acc:  # min(max(acc, -a_max), a_max), without the two calls
+                acc = -a_max
+            if a_max < acc:
+                acc = a_max
+            rate = v_before + acc * dt
+            if -v_max > rate:
+                rate = -v_max
+            if v_max < rate:
+                rate = v_max
             angle = s.angle_deg + rate * dt
             if (angle > soft or -angle > soft) and angle * rate > 0:
                 return False  # a soft limit: _tick faults the stand
@@ -382,8 +403,15 @@ class StandPhysics:
                 v_before = s.rate_deg_s
                 # servo_step, inline
                 acc = wn2 * (tgt - s.angle_deg) - c2 * v_before
-                acc = min(max(acc, -a_max), a_max)
-                rate = min(max(v_before + acc * dt, -v_max), v_max)
+                if -a_max > acc:  # min(max(acc, -a_max), a_max), without the two calls
+                    acc = -a_max
+                if a_max < acc:
+                    acc = a_max
+                rate = v_before + acc * dt
+                if -v_max > rate:
+                    rate = -v_max
+                if v_max < rate:
+                    rate = v_max
                 s.rate_deg_s = rate
                 s.angle_deg += rate * dt
                 # the largest |rate| and |accel| while following

@@ -16,7 +16,7 @@ import functools
 import itertools
 import math
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -37,6 +37,8 @@ _PACK_F = struct.Struct(">f").pack
 _UNPACK_F = struct.Struct(">f").unpack
 _PACK_HH = struct.Struct(">HH").pack
 _UNPACK_HH = struct.Struct(">HH").unpack
+#: a numeric field's raw value as one struct code (big word order, big-endian bytes)
+_STRUCT_CODES = {"uint16": "H", "int16": "h", "uint32": "I", "int32": "i", "float32": "f"}
 _STATUS_BITS = ("ready", "enabled", "moving", "fault", "estop", "limit", "table_running")
 _CONTROL_BITS = ("enable", "start_table", "stop", "fault_reset", "estop")
 # bits a map only has when the stand has a trajectory queue (``trajectory:`` section)
@@ -238,6 +240,130 @@ class RegisterMap:
 
     def _order(self, words: list[int]) -> list[int]:
         return words if self.word_order == "big" else words[::-1]
+
+    def block_decoder(
+        self, fields: Sequence[Field], block_address: int, count: int
+    ) -> Callable[[Sequence[int]], list[float]]:
+        """A function of a block of ``count`` registers read from ``block_address`` giving
+        ``float(decode_in(f, block_address, block))`` for each of ``fields``, in order: the same
+        values, with the block's layout worked out once. A field outside the block raises
+        ``ValueError`` here; a block of another length is decoded field by field."""
+        for f in fields:
+            i = f.address - block_address
+            if i < 0 or i + f.n_registers > count:
+                raise ValueError(f"{f.name} at {f.address} is outside the block read")
+
+        def each(block: Sequence[int]) -> list[float]:
+            return [float(self.decode_in(f, block_address, block)) for f in fields]
+
+        # one struct for the whole block: each field's raw value at its place, pad between
+        # (big word order, numeric fields that do not overlap; anything else field by field)
+        placed = sorted(range(len(fields)), key=lambda k: fields[k].address)
+        fmt, at = ">", 0
+        for k in placed:
+            f = fields[k]
+            i = f.address - block_address
+            if f.type not in _STRUCT_CODES or i < at or self.word_order != "big":
+                return each
+            fmt += "x" * (2 * (i - at)) + _STRUCT_CODES[f.type]
+            at = i + f.n_registers
+        raw_of = struct.Struct(fmt).unpack
+        words_of = struct.Struct(f">{count}H").pack
+        # per field in the caller's order: its index among the raw values, scale, offset and
+        # whether decode() returns the raw integer itself
+        where = {k: j for j, k in enumerate(placed)}
+        plan = [
+            (where[k], f.scale, f.offset,
+             f.type != "float32" and f.scale == 1.0 and f.offset == 0.0)
+            for k, f in enumerate(fields)
+        ]
+
+        def fast(block: Sequence[int]) -> list[float]:
+            if len(block) != count:
+                return each(block)
+            try:
+                raw = raw_of(words_of(*block))
+            except struct.error:  # a word that is no 16-bit register's
+                return each(block)
+            return [float(raw[j]) if ident else float(raw[j] * scale + offset)
+                    for j, scale, offset, ident in plan]
+
+        return fast
+
+    def block_encoder(
+        self, fields: Sequence[Field], block_address: int
+    ) -> Callable[[list[int], Sequence[float | int]], None]:
+        """A function ``(regs, values)`` putting ``encode(f, v)`` of each of ``fields`` with its
+        value into ``regs`` (registers from ``block_address`` on) at the field's place, as
+        ``regs[i : i + n] = encode(f, v)`` one field after another would: the same words, the
+        registers between the fields left as they are, and the same ``LimitError`` (raised
+        where ``encode`` raises it, the fields before it written). Numeric fields that do not
+        overlap (big word order) are packed with one struct laid out once, the registers
+        between them packed back as they are; anything else field by field."""
+
+        def each(regs: list[int], values: Sequence[float | int]) -> None:
+            for f, v in zip(fields, values, strict=True):
+                i = f.address - block_address
+                regs[i : i + f.n_registers] = self.encode(f, v)
+
+        order = sorted(range(len(fields)), key=lambda k: fields[k].address)
+        if not fields or self.word_order != "big":
+            return each
+        first = fields[order[0]].address
+        i0 = first - block_address
+        if i0 < 0:
+            return each
+        # in address order: (kind, the caller's index or a kept register's, scale, offset, the
+        # integer range); kind 0 an integer field, 1 a float32 field, 2 a register kept
+        plan: list[tuple[int, int, float, float, int, int]] = []
+        fmt, at = ">", first
+        for k in order:
+            f = fields[k]
+            if f.type not in _STRUCT_CODES or f.address < at:
+                return each  # a string, or an overlap
+            for gap in range(at, f.address):
+                plan.append((2, gap - block_address, 1.0, 0.0, 0, 0))
+                fmt += "H"
+            lo, hi = _INT_RANGE.get(f.type, (0, 0))
+            plan.append((1 if f.type == "float32" else 0, k, f.scale, f.offset, lo, hi))
+            fmt += _STRUCT_CODES[f.type]
+            at = f.address + f.n_registers
+        n = at - first
+        pack = struct.Struct(fmt).pack
+        words_of = struct.Struct(f">{n}H").unpack
+        isfinite = math.isfinite
+
+        def fast(regs: list[int], values: Sequence[float | int]) -> None:
+            if len(values) != len(fields) or len(regs) < i0 + n:
+                return each(regs, values)
+            raws: list[float | int] = []
+            for kind, k, scale, offset, lo, hi in plan:
+                if kind == 2:
+                    raws.append(regs[k])
+                    continue
+                v = float(values[k])
+                if not isfinite(v):
+                    return each(regs, values)  # encode's error, the fields before it written
+                raw = (v - offset) / scale
+                if kind:
+                    if not abs(raw) <= _FLOAT32_MAX:
+                        return each(regs, values)
+                    raws.append(raw)
+                else:
+                    if not isfinite(raw):
+                        return each(regs, values)
+                    r = round(raw)
+                    if not lo <= r <= hi:
+                        return each(regs, values)
+                    raws.append(r)
+            try:
+                words = words_of(pack(*raws))
+            except (OverflowError, struct.error):  # float32 rounding to infinity; a kept
+                return each(regs, values)  # register that is no 16-bit word
+            regs[i0 : i0 + n] = words
+            return None
+
+        return fast
 
     # -- spans ----------------------------------------------------------------------------
     def feedback_fields(self) -> list[Field]:

@@ -126,6 +126,17 @@ class ModbusStand:
         self._table_axes: tuple[str, ...] = ()
         self._closed = False
         self._fb_addr, self._fb_count = regmap.feedback_span()
+        # the feedback block's values as _decode_feedback takes them: status word, fault code,
+        # heartbeat echo, [sample time], each driven axis's angle, rate and setpoint,
+        # [the trajectory queue's level, next index, played, underruns]
+        m = regmap
+        fb = [m.status_word, m.fault_code, m.heartbeat_echo]
+        fb += [m.sample_time] if m.sample_time is not None else []
+        for a in self.axes:
+            fb += [m.axes[a].angle, m.axes[a].rate, m.axes[a].setpoint]
+        tr = m.trajectory
+        fb += [tr.level, tr.next_index, tr.played, tr.underruns] if tr is not None else []
+        self._fb_decode = regmap.block_decoder(fb, self._fb_addr, self._fb_count)
         self._read_chunks: dict[tuple[int, int], list[tuple[int, int]]] = {}
 
     # -- connection -----------------------------------------------------------------------
@@ -190,33 +201,37 @@ class ModbusStand:
 
     def _decode_feedback(self, regs: list[int], t0: float, t1: float) -> StandSample:
         m = self.map
-
-        def get(f: Field) -> float:
-            return float(m.decode_in(f, self._fb_addr, regs))
-
-        bits = m.status_from_word(int(get(m.status_word)))
-        status = StandStatus(
-            **bits, fault_code=int(get(m.fault_code)), heartbeat=int(get(m.heartbeat_echo))
-        )
-        tr = m.trajectory
+        v = self._fb_decode(regs)
+        word, code, echo = int(v[0]), int(v[1]), int(v[2])
+        status = StandStatus(**m.status_from_word(word), fault_code=code, heartbeat=echo)
+        k = 3
+        t_stand = None
+        if m.sample_time is not None:
+            t_stand, k = v[3], 4
+        axes = self.axes
+        angle: dict[str, float] = {}
+        rate: dict[str, float] = {}
+        setpoint: dict[str, float] = {}
+        for a in axes:
+            angle[a], rate[a], setpoint[a] = v[k], v[k + 1], v[k + 2]
+            k += 3
         traj = None
-        if tr is not None:
+        if m.trajectory is not None:
             traj = TrajectoryStatus(
-                level=int(get(tr.level)),
-                next_index=int(get(tr.next_index)),
-                played=int(get(tr.played)),
-                underruns=int(get(tr.underruns)),
+                level=int(v[k]), next_index=int(v[k + 1]), played=int(v[k + 2]),
+                underruns=int(v[k + 3]),
             )
-        stamp = getattr(self.link, "sample_stamp", None)
-        window = getattr(self.link, "sample_window", None)
+        link = self.link
+        stamp = getattr(link, "sample_stamp", None)
+        window = getattr(link, "sample_window", None)
         sample = StandSample(
             t_host=stamp(t0, t1) if stamp is not None else 0.5 * (t0 + t1),
             rtt_s=t1 - t0,
-            t_stand=None if m.sample_time is None else float(get(m.sample_time)),
+            t_stand=t_stand,
             t_window=window(t0, t1) if window is not None else (t0, t1),
-            angle_deg={a: get(m.axes[a].angle) for a in self.axes},
-            rate_deg_s={a: get(m.axes[a].rate) for a in self.axes},
-            setpoint_deg={a: get(m.axes[a].setpoint) for a in self.axes},
+            angle_deg=angle,
+            rate_deg_s=rate,
+            setpoint_deg=setpoint,
             status=status,
             trajectory=traj,
         )
@@ -724,9 +739,10 @@ class ModbusStand:
             words = {base + i: w for i, w in enumerate(m.encode(_U32(base), first_index))}
             words[base + 2] = n
             addr = base + 3
+            point = _F32(addr)  # encode reads the field's type, scale, offset and name only
             for row in rows:
                 for x in row:
-                    w0, w1 = m.encode(_F32(addr), x)
+                    w0, w1 = m.encode(point, x)
                     words[addr], words[addr + 1] = w0, w1
                     addr += 2
             runs = _chunks(words, self.map.max_write)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +84,70 @@ def test_encode_decode_words(
     f = Field("x", 0, ftype)  # type: ignore[arg-type]
     assert m.encode(f, value) == words
     assert m.decode(f, words) == value
+
+
+@pytest.mark.parametrize("word_order", ["big", "little"])
+def test_block_decoder_gives_decode_in_values(raw: dict[str, Any], word_order: str) -> None:
+    """The feedback block decoded at once: the values decode_in gives, field by field, for
+    every type, scale and offset, signs and special floats included."""
+    import random
+
+    raw["word_order"] = word_order
+    m = parse_register_map(raw, MAP)
+    addr, count = m.feedback_span()
+    extra = [Field("u", 1, "uint16", scale=0.5, offset=-3.0), Field("i", 3, "int32"),
+             Field("w", 6, "uint32", scale=1e-3), Field("h", 8, "int16", offset=0.25),
+             Field("f", 10, "float32")]  # gaps between them; and overlapping ones
+    rng = random.Random(1)
+    for fields, at, n in ((m.feedback_fields(), addr, count), (extra, 0, 12),
+                          ([*extra, Field("o", 4, "uint16")], 0, 12)):
+        dec = m.block_decoder(fields, at, n)
+        for block in ([0] * n, [0xFFFF] * n, ([0x7FC0, 0, 0x8000, 0] * n)[:n],
+                      *([rng.randrange(0x10000) for _ in range(n)] for _ in range(200))):
+            got = dec(block)
+            want = [float(m.decode_in(f, at, block)) for f in fields]
+            assert [repr(v) for v in got] == [repr(v) for v in want]
+            assert all(math.copysign(1, g) == math.copysign(1, w)
+                       for g, w in zip(got, want, strict=True))
+    with pytest.raises(ValueError, match="outside the block"):
+        m.block_decoder([Field("far", addr + count, "uint16")], addr, count)
+
+
+@pytest.mark.parametrize("word_order", ["big", "little"])
+def test_block_encoder_writes_what_encode_writes(raw: dict[str, Any], word_order: str) -> None:
+    """The feedback fields put at once: the words encode puts field by field, and on a value
+    encode refuses, its error with the fields before it written."""
+    import random
+
+    raw["word_order"] = word_order
+    m = parse_register_map(raw, MAP)
+    rng = random.Random(2)
+    for fields in (m.feedback_fields()[::-1],
+                   [Field("u", 0, "uint16"), Field("h", 2, "int16", scale=0.01, offset=1.0)]):
+        addr = min(f.address for f in fields) - 3
+        enc = m.block_encoder(fields, addr)
+        for trial in range(300):
+            values: list[float] = []
+            for f in fields:
+                v = {"uint16": rng.randrange(0x10000), "int16": rng.uniform(-300, 300),
+                     "uint32": rng.randrange(1 << 32), "int32": rng.randrange(-1 << 31, 1 << 31),
+                     "float32": rng.uniform(-1e3, 1e3)}[f.type]
+                if trial % 7 == 0 and rng.random() < 0.2:
+                    v = rng.choice([math.nan, math.inf, 1e39, -70000, 1 << 33])
+                values.append(v)
+            got, want = [9] * 40, [9] * 40
+            err_got = err_want = None
+            try:
+                enc(got, values)
+            except (LimitError, OverflowError) as e:
+                err_got = repr(e)
+            try:
+                for f, v in zip(fields, values, strict=True):
+                    i = f.address - addr
+                    want[i : i + f.n_registers] = m.encode(f, v)
+            except (LimitError, OverflowError) as e:
+                err_want = repr(e)
+            assert (got, err_got) == (want, err_want)
 
 
 def test_scaled_integer_and_string(raw: dict[str, Any]) -> None:
