@@ -52,7 +52,8 @@ REJECT_EARLY = 8.0  # … this many before it is an outlier (receipts are never 
 WANDER_BLOCK = 500  # samples per block of the clock's slow wander
 HALF_WINDOW = 7  # at least this many samples each side of a boundary when seeking a drop
 MAX_REFINE = 12  # re-slotting rounds
-BURST_HORIZON_S = 2.0  # a burst of late stamps ends within this (a host stall's catch-up)
+BURST_HORIZON_S = 4.0  # a burst of late stamps ends within this (a host stall's catch-up;
+# overlapping stalls hold up to a few seconds: at 2 s a 2.9 s hold's first samples were drops)
 ONE_SIDED_QUANTILE = 0.1  # first level of receipts (only ever late): their 10 % quantile
 ONE_SIDED_FLOOR = 0.02  # receipts' clock: the 2 % quantile of those on time (lower envelope)
 ONE_SIDED_BLOCK = 0.05  # … and each block's level: the 5 % quantile of its stamps on time

@@ -176,7 +176,8 @@ def _receipts(
 def test_stalls_are_delays_not_drops(
     seed: int, stalls: list[tuple[int, float]], drop: float
 ) -> None:
-    """However the stalls fall (0.05–0.5 s, up to six in a minute) and whatever samples are
+    """However the stalls fall (0.05–0.5 s, up to six in a minute; overlapping ones make one
+    hold of up to about 3 s) and whatever samples are
     really lost, the receipts' slots are the true ones (a sample lost during a stall cannot be
     placed by receipts alone: the burst fills the slots before the next sample on time, so
     only the samples a stall held back may sit a few slots off) and the fitted instants of the
@@ -197,6 +198,7 @@ def test_stalls_are_delays_not_drops(
     [(200, 0.5), (210, 0.5), (259, 0.5)],  # overlapping: one 1.09 s hold
     [(200, 1.1)],
     [(3000, 2.0)],
+    [(1000, 0.5), (1040, 0.5), (1090, 0.5), (1140, 0.5), (1190, 0.5), (1240, 0.5)],  # 2.9 s
 ])
 @pytest.mark.parametrize("drop", [0.0, 0.02])
 def test_a_long_hold_early_does_not_tilt_the_first_slots(
@@ -206,7 +208,9 @@ def test_a_long_hold_early_does_not_tilt_the_first_slots(
     The first slots' line was a plain least-squares fit through every stamp: a 1.09 s hold
     of 108 samples at 2 s into a minute tilted it by 9·10⁻⁴ of a step — 0.45 of a step over a
     block of the circular wander, which then unwrapped wrong, and the slots after the burst
-    counted 33 too many. The line through the stamps on time leaves the burst out."""
+    counted 33 too many. The line through the stamps on time leaves the burst out. Six
+    overlapping stalls hold 2.9 s (290 samples): the lowest level ahead must look past the
+    burst's end (``BURST_HORIZON_S``), or its first samples' level is taken for drops (84)."""
     rng = np.random.default_rng(0)
     k, t_true, recv, held = _receipts(rng, 6000, stalls, drop)
     slots, clk = fit_slots(recv, one_sided=True)
