@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from analysis_synthetic import Multisine, first_order
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from timing_drift import jittered_streams
 
@@ -167,6 +167,7 @@ def _receipts(
 
 
 @PROPS
+@example(seed=0, stalls=[(200, 0.5), (210, 0.5), (259, 0.5)], drop=0.02)  # one 1.09 s hold
 @given(
     seed=st.integers(0, 2**32 - 1),
     stalls=st.lists(st.tuples(st.integers(200, 5800), st.floats(0.05, 0.5)), max_size=6),
@@ -175,7 +176,8 @@ def _receipts(
 def test_stalls_are_delays_not_drops(
     seed: int, stalls: list[tuple[int, float]], drop: float
 ) -> None:
-    """However the stalls fall (0.05–0.5 s, up to six in a minute) and whatever samples are
+    """However the stalls fall (0.05–0.5 s, up to six in a minute; overlapping ones make one
+    hold of up to about 3 s) and whatever samples are
     really lost, the receipts' slots are the true ones (a sample lost during a stall cannot be
     placed by receipts alone: the burst fills the slots before the next sample on time, so
     only the samples a stall held back may sit a few slots off) and the fitted instants of the
@@ -190,6 +192,32 @@ def test_stalls_are_delays_not_drops(
     err = (clk.at(slots) - t_true)[~held]
     assert float(np.sqrt(np.mean((err - err.mean()) ** 2))) < 30e-6
     assert 0.0 < float(err.mean()) < 0.001  # the on-time receipt latency, not the stalls'
+
+
+@pytest.mark.parametrize("stalls", [
+    [(200, 0.5), (210, 0.5), (259, 0.5)],  # overlapping: one 1.09 s hold
+    [(200, 1.1)],
+    [(3000, 2.0)],
+    [(1000, 0.5), (1040, 0.5), (1090, 0.5), (1140, 0.5), (1190, 0.5), (1240, 0.5)],  # 2.9 s
+])
+@pytest.mark.parametrize("drop", [0.0, 0.02])
+def test_a_long_hold_early_does_not_tilt_the_first_slots(
+    stalls: list[tuple[int, float]], drop: float
+) -> None:
+    """A hold of 1–2 s: ~100–200 samples read in one burst 20 µs apart, late by up to the hold.
+    The first slots' line was a plain least-squares fit through every stamp: a 1.09 s hold
+    of 108 samples at 2 s into a minute tilted it by 9·10⁻⁴ of a step — 0.45 of a step over a
+    block of the circular wander, which then unwrapped wrong, and the slots after the burst
+    counted 33 too many. The line through the stamps on time leaves the burst out. Six
+    overlapping stalls hold 2.9 s (290 samples): the lowest level ahead must look past the
+    burst's end (``BURST_HORIZON_S``), or its first samples' level is taken for drops (84)."""
+    rng = np.random.default_rng(0)
+    k, t_true, recv, held = _receipts(rng, 6000, stalls, drop)
+    slots, clk = fit_slots(recv, one_sided=True)
+    assert slots[-1] == k[-1] - k[0]
+    assert np.array_equal(slots[~held], (k - k[0])[~held])
+    err = (clk.at(slots) - t_true)[~held]
+    assert float(np.sqrt(np.mean((err - err.mean()) ** 2))) < 30e-6
 
 
 def test_mostly_late_receipts_on_a_scheduler_tick() -> None:
