@@ -6,7 +6,7 @@ What is done, in order:
 2. Each device sample gets a slot ``k`` on a uniform grid (``timebase.fit_slots``). First
    guess from the median step ``dt₀``: ``k_i = k_{i−1} + 1 + drops``, where a drop is a
    lasting jump of the level of ``t_i − i·dt₀`` (its median over ``h`` ≥ 7 samples, larger
-   for larger jitter, then the lowest such median within 2 s ahead: a burst of late receipts
+   for larger jitter, then the lowest such median within 4 s ahead: a burst of late receipts
    raises the level only until it is read, a drop for good). Then the circular-phase grid
    (phase means over blocks of 500 samples, so samples in wrong slots do not bias it), and
    finally, until it settles, the robust clock of the stamps on time (``robust_clock``: a
