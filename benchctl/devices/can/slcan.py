@@ -168,6 +168,10 @@ def parse_line(line: bytes, clock: Clock = REAL) -> can.Message | None:
     return SlcanMessage.received(cid, ext, remote, dlc, data, clock.time(), stamp)
 
 
+#: a receive with less than this left has timed out (far below any frame's time on the bus)
+_RECV_RESOLUTION_S = 1e-9
+
+
 class SlcanBus(slcanBus):
     """python-can's slcan bus whose every received line is a frame, an answer or an error.
 
@@ -237,15 +241,17 @@ class SlcanBus(slcanBus):
         took to reach that much real time — a few tenths of simulated seconds, another amount
         each run.)"""
         clock = self._clock
-        start = clock.monotonic()
+        deadline = None if timeout is None else clock.monotonic() + timeout
         time_left = timeout
         while True:
             msg, already_filtered = self._recv_internal(timeout=time_left)
             if msg is not None and (already_filtered or self._matches_filters(msg)):
                 return msg
-            if timeout is not None:
-                time_left = timeout - (clock.monotonic() - start)
-                if time_left <= 0:
+            if deadline is not None:
+                # against one deadline: a time left computed as timeout − elapsed can stay a
+                # rounding error above 0 on a clock that does not move while nothing arrives
+                time_left = deadline - clock.monotonic()
+                if time_left <= _RECV_RESOLUTION_S:
                     return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:

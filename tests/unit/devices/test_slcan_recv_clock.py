@@ -14,10 +14,15 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.can.slcan import SlcanBus
 
 
-@pytest.mark.parametrize("timeout", [0.05, 0.3])
+# (start, timeout): at 1000.1 s and 12345.678 s the elapsed time (start + timeout) − start reads
+# a rounding error short of the timeout (4.5e-14, 7.3e-13 s): a time left counted as timeout −
+# elapsed never reached 0 and the receive spun for ever on a clock that did not move
+@pytest.mark.timeout(30)  # a receive that never ends fails here, not at the suite's 120 s
+@pytest.mark.parametrize("start, timeout", [(0.0, 0.05), (0.0, 0.3), (1000.1, 0.05),
+                                            (12345.678, 0.3)])
 def test_a_silent_bus_times_out_after_exactly_its_timeout_on_simulated_time(
-        timeout: float) -> None:
-    clock = VirtualClock(start_s=0.0)
+        start: float, timeout: float) -> None:
+    clock = VirtualClock(start_s=start)
     with clock.running():
         host, _dev = channels.link(clock, "slcan-silent")
         url = channels.register(channels.free_name("slcan-silent"), host)
@@ -31,6 +36,7 @@ def test_a_silent_bus_times_out_after_exactly_its_timeout_on_simulated_time(
                     pass
                 assert got is None
                 assert clock.monotonic() - t0 == pytest.approx(timeout, abs=1e-9)
+                assert bus.recv(timeout=timeout) is None  # and again from there
             finally:
                 bus.shutdown()
         finally:
