@@ -15,6 +15,8 @@ import hashlib
 import json
 from pathlib import Path
 
+from benchctl.jsonout import dumps
+
 #: the data files a digest covers: the streams and the events (meta.json holds the start's host
 #: facts and end.json the wall-clock figures, which are not the run's data)
 DATA_FILES = ("stand.csv", "instrument.csv", "setpoints.csv", "events.jsonl")
@@ -38,7 +40,7 @@ def file_digest(path: str | Path, root: str | Path | None = None) -> str | None:
             ev = json.loads(line)
             for key in UNFIXABLE:
                 ev.pop(key, None)
-            lines.append(json.dumps(ev, sort_keys=True))
+            lines.append(dumps(ev, sort_keys=True))
         data = "\n".join(lines).encode()
     return hashlib.sha256(data).hexdigest()
 

@@ -114,12 +114,16 @@ def test_a_virtual_config_refuses_a_callers_real_time_supervisor(tmp_path: Path)
 
 def test_the_simulated_time_config_is_the_default_one_on_a_virtual_clock() -> None:
     """config/sim_virtual.yaml is config/sim.yaml with sim.clock: virtual (and its epoch): the
-    second README command runs the first one's bench."""
+    second README command runs the first one's bench — each with the timing calibration of the
+    clock it runs on (the host's adds its own latency through the pseudo-terminals)."""
     real = yaml.safe_load((ROOT / "config/sim.yaml").read_text())
     virtual = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text())
     assert virtual["sim"].pop("clock") == "virtual"
     virtual["sim"].pop("epoch_utc")
+    t_real, t_virtual = real.pop("timing"), virtual.pop("timing")
     assert virtual == real
+    assert "host's clock" in t_real["reference"] and "host's clock" not in t_virtual["reference"]
+    assert 0 < t_real["offset_s"] - t_virtual["offset_s"] < 0.0005
 
 
 def _events(rec: Path) -> list[dict[str, Any]]:
