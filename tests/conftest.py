@@ -23,6 +23,7 @@ import psutil
 import pytest
 from archive_helpers import PgServer
 from hypothesis import settings
+from owned_trees import OWNED_ROOTS
 from repo_paths import ROOT
 
 from benchctl.clock.virtual import VirtualClock
@@ -94,7 +95,8 @@ def _live(pid: int) -> psutil.Process | None:
 @pytest.fixture(autouse=True)
 def no_leaks() -> Iterator[None]:
     """Fail a test that leaves a thread, a child process, an open socket or a pty behind
-    (after a generous grace)."""
+    (after a generous grace). The processes of a tree a fixture owns beyond the test
+    (``owned_trees``: a module's Chromium) are that program's own."""
     before = _threads()
     me = psutil.Process()
     io_before = _ports_and_ptys(me)
@@ -103,9 +105,10 @@ def no_leaks() -> Iterator[None]:
     deadline = time.monotonic() + 5.0
     while True:
         leaked = [t for t in _threads() - before if not t.name.startswith(("pydevd", "asyncio_"))]
+        owned = set().union(*(_descendants(r) | {r} for r in OWNED_ROOTS))
         kids = [
             p
-            for p in map(_live, sorted(_descendants(me.pid) - children_before))
+            for p in map(_live, sorted(_descendants(me.pid) - children_before - owned))
             if p is not None
         ]
         io_leaked = sorted(_ports_and_ptys(me) - io_before)

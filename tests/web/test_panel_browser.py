@@ -10,8 +10,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import psutil
 import pytest
 from browser import chromium
+from owned_trees import OWNED_ROOTS
 from panel import free_port, get_json, post_json, serve, wait_for
 from playwright.sync_api import Browser as PwBrowser
 from playwright.sync_api import Page, sync_playwright
@@ -50,6 +52,7 @@ def chromium_browser() -> Iterator[PwBrowser]:
     """One headless Chromium for the module (its launch is a second or two of each test's
     time); each test gets a context of its own in it (below): its own cookies, storage and
     pages, as a fresh browser would have."""
+    roots: set[int] = set()
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=chromium(), args=["--no-sandbox"])
         try:
@@ -59,9 +62,32 @@ def chromium_browser() -> Iterator[PwBrowser]:
             warm = b.new_context()
             warm.new_page().goto("data:text/html,<p>warm-up</p><script>1</script>")
             warm.close()
+            # its renderers too are the browser's business: a spare one for the next page, or
+            # a closed page's still ending on a loaded machine (seen once beside two CPU-bound
+            # processes: a renderer outlived the test's 5 s grace)
+            roots = _chromium_roots()
+            OWNED_ROOTS.update(roots)
             yield b
         finally:
+            OWNED_ROOTS.difference_update(roots)
             b.close()
+
+
+def _chromium_roots() -> set[int]:
+    """This process's descendants that are a Chromium whose parent is not one: the browsers
+    Playwright started (their renderers and services are their children)."""
+    def chromium(p: psutil.Process) -> bool:
+        try:
+            return "chrom" in p.name().lower()
+        except psutil.Error:
+            return False
+
+    found = set()
+    for p in psutil.Process().children(recursive=True):
+        parent = p.parent()
+        if chromium(p) and (parent is None or not chromium(parent)):
+            found.add(p.pid)
+    return found
 
 
 @pytest.fixture
