@@ -149,7 +149,8 @@ def one(tree: Path, args: argparse.Namespace) -> dict[str, Any]:
         got: dict[str, Any] = json.loads(lines[-1])
         # this checkout's digest of either tree's recording (a baseline may predate it; imported
         # here, not at the top: a child imports benchctl from the tree it measures)
-        sys.path.insert(0, str(ROOT))
+        if str(ROOT) not in sys.path:  # once: this is called per run
+            sys.path.insert(0, str(ROOT))
         from benchctl.recording.digest import data_digest
 
         rec = got["recording"]
