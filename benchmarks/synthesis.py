@@ -32,7 +32,7 @@ from benchctl.profiles import (  # noqa: E402
     sample_times,
     synthesize,
 )
-from benchctl.profiles.synthesis import TableMotion  # noqa: E402
+from benchctl.profiles.motion import TableMotion  # noqa: E402
 
 TIMED = ("paper_vessel_roll", "sea_state_4_small_vessel", "fast_craft_roll")
 

@@ -8,8 +8,8 @@ Public API (the run layer relies on these; see each docstring):
   (``LimitError`` "needed X, allowed Y" when over and not scaling).
 
 Modules: ``spectra`` (wave spectra), ``roll`` (roll models), ``synthesis`` (multisine lines,
-phases, crest factor, fast sampling, Motion classes), ``records`` (spectrum of a recording),
-``schema`` / ``loader`` (files), ``design`` (profile → motion), ``checks`` (limits).
+phases, crest factor, fast sampling), ``motion`` (the Motion classes), ``records`` (spectrum of
+a recording), ``schema`` / ``loader`` (files), ``design`` (profile → motion), ``checks`` (limits).
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from __future__ import annotations
 from benchctl.profiles.checks import MotionCheck, Peaks, check_motion, measure_peaks
 from benchctl.profiles.design import choose_period, synthesize
 from benchctl.profiles.loader import Profile, load_profile, parse_profile
-from benchctl.profiles.synthesis import Motion, StepMotion, TableMotion, sample_times, tables_to_csv
+from benchctl.profiles.motion import Motion, StepMotion, TableMotion
+from benchctl.profiles.synthesis import sample_times, tables_to_csv
 
 __all__ = [
     "Motion",

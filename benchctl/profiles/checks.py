@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from benchctl.errors import LimitError
-from benchctl.profiles.synthesis import Motion, sample_times
+from benchctl.profiles.motion import Motion
+from benchctl.profiles.synthesis import sample_times
 
 if TYPE_CHECKING:  # a type only: the bench config's pydantic models cost `analyze` ~0.5 s
     from benchctl.config import StandLimits

@@ -24,6 +24,7 @@ from benchctl.errors import ConfigError
 from benchctl.harmonics import HarmonicTable
 from benchctl.profiles import roll, spectra
 from benchctl.profiles.loader import Profile, sine_steps_duration
+from benchctl.profiles.motion import AxisTarget, Motion, StepMotion, StepSegment, TableMotion
 from benchctl.profiles.schema import (
     ExpCosSpec,
     HarmonicsProfile,
@@ -37,12 +38,7 @@ from benchctl.profiles.schema import (
 )
 from benchctl.profiles.synthesis import (
     AXIS_STREAM,
-    AxisTarget,
     CrestReport,
-    Motion,
-    StepMotion,
-    StepSegment,
-    TableMotion,
     design_lines,
     line_harmonics,
     random_phases,

@@ -243,7 +243,7 @@ def _fake_session(
 ) -> tuple[Any, Any, Any]:
     from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
 
-    from benchctl.profiles.synthesis import TableMotion
+    from benchctl.profiles.motion import TableMotion
     from benchctl.run.prepare import prepare_pretest
     from benchctl.run.session import Session
 
