@@ -21,12 +21,11 @@ import json
 import logging
 import math
 import os
-import sqlite3
 import threading
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from datetime import UTC, date, datetime
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +34,16 @@ from sqlalchemy.engine import URL, Connection, make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 from sqlalchemy.pool import NullPool
 
+from benchctl.archive.failures import RECORD_ERRORS, cause_line, classify
+from benchctl.archive.rows import (
+    iso,
+    measurement_dict,
+    measurement_rows,
+    run_row,
+    run_summary,
+)
 from benchctl.archive.schema import HEAD, VERSION_TABLE, measurements, runs, units
-from benchctl.errors import ArchiveError, DataError
-from benchctl.jsonout import dumps
+from benchctl.errors import ArchiveError
 from benchctl.outcomes import RUN_OUTCOMES, Outcome
 from benchctl.redact import redact_secret, redact_text
 
@@ -45,14 +51,10 @@ log = logging.getLogger(__name__)
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 OUTCOMES = RUN_OUTCOMES  # the runs' outcomes the archive counts
-SOURCES = ("record.json", "recording", "killed")
 DEFAULT_CONNECT_TIMEOUT_S = 2.0
 DEFAULT_BUSY_TIMEOUT_S = 30.0  # how long a statement waits for a lock (SQLite: a busy file)
 MIGRATE_KEY = 0x62656E6368  # PostgreSQL advisory lock of the migrations ("bench")
-# errors raised while a record's values are bound, not by the database (an integer out of
-# SQLite's range, a lone surrogate that cannot be encoded): the record is refused
-_RECORD_ERRORS: tuple[type[Exception], ...] = (UnicodeError, OverflowError, ValueError, TypeError)
-_TX_ERRORS: tuple[type[Exception], ...] = (SQLAlchemyError, *_RECORD_ERRORS)
+_TX_ERRORS: tuple[type[Exception], ...] = (SQLAlchemyError, *RECORD_ERRORS)
 
 
 def parse_url(url: str, field: str = "archive.url") -> URL:
@@ -91,127 +93,20 @@ def shown(url: URL | str) -> str:
     return redact_text(str(url))
 
 
-def utc_naive(value: Any) -> datetime | None:
-    """An ISO time (or datetime) as naive UTC (how the archive stores times); None when absent
-    or unreadable."""
-    if value is None or value == "":
-        return None
-    if isinstance(value, datetime):
-        d = value
-    elif isinstance(value, date):
-        d = datetime(value.year, value.month, value.day)
-    else:
-        try:
-            d = datetime.fromisoformat(str(value).replace("Z", "+00:00"))
-        except ValueError:
-            return None
-    if d.tzinfo is not None:
-        d = d.astimezone(UTC).replace(tzinfo=None)
-    return d
 
 
-def iso(d: datetime | None) -> str | None:
-    """A stored (naive UTC) time as ISO 8601 with its zone."""
-    return None if d is None else d.replace(tzinfo=UTC).isoformat(timespec="milliseconds")
 
 
-def _num(v: Any) -> float | None:
-    if isinstance(v, bool):
-        return 1.0 if v else 0.0
-    if isinstance(v, int | float):
-        f = float(v)
-        return f if math.isfinite(f) else None
-    return None
 
 
-def _text(v: Any, limit: int) -> str | None:
-    if v is None:
-        return None
-    s = str(v)
-    return s[:limit]
 
 
-def _map(v: Any) -> Mapping[str, Any]:
-    return v if isinstance(v, Mapping) else {}
 
 
-def _ci(m: Mapping[str, Any]) -> tuple[float | None, float | None]:
-    ci = m.get("ci95")
-    if isinstance(ci, list | tuple) and len(ci) == 2:
-        return _num(ci[0]), _num(ci[1])
-    return None, None
 
 
-def run_row(record: Mapping[str, Any], *, recording_sha256: str | None = None,
-            source: str = "record.json") -> dict[str, Any]:
-    """The ``runs`` row of a record (``benchctl-record/1``; read defensively: any field may be
-    missing). ``DataError`` when it has no run_id."""
-    run_id = record.get("run_id")
-    if not isinstance(run_id, str) or not run_id:
-        raise DataError(f"record: run_id = {run_id!r}: expected the recording folder's name")
-    unit = _map(record.get("unit"))
-    profile = _map(record.get("profile"))
-    abort_v = record.get("abort")
-    abort = abort_v if isinstance(abort_v, Mapping) else None
-    rule = record.get("decision_rule")
-    files = _map(record.get("files"))
-    report = _map(files.get("report_json"))
-    software = _map(record.get("software"))
-    outcome = str(record.get("outcome") or Outcome.ABORTED).upper()
-    seed = profile.get("seed")
-    return {
-        "run_id": run_id[:255],
-        "serial": (_text(unit.get("serial"), 200) or ""),
-        "part_number": _text(unit.get("part_number"), 200),
-        "station": _text(record.get("station"), 200) or "",
-        "operator": _text(record.get("operator"), 200) or "",
-        "start_utc": utc_naive(record.get("start_utc")),
-        "end_utc": utc_naive(record.get("end_utc")),
-        "outcome": outcome[:20],
-        "exit_code": record.get("exit_code") if isinstance(record.get("exit_code"), int) else None,
-        "abort_kind": None if abort is None else _text(abort.get("kind"), 20),
-        "abort_reason": None if abort is None else _text(abort.get("reason"), 10000),
-        "decision_rule": _text(rule.get("name") if isinstance(rule, Mapping) else rule, 20),
-        "profile_name": _text(profile.get("name"), 200),
-        "profile_kind": _text(profile.get("kind"), 100),
-        "profile_seed": seed if isinstance(seed, int) and not isinstance(seed, bool)
-        and -(2**63) <= seed < 2**63 else None,
-        "profile_sha256": _text(profile.get("sha256"), 64),
-        "config_sha256": _text(record.get("config_sha256"), 64),
-        "software_version": _text(software.get("version"), 100),
-        "recording_path": _text(files.get("recording"), 10000),
-        "recording_sha256": recording_sha256,
-        "report_path": _text(report.get("path"), 10000),
-        "report_sha256": _text(report.get("sha256"), 64),
-        "source": source if source in SOURCES else "record.json",
-        "record_json": dumps(record, sort_keys=True),  # strict JSON: NaN → null
-        "archived_utc": datetime.now(UTC).replace(tzinfo=None),
-    }
 
 
-def measurement_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The ``measurements`` rows of a record, in its order."""
-    out = []
-    ms = record.get("measurements")
-    for i, m in enumerate(ms if isinstance(ms, list) else []):
-        if not isinstance(m, Mapping):
-            continue
-        lo, hi = _ci(m)
-        out.append({
-            "run_id": str(record["run_id"])[:255],
-            "seq": i,
-            "name": _text(m.get("name"), 200) or "?",
-            "axis": _text(m.get("axis"), 50),
-            "value": _num(m.get("value")),
-            "unit": _text(m.get("unit"), 50),
-            "low": _num(m.get("low")),
-            "high": _num(m.get("high")),
-            "ci95_low": lo,
-            "ci95_high": hi,
-            "outcome": _text(m.get("outcome"), 20),
-            "rule": _text(m.get("rule"), 20),
-        })
-    return out
 
 
 _MIGRATE_LOCK = threading.Lock()
@@ -305,7 +200,7 @@ class Archive:
         """The ``ArchiveError`` for a failure while doing ``what``: its kind (``classify``)
         and the driver's first line, passwords hidden."""
         kind = classify(e)
-        cause = redact_secret(_cause(e), self.url.password)
+        cause = redact_secret(cause_line(e), self.url.password)
         if kind == "locked":
             cause += f"; waited {self.busy_timeout_s:g} s"
         elif kind == "timed out":
@@ -496,7 +391,7 @@ class Archive:
             if limit is not None:
                 rows = rows[-limit:]
             sigmas = self._sigmas(conn, [r["run_id"] for r in rows])
-        return [_summary(r, sigmas.get(r["run_id"], [])) for r in rows]
+        return [run_summary(r, sigmas.get(r["run_id"], [])) for r in rows]
 
     def _sigmas(self, conn: Connection, ids: Sequence[str]) -> dict[str, list[dict[str, Any]]]:
         out: dict[str, list[dict[str, Any]]] = {}
@@ -506,7 +401,7 @@ class Archive:
                  .where(measurements.c.run_id.in_(chunk), measurements.c.name == "sigma")
                  .order_by(measurements.c.run_id, measurements.c.seq))
             for m in conn.execute(q):
-                out.setdefault(m.run_id, []).append(_measurement(dict(m._mapping)))
+                out.setdefault(m.run_id, []).append(measurement_dict(dict(m._mapping)))
         return out
 
     def show(self, run_id: str) -> dict[str, Any] | None:
@@ -518,8 +413,8 @@ class Archive:
             row = dict(r._mapping)
             ms = conn.execute(select(measurements).where(measurements.c.run_id == run_id)
                               .order_by(measurements.c.seq))
-            mlist = [_measurement(dict(m._mapping)) for m in ms]
-        out = _summary(row, [m for m in mlist if m["name"] == "sigma"])
+            mlist = [measurement_dict(dict(m._mapping)) for m in ms]
+        out = run_summary(row, [m for m in mlist if m["name"] == "sigma"])
         out["measurements"] = mlist
         try:
             out["record"] = json.loads(row["record_json"])
@@ -574,93 +469,15 @@ class Archive:
         return out
 
 
-def _measurement(m: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "name": m["name"], "axis": m["axis"], "value": m["value"], "unit": m["unit"],
-        "low": m["low"], "high": m["high"],
-        "ci95": None if m["ci95_low"] is None or m["ci95_high"] is None
-        else [m["ci95_low"], m["ci95_high"]],
-        "outcome": m["outcome"], "rule": m["rule"],
-    }
-
-
-def _summary(r: dict[str, Any], sigmas: list[dict[str, Any]]) -> dict[str, Any]:
-    return {
-        "run_id": r["run_id"], "serial": r["serial"], "part_number": r["part_number"],
-        "station": r["station"], "operator": r["operator"],
-        "start_utc": iso(r["start_utc"]), "end_utc": iso(r["end_utc"]),
-        "outcome": r["outcome"], "exit_code": r["exit_code"],
-        "abort": None if r["abort_kind"] is None and r["abort_reason"] is None
-        else {"kind": r["abort_kind"], "reason": r["abort_reason"]},
-        "decision_rule": r["decision_rule"],
-        "profile": {"name": r["profile_name"], "kind": r["profile_kind"],
-                    "seed": r["profile_seed"], "sha256": r["profile_sha256"]},
-        "config_sha256": r["config_sha256"], "software_version": r["software_version"],
-        "recording": {"path": r["recording_path"], "sha256": r["recording_sha256"]},
-        "report_json": {"path": r["report_path"], "sha256": r["report_sha256"]},
-        "source": r["source"], "archived_utc": iso(r["archived_utc"]),
-        "sigma": {str(m["axis"]): m["value"] for m in sigmas},
-        "sigma_limit": {str(m["axis"]): m["high"] for m in sigmas},
-    }
 
 
 
-_PG_KINDS = {"55P03": "locked", "40P01": "locked", "57014": "timed out",
-             "25006": "read-only", "42501": "read-only"}
-_PG_CLASSES = {"22": "refused", "23": "refused", "54": "refused", "28": "denied",
-               "08": "unreachable", "57": "unreachable", "3D": "unreachable"}
 
 
-def classify(e: BaseException) -> str:
-    """What a database failure is, as it is: ``refused`` (the database will not take this
-    record: a value it cannot store — a NUL character, a number out of range — or a broken
-    constraint; storing it again fails again), ``locked`` (another session holds what the
-    statement needs: lock timeout, deadlock, a busy SQLite file), ``timed out`` (the statement
-    timeout), ``read-only`` (a read-only database, file or transaction, or no right to write),
-    ``denied`` (the login: password, role), ``unreachable`` (no connection, or it was lost)
-    or ``failed`` (anything else). From PostgreSQL's SQLSTATE where there is one, else
-    the driver's exception class and message."""
-    from sqlalchemy import exc as sa
-
-    orig = getattr(e, "orig", None) if isinstance(e, sa.DBAPIError) else None
-    inner = orig if orig is not None else e
-    if isinstance(inner, _RECORD_ERRORS) and not isinstance(inner, sa.SQLAlchemyError):
-        return "refused"
-    state = getattr(inner, "sqlstate", None)
-    if isinstance(state, str) and len(state) == 5:
-        if state in _PG_KINDS:
-            return _PG_KINDS[state]
-        if state[:2] in _PG_CLASSES:
-            return _PG_CLASSES[state[:2]]
-    msg = str(inner).lower()
-    if isinstance(inner, sqlite3.Error):
-        if isinstance(inner, sqlite3.IntegrityError | sqlite3.DataError):
-            return "refused"
-        if "locked" in msg or "busy" in msg:
-            return "locked"
-        if "readonly" in msg or "read-only" in msg:
-            return "read-only"
-        if "unable to open" in msg:
-            return "unreachable"
-        if "too big" in msg:
-            return "refused"
-        return "failed"
-    if isinstance(e, sa.DataError | sa.IntegrityError):
-        return "refused"
-    if "authentication failed" in msg or "no password supplied" in msg:
-        return "denied"
-    if isinstance(e, sa.StatementError) and not isinstance(e, sa.DBAPIError):
-        return "refused"  # a value SQLAlchemy could not bind
-    if isinstance(e, sa.OperationalError | sa.InterfaceError) or "connection" in msg:
-        return "unreachable"
-    return "failed"
 
 
-def _cause(e: BaseException) -> str:
-    orig = getattr(e, "orig", None)
-    text_ = str(orig if orig is not None else e).strip().splitlines()
-    return redact_text(text_[0]) if text_ else type(e).__name__
 
 
-__all__ = ["OUTCOMES", "Archive", "classify", "iso", "measurement_rows", "parse_url",
-           "run_row", "shown", "utc_naive"]
+
+
+__all__ = ["OUTCOMES", "Archive", "parse_url", "shown"]

@@ -17,7 +17,7 @@ from benchctl.outcomes import ExitCode
 
 def since_date(text: str) -> datetime:
     """--since: a date (YYYY-MM-DD, UTC midnight) or an ISO time (naive: UTC)."""
-    from benchctl.archive.store import utc_naive
+    from benchctl.archive.rows import utc_naive
 
     d = utc_naive(text)
     if d is None:

@@ -53,7 +53,8 @@ from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 
 from benchctl.archive.history import html_page
-from benchctl.archive.store import Archive, shown, utc_naive
+from benchctl.archive.rows import utc_naive
+from benchctl.archive.store import Archive, shown
 from benchctl.clock import REAL, LockLike
 from benchctl.errors import ArchiveError
 from benchctl.jsonout import plain

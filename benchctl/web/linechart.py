@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from benchctl.archive.history import run_labels, ticks
-from benchctl.archive.store import iso
+from benchctl.archive.rows import iso
 from benchctl.web.linedata import PartChart
 from benchctl.web.linestats import moving_ranges
 

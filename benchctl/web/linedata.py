@@ -17,8 +17,9 @@ from typing import Any
 from sqlalchemy import and_, func, select
 
 from benchctl.archive import history as h
+from benchctl.archive.rows import iso
 from benchctl.archive.schema import measurements, runs
-from benchctl.archive.store import Archive, iso
+from benchctl.archive.store import Archive
 from benchctl.web.linestations import (
     STALE_AFTER_S,
     Heartbeat,

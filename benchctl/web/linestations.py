@@ -31,7 +31,7 @@ starting together do not trip over each other. It is not part of the archive's m
 schema: it holds no results, only what is happening now, and can be dropped at any time.
 
 Every failure to reach or write the database is an ``ArchiveError`` (its ``kind`` as the
-archive says it: ``benchctl.archive.store.classify``): a station server calls
+archive says it: ``benchctl.archive.failures.classify``): a station server calls
 ``publish`` from its own thread and logs the error; a heartbeat lost never touches a run.
 """
 
@@ -59,7 +59,9 @@ from sqlalchemy import (
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import SQLAlchemyError
 
-from benchctl.archive.store import Archive, classify, utc_naive
+from benchctl.archive.failures import classify
+from benchctl.archive.rows import utc_naive
+from benchctl.archive.store import Archive
 from benchctl.clock import REAL, LockLike
 from benchctl.errors import ArchiveError, InputError
 from benchctl.redact import redact_text

@@ -27,6 +27,7 @@ from repo_paths import HELPERS
 from sqlalchemy import inspect
 
 from benchctl.archive.ingest import KILLED_REASON, record_of, recording_sha256
+from benchctl.archive.rows import utc_naive
 from benchctl.archive.schema import HEAD, metadata
 from benchctl.archive.service import (
     ArchiveSettings,
@@ -40,7 +41,7 @@ from benchctl.archive.service import (
     settings_for,
     sync,
 )
-from benchctl.archive.store import Archive, parse_url, utc_naive
+from benchctl.archive.store import Archive, parse_url
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.errors import ArchiveError, DataError

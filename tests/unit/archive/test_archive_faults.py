@@ -35,6 +35,7 @@ import pytest
 from archive_helpers import SINE, PgServer, make_record, make_recording
 from sqlalchemy.exc import OperationalError
 
+from benchctl.archive.failures import classify
 from benchctl.archive.service import (
     ArchiveSettings,
     archive_run,
@@ -44,7 +45,7 @@ from benchctl.archive.service import (
     settings_for,
     sync,
 )
-from benchctl.archive.store import Archive, classify
+from benchctl.archive.store import Archive
 from benchctl.cli import main
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import ArchiveConfig
