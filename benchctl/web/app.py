@@ -30,10 +30,11 @@ from benchctl.web.i18n import script_texts, translations
 from benchctl.web.line import LineArchive, line_router
 from benchctl.web.lineheartbeat import HeartbeatPublisher
 from benchctl.web.linepages import environment
+from benchctl.web.panelrun import Run
 from benchctl.web.runstate import state_path
 from benchctl.web.security import Guard
 from benchctl.web.settings import PanelSettings
-from benchctl.web.station import Run, Station, sse
+from benchctl.web.station import Station, sse
 from benchctl.web.station_beat import beat_of
 from benchctl.web.wording import _
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.web.linestations import StationState
-from benchctl.web.station import Run, outcome
+from benchctl.web.panelrun import Run, outcome
 
 
 def beat_of(run: Run, part_number: str | None) -> tuple[StationState, dict[str, Any]]:

@@ -17,6 +17,7 @@ def source_ids() -> set[str]:
         str(LOCALE_DIR.parent),
         method_map=[("**/i18n.py", "python"), ("**/line.py", "python"),
                     ("**/wording.py", "python"), ("**/station.py", "python"),
+                    ("**/panelrun.py", "python"),
                     ("**/app.py", "python"),
                     ("**/templates/station/**.j2", "jinja2"),
                     ("**/templates/line/**.j2", "jinja2")],

@@ -13,9 +13,9 @@ from repo_paths import ROOT
 from benchctl.archive.store import Archive
 from benchctl.web.app import create_app
 from benchctl.web.linestations import StationBoard, StationState
+from benchctl.web.panelrun import Run
 from benchctl.web.security import hash_token
 from benchctl.web.settings import PanelSettings
-from benchctl.web.station import Run
 from benchctl.web.station_beat import beat_of
 
 LOOPBACK = "http://127.0.0.1:8350"

@@ -12,8 +12,9 @@ from typing import Any
 
 from repo_paths import ROOT
 
+from benchctl.web.panelrun import Run, outcome
 from benchctl.web.settings import PanelSettings
-from benchctl.web.station import QUEUE_EVENTS, Run, Station, Watcher, outcome
+from benchctl.web.station import QUEUE_EVENTS, Station, Watcher
 
 
 def station(tmp: Path) -> Station:

@@ -22,7 +22,7 @@ from repo_paths import ROOT
 from benchctl.run import fitness
 from benchctl.run.session import stand_after
 from benchctl.text import SERIAL_MAX
-from benchctl.web.station import Run, outcome
+from benchctl.web.panelrun import Run, outcome
 from benchctl.web.wording import Words
 
 RU, EN = Words("ru"), Words("en")
