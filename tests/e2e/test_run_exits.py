@@ -10,6 +10,10 @@
   connects, naming the holder; a holder killed with -9 leaves the stand free.
 - an unexpected exception: exit 2, one line naming the log file, the traceback in that file.
 - the simulators' child logs into the recording (sim.log) and is gone after the run.
+
+One file (about 800 lines) on purpose: every way out shares the same child-process harness
+(``_child``, ``_finish``, ``_reap``, the bench files) and the same assertions on the cleanup
+path, and reading them side by side is how one checks that they are the same path.
 """
 
 from __future__ import annotations

@@ -9,6 +9,9 @@ never an exception that would end a run; a real link failure is still a lost lin
   CANopen (TPDO, EMCY, heartbeat, SDO), J1939 and NMEA 2000 drivers through the CAN reader's
   own poll; no exception escapes and the counts add up;
 - byte-exact examples of the known failures, through the real transports (a pty).
+
+One file (about 670 lines) on purpose: every decoder against the same contract (a sample or a
+counted bad frame), the property tests and the byte-exact examples side by side.
 """
 
 from __future__ import annotations

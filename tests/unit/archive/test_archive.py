@@ -7,6 +7,9 @@ measurements, history filters, show, the σ series and the yield per day, rebuil
 recordings (record.json, the fallback from meta/end/report, a killed run), an unreachable
 archive → queue → sync, two processes writing at once, a session's run archived at its end,
 the CLI (history --json/--csv/--html, show).
+
+One file (about 630 lines): one PostgreSQL server is started per module, so the cases that
+need it on both backends live together.
 """
 
 from __future__ import annotations

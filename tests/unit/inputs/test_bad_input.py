@@ -2,7 +2,11 @@
 numeric options of every subcommand, YAML (duplicate keys, aliases, depth, bytes, sexagesimal,
 non-finite numbers), fault schedules, and a taken TCP port. Each is a ``BenchError`` → exit 2
 with one line ``benchctl <cmd>: error: …`` naming the file, the field/line/option, the value and
-what was expected; never a traceback, a hang or a silent acceptance."""
+what was expected; never a traceback, a hang or a silent acceptance.
+
+One file (about 700 lines) on purpose: it is a catalogue of refusals, one short case each,
+checked against one rule (the one-line error and exit 2); split, the rule would be asserted in
+several places."""
 
 from __future__ import annotations
 

@@ -8,6 +8,9 @@
   operator (SIGINT), the equipment (a stand fault) and the software (an exception in a driver);
 - a real simulated run through the CLI: record.json valid, part number and rule in it;
 - ``benchctl schema record``; the strict JSON encoder; the version from package metadata.
+
+One file (about 630 lines): the record is where measurements, rules and outcomes meet, and its
+cases share the same fakes.
 """
 
 from __future__ import annotations
