@@ -137,6 +137,7 @@ def cross_axis_response(
     cs = c * s
     sd = math.sqrt(float(np.sum(cs))) / info
     dof = float(np.sum(cs)) ** 2 / max(float(np.sum(cs**2 / noise.dof)), 1e-300)
+    # scipy.special: about 0.6 s to import, needed only for a cross-axis interval
     from scipy.special import stdtrit
 
     t = float(stdtrit(dof, 0.975))

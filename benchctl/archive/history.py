@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
+from jinja2 import Environment, StrictUndefined
+
 from benchctl.outcomes import RUN_OUTCOMES, Outcome
 from benchctl.text import csv_cell, terminal_lines, visible
 
@@ -401,8 +403,6 @@ def html_page(rows: Sequence[dict[str, Any]], *, archive: str, serial: str | Non
               yields: Sequence[dict[str, Any]] = (), station: str | None = None,
               since: str | None = None) -> str:
     """The history page: self-contained HTML (inline SVG, no script)."""
-    from jinja2 import Environment, StrictUndefined
-
     env = Environment(autoescape=True, undefined=StrictUndefined)
     t = env.from_string(TEMPLATE)
     table = []

@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, delete, event, func, inspect, select, text
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.engine import URL, Connection, make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 from sqlalchemy.pool import NullPool
@@ -295,6 +297,7 @@ class Archive:
             os.close(fd)  # releases the lock
 
     def _upgrade(self, conn: Connection) -> None:
+        # Alembic: about 0.5 s to import, needed only when the schema is behind
         from alembic import command
         from alembic.config import Config
 
@@ -322,11 +325,7 @@ class Archive:
 
     def _insert(self) -> Any:
         if self.backend == "sqlite":
-            from sqlalchemy.dialects.sqlite import insert as sqlite_insert
-
             return sqlite_insert
-        from sqlalchemy.dialects.postgresql import insert as pg_insert
-
         return pg_insert
 
     def store(self, record: Mapping[str, Any], *, recording_sha256: str | None = None,

@@ -12,6 +12,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from jsonschema import Draft202012Validator
+
 from benchctl.errors import DataError
 from benchctl.jsonout import load_object, plain
 from benchctl.results.record import validate_record
@@ -32,8 +34,6 @@ def plan_schema() -> dict[str, Any]:
 def validate_plan_record(record: Mapping[str, Any]) -> None:
     """Raise ``DataError`` unless ``record`` is a valid plan record (every problem named:
     where, what was found, what was expected), each step's record valid too."""
-    from jsonschema import Draft202012Validator
-
     data = plain(record)
     v = Draft202012Validator(plan_schema())
     errors = sorted(v.iter_errors(data), key=lambda e: list(e.absolute_path))

@@ -45,6 +45,7 @@ GAP_IN, SHARED_GAP_IN = 0.46, 0.14
 
 def _figure(width_in: float, height_in: float, rows: int = 1,
             gap_in: float = GAP_IN) -> tuple[Figure, list[Axes]]:
+    # matplotlib: about 0.9 s to import, needed only when a figure is drawn
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(width_in, height_in))
@@ -58,7 +59,7 @@ def _figure(width_in: float, height_in: float, rows: int = 1,
 
 def svg_text(fig: Figure) -> str:
     """``fig`` as an inline ``<svg>`` element (scalable: width 100 % of its box)."""
-    from matplotlib.backends.backend_svg import FigureCanvasSVG
+    from matplotlib.backends.backend_svg import FigureCanvasSVG  # with matplotlib, as above
 
     FigureCanvasSVG(fig)
     for ax in fig.get_axes():
@@ -242,7 +243,7 @@ def excitation_svg(exc: Mapping[str, Any], title: str = "") -> str | None:
     a2.axhline(0.0, color="black", lw=0.8)
     a2.set_xscale("log")
     a2.set_ylabel("error, dB")
-    from matplotlib.ticker import FuncFormatter
+    from matplotlib.ticker import FuncFormatter  # with matplotlib, as above
 
     def _plain(v: float, _pos: int) -> str:  # 0.2, 0.3, 0.5 (not 2×10⁻¹ …: they overlap)
         m = v / 10 ** math.floor(math.log10(v)) if v > 0 else 0.0

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+from jinja2 import Environment, PackageLoader, StrictUndefined
 
 from benchctl.analysis.departures import departure_text
 from benchctl.errors import DataError
@@ -53,8 +54,6 @@ REJOIN_LABEL = "rejoins (the stand rejoined the profile after missed setpoints o
 
 @cache
 def _environment() -> Any:
-    from jinja2 import Environment, PackageLoader, StrictUndefined
-
     env = Environment(
         loader=PackageLoader("benchctl.report", "templates"),
         autoescape=True,

@@ -32,6 +32,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from jsonschema import Draft202012Validator
+
 from benchctl import __version__
 from benchctl.clock import REAL, Clock
 from benchctl.config import axis_map
@@ -63,8 +65,6 @@ def schema_text() -> str:
 def validate_record(record: Mapping[str, Any]) -> None:
     """Raise ``DataError`` unless ``record`` is valid against the schema (every problem
     listed: where in the record, what was found, what was expected)."""
-    from jsonschema import Draft202012Validator
-
     v = Draft202012Validator(record_schema())
     errors = sorted(v.iter_errors(plain(record)), key=lambda e: list(e.absolute_path))
     if errors:

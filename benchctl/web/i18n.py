@@ -57,7 +57,7 @@ def translations(lang: str) -> gettext.NullTranslations:
     po = LOCALE_DIR / lang / "LC_MESSAGES" / f"{DOMAIN}.po"
     if not po.is_file():
         raise ConfigError(f"no panel catalog for the language {lang!r} ({po})")
-    from babel.messages.mofile import write_mo
+    from babel.messages.mofile import write_mo  # Babel: the optional web extra
     from babel.messages.pofile import read_po
 
     with po.open("rb") as f:

@@ -16,6 +16,8 @@ from datetime import datetime
 from functools import cache
 from typing import Any
 
+from jinja2 import Environment, PackageLoader, StrictUndefined
+
 from benchctl.web.linechart import individuals_chart, moving_range_chart
 from benchctl.web.linedata import LineView
 from benchctl.web.linestats import CPK_TARGET, E2, RUN_LENGTH
@@ -53,8 +55,6 @@ def _when(d: Any, form: str = "%Y-%m-%d %H:%M:%S") -> str:
 
 
 def _make_environment(translations: gettext.NullTranslations) -> Any:
-    from jinja2 import Environment, PackageLoader, StrictUndefined
-
     env = Environment(
         loader=PackageLoader("benchctl.web", "templates"),
         autoescape=True,

@@ -56,6 +56,8 @@ from sqlalchemy import (
     select,
     text,
 )
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -260,11 +262,7 @@ class StationBoard:
 def _insert(backend: str) -> Any:
     """The dialect's INSERT (both have ``on_conflict_do_update``)."""
     if backend == "postgresql":
-        from sqlalchemy.dialects.postgresql import insert as pg_insert
-
         return pg_insert
-    from sqlalchemy.dialects.sqlite import insert as sqlite_insert
-
     return sqlite_insert
 
 

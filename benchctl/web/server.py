@@ -36,7 +36,7 @@ def check_access(settings: PanelSettings) -> PanelSettings:
 def serve(settings: PanelSettings) -> None:
     """Serve the panel until interrupted (Ctrl-C, SIGTERM). A run going on is not stopped by
     the server's end: it ends by itself, its stand at rest as always."""
-    import uvicorn
+    import uvicorn  # the optional web extra: `benchctl serve` says how to install it
 
     settings = check_access(settings)
     app = create_app(settings)

@@ -97,7 +97,7 @@ class Words:
     def number(self, value: Any, digits: int, signed: bool = False) -> str:
         """``value`` with ``digits`` decimals in the language's way (``+3,000`` in Russian);
         "—" for no number."""
-        from babel.numbers import format_decimal
+        from babel.numbers import format_decimal  # Babel: the optional web extra
 
         if not isinstance(value, int | float) or value != value:
             return "—"

@@ -321,6 +321,7 @@ def tcp_link(
 
     def make(trace: Callable[[bool, bytes], bytes]) -> Any:
         if host.startswith(CHANNEL_SCHEME):  # an in-process link to a simulated stand
+            # here: channel_client builds on this module (a circle at import)
             from benchctl.channels import lookup
             from benchctl.devices.modbus.channel_client import ChannelTcpClient
 
@@ -361,6 +362,7 @@ def rtu_link(
                 "stopbits": stopbits, "timeout": timeout_s, "retries": retries,
                 "trace_packet": trace}
         if port.startswith(CHANNEL_SCHEME):  # an in-process line to a simulated stand
+            # here: channel_client builds on this module (a circle at import)
             from benchctl.channels import lookup
             from benchctl.devices.modbus.channel_client import ChannelSerialClient
 
