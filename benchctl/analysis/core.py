@@ -45,6 +45,7 @@ from benchctl.analysis.align import Aligned, align
 from benchctl.analysis.budget import Reference, uncertainty_budget
 from benchctl.analysis.correlation import Correlations, correlations, demean
 from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
+from benchctl.analysis.lineperiods import periods_from_lines
 from benchctl.analysis.lines import (
     WHOLE_PERIODS_TOL,
     LineAnalysis,
@@ -53,7 +54,6 @@ from benchctl.analysis.lines import (
     analyze_lines,
     detect_period,
     periodogram,
-    periods_from_lines,
     reference_lines,
     whole_periods,
 )

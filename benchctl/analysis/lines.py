@@ -31,7 +31,7 @@ from ``period_s``, or detected in the reference, see :func:`detect_period`):
    samples present). Only *reliable* lines (SNR ``|c^x_k|²/(2 s_k)`` ≥ ``SNR_FLOOR``) count in
    the linear part; a weaker line's power stays in the incoherent part (its Ĥ_k is mostly
    noise; the sum is unchanged). Weak lines are reported with their SNR and kept out of the
-   gain table (:func:`periods_from_lines`) and of prediction.
+   gain table (:func:`benchctl.analysis.lineperiods.periods_from_lines`) and of prediction.
 5. **Interval of σ** (:func:`benchctl.analysis.uncertainty.mls_interval`): the linear part
    varies only through its cross term with the noise, ``Σ 2 P_k s_k`` (Gaussian); the noise
    in two parts, the lowest ``LOW_BINS`` DFT bins (with the mean-removal term: a slow drift
@@ -58,7 +58,6 @@ from scipy.fft import fft, ifft, irfft, next_fast_len, rfft
 from scipy.special import stdtrit
 
 from benchctl.analysis.distortion import Distortion, analyze_distortion
-from benchctl.analysis.frf import not_excited
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 from benchctl.errors import BenchError
 
@@ -77,9 +76,6 @@ REFERENCE_FIT_MIN = 0.99  # the fitted lines must hold this share of the referen
 DETECT_OFF_GRID = 0.01  # detection: at most this share of the reference's power off the grid …
 DETECT_MIN_LINE = 1e-6  # … and a line holds at least this share of the strongest one …
 DETECT_FLOOR = 100.0  # … and this many times the median power of the off-grid bins
-PERIOD_ON_LINE = 0.01  # a traditional period "on" a line: within this share of the line
-# spacing (the period refined from the record differs from the profile's by a few ppm)
-PERIOD_NEAR = 0.2  # interpolation: both neighbouring lines within 20 % of the frequency
 #: a line is *reliable* when its signal-to-noise ratio ``|c^x_k|²/(2 s_k)`` (= 1/E|Ĥ_k − H_k|²)
 #: is at least this: Ĥ_k within ±0.32 (one standard deviation, complex) of H_k. Weaker lines
 #: (a profile's band edges, lines a few 1e-8° high) are reported with their SNR, but kept out
@@ -621,7 +617,7 @@ class LineAnalysis:
         }
 
 
-def _t975(dof: FloatArray) -> FloatArray:
+def t975(dof: FloatArray) -> FloatArray:
     return np.asarray(stdtrit(np.asarray(dof, dtype=float), 0.975), dtype=float)
 
 
@@ -822,7 +818,7 @@ def analyze_lines(
     noise = _line_noise(e, cx, lines.freq, bins, u, probe)
     s = noise.power
     h = cy / cx
-    t = _t975(noise.dof)
+    t = t975(noise.dof)
     sd_gain = np.sqrt(s) / np.abs(cx)
     sd_phase = np.sqrt(s) / np.maximum(np.abs(cy), 1e-300)
     gain = np.abs(h)
@@ -963,85 +959,4 @@ def _band(band_hz: tuple[float, float], span: float, bins: IntArray, lin_k: Floa
         "sigma": math.sqrt(max(theta, 0.0)),
         "sigma_ci95": [math.sqrt(lo_v), math.sqrt(max(hi_v, 0.0))],
         "n_lines": int(on.sum()), "n_bins": int(inb.sum()),
-    }
-
-
-def periods_from_lines(
-    la: LineAnalysis, periods_s: tuple[float, ...]
-) -> list[dict[str, Any]]:
-    """Gain, phase and coherence with 95 % intervals at the given periods, from the lines.
-
-    A period is *excited* when its frequency f is an excited line (within ``PERIOD_ON_LINE`` of
-    the line spacing 1/T_p), or lies between two excited lines that are consecutive harmonics k,
-    k+1 of ``T_p`` and each within ``PERIOD_NEAR`` (20 %) of f. Between two lines H is
-    interpolated linearly (complex, weight a of the upper line); its noise adds as ``(1−a)² var
-    H_k + a² var H_{k+1}``, and the interpolation error, bounded by ``a(1−a)/2 · |Δ²H|`` (the
-    largest second difference of H over the neighbouring lines; the first difference when there
-    are only the two), is added to the half-widths. Otherwise ``excited`` is false and gain,
-    phase, coherence and intervals are None.
-    """
-    k = la.lines.harmonics
-    tp = la.lines.period_s
-    reliable = la.reliable if la.reliable.size == len(k) else np.ones(len(k), dtype=bool)
-    index = {int(v): i for i, v in enumerate(k) if reliable[i]}
-    weak = {int(v): i for i, v in enumerate(k) if not reliable[i]}
-    cvar = 2.0 * la.noise / la.ref_amplitude**2  # complex variance of each H_k
-    out: list[dict[str, Any]] = []
-    for period in periods_s:
-        f = 1.0 / period
-        kf = f * tp
-        kr = round(kf)
-        if abs(kf - kr) <= PERIOD_ON_LINE and kr in index:
-            i = index[kr]
-            out.append(_period_entry(period, "line", la.h[i], cvar[i], la.noise_dof[i],
-                                     la.coherence[i], 0.0))
-            continue
-        ka = math.floor(kf)
-        if ka in index and ka + 1 in index:
-            fa, fb = ka / tp, (ka + 1) / tp
-            if (f - fa) <= PERIOD_NEAR * f and (fb - f) <= PERIOD_NEAR * f:
-                i, j = index[ka], index[ka + 1]
-                a = kf - ka
-                h = (1 - a) * la.h[i] + a * la.h[j]
-                var = (1 - a) ** 2 * cvar[i] + a**2 * cvar[j]
-                d2 = [
-                    abs(la.h[m + 1] - 2 * la.h[m] + la.h[m - 1])
-                    for m in (i, j)
-                    if 0 < m < len(k) - 1 and k[m + 1] - k[m - 1] == 2
-                ]
-                curv = max(d2) if d2 else abs(la.h[j] - la.h[i])
-                coh = (1 - a) * la.coherence[i] + a * la.coherence[j]
-                out.append(_period_entry(period, "interpolated", h, var,
-                                         min(la.noise_dof[i], la.noise_dof[j]), coh,
-                                         a * (1 - a) / 2 * curv))
-                continue
-        entry = not_excited(period)
-        if abs(kf - kr) <= PERIOD_ON_LINE and kr in weak:
-            i = weak[kr]
-            entry["snr"] = float(la.snr[i])
-            entry["note"] = (f"the line at {f:.4g} Hz has SNR {la.snr[i]:.3g}, below "
-                             f"{la.snr_floor:g}: not measured reliably")
-        out.append(entry)
-    return out
-
-
-def _period_entry(
-    period: float, source: str, h: complex, cvar: float, dof: float, coh: float, bound: float
-) -> dict[str, Any]:
-    t = float(_t975(np.array([dof]))[0])
-    g = abs(h)
-    ph = math.degrees(math.atan2(h.imag, h.real))
-    sd = math.sqrt(cvar / 2.0)
-    hg = t * sd + bound
-    hp = math.degrees(min((t * sd + bound) / max(g, 1e-300), math.pi))
-    return {
-        "period_s": period,
-        "freq": 1.0 / period,
-        "excited": True,
-        "gain": g,
-        "gain_ci95": [g - hg, g + hg],
-        "phase_deg": ph,
-        "phase_ci95_deg": [ph - hp, ph + hp],
-        "coherence": float(coh),
-        "source": source,
     }
