@@ -48,15 +48,14 @@ from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
 from benchctl.analysis.lineperiods import periods_from_lines
 from benchctl.analysis.lines import (
     WHOLE_PERIODS_TOL,
-    LineAnalysis,
     LinesError,
     LineSet,
-    analyze_lines,
     detect_period,
     periodogram,
     reference_lines,
     whole_periods,
 )
+from benchctl.analysis.linewise import LineAnalysis, analyze_lines
 from benchctl.analysis.psd import (
     SpectralGrid,
     WelchEstimate,

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from benchctl.analysis.frf import not_excited
-from benchctl.analysis.lines import LineAnalysis, t975
+from benchctl.analysis.linewise import LineAnalysis, t975
 
 PERIOD_ON_LINE = 0.01  # a traditional period "on" a line: within this share of the line
 # spacing (the period refined from the record differs from the profile's by a few ppm)
