@@ -6,7 +6,7 @@ resonance of the stand and its load) makes the *measured* angle differ. Given th
 recorded angle (instants and values, gaps allowed) over a window of whole periods ``T_p``:
 
 1. **Fit.** The mean and the lines at their known frequencies are fitted by least squares to
-   the samples present (:func:`benchctl.analysis.lines.fit_lines`: the instants are placed on a
+   the samples present (:func:`benchctl.analysis.linefit.fit_lines`: the instants are placed on a
    uniform grid of ``N`` slots over ``n·T_p`` with their offsets from it, gaps masked), giving
    the achieved complex amplitude ``ĉ_k`` (phase referred to the motion's start, so that
    ``ĉ_k / (A_k e^{jφ_k})`` is the stand's response at ``f_k``).
@@ -61,7 +61,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
-from benchctl.analysis.lines import LinesError, _line_noise, fit_lines
+from benchctl.analysis.linefit import fit_lines
+from benchctl.analysis.lines import LinesError, _line_noise
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]

@@ -55,13 +55,11 @@ from numpy.typing import NDArray
 from scipy.special import stdtrit
 
 from benchctl.analysis.distortion import Distortion, analyze_distortion
+from benchctl.analysis.linefit import fit_lines, grid_offsets, refine_period
 from benchctl.analysis.lines import (
     LinesError,
     LineSet,
     _line_noise,
-    fit_lines,
-    grid_offsets,
-    refine_period,
     whole_periods,
 )
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
