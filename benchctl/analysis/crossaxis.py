@@ -36,10 +36,10 @@ from numpy.typing import NDArray
 
 from benchctl.analysis.align import align
 from benchctl.analysis.linefit import fit_lines, grid_offsets, refine_period
+from benchctl.analysis.linenoise import line_noise
 from benchctl.analysis.lines import (
     LinesError,
     LineSet,
-    _line_noise,
     whole_periods,
 )
 from benchctl.analysis.timebase import label_of
@@ -125,7 +125,7 @@ def cross_axis_response(
         probe[-1] = False
     probe[bins] = False
     try:
-        noise = _line_noise(r, z, fo, bins[idx_oth], u, probe)
+        noise = line_noise(r, z, fo, bins[idx_oth], u, probe)
     except LinesError as e:
         return None, f"no cross-axis estimate: {e}"
     s = noise.power

@@ -62,7 +62,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
 from benchctl.analysis.linefit import fit_lines
-from benchctl.analysis.lines import LinesError, _line_noise
+from benchctl.analysis.linenoise import line_noise
+from benchctl.analysis.lines import LinesError
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
@@ -319,7 +320,7 @@ def excitation_fidelity(
     probe[bins] = False
     warnings: list[str] = []
     try:
-        noise = _line_noise(c_hat - c_tgt, c_tgt, freq, bins, u, probe)
+        noise = line_noise(c_hat - c_tgt, c_tgt, freq, bins, u, probe)
         s, dof = noise.power, noise.dof
         method = "lpm" if noise.lpm.all() else ("unexcited" if not noise.lpm.any() else "mixed")
     except LinesError:  # few lines, all bins excited: the residual taken as white

@@ -4,21 +4,22 @@ periodic multisine, H(f_k) with intervals, and the unbiased linear/incoherent sp
 The stand plays lines ``f_k = k/T_p`` over whole periods, the best excitation there is for
 frequency-domain measurement (Pintelon & Schoukens, *System Identification*, ch. 2–3). When the
 record holds ``n`` whole periods of a known line set (from a benchctl recording's profile,
-from ``period_s``, or detected in the reference, see :func:`detect_period`):
+from ``period_s``, or detected in the reference, see :func:`benchctl.analysis.lines.detect_period`):
 
-1. **Fit.** The excited lines (and a mean) are fitted by least squares to the samples actually
-   present on the analysis grid (slot instants ``s·Δt``; gaps are masked slots):
-   ``v_s ≈ c₀ + Re Σ_k c_k e^{j2π f_k s Δt}``, separately for the reference x and the
-   instrument y. Over whole periods of a gap-free uniform grid this is the DFT over the record
-   (``c_k = 2 X_k / N``) and is computed so; otherwise by conjugate gradients on the normal
-   equations, the sums ``Σ v_s e^{−j2π f_k s Δt}`` by chirp-z transforms (exact, O(N log N)).
-2. **Noise at each line** (the power ``s_k = E|N_k|²/2`` a line's coefficient picks up from
-   the incoherent error): from the record's unexcited DFT bins nearby (the residual's
-   periodogram, at least ``NOISE_BINS`` of them within ``±NOISE_REACH`` bins), else — every bin
-   excited, as with one period per record — from the local polynomial method: the deviation of
-   ``E_j = c^y_j − c^x_j`` from ``P(f_j)·c^x_j`` (P of degree 2) over the ``LPM_LINES`` nearest
-   other lines (the line itself left out, so that its noise estimate is independent of its
-   own noise).
+1. **Fit** (:mod:`benchctl.analysis.linefit`). The excited lines (and a mean) are fitted by
+   least squares to the samples actually present on the analysis grid (slot instants
+   ``s·Δt``; gaps are masked slots): ``v_s ≈ c₀ + Re Σ_k c_k e^{j2π f_k s Δt}``, separately
+   for the reference x and the instrument y. Over whole periods of a gap-free uniform grid
+   this is the DFT over the record (``c_k = 2 X_k / N``) and is computed so; otherwise by
+   conjugate gradients on the normal equations, the sums ``Σ v_s e^{−j2π f_k s Δt}`` by
+   chirp-z transforms (exact, O(N log N)).
+2. **Noise at each line** (:mod:`benchctl.analysis.linenoise`; the power ``s_k = E|N_k|²/2``
+   a line's coefficient picks up from the incoherent error): from the record's unexcited DFT
+   bins nearby (the residual's periodogram, at least ``NOISE_BINS`` of them within
+   ``±NOISE_REACH`` bins), else — every bin excited, as with one period per record — from the
+   local polynomial method: the deviation of ``E_j = c^y_j − c^x_j`` from ``P(f_j)·c^x_j``
+   (P of degree 2) over the ``LPM_LINES`` nearest other lines (the line itself left out, so
+   that its noise estimate is independent of its own noise).
 3. **H and its interval.** ``H_k = c^y_k / c^x_k``; gain and phase each with the standard
    deviation ``√s_k/|c^x_k|`` (gain) and ``√s_k/|c^y_k|`` (phase, rad) and a Student-t quantile
    for the noise estimate's degrees of freedom. The reference is taken as noise-free.
@@ -56,10 +57,10 @@ from scipy.special import stdtrit
 
 from benchctl.analysis.distortion import Distortion, analyze_distortion
 from benchctl.analysis.linefit import fit_lines, grid_offsets, refine_period
+from benchctl.analysis.linenoise import line_noise
 from benchctl.analysis.lines import (
     LinesError,
     LineSet,
-    _line_noise,
     whole_periods,
 )
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
@@ -269,7 +270,7 @@ def analyze_lines(
     if n % 2 == 0:
         probe[-1] = False
     probe[bins] = False
-    noise = _line_noise(e, cx, lines.freq, bins, u, probe)
+    noise = line_noise(e, cx, lines.freq, bins, u, probe)
     s = noise.power
     h = cy / cx
     t = t975(noise.dof)
