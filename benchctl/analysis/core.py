@@ -5,8 +5,8 @@ Pure computation on arrays (no I/O). The steps follow Gryazin & Belova (2023), s
 (``correlation``), the error density by eq. 1 (``psd``), σ = √(area); then the cross-checks,
 the frequency response, the decomposition and the interval.
 
-Max-lag rule: ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length, gaps included),
-at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
+Max-lag rule (``spectra``): ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length,
+gaps included), at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
 
 When the record holds whole periods of a known line set (given, from ``period_s``, or
 detected in the reference) the line-wise estimate (``lines``) gives H at the lines with
@@ -43,7 +43,7 @@ from scipy.fft import rfft
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
 from benchctl.analysis.budget import Reference, uncertainty_budget
-from benchctl.analysis.correlation import Correlations, correlations, demean
+from benchctl.analysis.correlation import demean
 from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
 from benchctl.analysis.lineperiods import periods_from_lines
 from benchctl.analysis.lines import (
@@ -57,18 +57,15 @@ from benchctl.analysis.lines import (
 )
 from benchctl.analysis.linewise import LineAnalysis, analyze_lines
 from benchctl.analysis.psd import (
-    SpectralGrid,
     WelchEstimate,
-    auto_spectrum,
     band_area,
-    cross_spectrum,
-    spectral_grid,
     trapezoid_area,
     welch_by_runs,
 )
 from benchctl.analysis.result import AnalysisResult
 from benchctl.analysis.skew import WARN_PPM as SKEW_WARN_PPM
 from benchctl.analysis.skew import Skew, deskewed, estimate_skew
+from benchctl.analysis.spectra import Spectra, delay_estimate, max_lag_samples, spectra
 from benchctl.analysis.timebase import label_of
 from benchctl.analysis.timing import TimingBudget, error_rate_covariance, timing_budget
 from benchctl.analysis.uncertainty import (
@@ -83,70 +80,10 @@ FloatArray = NDArray[np.float64]
 DelayMode = Literal["none", "auto"] | float
 LinesMode = LineSet | Literal["auto", "off"]
 
-MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
 SKEW_PASSES = 3  # a skew is measured again after its correction, at most this many times
 TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
-
-
-def default_max_lag(n_grid: int) -> int:
-    """The max-lag rule: a tenth of the record, at least 8 samples."""
-    return max(MIN_LAG, n_grid // 10)
-
-
-@dataclass(frozen=True)
-class _Spectra:
-    grid: SpectralGrid
-    gxx: FloatArray
-    gyy: FloatArray
-    gxy: NDArray[np.complex128]
-    gee: FloatArray
-    r0_scale: float
-    n_valid: int
-    corr: Correlations
-
-
-def _spectra(al: Aligned, max_lag: int) -> _Spectra:
-    c = correlations(al.x, al.y, al.mask, max_lag)
-    grid = spectral_grid(max_lag, al.dt)
-    gxx = auto_spectrum(c.rx, grid)
-    gyy = auto_spectrum(c.ry, grid)
-    gxy = cross_spectrum(c.rxy, c.ryx, grid)
-    gee = auto_spectrum(c.error(), grid)  # eq. 2 then eq. 1
-    return _Spectra(grid, gxx, gyy, gxy, gee, float(c.rx[0] + c.ry[0]), c.n_valid, c)
-
-
-def _delay(sp: _Spectra, al: Aligned) -> float:
-    pos = sp.grid.freq > 0
-    f_peak = float(sp.grid.freq[pos][np.argmax(sp.gxx[pos])])
-    c = sp.corr
-    raw = c.pairs * c.n / (c.n - np.arange(c.max_lag + 1))  # undo the estimator's scaling
-    x, y = demean(al.x, al.mask), demean(al.y, al.mask)
-    return frf_mod.delay_from_correlation(
-        c.rxy * raw, c.ryx * raw, x, y, al.mask, al.dt, f_peak
-    )
-
-
-def _max_lag(al: Aligned, max_lag_s: float | None) -> int:
-    n = len(al.mask)
-    if max_lag_s is None:
-        lag = default_max_lag(n)
-    else:
-        if not np.isfinite(max_lag_s) or max_lag_s <= 0:
-            raise DataError(f"max lag: expected a positive number of seconds, got {max_lag_s!r}")
-        lag = round(max_lag_s / al.dt)
-        if lag < MIN_LAG:
-            raise DataError(
-                f"max lag {max_lag_s:g} s is {lag} samples at {1 / al.dt:.6g} Hz; "
-                f"expected at least {MIN_LAG} samples ({MIN_LAG * al.dt:.6g} s)"
-            )
-    if 2 * lag >= n:
-        raise DataError(
-            f"record too short: {n} samples ({n * al.dt:.6g} s) for a max lag of {lag} samples "
-            f"({lag * al.dt:.6g} s); expected at least {2 * lag + 1} samples"
-        )
-    return lag
 
 
 def _check_band(band_hz: tuple[float, float] | None, al: Aligned, resolution: float) -> None:
@@ -318,21 +255,21 @@ def _exclude(
 def _prepared(
     al_all: Aligned, departures: Departures | None, max_lag_s: float | None,
     lines: LinesMode, period_s: float | None,
-) -> tuple[Aligned, int, _Spectra, _Exclusion | None]:
+) -> tuple[Aligned, int, Spectra, _Exclusion | None]:
     """The departures left out of ``al_all``, the max lag and the spectra. When what is left
     cannot be analysed (too few samples, no sample pairs at some lag), the whole record is,
     and the exclusion says σ is not to be judged."""
     al, ex = _exclude(al_all, departures, lines, period_s)
     if ex is not None and ex.over == "kept" and ex.removed:
         try:
-            lag = _max_lag(al, max_lag_s)
-            return al, lag, _spectra(al, lag), ex
+            lag = max_lag_samples(al, max_lag_s)
+            return al, lag, spectra(al, lag), ex
         except DataError as e:
             ex.too_little = f"what is left cannot be analysed ({e})"
             ex.over = "all"
             al = al_all
-    lag = _max_lag(al, max_lag_s)
-    return al, lag, _spectra(al, lag), ex
+    lag = max_lag_samples(al, max_lag_s)
+    return al, lag, spectra(al, lag), ex
 
 
 def analyze(
@@ -465,7 +402,7 @@ def analyze(
             pending = rest
         skew = total
     _check_band(band_hz, al, sp.grid.resolution_hz)
-    delay_raw = _delay(sp, al)
+    delay_raw = delay_estimate(sp, al)
     shift = 0.0
     if mode is not None:
         shift = delay_raw if np.isnan(mode) else mode
@@ -727,7 +664,7 @@ def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
 
 def _result(
     al: Aligned,
-    sp: _Spectra,
+    sp: Spectra,
     lag: int,
     band_hz: tuple[float, float] | None,
     delay_raw: float,
