@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,6 +69,11 @@ class LineSet:
     @property
     def freq(self) -> FloatArray:
         return np.asarray(self.harmonics / self.period_s, dtype=float)
+
+
+#: the line-wise estimate's option (``analyze(lines=...)``): given lines, found in the
+#: reference ("auto") or none ("off")
+LinesMode = LineSet | Literal["auto", "off"]
 
 
 # ------------------------------------------------------------------------ finding the lines
