@@ -3,7 +3,7 @@
 What is done, in order:
 
 1. Both time series are checked: finite, strictly increasing (no duplicates), enough samples.
-2. Each device sample gets a slot ``k`` on a uniform grid (``timebase.fit_slots``). First
+2. Each device sample gets a slot ``k`` on a uniform grid (``clockfit.fit_slots``). First
    guess from the median step ``dt₀``: ``k_i = k_{i−1} + 1 + drops``, where a drop is a
    lasting jump of the level of ``t_i − i·dt₀`` (its median over ``h`` ≥ 7 samples, larger
    for larger jitter, then the lowest such median within 4 s ahead: a burst of late receipts
@@ -63,7 +63,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.analysis.timebase import WANDER_BLOCK, Clock, fit_slots
+from benchctl.analysis.clockfit import WANDER_BLOCK, Clock, fit_slots
 from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
 
