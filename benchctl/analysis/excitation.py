@@ -52,7 +52,6 @@ Pure computation on arrays; see :func:`excitation_fidelity`.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -61,6 +60,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
+from benchctl.analysis.fidelitylimits import (
+    FidelityLimits,
+    StandReach,
+    bands_of,
+    limits_of,  # noqa: F401 - imported from here by the run (benchctl.run.session)
+    reach_of,  # noqa: F401 - likewise
+)
 from benchctl.analysis.linefit import fit_lines
 from benchctl.analysis.linenoise import line_noise
 from benchctl.analysis.lines import LinesError
@@ -69,11 +75,6 @@ from benchctl.errors import DataError
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
-ALARM_DB = 1.5
-ABORT_DB = 3.0
-WEAK_LINE_DB = -30.0  # lines below this (amplitude, re the strongest) are not judged
-WEAK_BAND_DB = -20.0  # bands below this (power, re the strongest band) are not judged
-MAX_CI_DB = 0.5  # a band is judged once its 95 % half-width is below this
 WHOLE_TOL = 0.05  # a window may miss whole periods by this share of a period
 Z95 = 1.959963984540054
 RUNNING_MIN_CYCLES = 4.0  # the running estimate: cycles of a band's lowest line first …
@@ -81,35 +82,6 @@ RUNNING_MIN_S = 5.0  # … and seconds of steady motion
 ABORT_CONFIRM = 3  # consecutive running estimates at the abort level before it counts
 
 JUDGEMENTS = ("ok", "alarm", "abort")  # judged; otherwise weak, unreachable, uncertain
-
-
-@dataclass(frozen=True)
-class FidelityLimits:
-    """The judgement's settings (see module notes, step 6). ``band_edges_hz``: the bands'
-    edges, ascending (None: third-octave bands)."""
-
-    alarm_db: float = ALARM_DB
-    abort_db: float = ABORT_DB
-    weak_line_db: float = WEAK_LINE_DB
-    weak_band_db: float = WEAK_BAND_DB
-    max_ci_db: float = MAX_CI_DB
-    band_edges_hz: tuple[float, ...] | None = None
-
-
-@dataclass(frozen=True)
-class StandReach:
-    """The stand's limits on one axis: a line needing more on its own is unreachable."""
-
-    angle_deg: float
-    rate_deg_s: float
-    accel_deg_s2: float
-
-    def unreachable(self, freq_hz: NDArray[np.float64], amp_deg: NDArray[np.float64]
-                    ) -> NDArray[np.bool_]:
-        """Lines whose angle, rate or acceleration alone is beyond these limits."""
-        w = 2.0 * np.pi * freq_hz
-        return np.asarray((amp_deg > self.angle_deg) | (amp_deg * w > self.rate_deg_s)
-                          | (amp_deg * w * w > self.accel_deg_s2))
 
 
 @dataclass
@@ -181,24 +153,6 @@ class Fidelity:
             "lines": lines,
             "warnings": list(self.warnings),
         }
-
-
-def third_octave_bands(f_lo: float, f_hi: float) -> list[tuple[float, float, float]]:
-    """``(lo, centre, hi)`` of the base-10 third-octave bands (centres ``10^(m/10)`` Hz,
-    edges ``10^((m ∓ ½)/10)``) that hold a frequency in ``[f_lo, f_hi]`` (f_lo > 0)."""
-    m_lo = math.floor(10.0 * math.log10(f_lo) + 0.5)
-    m_hi = math.floor(10.0 * math.log10(f_hi) + 0.5)
-    return [
-        (10.0 ** ((m - 0.5) / 10.0), 10.0 ** (m / 10.0), 10.0 ** ((m + 0.5) / 10.0))
-        for m in range(m_lo, m_hi + 1)
-    ]
-
-
-def _bands(limits: FidelityLimits, freq: FloatArray) -> list[tuple[float, float, float]]:
-    if limits.band_edges_hz is None:
-        return third_octave_bands(float(freq.min()), float(freq.max()))
-    e = limits.band_edges_hz
-    return [(a, math.sqrt(a * b), b) for a, b in itertools.pairwise(e)]
 
 
 def _grid(
@@ -356,7 +310,7 @@ def excitation_fidelity(
     p_tgt = amp**2 / 2.0
     p_ach = ach**2 / 2.0 - s
     bands: list[dict[str, Any]] = []
-    specs = _bands(lim, freq)
+    specs = bands_of(lim, freq)
     powers = []
     for blo, _c, bhi in specs:
         inb = (freq >= blo) & (freq < bhi) & ~unreach
@@ -469,24 +423,6 @@ def format_fidelity(fid: Fidelity | dict[str, Any]) -> str:
             f"(alarm ±{d.get('alarm_db'):g} dB, abort ±{d.get('abort_db'):g} dB) → {tag}")
 
 
-def limits_of(cfg: Any) -> FidelityLimits:
-    """The settings from a config section with the same fields (``run.excitation``)."""
-    edges = getattr(cfg, "band_edges_hz", None)
-    return FidelityLimits(
-        alarm_db=float(cfg.alarm_db), abort_db=float(cfg.abort_db),
-        weak_line_db=float(cfg.weak_line_db), weak_band_db=float(cfg.weak_band_db),
-        max_ci_db=float(cfg.max_ci_db),
-        band_edges_hz=None if edges is None else tuple(float(v) for v in edges),
-    )
-
-
-def reach_of(limits: Any) -> StandReach:
-    """The stand's reach from its limits (``stand.limits``: angle_deg, rate_deg_s,
-    accel_deg_s2)."""
-    return StandReach(float(limits.angle_deg), float(limits.rate_deg_s),
-                      float(limits.accel_deg_s2))
-
-
 def breached(fid: Fidelity) -> list[dict[str, Any]]:
     """The judged bands beyond the alarm level."""
     return [b for b in fid.bands if b["judgement"] in ("alarm", "abort")]
@@ -527,7 +463,7 @@ class RunningFidelity:
         self.bands: list[tuple[float, float, float]] = []
         self.members: list[NDArray[np.int64]] = []
         if f.size:
-            specs = _bands(lim, f)
+            specs = bands_of(lim, f)
             power = [float(np.sum(a[(f >= lo) & (f < hi)] ** 2) / 2.0) for lo, _c, hi in specs]
             floor = max(power) * 10.0 ** (lim.weak_band_db / 10.0)
             for (lo, c, hi), pw in zip(specs, power, strict=True):
