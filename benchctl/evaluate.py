@@ -43,15 +43,8 @@ from benchctl.analysis import AnalysisResult, LineSet, analyze
 from benchctl.analysis.core import DelayMode
 from benchctl.analysis.crossaxis import cross_axis_for
 from benchctl.analysis.departures import Departures, departures_of
-from benchctl.analysis.excitation import (
-    Fidelity,
-    FidelityLimits,
-    StandReach,
-    breached,
-    fidelity_of_table,
-    limits_of,
-    reach_of,
-)
+from benchctl.analysis.excitation import Fidelity, breached, fidelity_of_table
+from benchctl.analysis.fidelitylimits import FidelityLimits, StandReach, limits_of, reach_of
 from benchctl.analysis.lines import line_set_from_recording, line_set_from_tables
 from benchctl.analysis.steps import (
     analyze_steps,

@@ -34,7 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchctl.analysis import analyze
-from benchctl.analysis.lines import LineAnalysis, line_set_from_tables
+from benchctl.analysis.lines import line_set_from_tables
+from benchctl.analysis.linewise import LineAnalysis
 from benchctl.analysis.predict import Prediction, noise_from_lines, predict, response_from_lines
 from benchctl.harmonics import HarmonicTable
 from benchctl.profiles import load_profile, synthesize

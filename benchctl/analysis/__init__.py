@@ -16,9 +16,10 @@ one evaluation path above both.
 
 from __future__ import annotations
 
-from benchctl.analysis.core import analyze, default_max_lag
+from benchctl.analysis.core import analyze
 from benchctl.analysis.lines import LineSet, line_set_from_recording
 from benchctl.analysis.result import AnalysisResult
+from benchctl.analysis.spectra import default_max_lag
 
 __all__ = [
     "AnalysisResult",

@@ -5,71 +5,41 @@ Pure computation on arrays (no I/O). The steps follow Gryazin & Belova (2023), s
 (``correlation``), the error density by eq. 1 (``psd``), σ = √(area); then the cross-checks,
 the frequency response, the decomposition and the interval.
 
-Max-lag rule: ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length, gaps included),
-at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
+Max-lag rule (``spectra``): ``L = ⌊N/10⌋`` samples of the analysis grid (N = grid length,
+gaps included), at least 8; ``max_lag_s`` overrides it (rounded to samples, at most N/2).
 
 When the record holds whole periods of a known line set (given, from ``period_s``, or
-detected in the reference) the line-wise estimate (``lines``) gives H at the lines with
-intervals, the unbiased linear/incoherent split and the interval of σ; the published σ
-(eqs. 1–2) stays the headline.
+detected in the reference; which, and over which periods: ``linechoice``) the line-wise
+estimate (``linewise``) gives H at the lines with intervals, the unbiased linear/incoherent
+split and the interval of σ; the published σ (eqs. 1–2) stays the headline.
 
 Departures (``departures``): the intervals where the stand's motion was not the profile's
-(an underrun or a rejoin, :mod:`benchctl.analysis.departures`) are left out as gaps are: the
-device samples there are masked, so σ, the error PSD and H come from the samples under the
-profile's motion only. When the record holds whole periods of its line set (a profile's, from
-``period_s``, or detected), the whole analysis — σ, the PSD, H and the line-wise estimate —
-is made on the whole periods no departure touches (the periods one touches masked whole: a
-periodic motion sampled over whole periods, so σ is that of the profile exactly; over parts
-of periods a multisine of few lines is sampled unevenly, σ 9 % off in the tests). Without a
-known line set, on the samples outside the departures (no line-wise estimate; the interval
-from the lag window, the motion taken as random). σ is not to be judged — the result says so
-(``departures.too_little``) and a verdict on it is INCONCLUSIVE (:mod:`benchctl.run.report`)
-— when departures touch every whole period, when what is left holds less than
-``MIN_KEPT_SHARE`` of the samples, or when it cannot be analysed.
+are left out as gaps are, on whole periods when the record holds them (``exclusion``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
-from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.fft import rfft
 
 from benchctl.analysis import frf as frf_mod
 from benchctl.analysis.align import Aligned, align
 from benchctl.analysis.budget import Reference, uncertainty_budget
-from benchctl.analysis.correlation import Correlations, correlations, demean
-from benchctl.analysis.departures import MIN_KEPT_SHARE, REASON, Departures
-from benchctl.analysis.lines import (
-    WHOLE_PERIODS_TOL,
-    LineAnalysis,
-    LinesError,
-    LineSet,
-    analyze_lines,
-    detect_period,
-    periodogram,
-    periods_from_lines,
-    reference_lines,
-    whole_periods,
-)
-from benchctl.analysis.psd import (
-    SpectralGrid,
-    WelchEstimate,
-    auto_spectrum,
-    band_area,
-    cross_spectrum,
-    spectral_grid,
-    trapezoid_area,
-    welch_by_runs,
-)
+from benchctl.analysis.correlation import demean
+from benchctl.analysis.departures import Departures
+from benchctl.analysis.exclusion import Exclusion, exclude, exclusion_warnings
+from benchctl.analysis.linechoice import known_period, line_analysis
+from benchctl.analysis.lineperiods import periods_from_lines
+from benchctl.analysis.lines import LineSet, LinesMode
+from benchctl.analysis.psd import WelchEstimate, band_area, trapezoid_area, welch_by_runs
 from benchctl.analysis.result import AnalysisResult
 from benchctl.analysis.skew import WARN_PPM as SKEW_WARN_PPM
 from benchctl.analysis.skew import Skew, deskewed, estimate_skew
+from benchctl.analysis.spectra import Spectra, delay_estimate, max_lag_samples, spectra
 from benchctl.analysis.timebase import label_of
 from benchctl.analysis.timing import TimingBudget, error_rate_covariance, timing_budget
 from benchctl.analysis.uncertainty import (
@@ -82,72 +52,11 @@ from benchctl.errors import AnalysisError, DataError
 
 FloatArray = NDArray[np.float64]
 DelayMode = Literal["none", "auto"] | float
-LinesMode = LineSet | Literal["auto", "off"]
 
-MIN_LAG = 8
 PARSEVAL_RTOL = 1e-8
 WELCH_SIGMAS = 4.0
 SKEW_PASSES = 3  # a skew is measured again after its correction, at most this many times
 TIMING_FLOOR_DEG2 = 1e-18  # … and is more than rounding (an error of exactly zero)
-
-
-def default_max_lag(n_grid: int) -> int:
-    """The max-lag rule: a tenth of the record, at least 8 samples."""
-    return max(MIN_LAG, n_grid // 10)
-
-
-@dataclass(frozen=True)
-class _Spectra:
-    grid: SpectralGrid
-    gxx: FloatArray
-    gyy: FloatArray
-    gxy: NDArray[np.complex128]
-    gee: FloatArray
-    r0_scale: float
-    n_valid: int
-    corr: Correlations
-
-
-def _spectra(al: Aligned, max_lag: int) -> _Spectra:
-    c = correlations(al.x, al.y, al.mask, max_lag)
-    grid = spectral_grid(max_lag, al.dt)
-    gxx = auto_spectrum(c.rx, grid)
-    gyy = auto_spectrum(c.ry, grid)
-    gxy = cross_spectrum(c.rxy, c.ryx, grid)
-    gee = auto_spectrum(c.error(), grid)  # eq. 2 then eq. 1
-    return _Spectra(grid, gxx, gyy, gxy, gee, float(c.rx[0] + c.ry[0]), c.n_valid, c)
-
-
-def _delay(sp: _Spectra, al: Aligned) -> float:
-    pos = sp.grid.freq > 0
-    f_peak = float(sp.grid.freq[pos][np.argmax(sp.gxx[pos])])
-    c = sp.corr
-    raw = c.pairs * c.n / (c.n - np.arange(c.max_lag + 1))  # undo the estimator's scaling
-    x, y = demean(al.x, al.mask), demean(al.y, al.mask)
-    return frf_mod.delay_from_correlation(
-        c.rxy * raw, c.ryx * raw, x, y, al.mask, al.dt, f_peak
-    )
-
-
-def _max_lag(al: Aligned, max_lag_s: float | None) -> int:
-    n = len(al.mask)
-    if max_lag_s is None:
-        lag = default_max_lag(n)
-    else:
-        if not np.isfinite(max_lag_s) or max_lag_s <= 0:
-            raise DataError(f"max lag: expected a positive number of seconds, got {max_lag_s!r}")
-        lag = round(max_lag_s / al.dt)
-        if lag < MIN_LAG:
-            raise DataError(
-                f"max lag {max_lag_s:g} s is {lag} samples at {1 / al.dt:.6g} Hz; "
-                f"expected at least {MIN_LAG} samples ({MIN_LAG * al.dt:.6g} s)"
-            )
-    if 2 * lag >= n:
-        raise DataError(
-            f"record too short: {n} samples ({n * al.dt:.6g} s) for a max lag of {lag} samples "
-            f"({lag * al.dt:.6g} s); expected at least {2 * lag + 1} samples"
-        )
-    return lag
 
 
 def _check_band(band_hz: tuple[float, float] | None, al: Aligned, resolution: float) -> None:
@@ -200,140 +109,24 @@ def _delay_mode(compensate_delay: DelayMode) -> float | None:
     return d
 
 
-@dataclass
-class _Exclusion:
-    """The departures that touch the analysed record, and what leaving them out left.
-
-    ``slots``: grid slots inside a departure (with a sample or not); ``present``: samples
-    before, ``removed``: samples left out; ``too_little``: why σ is not to be judged (None:
-    it is); ``over``: what σ was computed over, ``kept`` (the samples outside the departures)
-    or ``all`` (nothing usable was left: the whole record, shown for information only);
-    ``periods``: the whole periods of the line set, ``{"used", "of", "period_s"}`` (used: the
-    ones no departure touches, which the analysis is then made on); ``line_set``: that line
-    set, when some are used; ``lines_note``: why the analysis is not on whole periods."""
-
-    items: Departures
-    slots: NDArray[np.bool_]
-    span: tuple[float, float]
-    present: int
-    removed: int = 0
-    too_little: str | None = None
-    over: str = "kept"
-    periods: dict[str, Any] | None = None
-    line_set: LineSet | None = None
-    lines_note: str | None = None
-
-    @property
-    def kept_share(self) -> float:
-        return (self.present - self.removed) / self.present if self.present else 0.0
-
-    @property
-    def seconds(self) -> float:
-        lo, hi = self.span
-        return float(sum(max(0.0, min(d.end_s, hi) - max(d.start_s, lo))
-                         for d in self.items.items))
-
-    def to_dict(self) -> dict[str, Any]:
-        lo, hi = self.span
-        items = self.items.items
-        return {
-            "count": len(items),
-            "underruns": sum(d.count("underrun") for d in items),
-            "rejoins": sum(d.count("rejoin") for d in items),
-            "excluded_s": self.seconds,
-            "analysed_s": hi - lo,
-            "excluded_samples": self.removed,
-            "kept_share": self.kept_share,
-            "kept_s": (self.present - self.removed) * (hi - lo) / max(len(self.slots), 1),
-            "intervals": [[max(d.start_s, lo), min(d.end_s, hi)] for d in items],
-            "settle_s": self.items.settle_s,
-            "rule": self.items.rule,
-            "reason": REASON,
-            "line_periods": self.periods,
-            "min_kept_share": MIN_KEPT_SHARE,
-            "too_little": self.too_little is not None,
-            "too_little_reason": self.too_little,
-            "sigma_over": ("all" if self.over == "all" else
-                           "whole_periods" if self.line_set is not None else "samples"),
-            "not_whole_periods": None if self.line_set is not None else self.lines_note,
-        }
-
-    def summary(self) -> str:
-        """One sentence for the warnings and the reports."""
-        d = self.to_dict()
-        what = ", ".join(f"{d[k]} {k[:-1]}(s)" for k in ("underruns", "rejoins") if d[k])
-        text = (f"the stand's motion was not the profile's in {d['count']} interval(s) "
-                f"({what}) lasting {d['excluded_s']:.3g} s of {d['analysed_s']:.4g} s, each "
-                f"{self.items.rule}; ")
-        if self.line_set is not None and self.periods is not None:
-            text += (f"σ and the line-wise estimate on the {self.periods['used']} of "
-                     f"{self.periods['of']} whole period(s) of {self.periods['period_s']:.4g} s "
-                     "that no departure touches")
-        else:
-            text += ("σ on the samples outside them (not on whole periods: "
-                     + (self.lines_note or "no line set") + ")")
-        return (text + f": {d['excluded_samples']} samples left out, "
-                f"{100 * d['kept_share']:.3g} % kept")
-
-
-def _slot_times(al: Aligned) -> FloatArray:
-    """The instant of every grid slot (an empty slot's interpolated between its neighbours)."""
-    s = np.arange(len(al.mask))
-    ok = al.mask & np.isfinite(al.t)
-    return np.asarray(np.interp(s, s[ok], al.t[ok]), dtype=float)
-
-
-def _exclude(
-    al: Aligned, departures: Departures | None, lines: LinesMode, period_s: float | None
-) -> tuple[Aligned, _Exclusion | None]:
-    """``al`` with the departures left out (module notes): the slots inside one masked (the
-    device instant there, or the reference's, ``t − shift``), then — when the record holds
-    whole periods of its line set — the periods they touch; and what that left. ``(al,
-    None)`` when no departure touches the record."""
-    if not departures:
-        return al, None
-    ts = _slot_times(al)
-    span = (float(ts[0]), float(ts[-1]) + al.dt)
-    items = departures.within(min(span[0], span[0] - al.shift), max(span[1], span[1] - al.shift))
-    if not items:
-        return al, None
-    slots = items.inside(ts) | items.inside(ts - al.shift)
-    ex = _Exclusion(items, slots, span, al.n_valid)
-    out = al
-    if slots.any():
-        out = dataclasses.replace(al, mask=al.mask & ~slots)
-        out = _whole_periods(out, ex, lines, period_s)
-    ex.removed = al.n_valid - out.n_valid
-    if ex.periods is not None and ex.line_set is None:  # periodic, and every period touched
-        ex.too_little = f"{ex.lines_note}: σ is judged on whole periods of the profile only"
-    elif ex.kept_share < MIN_KEPT_SHARE:
-        where = "in the whole periods no departure touches " if ex.line_set is not None else ""
-        ex.too_little = (f"{100 * ex.kept_share:.3g} % of the samples are left {where}"
-                         f"(less than the {100 * MIN_KEPT_SHARE:g} % needed)")
-    if out.n_valid == 0:
-        ex.over = "all"
-        return al, ex
-    return out, ex
-
-
 def _prepared(
     al_all: Aligned, departures: Departures | None, max_lag_s: float | None,
     lines: LinesMode, period_s: float | None,
-) -> tuple[Aligned, int, _Spectra, _Exclusion | None]:
+) -> tuple[Aligned, int, Spectra, Exclusion | None]:
     """The departures left out of ``al_all``, the max lag and the spectra. When what is left
     cannot be analysed (too few samples, no sample pairs at some lag), the whole record is,
     and the exclusion says σ is not to be judged."""
-    al, ex = _exclude(al_all, departures, lines, period_s)
+    al, ex = exclude(al_all, departures, lines, period_s)
     if ex is not None and ex.over == "kept" and ex.removed:
         try:
-            lag = _max_lag(al, max_lag_s)
-            return al, lag, _spectra(al, lag), ex
+            lag = max_lag_samples(al, max_lag_s)
+            return al, lag, spectra(al, lag), ex
         except DataError as e:
             ex.too_little = f"what is left cannot be analysed ({e})"
             ex.over = "all"
             al = al_all
-    lag = _max_lag(al, max_lag_s)
-    return al, lag, _spectra(al, lag), ex
+    lag = max_lag_samples(al, max_lag_s)
+    return al, lag, spectra(al, lag), ex
 
 
 def analyze(
@@ -441,7 +234,7 @@ def analyze(
     al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
     # the instrument's stamps drifting against the reference's (its own clock fast or slow):
     # measured from the cross-spectrum's phase turning over the record, taken out (skew.py)
-    motion_period = _known_period(al, lines, period_s)
+    motion_period = known_period(al, lines, period_s)
     skew = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
     if skew is not None and skew.significant:
         total, pending = None, skew
@@ -459,14 +252,14 @@ def analyze(
             al, lag, sp, ex = _prepared(al, departures, max_lag_s, lines, period_s)
             # the period again: a motion periodic on the reference's clock is periodic on
             # the corrected grid, not on the skewed one (whole periods, no window's leakage)
-            motion_period = _known_period(al, lines, period_s)
+            motion_period = known_period(al, lines, period_s)
             rest = estimate_skew(al.x, al.y, al.mask, al.dt, motion_period, _t0(al))
             if rest is None or not rest.left:
                 break
             pending = rest
         skew = total
     _check_band(band_hz, al, sp.grid.resolution_hz)
-    delay_raw = _delay(sp, al)
+    delay_raw = delay_estimate(sp, al)
     shift = 0.0
     if mode is not None:
         shift = delay_raw if np.isnan(mode) else mode
@@ -485,20 +278,6 @@ def _t0(al: Aligned) -> float:
     """The grid's first instant (its first slot always holds a sample)."""
     ok = np.flatnonzero(np.isfinite(al.t))
     return float(al.t[ok[0]]) if ok.size else 0.0
-
-
-def _known_period(al: Aligned, lines: LinesMode, period_s: float | None) -> float | None:
-    """The motion's period: given (a profile's lines, ``period_s``) or detected in the
-    reference ("auto"); None when it is not periodic (or the detection finds no period)."""
-    if isinstance(lines, LineSet):
-        return lines.period_s
-    if period_s is not None:
-        return float(period_s)
-    if lines != "auto":
-        return None
-    power = periodogram(al.x, al.mask)
-    count = detect_period(al.x, al.mask, power)
-    return None if count is None else len(al.mask) * al.dt / count
 
 
 def _timing_budget(al: Aligned, eps: FloatArray, ci: tuple[float, float],
@@ -530,192 +309,6 @@ def _skew_fields(skew: Skew | None) -> dict[str, Any]:
             "skew_degree": skew.degree, "skew_wander_s": skew.wander_s}
 
 
-def _line_set(
-    al: Aligned, lines: LinesMode, period_s: float | None
-) -> tuple[LineSet | None, NDArray[np.complex128] | None]:
-    """The lines to estimate at: given, the harmonics of ``period_s`` the reference is
-    excited at, or detected ("auto"); ``(None, None)`` when none (``LinesError`` when given
-    ones cannot be used). With the reference's rfft when it was made (a gap-free grid)."""
-    n = len(al.mask)
-    if isinstance(lines, LineSet):
-        return lines, None
-    if period_s is not None:
-        count = whole_periods(n, al.dt, LineSet(float(period_s), np.array([1]), "period"))
-        harm = reference_lines(al.x, al.mask, count)
-        if harm.size == 0:
-            raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
-        return LineSet(float(period_s), harm, "period"), None
-    if lines != "auto":
-        return None, None
-    x_spectrum = None
-    if bool(al.mask.all()):  # one transform of x for the detection and the fit
-        x_spectrum = rfft(al.x)
-        power = x_spectrum.real**2 + x_spectrum.imag**2
-        power[0] = 0.0
-    else:
-        power = periodogram(al.x, al.mask)
-    count_or_none = detect_period(al.x, al.mask, power)
-    if count_or_none is None:
-        return None, None
-    harm = reference_lines(al.x, al.mask, count_or_none, power)
-    if harm.size == 0:
-        return None, None
-    return LineSet(n * al.dt / count_or_none, harm, "detected"), x_spectrum
-
-
-def _whole_periods(al: Aligned, ex: _Exclusion, lines: LinesMode,
-                   period_s: float | None) -> Aligned:
-    """``al`` on the whole periods of its line set that no departure touches (the others
-    masked; ``ex.line_set``, ``ex.periods`` set), or ``al`` itself with ``ex.lines_note``
-    saying why not: not whole periods, every period touched, or no line there. Lines not
-    given (``period_s``, "auto") are found in the reference on those periods only."""
-    n = len(al.mask)
-    try:
-        if isinstance(lines, LineSet):
-            period, count = lines.period_s, whole_periods(n, al.dt, lines)
-        elif period_s is not None:
-            period = float(period_s)
-            count = whole_periods(n, al.dt, LineSet(period, np.array([1]), "period"))
-        elif lines == "auto":
-            found = detect_period(al.x, al.mask)
-            if found is None:
-                return al
-            period, count = n * al.dt / found, found
-        else:
-            return al
-    except LinesError as e:
-        ex.lines_note = str(e)
-        return al
-    edges = np.rint(np.arange(count + 1) * (n / count)).astype(np.int64)
-    mask = al.mask.copy()
-    used = 0
-    for a, b in itertools.pairwise(edges):
-        if ex.slots[a:b].any():
-            mask[a:b] = False
-        else:
-            used += 1
-    ex.periods = {"used": used, "of": count, "period_s": period}
-    if used == 0:
-        ex.lines_note = (f"the stand's motion departed from the profile in every one of the "
-                         f"{count} whole period(s) of {period:.6g} s")
-        return al
-    if isinstance(lines, LineSet):
-        ex.line_set = lines
-    else:
-        harm = reference_lines(al.x, mask, count)
-        if harm.size == 0:
-            ex.lines_note = f"the reference is excited at no harmonic of {period:.6g} s"
-            ex.periods = None
-            return al
-        ex.line_set = LineSet(period, harm, "period" if period_s is not None else "detected")
-    return dataclasses.replace(al, mask=mask)
-
-
-def _line_analysis(
-    al: Aligned, lines: LinesMode, period_s: float | None, warnings: list[str],
-    ex: _Exclusion | None = None, band_hz: tuple[float, float] | None = None,
-) -> LineAnalysis | None:
-    """The line-wise estimate, or None (with a warning when lines were given but cannot be
-    used, or were detected and fail). With departures (``ex``): on the whole periods they do
-    not touch (``al`` is masked to them already), or none."""
-    try:
-        if ex is not None and ex.over == "kept" and ex.slots.any():
-            if ex.line_set is None:  # not on whole periods: none (never on partial ones)
-                if lines == "off" and period_s is None:
-                    return None
-                raise LinesError(ex.lines_note or "the departures leave no whole period of a "
-                                 "known line set")
-            lines, period_s = ex.line_set, None
-        period = (lines.period_s if isinstance(lines, LineSet) else period_s)
-        # completed with a gap only for known lines: found in the reference, a gap's edge
-        # leaks into every harmonic and they would be found everywhere
-        whole = (_whole_part(al, period, pad=isinstance(lines, LineSet))
-                 if period is not None else None)
-        ls, x_spectrum = _line_set(al if whole is None else whole[0], lines, period_s)
-        if whole is not None and ls is not None and whole[2] * _line_span(ls) > PAD_CYCLES:
-            # the gap at the end too long for the lines' band: their fit would amplify the
-            # noise (a band B holds ≈ 2·B·gap functions that live mostly in the gap)
-            assert period is not None
-            whole = _whole_part(al, period, pad=False)
-            if whole is None:
-                raise LinesError(
-                    f"the record ({len(al.mask) * al.dt:.6g} s) is short of whole periods of "
-                    f"{period:.6g} s by more than a gap the lines' band "
-                    f"({_line_span(ls):.4g} Hz) lets the fit bridge ({PAD_CYCLES:g}/band = "
-                    f"{PAD_CYCLES / _line_span(ls):.3g} s), and holds no whole period")
-            ls, x_spectrum = _line_set(whole[0], lines, period_s)
-        if whole is not None:
-            al = whole[0]
-            warnings.append(whole[1])
-        if ls is None:
-            return None
-        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum, band_hz)
-        warnings.extend(la.warnings)
-        return la
-    except LinesError as e:
-        warnings.append(f"no line-wise estimate: {e}")
-        return None
-
-
-PAD_SHARE = 0.02  # a record short of whole periods by at most this share of them: completed
-PAD_CYCLES = 1.5  # … and by a gap of at most this / the lines' band (Hz), s
-WHOLE_REL = 1e-4  # a record this close to whole periods is whole (a stand's clock ppm off)
-
-
-def _line_span(ls: LineSet) -> float:
-    """The band of a line set, Hz (its lowest to its highest line, one spacing at least)."""
-    f = ls.freq
-    return float(f.max() - f.min()) + 1.0 / ls.period_s
-
-
-def _whole_part(al: Aligned, period: float,
-                pad: bool = True) -> tuple[Aligned, str, float] | None:
-    """A record just short of (or past) whole periods of ``period``: on whole periods, and the
-    note that says so; None when it holds whole periods already, or not one and not nearly one.
-
-    Short of whole periods by at most ``PAD_SHARE`` of them, with ``pad`` (known lines: a
-    recording's profile; a run stopped half a second early, the usual one-period record of a
-    sea state included): the grid is completed to the
-    next whole period with empty slots, a gap at the end that the line fit handles as any
-    other (every sample used), unless the lines' band makes that gap too long to bridge
-    (``PAD_CYCLES``, judged by the caller, who then asks again with ``pad=False``). Otherwise its
-    first whole periods (the rest left out). Returns the record, the note and the seconds
-    missing at the end (0 when trimmed)."""
-    n = len(al.mask)
-    span = n * al.dt
-    nf = span / period
-    near = round(nf)
-    m_near = round(near * period / al.dt)
-    if near >= 1 and (abs(n - m_near) <= 1 or abs(nf - near) <= WHOLE_REL * near):
-        return None  # whole periods: to a slot, or to a clock's ppm (the lines then refine it)
-    if (pad and near >= 1 and n < m_near and near - nf <= PAD_SHARE * near
-            and int(al.mask.sum()) >= 2):
-        missing = m_near - n
-        part = dataclasses.replace(
-            al, t=np.concatenate((al.t, np.full(missing, np.nan))),
-            x=np.concatenate((al.x, np.zeros(missing))),
-            y=np.concatenate((al.y, np.zeros(missing))),
-            mask=np.concatenate((al.mask, np.zeros(missing, dtype=bool))))
-        return (part, (f"the record ({span:.6g} s) holds {nf:.6g} periods of {period:.6g} s: "
-                      f"the line-wise estimate is made over {near} whole period"
-                      f"{'s' if near > 1 else ''} ({m_near * al.dt:.6g} s), the last "
-                      f"{missing * al.dt:.4g} s of which are missing (a gap at the end)"),
-                missing * al.dt)
-    whole = near if n > m_near else math.floor(nf)
-    if whole < 1:
-        return None
-    m = round(whole * period / al.dt)
-    if m < 2 or abs(m * al.dt / period - whole) > WHOLE_PERIODS_TOL / max(whole, 1):
-        return None
-    part = dataclasses.replace(al, t=al.t[:m], x=al.x[:m], y=al.y[:m], mask=al.mask[:m])
-    if int(part.mask.sum()) < 2:
-        return None
-    return (part, (f"the record ({span:.6g} s) holds {nf:.4g} periods of {period:.6g} s: the "
-                   f"line-wise estimate is made over its first {whole} whole period"
-                   f"{'s' if whole > 1 else ''} ({m * al.dt:.6g} s), the last "
-                   f"{span - m * al.dt:.4g} s left out of it"), 0.0)
-
-
 def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
     """The variance the mean removal takes out, var(ε̄) ≈ G(0)/(2T): half the error's
     periodogram at the lowest bin 1/T (the density taken flat between 0 and 1/T), deg²."""
@@ -728,7 +321,7 @@ def _mean_removal(eps: FloatArray, mask: NDArray[np.bool_]) -> float:
 
 def _result(
     al: Aligned,
-    sp: _Spectra,
+    sp: Spectra,
     lag: int,
     band_hz: tuple[float, float] | None,
     delay_raw: float,
@@ -738,7 +331,7 @@ def _result(
     axis: str | None,
     lines: LinesMode = "off",
     period_s: float | None = None,
-    ex: _Exclusion | None = None,
+    ex: Exclusion | None = None,
     skew: Skew | None = None,
     reference: Reference | None = None,
 ) -> AnalysisResult:
@@ -779,15 +372,15 @@ def _result(
     dof_rand = dof_of_variance(
         grid.freq, dec.linear, dec.incoherent, duration_eff, dof_f, motion_random=True
     )
-    la = _line_analysis(al, lines, period_s, warnings, ex, band_hz)
+    la = line_analysis(al, lines, period_s, warnings, ex, band_hz)
     if ex is not None:
-        warnings[:0] = _exclusion_warnings(ex)
+        warnings[:0] = exclusion_warnings(ex)
     if la is not None:
         mean_removal = la.mean_removal
         ci = la.sigma_ci95
         dof = la.dof
         # the record just short of whole periods: the lines over its whole periods, or over
-        # whole periods that hold a gap at the end (_whole_part); either way σ over the
+        # whole periods that hold a gap at the end (``linechoice``); either way σ over the
         # samples present is not over whole periods, and reads the lines' motion unevenly
         span = la.n_periods * la.lines.period_s
         part = span < (len(al.mask) - 1) * al.dt or span > len(al.mask) * al.dt + max(
@@ -945,16 +538,6 @@ def _result(
         warnings=warnings,
         budget=gum,
     )
-
-
-def _exclusion_warnings(ex: _Exclusion) -> list[str]:
-    out = [ex.summary()]
-    if ex.too_little is not None:
-        over = ("the samples left" if ex.over == "kept" else
-                "the whole record, departures included (for information only)")
-        out.append(f"σ not to be judged (INCONCLUSIVE): {ex.too_little}; the σ shown is over "
-                   f"{over}")
-    return out
 
 
 def _welch_check(

@@ -2,7 +2,7 @@
 
 Pure computation. When the profile moves roll and pitch on **disjoint** lines (a profile's
 ``multisine: {interleave_axes: true}``), the instrument's output ``y_a`` of axis a is fitted
-(least squares, :func:`benchctl.analysis.lines.fit_lines`) at every excited line of both
+(least squares, :func:`benchctl.analysis.linefit.fit_lines`) at every excited line of both
 axes together with both references ``x_a`` and ``x_b`` on the instrument's own grid. At a
 line k of axis b:
 
@@ -35,13 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchctl.analysis.align import align
+from benchctl.analysis.linefit import fit_lines, grid_offsets, refine_period
+from benchctl.analysis.linenoise import line_noise
 from benchctl.analysis.lines import (
     LinesError,
     LineSet,
-    _line_noise,
-    fit_lines,
-    grid_offsets,
-    refine_period,
     whole_periods,
 )
 from benchctl.analysis.timebase import label_of
@@ -127,7 +125,7 @@ def cross_axis_response(
         probe[-1] = False
     probe[bins] = False
     try:
-        noise = _line_noise(r, z, fo, bins[idx_oth], u, probe)
+        noise = line_noise(r, z, fo, bins[idx_oth], u, probe)
     except LinesError as e:
         return None, f"no cross-axis estimate: {e}"
     s = noise.power

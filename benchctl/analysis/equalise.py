@@ -40,7 +40,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from benchctl.analysis.excitation import StandReach, fidelity_of_table
+from benchctl.analysis.excitation import fidelity_of_table
+from benchctl.analysis.fidelitylimits import StandReach
 from benchctl.errors import DataError
 from benchctl.harmonics import HarmonicTable
 from benchctl.profiles.synthesis import evaluate_table, sample_times

@@ -6,7 +6,7 @@ resonance of the stand and its load) makes the *measured* angle differ. Given th
 recorded angle (instants and values, gaps allowed) over a window of whole periods ``T_p``:
 
 1. **Fit.** The mean and the lines at their known frequencies are fitted by least squares to
-   the samples present (:func:`benchctl.analysis.lines.fit_lines`: the instants are placed on a
+   the samples present (:func:`benchctl.analysis.linefit.fit_lines`: the instants are placed on a
    uniform grid of ``N`` slots over ``n·T_p`` with their offsets from it, gaps masked), giving
    the achieved complex amplitude ``ĉ_k`` (phase referred to the motion's start, so that
    ``ĉ_k / (A_k e^{jφ_k})`` is the stand's response at ``f_k``).
@@ -36,23 +36,14 @@ recorded angle (instants and values, gaps allowed) over a window of whole period
    estimate is not yet meaningful: less than one whole period, or a 95 % half-width over
    ``max_ci_db`` (default 0.5 dB) (``uncertain``). The overall judgement is the worst band's.
 
-7. **During the run** (:class:`RunningFidelity`), before whole periods are in: the line-wise
-   fit cannot separate lines ``1/T_p`` apart in a shorter record, so each band's *complex gain*
-   ``G_b`` is fitted instead, ``x(t) ≈ m + Σ_b Re(G_b · z_b(t))`` with ``z_b`` the target's
-   lines in band b (``Σ_{k∈b} A_k e^{j(2πf_k(t−t₀)+φ_k)}``) — a few unknowns, well determined
-   after a few cycles, accumulated sample by sample (normal equations). ``20·log10|G_b|`` is
-   the band's error (the response averaged over its lines, weighted by their power). A band
-   is at the abort level when, for ``ABORT_CONFIRM`` consecutive estimates, its whole 95 %
-   interval lies beyond ±``abort_db``, the half-width is below ``max_ci_db`` and the steady
-   motion has lasted ``RUNNING_MIN_CYCLES`` cycles of the band's lowest line (and
-   ``RUNNING_MIN_S``). Bands too weak or unreachable are not judged, as above.
+7. **During the run**, before whole periods are in: the bands' running estimate
+   (:class:`benchctl.analysis.runningfidelity.RunningFidelity`).
 
 Pure computation on arrays; see :func:`excitation_fidelity`.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -61,53 +52,24 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
-from benchctl.analysis.lines import LinesError, _line_noise, fit_lines
+from benchctl.analysis.fidelitylimits import (
+    FidelityLimits,
+    StandReach,
+    bands_of,
+    limits_of,  # noqa: F401 - imported from here by the run (benchctl.run.session)
+    reach_of,  # noqa: F401 - likewise
+)
+from benchctl.analysis.linefit import fit_lines
+from benchctl.analysis.linenoise import line_noise
+from benchctl.analysis.lines import LinesError
+from benchctl.analysis.runningfidelity import RunningFidelity  # noqa: F401 - imported from here by the run
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
-ALARM_DB = 1.5
-ABORT_DB = 3.0
-WEAK_LINE_DB = -30.0  # lines below this (amplitude, re the strongest) are not judged
-WEAK_BAND_DB = -20.0  # bands below this (power, re the strongest band) are not judged
-MAX_CI_DB = 0.5  # a band is judged once its 95 % half-width is below this
 WHOLE_TOL = 0.05  # a window may miss whole periods by this share of a period
-Z95 = 1.959963984540054
-RUNNING_MIN_CYCLES = 4.0  # the running estimate: cycles of a band's lowest line first …
-RUNNING_MIN_S = 5.0  # … and seconds of steady motion
-ABORT_CONFIRM = 3  # consecutive running estimates at the abort level before it counts
-
 JUDGEMENTS = ("ok", "alarm", "abort")  # judged; otherwise weak, unreachable, uncertain
-
-
-@dataclass(frozen=True)
-class FidelityLimits:
-    """The judgement's settings (see module notes, step 6). ``band_edges_hz``: the bands'
-    edges, ascending (None: third-octave bands)."""
-
-    alarm_db: float = ALARM_DB
-    abort_db: float = ABORT_DB
-    weak_line_db: float = WEAK_LINE_DB
-    weak_band_db: float = WEAK_BAND_DB
-    max_ci_db: float = MAX_CI_DB
-    band_edges_hz: tuple[float, ...] | None = None
-
-
-@dataclass(frozen=True)
-class StandReach:
-    """The stand's limits on one axis: a line needing more on its own is unreachable."""
-
-    angle_deg: float
-    rate_deg_s: float
-    accel_deg_s2: float
-
-    def unreachable(self, freq_hz: NDArray[np.float64], amp_deg: NDArray[np.float64]
-                    ) -> NDArray[np.bool_]:
-        """Lines whose angle, rate or acceleration alone is beyond these limits."""
-        w = 2.0 * np.pi * freq_hz
-        return np.asarray((amp_deg > self.angle_deg) | (amp_deg * w > self.rate_deg_s)
-                          | (amp_deg * w * w > self.accel_deg_s2))
 
 
 @dataclass
@@ -179,24 +141,6 @@ class Fidelity:
             "lines": lines,
             "warnings": list(self.warnings),
         }
-
-
-def third_octave_bands(f_lo: float, f_hi: float) -> list[tuple[float, float, float]]:
-    """``(lo, centre, hi)`` of the base-10 third-octave bands (centres ``10^(m/10)`` Hz,
-    edges ``10^((m ∓ ½)/10)``) that hold a frequency in ``[f_lo, f_hi]`` (f_lo > 0)."""
-    m_lo = math.floor(10.0 * math.log10(f_lo) + 0.5)
-    m_hi = math.floor(10.0 * math.log10(f_hi) + 0.5)
-    return [
-        (10.0 ** ((m - 0.5) / 10.0), 10.0 ** (m / 10.0), 10.0 ** ((m + 0.5) / 10.0))
-        for m in range(m_lo, m_hi + 1)
-    ]
-
-
-def _bands(limits: FidelityLimits, freq: FloatArray) -> list[tuple[float, float, float]]:
-    if limits.band_edges_hz is None:
-        return third_octave_bands(float(freq.min()), float(freq.max()))
-    e = limits.band_edges_hz
-    return [(a, math.sqrt(a * b), b) for a, b in itertools.pairwise(e)]
 
 
 def _grid(
@@ -318,7 +262,7 @@ def excitation_fidelity(
     probe[bins] = False
     warnings: list[str] = []
     try:
-        noise = _line_noise(c_hat - c_tgt, c_tgt, freq, bins, u, probe)
+        noise = line_noise(c_hat - c_tgt, c_tgt, freq, bins, u, probe)
         s, dof = noise.power, noise.dof
         method = "lpm" if noise.lpm.all() else ("unexcited" if not noise.lpm.any() else "mixed")
     except LinesError:  # few lines, all bins excited: the residual taken as white
@@ -354,7 +298,7 @@ def excitation_fidelity(
     p_tgt = amp**2 / 2.0
     p_ach = ach**2 / 2.0 - s
     bands: list[dict[str, Any]] = []
-    specs = _bands(lim, freq)
+    specs = bands_of(lim, freq)
     powers = []
     for blo, _c, bhi in specs:
         inb = (freq >= blo) & (freq < bhi) & ~unreach
@@ -467,166 +411,6 @@ def format_fidelity(fid: Fidelity | dict[str, Any]) -> str:
             f"(alarm ±{d.get('alarm_db'):g} dB, abort ±{d.get('abort_db'):g} dB) → {tag}")
 
 
-def limits_of(cfg: Any) -> FidelityLimits:
-    """The settings from a config section with the same fields (``run.excitation``)."""
-    edges = getattr(cfg, "band_edges_hz", None)
-    return FidelityLimits(
-        alarm_db=float(cfg.alarm_db), abort_db=float(cfg.abort_db),
-        weak_line_db=float(cfg.weak_line_db), weak_band_db=float(cfg.weak_band_db),
-        max_ci_db=float(cfg.max_ci_db),
-        band_edges_hz=None if edges is None else tuple(float(v) for v in edges),
-    )
-
-
-def reach_of(limits: Any) -> StandReach:
-    """The stand's reach from its limits (``stand.limits``: angle_deg, rate_deg_s,
-    accel_deg_s2)."""
-    return StandReach(float(limits.angle_deg), float(limits.rate_deg_s),
-                      float(limits.accel_deg_s2))
-
-
 def breached(fid: Fidelity) -> list[dict[str, Any]]:
     """The judged bands beyond the alarm level."""
     return [b for b in fid.bands if b["judgement"] in ("alarm", "abort")]
-
-
-
-class RunningFidelity:
-    """The running estimate of one axis's band errors during the motion (module notes, 7).
-
-    ``add`` (any thread; one list append) takes the stand's samples; ``update`` (one thread)
-    folds the new ones inside the steady window into the normal equations and estimates;
-    ``abort_reason`` says why the run must stop, once the abort level is confirmed.
-    """
-
-    def __init__(
-        self,
-        table: Any,
-        window: tuple[float, float],
-        t_start: float,
-        *,
-        scale: float = 1.0,
-        limits: FidelityLimits | None = None,
-        reach: StandReach | None = None,
-        axis: str = "",
-    ) -> None:
-        self.limits = lim = limits or FidelityLimits()
-        self.axis = axis
-        self.window = (float(window[0]), float(window[1]))
-        self.t_start = float(t_start)
-        f = np.asarray(table.freq_hz, dtype=float)
-        a = np.asarray(table.amp_deg, dtype=float) * scale
-        ph = np.asarray(table.phase_rad, dtype=float)
-        use = a > 0
-        f, a, ph = f[use], a[use], ph[use]
-        if reach is not None:
-            ok = ~reach.unreachable(f, a)
-            f, a, ph = f[ok], a[ok], ph[ok]
-        self.bands: list[tuple[float, float, float]] = []
-        self.members: list[NDArray[np.int64]] = []
-        if f.size:
-            specs = _bands(lim, f)
-            power = [float(np.sum(a[(f >= lo) & (f < hi)] ** 2) / 2.0) for lo, _c, hi in specs]
-            floor = max(power) * 10.0 ** (lim.weak_band_db / 10.0)
-            for (lo, c, hi), pw in zip(specs, power, strict=True):
-                idx = np.flatnonzero((f >= lo) & (f < hi))
-                if idx.size and pw >= floor and pw > 0:
-                    self.bands.append((lo, c, hi))
-                    self.members.append(idx.astype(np.int64))
-        self._omega = 2.0 * np.pi * f
-        self._coef = a * np.exp(1j * ph)
-        # the bands' signals are told apart only over a record that resolves their lines: one
-        # whole period of the line grid (1 / the closest spacing); before it, neighbouring
-        # bands' lines are nearly the same column and a band can read dB off without any fault
-        fs = np.sort(np.unique(f))
-        gaps = np.diff(fs)
-        self.resolve_s = float(1.0 / gaps.min()) if gaps.size and gaps.min() > 0 else 0.0
-        nb = len(self.bands)
-        self._p = 1 + 2 * nb
-        self._ata = np.zeros((self._p, self._p))
-        self._atx = np.zeros(self._p)
-        self._xx = 0.0
-        self._n = 0
-        self._t_first: float | None = None
-        self._t_last: float | None = None
-        self._buf: list[tuple[float, float]] = []
-        self._streak = np.zeros(nb, dtype=np.int64)
-        self.estimate: list[dict[str, Any]] = []
-
-    def add(self, t: float, x: float) -> None:
-        """One stand sample (host clock, deg); cheap, from the thread that reads the stand."""
-        self._buf.append((t, x))
-
-    def _columns(self, t: FloatArray) -> FloatArray:
-        e = np.exp(1j * np.outer(t - self.t_start, self._omega)) * self._coef  # (n, K)
-        cols = [np.ones(t.size)]
-        for idx in self.members:
-            z = e[:, idx].sum(axis=1)
-            cols.extend((z.real, -z.imag))
-        return np.column_stack(cols)
-
-    def update(self) -> list[dict[str, Any]]:
-        """Fold the samples added since the last call; the bands' running estimates
-        (``centre_hz``, ``error_db``, ``half_width_db``, ``judged``, ``abort``)."""
-        end = len(self._buf)
-        new = self._buf[:end]
-        del self._buf[:end]  # only what was taken: an append meanwhile stays (GIL-atomic)
-        lo, hi = self.window
-        rows = np.array([r for r in new if lo <= r[0] <= hi and math.isfinite(r[1])],
-                        dtype=float).reshape(-1, 2)
-        if rows.size:
-            a = self._columns(rows[:, 0])
-            self._ata += a.T @ a
-            self._atx += a.T @ rows[:, 1]
-            self._xx += float(rows[:, 1] @ rows[:, 1])
-            self._n += rows.shape[0]
-            self._t_first = float(rows[0, 0]) if self._t_first is None else self._t_first
-            self._t_last = float(rows[-1, 0])
-        self.estimate = self._estimate()
-        return self.estimate
-
-    def _estimate(self) -> list[dict[str, Any]]:
-        if not self.bands or self._n <= 2 * self._p or self._t_first is None:
-            return []
-        try:
-            inv = np.linalg.inv(self._ata)
-        except np.linalg.LinAlgError:
-            return []
-        if not np.all(np.isfinite(inv)):
-            return []
-        theta = inv @ self._atx
-        ss = self._xx - 2.0 * float(theta @ self._atx) + float(theta @ self._ata @ theta)
-        var = max(ss, 0.0) / (self._n - self._p)
-        span = (self._t_last or self._t_first) - self._t_first
-        out = []
-        lim = self.limits
-        for b, ((lo, centre, hi), idx) in enumerate(zip(self.bands, self.members, strict=True)):
-            g = complex(theta[1 + 2 * b], theta[2 + 2 * b])
-            c = var * inv[1 + 2 * b: 3 + 2 * b, 1 + 2 * b: 3 + 2 * b]
-            mag = abs(g)
-            u = np.array([g.real, g.imag]) / mag if mag > 0 else np.array([1.0, 0.0])
-            sd = math.sqrt(max(float(u @ c @ u), 0.0))
-            err = 20.0 * math.log10(mag) if mag > 0 else -math.inf
-            half = (20.0 * math.log10(1.0 + Z95 * sd / mag) if mag > 0 and
-                    Z95 * sd < mag else math.inf)
-            f_low = float(np.min(self._omega[idx])) / (2.0 * np.pi)
-            judged = (span >= max(RUNNING_MIN_S, RUNNING_MIN_CYCLES / f_low,
-                                  self.resolve_s * (1.0 - 1e-9))
-                      and half <= lim.max_ci_db)
-            beyond = judged and abs(err) - half > lim.abort_db
-            self._streak[b] = self._streak[b] + 1 if beyond else 0
-            out.append({"lo_hz": lo, "centre_hz": centre, "hi_hz": hi, "error_db": err,
-                        "half_width_db": half, "judged": judged,
-                        "abort": bool(self._streak[b] >= ABORT_CONFIRM), "span_s": span})
-        return out
-
-    def abort_reason(self) -> str | None:
-        """Why the run must stop (the first band confirmed at the abort level), or None."""
-        for b in self.estimate:
-            if b["abort"]:
-                return (f"excitation {self.axis}: the stand's motion in the band "
-                        f"{b['lo_hz']:.3g} … {b['hi_hz']:.3g} Hz is {b['error_db']:+.2f} dB "
-                        f"(± {b['half_width_db']:.2f}) off the profile, beyond the abort level "
-                        f"±{self.limits.abort_db:g} dB (run.excitation.abort_db; running "
-                        f"estimate over {b['span_s']:.1f} s)")
-        return None

@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.analysis.align import MAX_ABS_ANGLE_DEG, check_grid
+from benchctl.analysis.ranges import MAX_ABS_ANGLE_DEG, check_grid
 from benchctl.errors import DataError
 from benchctl.textfile import MAX_CSV_BYTES, decode_utf8, read_input
 
@@ -167,7 +167,7 @@ def read_columns(path: str | Path, names: Sequence[tuple[str, str]]) -> list[Flo
     """Read the named columns of a CSV file with a header line, as float arrays.
 
     The first column named is the time: it must be strictly increasing and within the input
-    ranges of ``benchctl.analysis.align.check_grid``; the others are angles,
+    ranges of ``benchctl.analysis.ranges.check_grid``; the others are angles,
     ``|value| ≤ MAX_ABS_ANGLE_DEG``. Any bytes at all give either the arrays or a
     ``DataError`` naming the file and the line.
 

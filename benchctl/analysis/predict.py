@@ -36,7 +36,7 @@ motion is a table of lines ``A_j`` at ``f_j``, so the exact discrete form is use
   subtracted) and added to both ends of the intervals (``interpolation_bound``).
 
 - **Weak lines.** A measured line whose SNR (``1/E|Ĥ_k − H_k|²``) is below ``SNR_FLOOR``
-  (:mod:`benchctl.analysis.lines`) is not used: its Ĥ_k is mostly noise (a profile's band-edge
+  (:mod:`benchctl.analysis.linewise`) is not used: its Ĥ_k is mostly noise (a profile's band-edge
   line a few 1e-8° high reads gains like 20 000), and multiplied by a heavier sea's real motion
   there it would make σ anything. The target's lines there count as not measured.
 - **σ or a bound.** What the lines where H was not measured could add is bounded line by line,
@@ -69,13 +69,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 from scipy.special import ndtri
 
-from benchctl.analysis.lines import SNR_FLOOR
+from benchctl.analysis.linewise import SNR_FLOOR
 from benchctl.analysis.result import _clean, _list
 from benchctl.analysis.uncertainty import chi2_ppf, mls_interval
 from benchctl.errors import DataError
 
 if TYPE_CHECKING:
-    from benchctl.analysis.lines import LineAnalysis
+    from benchctl.analysis.linewise import LineAnalysis
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]

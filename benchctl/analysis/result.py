@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from benchctl.analysis.budget import Budget
 
 if TYPE_CHECKING:
-    from benchctl.analysis.lines import LineAnalysis
+    from benchctl.analysis.linewise import LineAnalysis
     from benchctl.analysis.steps import StepsAnalysis
 
 FloatArray = NDArray[np.float64]

@@ -1,7 +1,7 @@
 """Timing in the analysis: which instants to trust, and what their errors do to σ.
 
 **Stamps or instants?** A stream's stamps scatter about the uniform clock fitted through them
-(``timebase.fit_slots``) by ``d_i``. Either the samples were taken on that clock and the stamps
+(``clockfit.fit_slots``) by ``d_i``. Either the samples were taken on that clock and the stamps
 are late or early by ``d_i`` (receipt times, a logger's jitter, stamps rounded to 1 ms), or the
 samples really were taken at the stamps (an instrument that samples when it is asked). The data
 tell which: an instant off by ``d`` moves the reference read there by ``ẋ·d``, so the error

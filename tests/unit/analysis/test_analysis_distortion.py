@@ -12,7 +12,8 @@ import pytest
 
 from benchctl.analysis import analyze
 from benchctl.analysis.crossaxis import cross_axis_response
-from benchctl.analysis.lines import LineSet, analyze_lines, line_set_from_tables
+from benchctl.analysis.lines import LineSet, line_set_from_tables
+from benchctl.analysis.linewise import analyze_lines
 from benchctl.profiles import parse_profile, synthesize
 from benchctl.profiles.synthesis import select_lines
 

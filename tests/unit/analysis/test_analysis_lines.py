@@ -28,7 +28,8 @@ from analysis_synthetic import (
 from repo_paths import ROOT
 
 from benchctl.analysis import LineSet, analyze
-from benchctl.analysis.lines import chirp_sum, detect_period, fit_lines
+from benchctl.analysis.linefit import chirp_sum, fit_lines
+from benchctl.analysis.lines import detect_period
 from benchctl.cli import main
 
 MODELS: dict[str, Response] = {

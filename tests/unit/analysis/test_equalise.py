@@ -26,7 +26,8 @@ from benchctl.analysis.equalise import (
     pretest_design,
     response_at,
 )
-from benchctl.analysis.excitation import StandReach, fidelity_of_table
+from benchctl.analysis.excitation import fidelity_of_table
+from benchctl.analysis.fidelitylimits import StandReach
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError

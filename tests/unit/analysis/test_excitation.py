@@ -21,15 +21,9 @@ import pytest
 import yaml
 from repo_paths import ROOT
 
-from benchctl.analysis.excitation import (
-    ABORT_CONFIRM,
-    FidelityLimits,
-    RunningFidelity,
-    StandReach,
-    excitation_fidelity,
-    format_fidelity,
-    third_octave_bands,
-)
+from benchctl.analysis.excitation import excitation_fidelity, format_fidelity
+from benchctl.analysis.fidelitylimits import FidelityLimits, StandReach, third_octave_bands
+from benchctl.analysis.runningfidelity import ABORT_CONFIRM, RunningFidelity
 from benchctl.config import load_config
 from benchctl.errors import ConfigError, DataError
 from benchctl.harmonics import HarmonicTable

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from repo_paths import ROOT
 
-from benchctl.analysis.lines import LineSet, analyze_lines
+from benchctl.analysis.lines import LineSet
+from benchctl.analysis.linewise import analyze_lines
 from benchctl.analysis.predict import (
     MeasuredResponse,
     NoisePart,
@@ -160,7 +161,8 @@ def test_weak_lines_are_reported_but_not_used() -> None:
     """A recording whose band-edge lines are 1e-8° high (as a sea-state profile's are) measures
     nothing there: their SNR is reported, they are not in the gain table, and a heavier
     motion there is bounded, never multiplied by their noise-made gains."""
-    from benchctl.analysis.lines import SNR_FLOOR, periods_from_lines
+    from benchctl.analysis.lineperiods import periods_from_lines
+    from benchctl.analysis.linewise import SNR_FLOOR
 
     la, f = measure(0.01, weak=3)
     assert la.reliable.tolist() == [False] * 3 + [True] * 21  # type: ignore[attr-defined]

@@ -25,13 +25,12 @@ from hypothesis import strategies as st
 from timing_drift import jittered_streams
 
 from benchctl.analysis import analyze
+from benchctl.analysis.clockfit import fit_slots, robust_clock
 from benchctl.analysis.timebase import (
     Instants,
     counter_slots,
-    fit_slots,
     instrument_timebase,
     label_of,
-    robust_clock,
     stamp_error,
     unwrap,
 )
@@ -421,7 +420,7 @@ def test_cli_fits_both_time_bases(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_stamps_on_a_grid_take_the_short_way_to_the_same_slots() -> None:
     """Stamps that step evenly (a CSV's times, a fitted clock) skip the drop-and-burst search:
     the same slots and clock as the search finds, one robust fit instead of several."""
-    from benchctl.analysis import timebase as tb
+    from benchctl.analysis import clockfit as tb
 
     grid = 1000.0 + np.arange(20_000) * 0.01
     assert tb._uniform(grid)
