@@ -28,7 +28,8 @@ from benchctl.clock import REAL, Clock
 from benchctl.config import StandConfig
 from benchctl.devices.base import StandLimitsView, StandSample
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
-from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map, pdu_address, span
+from benchctl.devices.modbus.regmap import Field, RegisterMap, pdu_address, span
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.devices.modbus.setpoints import SetpointStand
 from benchctl.devices.modbus.stand_io import _chunks
 from benchctl.devices.modbus.table_limits import check_table

@@ -20,7 +20,8 @@ from repo_paths import ROOT
 
 from benchctl.clock import RealClock
 from benchctl.devices.base import StandLimitsView
-from benchctl.devices.modbus.regmap import RegisterMap, load_register_map
+from benchctl.devices.modbus.regmap import RegisterMap
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.devices.modbus.table_limits import check_table, table_peak
 from benchctl.errors import LimitError
