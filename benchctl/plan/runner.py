@@ -42,12 +42,7 @@ with no FAIL.
 from __future__ import annotations
 
 import contextlib
-import io
 import logging
-import os
-import select
-import sys
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,9 +58,10 @@ from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.plan.junit import write_junit
+from benchctl.plan.prompts import Asker, terminal_asker
 from benchctl.plan.record import validate_plan_record
 from benchctl.plan.result import PLAN_SCHEMA_ID, ActionResult, PlanResult, StepResult
-from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
+from benchctl.plan.schema import Action, Plan, Step, load_plan
 from benchctl.results.record import load_record
 from benchctl.run import RunOptions, run_test
 from benchctl.run import prechecks as pc
@@ -81,75 +77,12 @@ PLAN_JSON = "plan.json"
 RAMP_TIMEOUT_S = 60.0  # a cleanup/setup ramp_to_zero: at rest at zero within this
 TIMEOUT_SOURCE = "plan timeout"  # the fault source of a step ended by a timeout
 
-# an operator prompt: the question → yes (True) or no (False); it raises EOFError when its input
-# ended, TimeoutError when no answer came in time, KeyboardInterrupt on a signal
-Asker = Callable[[str], bool]
-
 
 class PlanTimeout(SafetyAbort):
     """A step ended because its own or the plan's ``timeout_s`` ran out."""
 
 
 # ------------------------------------------------------------------------------- prompts
-def terminal_asker(stdin: Any = None, stderr: Any = None,
-                   timeout_s: float | None = DEFAULT_PROMPT_TIMEOUT_S) -> Asker | None:
-    """A y/N question on the terminal, or None when stdin or stderr is not a terminal.
-
-    The answer is one line: ``y``/``yes`` is yes, anything else no. No line within
-    ``timeout_s`` raises ``TimeoutError``; the end of the input (Ctrl-D, a closed terminal)
-    ``EOFError``; a signal raises where it is (the caller's handler: ``KeyboardInterrupt``)."""
-    i = stdin if stdin is not None else sys.stdin
-    o = stderr if stderr is not None else sys.stderr
-    try:
-        if not (i.isatty() and o.isatty()):
-            return None
-    except (AttributeError, ValueError):
-        return None
-
-    def ask(text: str) -> bool:
-        try:
-            o.write(f"{text} [y/N]: ")
-            o.flush()
-        except OSError as e:  # a terminal hung up: nobody can answer
-            raise EOFError(f"the terminal cannot be written: {e.strerror}") from None
-        line = _read_line(i, timeout_s)
-        return line.strip().lower() in ("y", "yes")
-
-    return ask
-
-
-def _read_line(stream: Any, timeout_s: float | None) -> str:
-    """One line from ``stream`` within ``timeout_s`` (``TimeoutError``), ``EOFError`` at its end.
-
-    Read from the file descriptor (``select`` for the timeout); a stream without one (a test's
-    StringIO) is read as it is."""
-    try:
-        fd = stream.fileno()
-    except (AttributeError, ValueError, io.UnsupportedOperation):
-        line = str(stream.readline())
-        if not line:
-            raise EOFError("end of input") from None
-        return line
-    # the operator's terminal: a host wait (select) on the host's time, whatever the run's clock
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s  # noqa: TID251
-    buf = b""
-    while b"\n" not in buf:
-        left = None if deadline is None else deadline - time.monotonic()  # noqa: TID251
-        if left is not None and left <= 0:
-            raise TimeoutError(f"no answer within {timeout_s:g} s")
-        try:
-            ready, _, _ = select.select([fd], [], [], left)
-            chunk = os.read(fd, 1024) if ready else None
-        except OSError as e:  # a terminal hung up (EIO): its input has ended
-            raise EOFError(f"the terminal cannot be read: {e.strerror}") from None
-        if chunk is None:
-            continue
-        if not chunk:
-            raise EOFError("end of input")
-        buf += chunk
-    return buf.split(b"\n", 1)[0].decode("utf-8", errors="replace")
-
-
 def _yes(text: str) -> bool:
     log.info("plan prompt answered yes (--yes): %s", text)
     return True
@@ -732,5 +665,4 @@ __all__ = [
     "StepResult",
     "run_plan",
     "step_config",
-    "terminal_asker",
 ]
