@@ -32,7 +32,7 @@ import math
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +51,9 @@ from benchctl.run.live import CommandStats, Histogram
 from benchctl.run.plan import MotionPlan
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
+
+# re-exported (the redundant alias): the run's session imports it from here
+from benchctl.run.serialized_stand import SerializedStand as SerializedStand
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
 
@@ -64,30 +67,6 @@ HOST_STALL_S = 0.1  # waking up later than this: the process itself was held up
 SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
 REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
 UNDERRUN_STOP_S = 10.0  # after an underrun the stand must be at rest within this
-
-
-class SerializedStand:
-    """The stand with every call serialised by one lock: the loop and the main thread share it."""
-
-    def __init__(self, stand: Stand, *, clock: Clock = REAL) -> None:
-        self._stand = stand
-        self._lock = clock.rlock()
-        self.axes = stand.axes
-        self.limits = stand.limits
-
-    def __getattr__(self, name: str) -> Any:
-        attr = getattr(self._stand, name)
-        if not callable(attr):
-            return attr
-
-        def call(*args: Any, **kwargs: Any) -> Any:
-            with self._lock:
-                return attr(*args, **kwargs)
-
-        return call
-
-    def as_stand(self) -> Stand:
-        return cast(Stand, self)
 
 
 @dataclass
