@@ -22,6 +22,15 @@ own setpoint) and departure from the commanded motion (measured vs the profile a
 rejoin's path while it lasts, the last setpoint while the stand holds), each over its
 tolerance for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds; a silent instrument. A breach
 raises inside the loop thread; the supervisor turns it into the run's fault at once.
+
+Why this module stays whole (about 700 lines): it is one object, the loop thread, and its parts
+are that thread's phases. Hold, the three modes and settle all read and write the same state —
+the cycle and miss counters and the lateness histogram the run's stats report, the debounce
+state of the checks, the reference the departure check follows (``_ref``), the early end asked
+for by the main thread (``_end_request``, applied by whichever mode is running) and the rejoin
+planning every mode falls back on. Split by mode, each module would reach into the others'
+private state. What is not that thread's state lives elsewhere: the commanded points
+(``point_source``), the stand shared between threads (``serialized_stand``).
 """
 
 from __future__ import annotations
