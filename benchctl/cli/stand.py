@@ -71,7 +71,7 @@ def handle(args: argparse.Namespace) -> int:
     from benchctl.config import load_config
     from benchctl.errors import InputError
     from benchctl.jsonout import dumps
-    from benchctl.plan.runner import terminal_asker
+    from benchctl.plan.prompts import terminal_asker
     from benchctl.run import standctl
 
     cfg = load_config(args.config)

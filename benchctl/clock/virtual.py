@@ -22,6 +22,17 @@ Hazards, and what the clock does about them:
   once (it would break the one-at-a-time rule).
 - When the entering thread leaves :meth:`running`, threads still alive are ended: their pending
   wait raises :class:`ClockClosed` (a ``BaseException``, so ``except Exception`` loops unwind).
+
+Why this module stays whole (about 780 lines): it is one scheduler. The primitives below the
+clock (``VEvent``, ``VLock``/``VRLock``, ``VCondition``, ``VQueue``, ``VThread``) are not users
+of a public interface but the scheduler's own blocking points: each one takes the clock's mutex
+(``_mu``), reads its simulated now (``_now``), parks the calling task and hands the baton on
+(``_me``, ``_block``, ``_wake``), and ``VThread`` enters tasks into the run queue and leaves it
+(``_tasks``, ``_alive``, ``_ready``, ``_leave``). The one-at-a-time rule holds only if every
+hand-over goes through these few lines under one lock; split apart, the rule's invariants (who
+holds the baton, who is runnable, when time may jump) would be spread over modules reaching
+into each other's private state, and the clock would import its primitives while they import
+the clock.
 """
 
 from __future__ import annotations

@@ -12,13 +12,15 @@ policy and timeouts, run unattended (``benchctl plan``) or from Python::
     result.to_dict()          # the plan record (plan.json, schema benchctl-plan/1)
 
 The plan file: ``benchctl.plan.schema``; the order of things, timeouts and exit codes:
-``benchctl.plan.runner``; the results: ``benchctl.plan.result``; JUnit XML:
+``benchctl.plan.runner`` (the timeouts' timers: ``benchctl.plan.timeouts``; the terminal's
+prompts: ``benchctl.plan.prompts``); the results: ``benchctl.plan.result``; JUnit XML:
 ``benchctl.plan.junit``; the plan record's schema: ``benchctl.plan.record``.
 """
 
 from benchctl.plan.result import ActionResult, PlanResult, StepResult
-from benchctl.plan.runner import PlanTimeout, run_plan
+from benchctl.plan.runner import run_plan
 from benchctl.plan.schema import Action, Plan, Step, StepLimits, load_plan, parse_plan
+from benchctl.plan.timeouts import PlanTimeout
 
 __all__ = [
     "Action",

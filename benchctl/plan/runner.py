@@ -42,20 +42,15 @@ with no FAIL.
 from __future__ import annotations
 
 import contextlib
-import io
 import logging
-import os
-import select
-import sys
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
-from benchctl.clock import REAL, Clock, EventLike, ThreadLike
+from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig, RunConfig, load_config
 from benchctl.devices.modbus import open_stand
@@ -63,9 +58,11 @@ from benchctl.errors import BenchError, ConfigError, InputError, SafetyAbort
 from benchctl.jsonout import dumps
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.plan.junit import write_junit
+from benchctl.plan.prompts import Asker, terminal_asker
 from benchctl.plan.record import validate_plan_record
 from benchctl.plan.result import PLAN_SCHEMA_ID, ActionResult, PlanResult, StepResult
-from benchctl.plan.schema import DEFAULT_PROMPT_TIMEOUT_S, Action, Plan, Step, load_plan
+from benchctl.plan.schema import Action, Plan, Step, load_plan
+from benchctl.plan.timeouts import PlanTimeout, Timers
 from benchctl.results.record import load_record
 from benchctl.run import RunOptions, run_test
 from benchctl.run import prechecks as pc
@@ -79,77 +76,9 @@ log = logging.getLogger(__name__)
 
 PLAN_JSON = "plan.json"
 RAMP_TIMEOUT_S = 60.0  # a cleanup/setup ramp_to_zero: at rest at zero within this
-TIMEOUT_SOURCE = "plan timeout"  # the fault source of a step ended by a timeout
-
-# an operator prompt: the question → yes (True) or no (False); it raises EOFError when its input
-# ended, TimeoutError when no answer came in time, KeyboardInterrupt on a signal
-Asker = Callable[[str], bool]
-
-
-class PlanTimeout(SafetyAbort):
-    """A step ended because its own or the plan's ``timeout_s`` ran out."""
 
 
 # ------------------------------------------------------------------------------- prompts
-def terminal_asker(stdin: Any = None, stderr: Any = None,
-                   timeout_s: float | None = DEFAULT_PROMPT_TIMEOUT_S) -> Asker | None:
-    """A y/N question on the terminal, or None when stdin or stderr is not a terminal.
-
-    The answer is one line: ``y``/``yes`` is yes, anything else no. No line within
-    ``timeout_s`` raises ``TimeoutError``; the end of the input (Ctrl-D, a closed terminal)
-    ``EOFError``; a signal raises where it is (the caller's handler: ``KeyboardInterrupt``)."""
-    i = stdin if stdin is not None else sys.stdin
-    o = stderr if stderr is not None else sys.stderr
-    try:
-        if not (i.isatty() and o.isatty()):
-            return None
-    except (AttributeError, ValueError):
-        return None
-
-    def ask(text: str) -> bool:
-        try:
-            o.write(f"{text} [y/N]: ")
-            o.flush()
-        except OSError as e:  # a terminal hung up: nobody can answer
-            raise EOFError(f"the terminal cannot be written: {e.strerror}") from None
-        line = _read_line(i, timeout_s)
-        return line.strip().lower() in ("y", "yes")
-
-    return ask
-
-
-def _read_line(stream: Any, timeout_s: float | None) -> str:
-    """One line from ``stream`` within ``timeout_s`` (``TimeoutError``), ``EOFError`` at its end.
-
-    Read from the file descriptor (``select`` for the timeout); a stream without one (a test's
-    StringIO) is read as it is."""
-    try:
-        fd = stream.fileno()
-    except (AttributeError, ValueError, io.UnsupportedOperation):
-        line = str(stream.readline())
-        if not line:
-            raise EOFError("end of input") from None
-        return line
-    # the operator's terminal: a host wait (select) on the host's time, whatever the run's clock
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s  # noqa: TID251
-    buf = b""
-    while b"\n" not in buf:
-        left = None if deadline is None else deadline - time.monotonic()  # noqa: TID251
-        if left is not None and left <= 0:
-            raise TimeoutError(f"no answer within {timeout_s:g} s")
-        try:
-            ready, _, _ = select.select([fd], [], [], left)
-            chunk = os.read(fd, 1024) if ready else None
-        except OSError as e:  # a terminal hung up (EIO): its input has ended
-            raise EOFError(f"the terminal cannot be read: {e.strerror}") from None
-        if chunk is None:
-            continue
-        if not chunk:
-            raise EOFError("end of input")
-        buf += chunk
-    return buf.split(b"\n", 1)[0].decode("utf-8", errors="replace")
-
-
 def _yes(text: str) -> bool:
     log.info("plan prompt answered yes (--yes): %s", text)
     return True
@@ -258,91 +187,6 @@ class Consent:
 
 
 # ------------------------------------------------------------------------------- runner
-class _Timer:
-    """``threading.Timer`` on a clock: ``fn`` runs in its own thread ``seconds`` after
-    ``start`` unless ``cancel`` came first."""
-
-    def __init__(self, clock: Clock, seconds: float, fn: Callable[[], None], name: str) -> None:
-        self.seconds, self.fn = seconds, fn
-        self._cancelled: EventLike = clock.event()
-        self._thread: ThreadLike = clock.thread(self._run, name=name)
-
-    def _run(self) -> None:
-        if not self._cancelled.wait(self.seconds):
-            self.fn()
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def cancel(self) -> None:
-        self._cancelled.set()
-
-    def join(self) -> None:
-        self._thread.join()
-
-
-class _Timers:
-    """The step's and the plan's timeouts: each ends the running step through its supervisor."""
-
-    def __init__(self, clock: Clock = REAL) -> None:
-        self.clock = clock
-        self._lock = clock.lock()
-        self.supervisor: Any = None  # the running step's
-        self.plan_expired = False
-        self.step_expired = False
-        self._plan_timer: _Timer | None = None
-        self.plan_timeout_s: float | None = None
-
-    def start_plan(self, seconds: float | None) -> None:
-        self.plan_timeout_s = seconds
-        if seconds is not None:
-            self._plan_timer = _Timer(self.clock, seconds, self._plan_fired, "plan-timeout")
-            self._plan_timer.start()
-
-    def _plan_fired(self) -> None:
-        with self._lock:
-            self.plan_expired = True
-            sup = self.supervisor
-        log.error("plan timeout: %g s", self.plan_timeout_s or 0)
-        if sup is not None:
-            sup.fault(PlanTimeout(f"the plan's timeout_s ({self.plan_timeout_s:g} s) ran out"),
-                      TIMEOUT_SOURCE)
-
-    @contextlib.contextmanager
-    def step(self, supervisor: Any, name: str, seconds: float | None) -> Iterator[None]:
-        self.step_expired = False
-
-        def fired() -> None:
-            self.step_expired = True
-            log.error("step %r timeout: %g s", name, seconds or 0)
-            supervisor.fault(PlanTimeout(f"step {name!r}: its timeout_s ({seconds:g} s) ran out"),
-                             TIMEOUT_SOURCE)
-
-        timer: _Timer | None = None
-        with self._lock:
-            self.supervisor = supervisor
-            expired = self.plan_expired
-        if expired:
-            supervisor.fault(PlanTimeout(
-                f"the plan's timeout_s ({self.plan_timeout_s:g} s) ran out"), TIMEOUT_SOURCE)
-        if seconds is not None:
-            timer = _Timer(self.clock, seconds, fired, "step-timeout")
-            timer.start()
-        try:
-            yield
-        finally:
-            if timer is not None:
-                timer.cancel()
-                timer.join()
-            with self._lock:
-                self.supervisor = None
-
-    def stop(self) -> None:
-        if self._plan_timer is not None:
-            self._plan_timer.cancel()
-            self._plan_timer.join()
-
-
 def _prepare(plan: Plan, cfg: BenchConfig, serial: str, operator: str,
              out_dir: Path | None) -> list[BenchConfig]:
     """Every step's config and motion checked before anything opens (bad input never moves
@@ -449,7 +293,7 @@ def run_plan(
     except OSError as e:
         raise ConfigError(f"{folder}: cannot create the plan folder: {e.strerror}") from None
     result.folder = folder
-    timers = _Timers(clock)
+    timers = Timers(clock)
     holder = {"command": "benchctl plan", "plan": p.name, "serial": serial, "operator": op,
               "start_utc": result.start_utc}
     consent = Consent()
@@ -622,7 +466,7 @@ def _ask(ar: ActionResult, prompt: str, asker: Asker | None, consent: Consent) -
 
 
 def _run_step(step: Step, cfg: BenchConfig, serial: str, operator: str, out: Path,
-              timers: _Timers, display: Callable[[], Any] | None, run_test: Any,
+              timers: Timers, display: Callable[[], Any] | None, run_test: Any,
               RunOptions: Any, Supervisor: Any, clock: Clock = REAL) -> StepResult:
     sr = StepResult(step.name, str(step.profile), Outcome.ERROR, on_fail=step.on_fail,
                     start_utc=_now(clock))
@@ -728,9 +572,7 @@ __all__ = [
     "ActionResult",
     "Consent",
     "PlanResult",
-    "PlanTimeout",
     "StepResult",
     "run_plan",
     "step_config",
-    "terminal_asker",
 ]

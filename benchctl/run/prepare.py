@@ -16,7 +16,7 @@ from benchctl.analysis.equalise import (
     pretest_design,
 )
 from benchctl.config import BenchConfig, StandConfig
-from benchctl.devices.modbus.regmap import load_register_map
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.errors import (
     ConfigError,
     DataError,

@@ -22,6 +22,15 @@ own setpoint) and departure from the commanded motion (measured vs the profile a
 rejoin's path while it lasts, the last setpoint while the stand holds), each over its
 tolerance for ``DEBOUNCE`` samples and ``BREACH_HOLD_S`` seconds; a silent instrument. A breach
 raises inside the loop thread; the supervisor turns it into the run's fault at once.
+
+Why this module stays whole (about 700 lines): it is one object, the loop thread, and its parts
+are that thread's phases. Hold, the three modes and settle all read and write the same state —
+the cycle and miss counters and the lateness histogram the run's stats report, the debounce
+state of the checks, the reference the departure check follows (``_ref``), the early end asked
+for by the main thread (``_end_request``, applied by whichever mode is running) and the rejoin
+planning every mode falls back on. Split by mode, each module would reach into the others'
+private state. What is not that thread's state lives elsewhere: the commanded points
+(``point_source``), the stand shared between threads (``serialized_stand``).
 """
 
 from __future__ import annotations
@@ -32,7 +41,7 @@ import math
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -49,8 +58,12 @@ from benchctl.kinematics import (
 )
 from benchctl.run.live import CommandStats, Histogram
 from benchctl.run.plan import MotionPlan
+from benchctl.run.point_source import PointSource
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
+
+# re-exported (the redundant alias): the run's session imports it from here
+from benchctl.run.serialized_stand import SerializedStand as SerializedStand
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
 
@@ -64,30 +77,6 @@ HOST_STALL_S = 0.1  # waking up later than this: the process itself was held up
 SETTLE_TIMEOUT_S = 10.0  # after the profile: wait this long at most for the stand to come to rest
 REST_RATE_DEG_S = 0.5  # "at rest": |rate| below this on every axis
 UNDERRUN_STOP_S = 10.0  # after an underrun the stand must be at rest within this
-
-
-class SerializedStand:
-    """The stand with every call serialised by one lock: the loop and the main thread share it."""
-
-    def __init__(self, stand: Stand, *, clock: Clock = REAL) -> None:
-        self._stand = stand
-        self._lock = clock.rlock()
-        self.axes = stand.axes
-        self.limits = stand.limits
-
-    def __getattr__(self, name: str) -> Any:
-        attr = getattr(self._stand, name)
-        if not callable(attr):
-            return attr
-
-        def call(*args: Any, **kwargs: Any) -> Any:
-            with self._lock:
-                return attr(*args, **kwargs)
-
-        return call
-
-    def as_stand(self) -> Stand:
-        return cast(Stand, self)
 
 
 @dataclass
@@ -107,59 +96,6 @@ class LoopLimits:
     @property
     def kinematic(self) -> Limits:
         return Limits(self.angle_deg, self.rate_deg_s, self.accel_deg_s2)
-
-
-class PointSource:
-    """The commanded points in order: a rejoin path first (if any), then the profile's slots,
-    then two copies of the last value (the sequence ends at rest)."""
-
-    def __init__(self, plan: MotionPlan, k0: int, rejoin: Rejoin | None = None) -> None:
-        self.plan = plan
-        self.k = k0
-        self.rejoin = rejoin
-        self.tail = 2
-
-    @property
-    def done(self) -> bool:
-        return self.k >= self._end() and self.tail == 0
-
-    def _end(self) -> int:
-        end = self.plan.n_slots
-        if self.rejoin is not None:
-            end = max(end, self.rejoin.first_slot + self.rejoin.n)
-        return end
-
-    def value(self, k: int) -> dict[str, float]:
-        p = self.plan
-        rej = self.rejoin
-        out = {}
-        for a in p.axes:
-            if rej is not None and 0 <= k - rej.first_slot < rej.points[a].size:
-                out[a] = float(rej.points[a][k - rej.first_slot])
-            else:
-                out[a] = float(p.values[a][min(k, p.n_slots - 1)])
-        return out
-
-    def at(self, t: float) -> dict[str, float]:
-        """The commanded motion at profile time ``t``, linear between the points."""
-        x = max(0.0, t / self.plan.period_s)
-        k = math.floor(x)
-        v0, v1 = self.value(k), self.value(k + 1)
-        w = x - k
-        return {a: v0[a] + w * (v1[a] - v0[a]) for a in v0}
-
-    def take(self, n: int) -> list[tuple[int, dict[str, float]]]:
-        out: list[tuple[int, dict[str, float]]] = []
-        while len(out) < n:
-            if self.k < self._end():
-                out.append((self.k, self.value(self.k)))
-            elif self.tail > 0:
-                out.append((self.k, self.value(self._end() - 1)))
-                self.tail -= 1
-            else:
-                break
-            self.k += 1
-        return out
 
 
 class StandLoop:

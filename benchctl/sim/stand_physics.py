@@ -13,7 +13,8 @@ import numpy as np
 
 from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandLimits
-from benchctl.devices.modbus.regmap import RegisterMap, load_register_map
+from benchctl.devices.modbus.regmap import RegisterMap
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.servo import AxisState, ServoModel, brake_step
 from benchctl.sim.trajectory_queue import TrajectoryQueue

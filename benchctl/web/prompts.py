@@ -1,7 +1,7 @@
 """A plan's operator prompts answered on the station panel: the question published on the run's
 live channel (``benchctl.web.live``), the answer a file the panel writes.
 
-``PanelAsker`` is an ``Asker`` of ``benchctl.plan.runner``: it publishes ``prompt`` (again every
+``PanelAsker`` is an ``Asker`` of ``benchctl.plan.prompts``: it publishes ``prompt`` (again every
 ``REPEAT_S`` while it waits: a datagram may be dropped, a browser may connect late) and waits
 for ``<answers>/prompt-<id>.answer`` — ``yes`` or ``no``, written whole by the panel (a rename)
 — for the plan's ``prompt_timeout_s``; no answer by then raises ``TimeoutError`` (unanswered:

@@ -30,7 +30,7 @@ from benchctl.channels import free_name, register, unregister
 from benchctl.clock import REAL, Clock
 from benchctl.config import SimStandConfig, StandConfig, StandLimits
 from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
-from benchctl.devices.modbus.regmap import load_register_map, parse_register_map
+from benchctl.devices.modbus.regmap_load import load_register_map, parse_register_map
 from benchctl.devices.modbus.stand import open_stand
 from benchctl.errors import ConfigError
 from benchctl.recording import RecordingWriter, load_recording

@@ -34,7 +34,8 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig, StandLimits
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
-from benchctl.devices.modbus.regmap import RegisterMap, load_register_map, pdu_address
+from benchctl.devices.modbus.regmap import RegisterMap, pdu_address
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, ModbusException, StandFault
 from benchctl.sim.stand import SimStand

@@ -32,7 +32,7 @@ from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.base import StandLimitsView
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
-from benchctl.devices.modbus.regmap import load_register_map
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.devices.modbus.stand import ModbusStand
 from benchctl.errors import DeviceTimeout, LimitError, ModbusException, ProtocolError, StandFault
 

@@ -25,7 +25,8 @@ from test_stand_sim import LIMITS, MAP, simulated
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig
-from benchctl.devices.modbus.regmap import load_register_map, pdu_address
+from benchctl.devices.modbus.regmap import pdu_address
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.sim.stand import SIM_HOLDUP_S, SimStand
 
 WATCHDOG_S = 0.6

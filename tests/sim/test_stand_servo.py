@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from benchctl.devices.base import StandLimitsView
-from benchctl.devices.modbus.stand import check_table, plan_ramp_to_zero
+from benchctl.devices.modbus.stand import plan_ramp_to_zero
+from benchctl.devices.modbus.table_limits import check_table
 from benchctl.errors import LimitError
 from benchctl.harmonics import HarmonicTable
 from benchctl.sim.servo import AxisState, ServoModel, brake_step, quantise, servo_step

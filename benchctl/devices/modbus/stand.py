@@ -1,9 +1,13 @@
 """The stand driver over Modbus TCP/RTU: ``ModbusStand`` implements ``devices.base.Stand``.
 
 The register map (``drivers/*.yaml``) says where everything lives; the link (``link.py``) says
-how bytes travel. Public methods hold the safety checks: every setpoint is checked against the
-angle, rate and acceleration limits at the point of sending and a bad one raises ``LimitError``
-before anything is written; every table is checked over its whole duration before upload.
+how bytes travel; ``StandIO`` (``stand_io.py``) reads and writes the registers and decodes the
+feedback block; ``SetpointStand`` (``setpoints.py``) keeps the setpoint history and checks every
+setpoint. This module is the driver built on them: tables, stops and the ramp to zero, the
+buffered trajectory, and ``open_stand``.
+Public methods hold the safety checks: every setpoint is checked against the angle, rate and
+acceleration limits at the point of sending and a bad one raises ``LimitError`` before anything
+is written; every table is checked over its whole duration before upload (``table_limits``).
 Device-reported faults and E-stops raise ``StandFault`` with the stand's fault code.
 
 Thread safety: one streaming thread and one supervisor/heartbeat thread may share a driver;
@@ -14,52 +18,35 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import minimize_scalar
 
 from benchctl.clock import REAL, Clock
 from benchctl.config import StandConfig
-from benchctl.devices.base import (
-    DeviceIdentity,
-    StandLimitsView,
-    StandSample,
-    StandStatus,
-    TrajectoryStatus,
-)
+from benchctl.devices.base import StandLimitsView, StandSample
 from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
-from benchctl.devices.modbus.regmap import Field, RegisterMap, load_register_map, pdu_address, span
-from benchctl.errors import (
-    ConfigError,
-    DeviceError,
-    DeviceTimeout,
-    LimitError,
-    ProtocolError,
-    StandFault,
-)
+from benchctl.devices.modbus.regmap import Field, RegisterMap, pdu_address, span
+from benchctl.devices.modbus.regmap_load import load_register_map
+from benchctl.devices.modbus.setpoints import SetpointStand
+from benchctl.devices.modbus.stand_io import _chunks
+from benchctl.devices.modbus.table_limits import check_table
+from benchctl.errors import DeviceError, LimitError, ProtocolError
 from benchctl.harmonics import HarmonicTable
-from benchctl.kinematics import (
-    HELD_AFTER_PERIODS,
-    AxisCommand,
-    Limits,
-    StaleSetpoint,
-    check_step,
-    plan_ramp_to_zero,
-)
+from benchctl.kinematics import AxisCommand, StaleSetpoint, check_step, plan_ramp_to_zero
 
 log = logging.getLogger(__name__)
 
 RAMP_MARGIN = 0.8  # ramps use this fraction of the rate and acceleration limits
 REST_HOLD_S = 0.1  # "at rest" must hold this long
-SetpointListener = Callable[[float, dict[str, float], float | None], None]
-SampleListener = Callable[[StandSample], None]
 
 
-class ModbusStand:
-    """A two-axis stand on a Modbus link, described by a register map.
+class ModbusStand(SetpointStand):
+    """A two-axis stand on a Modbus link, described by a register map: the register side
+    (connecting, the feedback block, register writes) is :class:`StandIO`'s, the setpoint
+    history and its checks :class:`SetpointStand`'s.
 
     Parameters
     ----------
@@ -95,332 +82,19 @@ class ModbusStand:
         heartbeat_period_s: float = 0.1,
         clock: Clock = REAL,
     ) -> None:
-        for a in axes:
-            if a not in regmap.axes:
-                raise ConfigError(
-                    f"{regmap.source}: axes: axis {a!r} is driven but not in the map "
-                    f"(map has {list(regmap.axes)})"
-                )
-        self.link = link
-        self.map = regmap
-        self.limits = limits
-        self.axes = tuple(axes)
-        self.setpoint_period_s = setpoint_period_s
+        super().__init__(
+            link, regmap, limits=limits, axes=axes, setpoint_period_s=setpoint_period_s,
+            clock=clock,
+        )
         self.zero_tolerance_deg = zero_tolerance_deg
         self.heartbeat_period_s = heartbeat_period_s
-        self.identity: DeviceIdentity | None = None
-        self.last_sample: StandSample | None = None
-        self.clock = clock
-        self._clock = clock.monotonic
-        self._sleep = clock.sleep
-        self._lock = clock.rlock()
-        self._last: dict[str, AxisCommand] | None = None  # the last commanded point per axis
-        self._t_last = -math.inf  # when it was sent
         #: a stop was commanded and the stand may still be braking (``ramp_to_zero`` waits)
         self._stopping = False
-        self.on_setpoint: SetpointListener | None = None  # every setpoint sent (ramps included)
-        self.on_sample: SampleListener | None = None  # every feedback block decoded
         self._traj_last: dict[str, AxisCommand] | None = None  # the last point queued
         self._traj_next = 0  # the index the stand's queue expects next
-        self._hb = 0
         self._table_axes: tuple[str, ...] = ()
-        self._closed = False
-        self._fb_addr, self._fb_count = regmap.feedback_span()
-        # the feedback block's values as _decode_feedback takes them: status word, fault code,
-        # heartbeat echo, [sample time], each driven axis's angle, rate and setpoint,
-        # [the trajectory queue's level, next index, played, underruns]
-        m = regmap
-        fb = [m.status_word, m.fault_code, m.heartbeat_echo]
-        fb += [m.sample_time] if m.sample_time is not None else []
-        for a in self.axes:
-            fb += [m.axes[a].angle, m.axes[a].rate, m.axes[a].setpoint]
-        tr = m.trajectory
-        fb += [tr.level, tr.next_index, tr.played, tr.underruns] if tr is not None else []
-        self._fb_decode = regmap.block_decoder(fb, self._fb_addr, self._fb_count)
-        self._read_chunks: dict[tuple[int, int], list[tuple[int, int]]] = {}
 
-    # -- connection -----------------------------------------------------------------------
-    def connect(self) -> DeviceIdentity:
-        """Open the link and read the identity registers."""
-        self.link.connect()
-        self._closed = False
-        values: dict[str, str] = {}
-        for name, f in self.map.identity.items():
-            values[name] = str(self.map.decode(f, self._read(f.address, f.n_registers)))
-        extra = {
-            k: v for k, v in values.items() if k not in ("vendor", "model", "serial", "firmware")
-        }
-        extra["register_map"] = self.map.name
-        if self.map.sample_time is not None:  # the recording needs it to unwrap stand_time_s
-            extra["sample_time_wrap_s"] = repr(self.map.sample_time_wrap_s)
-        self.identity = DeviceIdentity(
-            vendor=values["vendor"],
-            model=values["model"],
-            serial=values.get("serial", ""),
-            firmware=values.get("firmware", ""),
-            protocol=self.link.endpoint,
-            extra=extra,
-        )
-        return self.identity
-
-    def close(self) -> None:
-        """Close the link. Idempotent; does not move or disable the stand."""
-        if not self._closed:
-            self._closed = True
-            self.link.close()
-
-    # -- reading --------------------------------------------------------------------------
-    def read_status(self) -> StandStatus:
-        """The decoded status word, fault code and heartbeat echo. Never raises on a fault."""
-        return self._read_feedback()[1].status
-
-    def read_sample(self) -> StandSample:
-        """Encoder angles, rates and active setpoints, stamped when the stand took them: the
-        request/reply midpoint on TCP, the end of the request on the wire on RTU
-        (``ModbusLink.sample_stamp``).
-
-        Raises
-        ------
-        StandFault
-            When the stand reports a fault or an E-stop (``code`` is its fault code).
-        """
-        _, sample = self._read_feedback()
-        self._raise_fault(sample.status)
-        return sample
-
-    def read_state(self) -> StandSample:
-        """As :meth:`read_sample` but never raises on a fault or an E-stop: the state of a
-        faulted stand, for a status display (``benchctl stand status``)."""
-        return self._read_feedback()[1]
-
-    def _read_feedback(self) -> tuple[list[int], StandSample]:
-        t0 = self._clock()
-        regs = self._read(self._fb_addr, self._fb_count)
-        t1 = self._clock()
-        return regs, self._decode_feedback(regs, t0, t1)
-
-    def _decode_feedback(self, regs: list[int], t0: float, t1: float) -> StandSample:
-        m = self.map
-        v = self._fb_decode(regs)
-        word, code, echo = int(v[0]), int(v[1]), int(v[2])
-        status = StandStatus(**m.status_from_word(word), fault_code=code, heartbeat=echo)
-        k = 3
-        t_stand = None
-        if m.sample_time is not None:
-            t_stand, k = v[3], 4
-        axes = self.axes
-        angle: dict[str, float] = {}
-        rate: dict[str, float] = {}
-        setpoint: dict[str, float] = {}
-        for a in axes:
-            angle[a], rate[a], setpoint[a] = v[k], v[k + 1], v[k + 2]
-            k += 3
-        traj = None
-        if m.trajectory is not None:
-            traj = TrajectoryStatus(
-                level=int(v[k]), next_index=int(v[k + 1]), played=int(v[k + 2]),
-                underruns=int(v[k + 3]),
-            )
-        link = self.link
-        stamp = getattr(link, "sample_stamp", None)
-        window = getattr(link, "sample_window", None)
-        sample = StandSample(
-            t_host=stamp(t0, t1) if stamp is not None else 0.5 * (t0 + t1),
-            rtt_s=t1 - t0,
-            t_stand=t_stand,
-            t_window=window(t0, t1) if window is not None else (t0, t1),
-            angle_deg=angle,
-            rate_deg_s=rate,
-            setpoint_deg=setpoint,
-            status=status,
-            trajectory=traj,
-        )
-        self.last_sample = sample
-        self._notify_sample(sample)
-        return sample
-
-    def _notify_sample(self, sample: StandSample) -> None:
-        """Pass a sample to the listener; a listener's failure never stops the driver."""
-        cb = self.on_sample
-        if cb is not None:
-            try:
-                cb(sample)
-            except Exception:
-                log.exception("stand sample listener failed")
-
-    def _notify_setpoint(
-        self, t: float, angle_deg: Mapping[str, float], t_slot: float | None
-    ) -> None:
-        cb = self.on_setpoint
-        if cb is not None:
-            try:
-                cb(t, dict(angle_deg), t_slot)
-            except Exception:
-                log.exception("stand setpoint listener failed")
-
-    def _raise_fault(self, st: StandStatus) -> None:
-        if st.estop:
-            raise StandFault(
-                f"{self.link.endpoint}: E-stop is active (fault code {st.fault_code})",
-                st.fault_code or None,
-            )
-        if st.fault:
-            text = self.map.fault_codes.get(st.fault_code, "unknown fault")
-            raise StandFault(
-                f"{self.link.endpoint}: stand fault {st.fault_code} ({text})", st.fault_code
-            )
-
-    # -- commands ---------------------------------------------------------------------------
-    def enable(self, timeout_s: float = 2.0) -> None:
-        """Switch the servo on; the stand then holds where it is. Raises StandFault if faulted."""
-        self._raise_fault(self.read_status())
-        self._control("enable")
-        deadline = self._clock() + timeout_s
-        while True:
-            sample = self.read_sample()
-            if sample.status.enabled:
-                break
-            if self._clock() > deadline:
-                raise DeviceTimeout(f"{self.link.endpoint}: not enabled within {timeout_s} s")
-            self._sleep(0.01)
-        self._reset_history(sample)
-
-    def disable(self) -> None:
-        """Switch the servo off (the stand brakes to rest)."""
-        self._control()
-        with self._lock:
-            self._last = None
-            self._t_last = -math.inf
-
-    def heartbeat(self) -> None:
-        """Write the next heartbeat counter value; the stand's watchdog stops it if this stops."""
-        with self._lock:
-            self._hb = (self._hb + 1) & 0xFFFF
-            hb = self._hb
-        self._write_field(self.map.heartbeat, hb)
-
-    def send_setpoint(
-        self, angle_deg: Mapping[str, float], *, t_slot: float | None = None
-    ) -> float:
-        """Check one position setpoint against the limits, then write it; returns the send time.
-
-        The angle, the rate of the step from the previous setpoint (one period T earlier as the
-        stand plays it) and the change of that rate are all checked first; any breach raises
-        ``LimitError`` (needed vs allowed) and nothing is written — ``StaleSetpoint`` when the
-        breach is only because the stand has held (no setpoint for more than 1.5·T). Axes left
-        out hold. ``t_slot`` (the slot the setpoint belongs to) goes to the listener.
-        """
-        with self._lock:
-            words, new, now = self._prepare_setpoint(angle_deg)
-            t_send = self._clock()
-            self._write_words(words)
-            self._commit(new, now)
-        self._notify_setpoint(t_send, angle_deg, t_slot)
-        return t_send
-
-    def _commit(self, new: Mapping[str, AxisCommand], now: float) -> None:
-        """Take ``new`` as the last commanded points, sent at ``now`` (lock held)."""
-        assert self._last is not None
-        held = now - self._t_last > HELD_AFTER_PERIODS * self.setpoint_period_s
-        for a in self.axes:
-            if a in new:
-                self._last[a] = new[a]
-            elif held:  # an axis left out holds: its rate is 0
-                self._last[a] = AxisCommand(self._last[a].angle_deg, 0.0)
-        self._t_last = now
-
-    @property
-    def commanded(self) -> dict[str, AxisCommand] | None:
-        """The last commanded point per axis (angle, rate of its step), or None."""
-        with self._lock:
-            return None if self._last is None else dict(self._last)
-
-    def send_setpoint_and_read(
-        self, angle_deg: Mapping[str, float], *, t_slot: float | None = None
-    ) -> tuple[float, StandSample]:
-        """:meth:`send_setpoint` then :meth:`read_sample`, in ONE transaction where the stand can.
-
-        With ``read_write_multiple: true`` in the register map the setpoint write and the
-        feedback read travel as one FC23 request (one turnaround instead of two: on RTU at
-        115200 baud that is what makes 100 Hz fit); otherwise two requests. Same checks and
-        errors as the two methods; returns (send time, sample).
-        """
-        with self._lock:
-            words, new, now = self._prepare_setpoint(angle_deg)
-            runs = _chunks(words, self.map.max_write)
-            if not (self.map.read_write_multiple and len(runs) == 1):
-                t_send = self._clock()
-                self._write_words(words)
-                self._commit(new, now)
-                self._notify_setpoint(t_send, angle_deg, t_slot)
-                return t_send, self.read_sample()
-            addr, count = runs[0]
-            t0 = self._clock()
-            regs = self.link.read_write_registers(
-                pdu_address(self._fb_addr),
-                self._fb_count,
-                pdu_address(addr),
-                [words[addr + i] for i in range(count)],
-            )
-            t1 = self._clock()
-            self._commit(new, now)
-        self._notify_setpoint(t0, angle_deg, t_slot)
-        sample = self._decode_feedback(regs, t0, t1)
-        self._raise_fault(sample.status)
-        return t0, sample
-
-    def _prepare_setpoint(
-        self, angle_deg: Mapping[str, float]
-    ) -> tuple[dict[int, int], dict[str, AxisCommand], float]:
-        """Check the setpoint (lock held) and encode it: (address → word, new points, now)."""
-        if self._last is None:
-            self._reset_history(self._read_feedback()[1])
-        now = self._clock()
-        new = self._check_setpoint(angle_deg, now)
-        words: dict[int, int] = {}
-        for a in angle_deg:
-            f = self.map.axes[a].command
-            for i, w in enumerate(self.map.encode(f, float(angle_deg[a]))):
-                words[f.address + i] = w
-        return words, new, now
-
-    @property
-    def _kin_limits(self) -> Limits:
-        lim = self.limits
-        return Limits(lim.angle_deg, lim.rate_deg_s, lim.accel_deg_s2)
-
-    def _check_setpoint(
-        self, angle_deg: Mapping[str, float], now: float
-    ) -> dict[str, AxisCommand]:
-        """Judge the setpoint as the stand plays it (one period after the last; from rest when
-        the stand has held): ``benchctl.kinematics.check_step`` per axis."""
-        assert self._last is not None
-        held = now - self._t_last > HELD_AFTER_PERIODS * self.setpoint_period_s
-        new: dict[str, AxisCommand] = {}
-        for a, x in angle_deg.items():
-            if a not in self.axes:
-                raise LimitError(f"setpoint for axis {a!r}: this stand drives {list(self.axes)}")
-            new[a] = check_step(
-                a, self._last[a], x, self._kin_limits, self.setpoint_period_s, held=held
-            )
-        return new
-
-    def _reset_history(self, sample: StandSample, *, measured: bool = False) -> None:
-        """Start the commanded sequence afresh: from the stand's active setpoint at rest, or
-        (``measured``) from its measured angle and rate — the state a stop is planned from."""
-        with self._lock:
-            self._last = {
-                a: AxisCommand(
-                    sample.angle_deg[a]
-                    if measured or not sample.status.enabled
-                    else sample.setpoint_deg[a],
-                    sample.rate_deg_s[a] if measured else 0.0,
-                )
-                for a in self.axes
-            }
-            # measured: the sequence continues from this moment; else it starts from rest
-            self._t_last = self._clock() if measured else -math.inf
-
+    # -- tables -----------------------------------------------------------------------------
     def upload_table(self, tables: Mapping[str, HarmonicTable]) -> None:
         """Check the tables against the limits over their whole duration, write and verify them.
 
@@ -778,37 +452,6 @@ class ModbusStand:
         self._raise_fault(self.read_status())
         return 0.5 * (t0 + t1)
 
-    def _check_deadline(self, deadline: float, what: str) -> None:
-        if self._clock() > deadline:
-            raise DeviceTimeout(f"{self.link.endpoint}: timed out {what}")
-
-    # -- low level --------------------------------------------------------------------------
-    def _control(self, *bits: str) -> None:
-        word = self.map.word_from_bits(self.map.control_bits, bits)
-        self._write_field(self.map.control_word, word)
-
-    def _write_field(self, f: Field, value: float) -> None:
-        self._write_words({f.address + i: w for i, w in enumerate(self.map.encode(f, value))})
-
-    def _write_words(self, words: Mapping[int, int]) -> None:
-        """Write registers (address → word) in as few requests as the map allows (FC6 for one)."""
-        for addr, count in _chunks(words, self.map.max_write):
-            vals = [words[addr + i] for i in range(count)]
-            if count == 1:
-                self.link.write_register(pdu_address(addr), vals[0])
-            else:
-                self.link.write_registers(pdu_address(addr), vals)
-
-    def _read(self, addr: int, count: int) -> list[int]:
-        chunks = self._read_chunks.get((addr, count))
-        if chunks is None:  # the same few spans every cycle: worked out once
-            chunks = _chunks({addr + i: 0 for i in range(count)}, self.map.max_read)
-            self._read_chunks[(addr, count)] = chunks
-        out: list[int] = []
-        for a, c in chunks:
-            out += self.link.read_registers(pdu_address(a), c)
-        return out
-
 
 def _U32(address: int) -> Field:
     return Field("trajectory.push.first_index", address, "uint32")
@@ -816,81 +459,6 @@ def _U32(address: int) -> Field:
 
 def _F32(address: int) -> Field:
     return Field("trajectory.push.point", address, "float32")
-
-
-def _chunks(words: Mapping[int, int], max_count: int) -> list[tuple[int, int]]:
-    """(address, count) runs of consecutive addresses, each at most ``max_count`` long."""
-    out: list[tuple[int, int]] = []
-    for a in sorted(words):
-        if out and out[-1][0] + out[-1][1] == a and out[-1][1] < max_count:
-            out[-1] = (out[-1][0], out[-1][1] + 1)
-        else:
-            out.append((a, 1))
-    return out
-
-
-def check_table(tab: HarmonicTable, limits: StandLimitsView, *, axis: str, max_lines: int) -> None:
-    """Raise ``LimitError`` if a table exceeds the limits anywhere in its duration.
-
-    The stand plays a table in continuous time, so the peaks of angle, rate and acceleration
-    (fades included) are found in continuous time: a grid of at least 40 points per period of
-    the highest line (and 20 per fade) locates them, and each candidate (every local maximum
-    of the grid within 1 % of the grid's peak, and the 16 largest) is refined by a bounded
-    scalar search on the table itself (:func:`table_peak`). The message gives needed vs allowed.
-    """
-    if tab.n_lines > max_lines:
-        raise LimitError(f"table {axis}: {tab.n_lines} lines, the stand takes at most {max_lines}")
-    if tab.n_lines == 0:
-        raise LimitError(f"table {axis}: no lines")
-    for name in ("freq_hz", "amp_deg", "phase_rad"):
-        if not np.all(np.isfinite(getattr(tab, name))):
-            raise LimitError(f"table {axis}: {name} holds a non-finite value")
-    if np.any(tab.freq_hz < 0):
-        raise LimitError(f"table {axis}: negative frequency {float(tab.freq_hz.min())} Hz")
-    if not 0 < tab.duration_s < 1e6:
-        raise LimitError(
-            f"table {axis}: duration_s {tab.duration_s} s: expected 0 < duration < 1e6 s"
-        )
-    for deriv, allowed, unit, what in (
-        (0, limits.angle_deg, "°", "angle"),
-        (1, limits.rate_deg_s, "°/s", "rate"),
-        (2, limits.accel_deg_s2, "°/s²", "acceleration"),
-    ):
-        peak = table_peak(tab, deriv)
-        if peak > allowed:
-            raise LimitError(
-                f"table {axis}: needs {what} {peak:.4f}{unit}, allowed {allowed}{unit}"
-            )
-
-
-def table_peak(tab: HarmonicTable, derivative: int) -> float:
-    """The largest |x^(derivative)(t)| of a table over [0, duration] in continuous time."""
-    fmax = float(tab.freq_hz.max())
-    step = 1.0 / (40.0 * fmax) if fmax > 0 else tab.duration_s
-    fades = [f for f in (tab.fade_in_s, tab.fade_out_s) if f > 0]
-    if fades:
-        step = min(step, min(fades) / 20.0)
-    n = min(math.ceil(tab.duration_s / step) + 1, 5_000_000)
-    t = np.linspace(0.0, tab.duration_s, n)
-    h = t[1] - t[0] if n > 1 else tab.duration_s
-    y = np.abs(tab.evaluate(t, derivative))
-    peak = float(y.max())
-    if n < 3:
-        return peak
-    inner = (y[1:-1] >= y[:-2]) & (y[1:-1] >= y[2:])
-    cand = np.flatnonzero(inner) + 1
-    cand = np.concatenate([cand, [0, n - 1]])
-    top = cand[np.argsort(y[cand])[::-1][:16]]
-    near = cand[y[cand] >= 0.99 * peak][:200]
-    for i in np.unique(np.concatenate([top, near])):
-        lo, hi = max(0.0, t[i] - h), min(tab.duration_s, t[i] + h)
-
-        def neg(x: float) -> float:
-            return -float(np.abs(tab.evaluate(np.array([x]), derivative))[0])
-
-        r = minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-10})
-        peak = max(peak, -float(r.fun))
-    return peak
 
 
 def open_stand(cfg: StandConfig, *, clock: Clock = REAL) -> ModbusStand:
@@ -936,9 +504,7 @@ def open_stand(cfg: StandConfig, *, clock: Clock = REAL) -> ModbusStand:
 
 __all__ = [
     "ModbusStand",
-    "check_table",
     "open_stand",
     "plan_ramp_to_zero",
     "span",
-    "table_peak",
 ]

@@ -31,7 +31,8 @@ from benchctl.devices.can.canopen_incl import _sdo_on_clock
 from benchctl.devices.reader import SensorReader
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run.recorder import Recorder
-from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, start_instrument
+from benchctl.run.serialized_stand import SerializedStand
+from benchctl.run.stand_loop import LoopLimits, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
 

@@ -20,8 +20,10 @@ from repo_paths import ROOT
 
 from benchctl.clock import RealClock
 from benchctl.devices.base import StandLimitsView
-from benchctl.devices.modbus.regmap import RegisterMap, load_register_map
-from benchctl.devices.modbus.stand import ModbusStand, check_table, table_peak
+from benchctl.devices.modbus.regmap import RegisterMap
+from benchctl.devices.modbus.regmap_load import load_register_map
+from benchctl.devices.modbus.stand import ModbusStand
+from benchctl.devices.modbus.table_limits import check_table, table_peak
 from benchctl.errors import LimitError
 from benchctl.harmonics import HarmonicTable
 from benchctl.kinematics import (

@@ -11,12 +11,8 @@ import pytest
 import yaml
 from repo_paths import ROOT
 
-from benchctl.devices.modbus.regmap import (
-    Field,
-    load_register_map,
-    parse_register_map,
-    pdu_address,
-)
+from benchctl.devices.modbus.regmap import Field, pdu_address
+from benchctl.devices.modbus.regmap_load import load_register_map, parse_register_map
 from benchctl.errors import ConfigError, LimitError
 
 MAP = ROOT / "drivers" / "stand_generic.yaml"
@@ -48,7 +44,7 @@ def test_generic_map_loads_with_contiguous_feedback() -> None:
 
 
 def test_map_without_trajectory_section_and_a_bad_one(raw: dict[str, Any], tmp_path: Path) -> None:
-    from benchctl.devices.modbus.regmap import parse_register_map
+    from benchctl.devices.modbus.regmap_load import parse_register_map
 
     plain = {k: v for k, v in raw.items() if k != "trajectory"}
     cb, sb = raw["control_bits"], raw["status_bits"]

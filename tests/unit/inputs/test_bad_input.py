@@ -32,7 +32,7 @@ from benchctl.config import (
     load_config,
     parse_config,
 )
-from benchctl.devices.modbus.regmap import load_register_map
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.errors import ConfigError, DataError, InputError
 from benchctl.profiles import load_profile
 from benchctl.yamlfile import MAX_YAML_DEPTH, MAX_YAML_NODES, read_yaml

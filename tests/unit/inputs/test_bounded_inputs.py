@@ -29,7 +29,7 @@ import benchctl.profiles
 from benchctl.analysis.inputs import load_csv_pair, load_single_csv
 from benchctl.cli import main
 from benchctl.config import load_config, parse_config
-from benchctl.devices.modbus.regmap import load_register_map
+from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.errors import ConfigError, DataError, InputError, LimitError
 from benchctl.options import MAX_PROFILE_SAMPLES
 from benchctl.plan import load_plan, run_plan

@@ -19,8 +19,8 @@ from repo_paths import ROOT
 from benchctl.cli import main
 from benchctl.errors import ConfigError, DataError, InputError, LimitError
 from benchctl.plan import load_plan, parse_plan, run_plan
+from benchctl.plan.prompts import terminal_asker
 from benchctl.plan.record import load_plan_record
-from benchctl.plan.runner import terminal_asker
 
 # a bench config whose stand is not there: nothing in these tests may reach it
 BENCH = {

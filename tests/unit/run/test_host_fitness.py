@@ -41,8 +41,9 @@ from benchctl.run.latency import (
 from benchctl.run.prepare import RunOptions
 from benchctl.run.realtime import RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
+from benchctl.run.serialized_stand import SerializedStand
 from benchctl.run.session import RunResult, Session
-from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop
+from benchctl.run.stand_loop import LoopLimits, StandLoop
 from benchctl.run.state import StateMachine
 from benchctl.run.supervisor import Supervisor
 

@@ -22,7 +22,8 @@ from benchctl.recording import RecordingWriter, load_recording
 from benchctl.run import prechecks as pc
 from benchctl.run.live import Histogram, RunningSigma
 from benchctl.run.recorder import Recorder
-from benchctl.run.stand_loop import LoopLimits, SerializedStand, StandLoop, start_instrument
+from benchctl.run.serialized_stand import SerializedStand
+from benchctl.run.stand_loop import LoopLimits, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine, TransitionError
 from benchctl.run.supervisor import Supervisor
 
