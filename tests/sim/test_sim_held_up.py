@@ -21,7 +21,7 @@ import struct
 import time
 
 import pytest
-from test_stand_sim import LIMITS, MAP, simulated
+from stand_rig import LIMITS, MAP, simulated
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import SimStandConfig

@@ -137,10 +137,10 @@ def test_one_period_just_short_is_completed_with_a_gap_at_its_end() -> None:
 
 
 def _recording(folder: Path, kind: str, window_short_s: float = 0.0) -> Path:
-    """A closed recording of test_predict's profile A (steady 50 s, lines k/50 s) with the
+    """A closed recording of the prediction tests' profile A (steady 50 s, lines k/50 s) with the
     instrument exact (``zero``: error ≡ 0), constant (``constant``), two samples (``two``) or
     a lag with noise (``lag``); its analysis window ``window_short_s`` short of 50 s."""
-    from test_predict import PROFILE_A, lag_response
+    from predict_cases import PROFILE_A, lag_response
 
     from benchctl.devices.base import InstrumentSample, StandSample, StandStatus
     from benchctl.profiles import load_profile, synthesize
@@ -184,7 +184,7 @@ def test_degenerate_recordings_through_analyze_and_predict(
     give, 0, exactly; a constant instrument and a two-sample recording are exit 2 naming the
     recording, the axis and what was expected; a one-period recording 0.5 s short is analysed
     and predicted over its whole period (the gap said so), close to the whole one's."""
-    from test_predict import PROFILE_B
+    from predict_cases import PROFILE_B
 
     prof_b = tmp_path / "b.yaml"
     prof_b.write_text(PROFILE_B)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from predict_cases import NOISE, PROFILE_A, PROFILE_B, closed_form, lag_response
 from repo_paths import ROOT
 
 from benchctl.analysis.lines import LineSet
@@ -30,13 +31,6 @@ from benchctl.analysis.predict import (
 from benchctl.cli import main
 from benchctl.errors import DataError
 from benchctl.profiles import load_profile, synthesize
-
-GAIN, LAG, LATENCY = 0.995, 0.08, 0.01  # the simulated MEMS inclinometer of config/sim.yaml
-
-
-def lag_response(f: np.ndarray) -> np.ndarray:
-    """Gain × latency × first-order lag."""
-    return np.asarray(GAIN * np.exp(-2j * np.pi * f * LATENCY) / (1 + 2j * np.pi * f * LAG))
 
 
 def measure(
@@ -68,10 +62,6 @@ def sea_state_lines() -> tuple[np.ndarray, np.ndarray]:
     tab = synthesize(load_profile(ROOT / "profiles/sea_state_4_small_vessel.yaml"),
                      duration_s=50.0).tables["roll"]  # type: ignore[index]
     return np.asarray(tab.freq_hz), np.asarray(tab.amp_deg)
-
-
-def closed_form(f: np.ndarray, a: np.ndarray, noise_deg: float) -> float:
-    return float(np.sum(np.abs(lag_response(f) - 1) ** 2 * a**2 / 2) + noise_deg**2)
 
 
 # ------------------------------------------------------------------------------ exact cases
@@ -238,38 +228,6 @@ def test_bad_targets_are_errors() -> None:
 
 
 # ------------------------------------------------------------------------------ the CLI
-PROFILE_A = """
-name: flat_a
-description: flat roll multisine for prediction tests
-reference: synthetic
-kind: roll_spectrum
-duration_s: 58
-fade_in_s: 4
-fade_out_s: 4
-seed: 3
-band_hz: [0.04, 0.6]
-axes:
-  roll: {model: table, freq_hz: [0.02, 0.65], density_deg2_hz: [5.0, 5.0]}
-"""
-PROFILE_B = """
-name: harmonics_b
-description: three lines, one outside the tested band
-reference: synthetic
-kind: harmonics
-duration_s: 30
-fade_in_s: 2
-fade_out_s: 2
-seed: 1
-axes:
-  roll:
-    lines:
-      - {amplitude_deg: 3.0, freq_hz: 0.15}
-      - {amplitude_deg: 2.0, freq_hz: 0.32}
-      - {amplitude_deg: 1.0, freq_hz: 0.9}
-"""
-NOISE = 0.02
-
-
 def make_recording(folder: Path, profile_path: Path) -> Path:
     """A closed recording of ``profile_path`` (steady 50 s: lines k/50 s over 0.04 … 0.6 Hz):
     stand 100 Hz, instrument 50 Hz through ``lag_response`` with white noise ``NOISE``."""

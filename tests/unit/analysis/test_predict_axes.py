@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_predict import NOISE, closed_form, lag_response
+from predict_cases import NOISE, closed_form, lag_response
 
 from benchctl.cli import main
 from benchctl.profiles import load_profile, synthesize

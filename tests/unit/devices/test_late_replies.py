@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_stand_sim import SLOW, simulated
+from stand_rig import SLOW, simulated
 
 from benchctl.clock.virtual import VirtualClock
 from benchctl.devices.modbus.link import ModbusLink
