@@ -443,17 +443,20 @@ def align(
     """
     _check_mode(timebase, "timebase")
     _check_mode(reference_timebase, "reference timebase")
+    one_column = len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_dev)  # one CSV's rows
     for t, v, name in ((t_ref, x_ref, "reference"), (t_dev, y_dev, "device")):
         if len(t) != len(v):
             raise DataError(f"{name}: {len(t)} times but {len(v)} angles")
-        check_times(t, f"{name} time")
-        check_grid(t, f"{name} time")
+        if not (one_column and name == "device"):  # one column of times is checked once
+            check_times(t, f"{name} time")
+            check_grid(t, f"{name} time")
         check_values(v, f"{name} angle")
     dev = _Stream.of(np.asarray(t_dev, dtype=float), labels[1])
-    ref = _Stream.of(np.asarray(t_ref, dtype=float), labels[0])
+    # one column of times with one label: one clock fitted through it serves both streams
+    ref = (dev if one_column and labels[0] == labels[1]
+           else _Stream.of(np.asarray(t_ref, dtype=float), labels[0]))
     modes: list[Mode] = ["given" if m == "auto" else m for m in (timebase, reference_timebase)]
     shares = (NOT_MEASURED, NOT_MEASURED)
-    one_column = len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_dev)  # one CSV's rows
     if not one_column and (dev.testable(timebase) or ref.testable(reference_timebase)):
         first = _lay(ref, x_ref, dev, y_dev, shift_s, modes, shares)
         shares = _stamp_test(first, ref, dev, (dev.testable(timebase),
