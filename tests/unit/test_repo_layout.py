@@ -1,10 +1,12 @@
 """Where shared code lives: what two test files share is a helper in ``tests/helpers/`` (no test
 module imports another), and no benchmark imports from ``tests/`` (the benchmarks stand on
-the package and on ``benchmarks/`` alone)."""
+the package and on ``benchmarks/`` alone). And the code, tests, benchmarks and docs say what
+they mean in their own words: none points at a tracker's issue by number."""
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 from repo_paths import ROOT
@@ -40,7 +42,26 @@ def test_no_benchmark_imports_a_test_or_a_test_helper() -> None:
     assert _offenders(files, TEST_MODULES | HELPERS | {"tests"}) == []
 
 
+ISSUE = re.compile(r"\bissues? ?#?[0-9]+", re.IGNORECASE)
+TEXT_DIRS = ("benchctl", "tests", "benchmarks", "docs", "config", "profiles", "drivers", ".ci")
+
+
+def test_no_file_points_at_an_issue_by_number() -> None:
+    files = [ROOT / "README.md", ROOT / "pyproject.toml"]
+    for d in TEXT_DIRS:
+        files += [p for p in (ROOT / d).rglob("*") if p.is_file()
+                  and p.suffix in (".py", ".md", ".yaml", ".yml", ".toml", ".j2", ".txt", "")
+                  and "campaign-results" not in p.parts and "_build" not in p.parts]
+    found = [f"{p.relative_to(ROOT)}: {m.group(0)!r}" for p in files
+             for m in [ISSUE.search(p.read_text(errors="replace"))] if m]
+    assert found == []
+
+
 def test_the_check_sees_such_imports() -> None:
+    word = "iss" + "ue"  # not written whole: this file is searched too
+    assert ISSUE.search(f"see {word.title()} #12") and ISSUE.search(f"{word} 7")
+    assert ISSUE.search(f"{word}s 3")
+    assert not ISSUE.search("an issue with the stand")
     assert imported("from test_predict import NOISE\n") == {"test_predict"}
     assert imported("def f():\n    import stand_rig.x as y\n") == {"stand_rig"}
     assert imported("from . import sibling\n") == set()
