@@ -53,6 +53,10 @@ streams and the events, but for the recording's path and the software version).
 ``--replay F.jsonl`` runs again every seed of ``F`` that had a violation and ``--sample`` of the
 others, and compares each new line with the old: the same draw, verdict, violations, simulated
 time and digest — the same run, byte for byte — or exit 1 naming what differs.
+
+One file (about 730 lines) on purpose: the draws, the run, its checks and the replay all read
+and write one run line, and the campaign's code version hashes this file whole (its checks are
+part of what a version's figures mean).
 """
 
 from __future__ import annotations

@@ -6,9 +6,6 @@ driver's side, the simulator's wire on the other), its physics, watchdog, stalls
 exact. Over a real socket and a real pty (``realtime``): the driver connects and identifies the
 stand, a TCP connection the stand drops is ``ConnectionLost``, and a stopped simulator leaves
 no pty, symlink or descriptor behind.
-
-One file (about 630 lines): the driver and the simulator back to back, one fixture pair for
-both links.
 """
 
 from __future__ import annotations
