@@ -114,3 +114,10 @@ def _identity(d: DeviceIdentity) -> dict[str, Any]:
         "protocol": from_device(d.protocol),
         "extra": {from_device(k): from_device(v) for k, v in d.extra.items()},
     }
+
+
+def identity_text(d: dict[str, Any]) -> str:
+    """A device's identity (``_identity``) on one line, as its precheck shows it."""
+    return " ".join(
+        str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
+    )

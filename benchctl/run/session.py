@@ -58,7 +58,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from benchctl import __version__
 from benchctl.analysis.equalise import (
     corrected_table,
     estimate_response,
@@ -75,14 +74,11 @@ from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, Stand
 from benchctl.errors import (
     DISK_FULL_ERRNOS,
-    AnalysisError,
-    BenchError,
     ConfigError,
     DataError,
     LimitError,
     RecordingError,
     SafetyAbort,
-    is_disk_full,
 )
 from benchctl.evaluate import EvaluationOptions, EvaluationRequest, RunProfile, evaluate
 from benchctl.exits import run_log, set_log_dir
@@ -99,13 +95,14 @@ from benchctl.results.measurements import (
     reported_serial,
     serial_measurement,
 )
-from benchctl.results.record import abort_kind, sha256_file, write_record
+from benchctl.results.record import abort_kind, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
 from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
     _identity,
+    identity_text,
     open_devices,
     recording_dir,
     simulators,
@@ -113,6 +110,7 @@ from benchctl.run.devices import (
 from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
+from benchctl.run.meta import REPORT_META, base_meta, deviations
 from benchctl.run.mounting_check import mounting_result
 from benchctl.run.outputs import (
     Console,
@@ -163,7 +161,7 @@ from benchctl.run.stand_loop import (
     start_instrument,
 )
 from benchctl.run.state import RunState, StateMachine
-from benchctl.run.supervisor import Supervisor, describe, shutdown
+from benchctl.run.supervisor import Supervisor, describe, fault_source, shutdown
 from benchctl.sim.disturb import Disturbances
 from benchctl.text import (
     check_serial,
@@ -310,24 +308,6 @@ class Session:
             return None
         return plan.fade_in_s + max(float(p) for p in periods if p is not None)
 
-    def _base_meta(self) -> dict[str, Any]:
-        cfg = self.cfg
-        return {
-            "serial": self.opts.serial,
-            "operator": self.opts.operator,
-            "station": cfg.station,
-            "software_version": __version__,
-            "config_path": str(cfg.source) if cfg.source else None,
-            "config": redact(cfg.model_dump(mode="json")),  # no password (archive.url)
-            "mode": cfg.stand.mode,
-            "limit_sigma_deg": cfg.run.limit_sigma_deg,
-            "decision_rule": self.rule,
-            "part_number": self.opts.part_number or cfg.unit.part_number,
-            "config_sha256": sha256_file(cfg.source),
-            "profile_sha256": sha256_file(self.prep.meta.get("profile_path")),
-            **self.prep.meta,
-        }
-
     # ---- phases
     def _prechecks(self) -> None:
         cfg, w = self.cfg, self.writer
@@ -343,11 +323,13 @@ class Session:
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
         self.stand = stand
         ids = {"stand": _identity(stand.connect())}
-        self._precheck(pc.CheckResult("stand answers", True, _id_text(ids["stand"]), ids["stand"]))
+        self._precheck(
+            pc.CheckResult("stand answers", True, identity_text(ids["stand"]), ids["stand"])
+        )
         ids["instrument"] = _identity(self.sensor.connect())
         self._precheck(
             pc.CheckResult(
-                "instrument answers", True, _id_text(ids["instrument"]), ids["instrument"]
+                "instrument answers", True, identity_text(ids["instrument"]), ids["instrument"]
             )
         )
         w.update_meta(devices=ids)
@@ -869,7 +851,7 @@ class Session:
             log.warning("%s", msg)
         verdicts = {axis: axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
                     for axis, res in results.items()}
-        meta = {k: self.meta.get(k) for k in _REPORT_META}
+        meta = {k: self.meta.get(k) for k in REPORT_META}
         meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
         measurements, warnings = self._measurements(verdicts, results)
         report = Report(verdicts, self.path, meta, self._stats(), window,
@@ -879,13 +861,8 @@ class Session:
         return report, results
 
     def _deviations(self) -> list[str]:
-        """What departs from the test as specified: a profile scaled to fit the stand."""
-        out = []
-        scale = self.prep.meta.get("scale")
-        if scale is not None and scale != 1.0:
-            out.append(f"profile scaled by {scale:g} to fit the stand limits (--scale-to-fit): "
-                       "the motion is not the profile's as specified")
-        return out
+        """What departs from the test as specified (``benchctl.run.meta.deviations``)."""
+        return deviations(self.prep.meta)
 
     def _measurements(self, verdicts: dict[str, Any],
                       results: dict[str, Any]) -> tuple[list[Measurement], list[str]]:
@@ -950,7 +927,7 @@ class Session:
         """The whole run. Raises (``BenchError``) only when the recording cannot be created;
         after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
         here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
-        self.meta = self._base_meta()
+        self.meta = base_meta(self.cfg, self.opts, self.rule, self.prep.meta)
         self.machine.subscribe(self._on_state)
         self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
         with self.supervisor.signals(), contextlib.ExitStack() as stack:
@@ -1037,7 +1014,7 @@ class Session:
             except BaseException as e:  # every way out, the same path
                 if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
                     self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
-                                          _source(e))
+                                          fault_source(e))
                 return self._abort()
             finally:
                 self.display.close()
@@ -1111,41 +1088,6 @@ class Session:
             "aborted", reason, Outcome.ABORTED.exit_code, self.path, None, stats, steps,
             log=self.log_path, abort=abort, record=record, measured=measured,
         )
-
-
-_REPORT_META = (
-    "serial",
-    "operator",
-    "station",
-    "profile_name",
-    "profile_path",
-    "seed",
-    "duration_s",
-    "mode",
-    "start_utc",
-    "software_version",
-    "limit_sigma_deg",
-    "scale",
-    "equalisation",
-)
-
-
-def _id_text(d: dict[str, Any]) -> str:
-    return " ".join(
-        str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
-    )
-
-
-def _source(e: BaseException) -> str:
-    if isinstance(e, KeyboardInterrupt):
-        return "signal"
-    if isinstance(e, RecordingError) or is_disk_full(e):
-        return "recording"
-    if isinstance(e, AnalysisError | DataError):
-        return "analysis"
-    if isinstance(e, BenchError):
-        return "run"
-    return "run (exception)"
 
 
 def run_test(
