@@ -49,8 +49,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import math
-from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -64,8 +62,6 @@ from benchctl.analysis.equalise import (
     response_at,
 )
 from benchctl.analysis.excitation import (
-    RunningFidelity,
-    limits_of,
     reach_of,
 )
 from benchctl.clock import REAL, Clock
@@ -80,20 +76,15 @@ from benchctl.errors import (
     RecordingError,
     SafetyAbort,
 )
-from benchctl.evaluate import EvaluationOptions, EvaluationRequest, RunProfile, evaluate
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.profiles import check_motion
 from benchctl.recording import RecordingWriter, load_recording
 from benchctl.redact import redact
 from benchctl.results.measurements import (
-    WARNING,
     Measurement,
-    axis_measurements,
-    limits_from_config,
     precheck_measurements,
     reported_serial,
-    serial_measurement,
 )
 from benchctl.results.record import abort_kind, write_record
 from benchctl.run import fitness
@@ -107,10 +98,12 @@ from benchctl.run.devices import (
     recording_dir,
     simulators,
 )
-from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
+from benchctl.run.display import Display, NullDisplay, SafeDisplay
+from benchctl.run.evaluation import analyse, analysis_window
 from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
-from benchctl.run.meta import REPORT_META, base_meta, deviations
+from benchctl.run.meta import base_meta, deviations
+from benchctl.run.motion import motion, new_loop, play
 from benchctl.run.mounting_check import mounting_result
 from benchctl.run.outputs import (
     Console,
@@ -128,13 +121,7 @@ from benchctl.run.outputs import (
 )
 from benchctl.run.plan import MotionPlan, make_plan
 from benchctl.run.precision import (
-    PrecisionCheck,
     PrecisionWatch,
-    check_window,
-    ended_summary,
-    profile_period,
-    relative_halfwidth,
-    whole_periods_in,
 )
 from benchctl.run.prepare import (
     PreparedMotion,
@@ -149,13 +136,10 @@ from benchctl.run.report import (
     Report,
     archive,
     archive_abort,
-    axis_verdict,
     write_report,
 )
 from benchctl.run.result import RunResult, measured_verdict, stand_after
 from benchctl.run.stand_loop import (
-    HOST_STALL_S,
-    LoopLimits,
     SerializedStand,
     StandLoop,
     start_instrument,
@@ -174,8 +158,6 @@ if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
 log = logging.getLogger(__name__)
 
 RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
-STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
-FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
 REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
 
 
@@ -254,7 +236,7 @@ class Session:
                 )
         self.display.state(str(new), reason)
 
-    def _precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
+    def precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
         """Record and show a precheck (``shown``: its own line instead of the usual one)."""
         assert self.writer is not None
         self.prechecks.append(result.to_dict())
@@ -265,57 +247,19 @@ class Session:
         pc.require(result)
         self.supervisor.check()
 
-    def _wait(self, seconds: float) -> None:
+    def wait(self, seconds: float) -> None:
         """Wait on the main thread, leaving at once on a fault."""
         if self.supervisor.stop_event.wait(seconds):
             self.supervisor.check()
-
-    def _snapshot(self) -> Snapshot:
-        assert self.recorder is not None and self.loop is not None
-        live = self.recorder.live
-        elapsed = remaining = None
-        if live.t_motion_start is not None:
-            elapsed = self.clock.monotonic() - live.t_motion_start
-            remaining = self.loop.plan.duration_s - elapsed  # shorter after an early stop
-        return Snapshot(
-            state=str(self.machine.state),
-            elapsed_s=elapsed,
-            remaining_s=remaining,
-            stand_deg=dict(live.stand.angle_deg) if live.stand else {},
-            instrument_deg={a: live.instrument.angle_deg.get(a, float("nan")) for a in self.axes}
-            if live.instrument
-            else {},
-            tracking_error_deg=dict(live.tracking_error_deg),
-            sigma_deg=self.recorder.sigma.sigma(),
-            missed_cycles=self.loop.missed_cycles,
-            instrument_samples=self.recorder.n_instrument,
-            serial=self.opts.serial,
-            operator=self.opts.operator,
-            limit_deg=self.cfg.run.limit_sigma_deg,
-            cycles=self.loop.cycles,
-            rejoins=self.loop.rejoins,
-            mode=self.plan.mode,
-            underruns=self.loop.underruns,
-            sigma_judged_after_s=self._sigma_judged_after(),
-        )
-
-    def _sigma_judged_after(self) -> float | None:
-        """Motion time from which the running σ is judged live: the fade-in and one whole
-        period of a periodic multisine (every line excited once); None without a period."""
-        plan = self.plan
-        periods = [t.period_s for t in (plan.tables or {}).values()]
-        if not periods or None in periods or getattr(self.prep.motion, "segments", None):
-            return None
-        return plan.fade_in_s + max(float(p) for p in periods if p is not None)
 
     # ---- phases
     def _prechecks(self) -> None:
         cfg, w = self.cfg, self.writer
         assert w is not None
         self.machine.to(RunState.PRECHECKS)
-        self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb,
+        self.precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb,
                                      quiet=self.clock.virtual))
-        self._precheck(self.prep.check)
+        self.precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
         # from here on every stand sample and setpoint goes into the recording, cleanup included
         self.recorder = rec = Recorder(w, self.supervisor, self.axes, clock=self.clock)
@@ -323,24 +267,24 @@ class Session:
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
         self.stand = stand
         ids = {"stand": _identity(stand.connect())}
-        self._precheck(
+        self.precheck(
             pc.CheckResult("stand answers", True, identity_text(ids["stand"]), ids["stand"])
         )
         ids["instrument"] = _identity(self.sensor.connect())
-        self._precheck(
+        self.precheck(
             pc.CheckResult(
                 "instrument answers", True, identity_text(ids["instrument"]), ids["instrument"]
             )
         )
         w.update_meta(devices=ids)
         if cfg.unit.serial_check == "require":  # the unit named must be the one mounted
-            self._precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
+            self.precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
         status = stand.read_status()
         if status.fault or status.estop:  # latched: the check names the command that clears it
-            self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
-        self._precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
+            self.precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
+        self.precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
-        self.loop = self._new_loop(self.plan)
+        self.loop = new_loop(self, self.plan)
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         self._realtime(self.loop)
@@ -394,7 +338,7 @@ class Session:
         shown = (check.line if check.ok
                  else f"{check.line}: the run goes on, with a warning in its record"
                  if result.ok else f"{check.line}: the run is refused before the stand moves")
-        self._precheck(result, shown)
+        self.precheck(result, shown)
 
     def _disturbed(self, plan: Disturbances) -> None:
         """Simulated time with seeded disturbances: record and show the seed and the schedule,
@@ -411,36 +355,6 @@ class Session:
         if plan.operator_stop_s is not None:
             self.supervisor.interrupt_after(plan.operator_stop_s)
 
-    def _new_loop(self, plan: MotionPlan, machine: StateMachine | None = None) -> StandLoop:
-        """A stand loop for ``plan`` (not started); ``machine``: whose states it moves (the
-        run's; the pre-test its own, so the run stays in ``equalising``)."""
-        cfg = self.cfg
-        assert self.stand is not None and self.recorder is not None
-        return StandLoop(
-            self.stand,
-            self.recorder,
-            self.supervisor,
-            self.machine if machine is None else machine,
-            plan,
-            LoopLimits(
-                angle_deg=cfg.stand.limits.angle_deg,
-                tracking_tolerance_deg=cfg.stand.tracking_tolerance_deg,
-                following_lag_s=cfg.stand.following_lag_s,
-                profile_tolerance_deg=cfg.run.profile_tolerance_deg,
-                silence_timeout_s=cfg.instrument.silence_timeout_s,
-                heartbeat_period_s=cfg.stand.heartbeat_period_s,
-                sample_rate_hz=cfg.stand.sample_rate_hz,
-                zero_tolerance_deg=cfg.stand.zero_tolerance_deg,
-                rate_deg_s=cfg.stand.limits.rate_deg_s,
-                accel_deg_s2=cfg.stand.limits.accel_deg_s2,
-                buffer_s=cfg.stand.buffer_s,
-            ),
-            clock=self.clock,
-            host_cost_s=cfg.sim.host_cost_s if cfg.sim is not None and self.clock.virtual else 0.0,
-            realtime_priority=cfg.run.realtime_priority,
-            priority_setter=self.priority_setter,
-        )
-
     def _rate_and_zero(self) -> None:
         cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
         assert w is not None and rec is not None and stand is not None
@@ -450,7 +364,7 @@ class Session:
         for attempt in range(1, RATE_WINDOWS + 1):
             rec.collect(True)
             t0 = self.clock.monotonic()
-            self._wait(cfg.run.precheck_window_s)
+            self.wait(cfg.run.precheck_window_s)
             samples = rec.collect(False)
             window = self.clock.monotonic() - t0
             rate = pc.check_instrument_rate(
@@ -466,9 +380,9 @@ class Session:
             self.display.message(
                 f"precheck {rate.name}: {rate.detail}; measuring again ({attempt}/{RATE_WINDOWS})"
             )
-        self._precheck(rate)
+        self.precheck(rate)
         here = stand.read_sample()
-        self._precheck(
+        self.precheck(
             pc.check_static_agreement(
                 samples, here.angle_deg, cfg.instrument.static_tolerance_deg, self.axes
             )
@@ -478,7 +392,7 @@ class Session:
         if any(abs(v) > cfg.stand.zero_tolerance_deg for v in here.angle_deg.values()):
             self.display.message("bringing the stand to zero")
             stand.go_to_zero()
-        self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
+        self.precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
 
     def _mounting_check(self) -> None:
         """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
@@ -508,13 +422,13 @@ class Session:
             f"mounting check: {' then '.join(self.axes)} tilted to +{mc.tilt_deg:g}° and back "
             f"({plan.duration_s:.0f} s)")
         self.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
-        self.loop = loop = self._new_loop(plan, StateMachine(self.clock))
+        self.loop = loop = new_loop(self, plan, StateMachine(self.clock))
         loop.motion_event = "mounting_motion_start"
         rec.collect(True)
         rec.stand_taps.append(tap)
         try:
             loop.start()
-            self._play(loop, "mounting check")
+            play(self, loop, "mounting check")
         finally:
             rec.stand_taps.remove(tap)
             samples = rec.collect(False)
@@ -524,11 +438,11 @@ class Session:
         # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
         # own "moving" off, as a table or a pre-test needs to start
         stand.go_to_zero()
-        self.loop = self._new_loop(self.plan)
+        self.loop = new_loop(self, self.plan)
         self.loop.start()  # hold until the motion (or the pre-test) begins
         result = mounting_result(stand_rows, samples, self.axes, cfg)
         w.update_meta(mounting_check=result.values)
-        self._precheck(result)
+        self.precheck(result)
 
     def _equalise(self) -> None:
         """The equalisation pre-test (``run.equalise``): the low-level multisine played and
@@ -541,7 +455,7 @@ class Session:
         cfg, eq = self.cfg, self.cfg.run.equalise
         self.machine.to(RunState.EQUALISING, "pre-test")
         self.loop.stop()  # the hold loop: the pre-test's own loop takes the stand over
-        self.loop = loop = self._new_loop(pre.plan, StateMachine(self.clock))
+        self.loop = loop = new_loop(self, pre.plan, StateMachine(self.clock))
         loop.motion_event = "equalise_motion_start"
         if pre.plan.mode == "table":
             assert pre.plan.tables is not None
@@ -552,7 +466,7 @@ class Session:
         self.display.message(f"equalisation pre-test: {pre.plan.duration_s:.1f} s at "
                              f"{eq.level:g} × the profile's amplitudes")
         loop.start()
-        self._play(loop)
+        play(self, loop)
         t_start = loop.t_motion_start
         assert t_start is not None
         # the pre-test's loop holds the stand (heartbeat, samples, checks) until the main
@@ -622,179 +536,8 @@ class Session:
             w.event("table_uploaded", axes=list(self.plan.tables))
         self.supervisor.check()  # a fault while the correction was computed
         loop.stop()
-        self.loop = self._new_loop(self.plan)
+        self.loop = new_loop(self, self.plan)
         self.loop.start()  # hold until the motion begins
-
-    def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
-        """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
-        watching it as the motion is watched (faults, stalls, a silent instrument, a time
-        limit)."""
-        self._watch(loop, what, loop.plan.duration_s)
-        self.supervisor.check()
-
-    def _watch(
-        self,
-        loop: StandLoop,
-        what: str,
-        duration_s: float,
-        before: Callable[[float, float], None] | None = None,
-        after: Callable[[float, float], None] | None = None,
-    ) -> None:
-        """The one watch loop over a stand loop playing ``what`` until its motion is done or a
-        fault is raised: every 0.1 s the loop's health (``_check_loop``), a time limit (the
-        motion's ``duration_s`` and a minute for settling and slack: a hung loop cannot hang
-        the run) and the display; ``before``/``after`` (given the time) add the motion's own
-        watches, before the health check and after the time limit (each called with the time
-        and the time the watch began)."""
-        loop.begin_motion()
-        limit = duration_s + 60.0
-        t0 = self.clock.monotonic()
-        t_wake = t0
-        resumed = -math.inf  # this thread's last wake-up after a stall of the process
-        while not loop.motion_done.wait(0.1):
-            if self.supervisor.faulted:
-                break
-            now = self.clock.monotonic()
-            if before is not None:
-                before(now, t0)
-            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
-                resumed = now  # get a moment to catch up before their silence counts
-            t_wake = now
-            self._check_loop(loop, now, resumed, what)
-            if now - t0 > limit:
-                raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
-            if after is not None:
-                after(now, t0)
-            self.display.update(self._snapshot())
-
-    def _check_loop(self, loop: StandLoop, now: float, resumed: float, what: str) -> None:
-        """The main thread's watch over a stand loop playing ``what``: the loop alive, cycling,
-        and the instrument talking — counted from ``resumed``, this process's last wake-up
-        after a stall of its own, so a held-up host is never taken for a silent device."""
-        if not loop.alive:
-            raise SafetyAbort(f"stand loop ended without finishing the {what}")
-        last = loop.t_last_cycle
-        stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
-        if last is not None and now - max(last, resumed) > stall:
-            raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
-        silent = min(loop.instrument_silence(now), now - resumed)
-        if silent > self.cfg.instrument.silence_timeout_s + 0.5:
-            raise SafetyAbort(
-                f"instrument silent: no sample for {silent:.2f} s "
-                f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
-            )
-
-    def _motion(self) -> None:
-        loop = self.loop
-        assert loop is not None and self.recorder is not None
-        watch: list[Any] | None = None  # the running excitation estimates, once moving
-        t_fidelity: float | None = None  # the last update (first: the watch's start)
-
-        def excitation(now: float, t0: float) -> None:
-            nonlocal watch, t_fidelity
-            if t_fidelity is None:
-                t_fidelity = t0
-            if watch is None and loop.t_motion_start is not None:
-                watch = self._excitation_watch()
-            if watch and now - t_fidelity >= FIDELITY_EVERY_S:
-                t_fidelity = now
-                for rf in watch:
-                    rf.update()
-                    why = rf.abort_reason()
-                    if why:
-                        raise SafetyAbort(why)
-
-        def precision(now: float, _t0: float) -> None:
-            if self.precision is None and loop.t_motion_start is not None:
-                self.precision = self._precision_watch()
-            if self.precision is not None:
-                self._precision_poll(now)
-
-        self._watch(loop, "motion", self.plan.duration_s, excitation, precision)
-        self.recorder.stand_taps.clear()
-        self.supervisor.check()
-
-    def _excitation_watch(self) -> list[Any]:
-        """The running excitation estimates (``run.excitation.abort_run``): one per axis with
-        a harmonic table and a band to judge, listening to the stand's samples from now on."""
-
-        ex = self.cfg.run.excitation
-        motion = self.prep.motion
-        tables = getattr(motion, "tables", None) or {}
-        if not ex.abort_run or getattr(motion, "segments", None) or self.recorder is None:
-            return []
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        out = []
-        for axis in self.axes:
-            if axis not in tables:
-                continue
-            rf = RunningFidelity(tables[axis], self._window(), self.loop.t_motion_start,
-                                 limits=limits_of(ex), reach=reach_of(self.cfg.stand.limits),
-                                 axis=axis)
-            if not rf.bands:
-                continue
-
-            def tap(s: Any, rf: RunningFidelity = rf, axis: str = axis) -> None:
-                rf.add(s.t_host, s.angle_deg.get(axis, math.nan))
-
-            self.recorder.stand_taps.append(tap)
-            out.append(rf)
-        return out
-
-    def _precision_watch(self) -> PrecisionWatch | None:
-        """The precision checks, once moving (None when no precision was requested)."""
-        requested = self.prep.meta.get("precision_requested")
-        loop, plan = self.loop, self.plan
-        if requested is None or loop is None or loop.t_motion_start is None:
-            return None
-        period = profile_period(self.prep.motion, self.axes, "run.precision")
-        t_start = loop.t_motion_start
-        steady = plan.duration_s - plan.fade_in_s - plan.fade_out_s
-
-        def analyse(window: tuple[float, float]) -> dict[str, Any]:
-            return check_window(self.path, self._evaluation(window, t_start))
-
-        return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
-                              whole_periods_in(steady, period), clock=self.clock)
-
-    def _precision_poll(self, now: float) -> None:
-        """A finished check: into the recording; when it says stop, the stand loop fades out."""
-        watch, loop = self.precision, self.loop
-        assert watch is not None and loop is not None
-        check: PrecisionCheck | None = watch.poll(now)
-        if check is None:
-            return
-        assert self.writer is not None
-        with contextlib.suppress(RecordingError):
-            self.writer.event("precision_check", **check.to_dict())
-        msg = (f"precision check, {check.periods} period(s): "
-               + ("σ " + ", ".join(f"{a} {c.sigma:.4f}° ±{100 * c.precision:.2f} %"
-                                   for a, c in check.axes.items()) + "; " if check.axes else "")
-               + check.decision.reason)
-        self.display.message(msg)
-        if check.decision.stop and loop.ended_early is None:
-            loop.request_end(reason=check.decision.reason, precision=check.precision,
-                             requested=watch.requested, periods=check.periods,
-                             check_window=list(check.window))
-
-    def _ended(self, report: Report) -> dict[str, Any]:
-        """Why the motion ended, and the precision the verdict reached (the report's
-        ``ended``)."""
-        loop = self.loop
-        early = None if loop is None else loop.ended_early
-        motion_s = None
-        if loop is not None and loop.t_motion_start is not None and loop.t_motion_end is not None:
-            motion_s = loop.t_motion_end - loop.t_motion_start
-        precision = max((relative_halfwidth(v.sigma_deg, v.sigma_ci95_deg)
-                         for v in report.axes.values()), default=math.inf)
-        period = None
-        tables = getattr(self.prep.motion, "tables", None) or {}
-        if tables and not getattr(self.prep.motion, "segments", None):
-            period = next(iter(tables.values())).period_s
-        lo, hi = report.window
-        periods = None if not period else whole_periods_in(hi - lo, float(period))
-        return ended_summary(early, precision, self.prep.meta.get("precision_requested"),
-                             motion_s, periods, period)
 
     def _stop_loops(self) -> None:
         if self.loop is not None:
@@ -802,7 +545,7 @@ class Session:
         if self.precision is not None:  # a check still reading the recording: let it finish
             self.precision.join()
 
-    def _stats(self) -> dict[str, Any]:
+    def stats(self) -> dict[str, Any]:
         if self._final_stats is not None:
             return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
         st: dict[str, Any] = self.loop.stats() if self.loop else {}
@@ -813,77 +556,9 @@ class Session:
             st["rows"] = dict(self.writer.counts)
         return st
 
-    def _window(self) -> tuple[float, float]:
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        p = self.plan
-        t0 = self.loop.t_motion_start
-        early = self.loop.ended_early
-        if early is not None and self.precision is not None:  # the whole periods to the stop
-            lo = t0 + p.fade_in_s
-            n = whole_periods_in(early["t_profile_s"] - p.fade_in_s, self.precision.period_s)
-            return lo, lo + n * self.precision.period_s
-        lo, hi = t0 + p.fade_in_s, t0 + p.duration_s - p.fade_out_s
-        if hi - lo < 0.5 * p.duration_s:  # mostly fades: analyse the whole motion
-            lo, hi = t0, t0 + p.duration_s
-        return lo, hi
-
-    def _evaluation(self, window: tuple[float, float], t_motion_start: float | None,
-                    **more: Any) -> EvaluationRequest:
-        """What the verdict and the precision checks evaluate over ``window``: every axis, the
-        bench config's analysis options and settling, the profile as this run plays it (its
-        motion started at ``t_motion_start``, host s); the recording is still open (no
-        integrity to check yet)."""
-        a = self.cfg.run.analysis
-        return EvaluationRequest(
-            axes=self.axes, window=window, options=EvaluationOptions.of_config(a),
-            settle_s=a.departure_settle_s,
-            profile=RunProfile.of_run(self.prep.motion, t_motion_start, self.cfg),
-            require_intact=False, source=str(self.path), **more)
-
-    def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
-        """The verdict: the recording evaluated over ``window`` (``benchctl.evaluate``: the
-        profile as this run plays it, the bench config's analysis options, the underruns and
-        rejoins left out with the settling it states), each axis judged, the report."""
-        t0 = self.loop.t_motion_start if self.loop is not None else None
-        ev = evaluate(self.path, self._evaluation(window, t0, excitation_alarm=True))
-        results: dict[str, Any] = dict(ev.results)
-        for msg in ev.alarms.values():
-            log.warning("%s", msg)
-        verdicts = {axis: axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
-                    for axis, res in results.items()}
-        meta = {k: self.meta.get(k) for k in REPORT_META}
-        meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
-        measurements, warnings = self._measurements(verdicts, results)
-        report = Report(verdicts, self.path, meta, self._stats(), window,
-                        decision_rule=self.rule, measurements=measurements,
-                        deviations=self._deviations(), warnings=warnings)
-        report.ended = self._ended(report)
-        return report, results
-
     def _deviations(self) -> list[str]:
         """What departs from the test as specified (``benchctl.run.meta.deviations``)."""
         return deviations(self.prep.meta)
-
-    def _measurements(self, verdicts: dict[str, Any],
-                      results: dict[str, Any]) -> tuple[list[Measurement], list[str]]:
-        """Every result with its limits and outcome (benchctl.results.measurements), and the
-        warnings for the record: the analyses', a serial mismatch."""
-        limits = limits_from_config(self.cfg)
-        out = precheck_measurements(self.prechecks)
-        for axis, v in verdicts.items():
-            out.extend(axis_measurements(axis, v.to_dict(full=True), limits, self.rule))
-        warnings = [*self.host_warnings]
-        warnings += [f"{axis}: {w}" for axis, r in results.items()
-                     for w in getattr(r, "warnings", [])]
-        meta = self.writer.meta if self.writer is not None else self.meta
-        dut = (meta.get("devices") or {}).get("instrument")
-        sm = serial_measurement(self.opts.serial, reported_serial(dut))
-        if self.cfg.unit.serial_check != "require":  # else its precheck says it, decisive
-            out.append(sm)
-        if sm.outcome == WARNING:
-            warnings.append(f"serial mismatch: {sm.note}")
-            log.warning("serial mismatch: %s", sm.note)
-        return out, warnings
 
     # ---- the outputs
     def _sinks(self) -> list[Sink]:
@@ -958,7 +633,7 @@ class Session:
                 self._prechecks()
                 if self.prep.pretest is not None:
                     self._equalise()
-                self._motion()
+                motion(self)
                 # normal end: the stand is at rest; the same cleanup path, nothing to ramp
                 rep = shutdown(
                     stop_loops=self._stop_loops,
@@ -969,7 +644,7 @@ class Session:
                     reason="",
                     moved=False,
                 )
-                self._final_stats = self._stats()
+                self._final_stats = self.stats()
                 # shown and recorded again should the run abort after this (a full disk)
                 self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
                 self._end_final = rep.final_state
@@ -980,8 +655,8 @@ class Session:
                         raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
                 self.supervisor.check()
                 self.machine.advance_to(RunState.ANALYSING)
-                window = self._window()
-                report, results = self._analyse(window)
+                window = analysis_window(self)
+                report, results = analyse(self, window)
                 self.report = report  # measured: kept (printed, end.json) should an abort follow
                 self.supervisor.check()  # a signal during the analysis still ends the run
                 # the outputs that make the run done (a full disk: raised, the run's abort)
@@ -1041,7 +716,7 @@ class Session:
         self.display.message(f"ABORTED: {reason}")
         self.display.message("bringing the stand to rest and closing the recording")
         try:
-            stats = self._stats()
+            stats = self.stats()
         except Exception as e:
             log.warning("run statistics not available: %s", describe(e), exc_info=e)
             stats = {}
