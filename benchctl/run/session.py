@@ -89,6 +89,7 @@ from benchctl.results.measurements import (
 from benchctl.results.record import abort_kind, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
+from benchctl.run.device_checks import host_check, rate_and_zero, realtime
 from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
@@ -130,7 +131,7 @@ from benchctl.run.prepare import (
     mounting_plan,
     prepare_motion,
 )
-from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
+from benchctl.run.realtime import PrioritySetter
 from benchctl.run.recorder import Recorder
 from benchctl.run.report import (
     Report,
@@ -157,8 +158,6 @@ if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
 
 log = logging.getLogger(__name__)
 
-RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
-REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
 
 
 # -------------------------------------------------------------------------- the run
@@ -287,58 +286,14 @@ class Session:
         self.loop = new_loop(self, self.plan)
         start_instrument(self.sensor, rec)
         self.loop.start()  # hold: heartbeat and stand samples from now on
-        self._realtime(self.loop)
-        self._host_check()
-        self._rate_and_zero()
+        realtime(self, self.loop)
+        host_check(self)
+        rate_and_zero(self)
         self._mounting_check()
         if self.plan.mode == "table" and self.prep.pretest is None:
             assert self.plan.tables is not None
             stand.upload_table(self.plan.tables)
             w.event("table_uploaded", axes=list(self.plan.tables))
-
-    def _realtime(self, loop: StandLoop) -> None:
-        """Record and say whether the stand loop thread got ``run.realtime_priority``."""
-        assert self.writer is not None
-        priority = self.cfg.run.realtime_priority
-        if priority is None:
-            return
-        if self.clock.virtual:
-            got = not_requested("simulated time")
-        else:
-            loop.realtime_known.wait(REALTIME_ANSWER_S)
-            got = loop.realtime or RealtimeResult(
-                priority, False, f"real-time priority {priority}: not granted: the stand loop "
-                f"did not answer within {REALTIME_ANSWER_S:g} s")
-        self.writer.event("realtime_priority", **got.to_dict())
-        self.display.message(
-            got.detail if got.granted or got.requested is None
-            else f"{got.detail}; the run goes on at normal priority"
-        )
-
-    def _host_check(self) -> None:
-        """The host fitness check (``run.host_check``): a precheck, not measured on simulated
-        time (unless a probe is handed in)."""
-        cfg, w = self.cfg, self.writer
-        assert w is not None
-        skipped = (fitness.SKIP_DISABLED if not cfg.run.host_check.enabled
-                   else fitness.SKIP_VIRTUAL if self.host_probe is None and self.clock.virtual
-                   else None)
-        if skipped is not None:
-            w.event("host_check", skipped=True, reason=skipped)
-            self.display.message(skipped)
-            return
-        check = fitness.host_check(cfg, self.clock, self.supervisor.stop_event,
-                                   probe=self.host_probe, setter=self.priority_setter)
-        self.supervisor.check()  # a fault or a signal while it measured
-        warning = check.warning()
-        if warning is not None:
-            self.host_warnings.append(warning)
-            log.warning("%s", warning)
-        result = check.check_result()
-        shown = (check.line if check.ok
-                 else f"{check.line}: the run goes on, with a warning in its record"
-                 if result.ok else f"{check.line}: the run is refused before the stand moves")
-        self.precheck(result, shown)
 
     def _disturbed(self, plan: Disturbances) -> None:
         """Simulated time with seeded disturbances: record and show the seed and the schedule,
@@ -354,45 +309,6 @@ class Session:
         )
         if plan.operator_stop_s is not None:
             self.supervisor.interrupt_after(plan.operator_stop_s)
-
-    def _rate_and_zero(self) -> None:
-        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
-        assert w is not None and rec is not None and stand is not None
-
-        # a window with the wrong rate is measured again (a host or a bus held up for a moment
-        # skews one window; an instrument at the wrong rate fails every one)
-        for attempt in range(1, RATE_WINDOWS + 1):
-            rec.collect(True)
-            t0 = self.clock.monotonic()
-            self.wait(cfg.run.precheck_window_s)
-            samples = rec.collect(False)
-            window = self.clock.monotonic() - t0
-            rate = pc.check_instrument_rate(
-                samples,
-                window,
-                cfg.instrument.expected_rate_hz,
-                cfg.run.instrument_rate_tolerance,
-                self.axes,
-            )
-            if rate.ok or attempt == RATE_WINDOWS:
-                break
-            w.event("precheck", **rate.to_dict(), attempt=attempt, measured_again=True)
-            self.display.message(
-                f"precheck {rate.name}: {rate.detail}; measuring again ({attempt}/{RATE_WINDOWS})"
-            )
-        self.precheck(rate)
-        here = stand.read_sample()
-        self.precheck(
-            pc.check_static_agreement(
-                samples, here.angle_deg, cfg.instrument.static_tolerance_deg, self.axes
-            )
-        )
-        stand.enable()
-        self.moved = True  # from here on the cleanup ramps to zero
-        if any(abs(v) > cfg.stand.zero_tolerance_deg for v in here.angle_deg.values()):
-            self.display.message("bringing the stand to zero")
-            stand.go_to_zero()
-        self.precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
 
     def _mounting_check(self) -> None:
         """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
