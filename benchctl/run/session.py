@@ -105,7 +105,7 @@ from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
 from benchctl.run.meta import base_meta, deviations
 from benchctl.run.motion import motion, new_loop, play
-from benchctl.run.mounting_check import mounting_result
+from benchctl.run.mounting_check import mounting_check
 from benchctl.run.outputs import (
     Console,
     FinishedRun,
@@ -128,7 +128,6 @@ from benchctl.run.prepare import (
     PreparedMotion,
     RunOptions,
     motion_rate_hz,
-    mounting_plan,
     prepare_motion,
 )
 from benchctl.run.realtime import PrioritySetter
@@ -289,7 +288,7 @@ class Session:
         realtime(self, self.loop)
         host_check(self)
         rate_and_zero(self)
-        self._mounting_check()
+        mounting_check(self)
         if self.plan.mode == "table" and self.prep.pretest is None:
             assert self.plan.tables is not None
             stand.upload_table(self.plan.tables)
@@ -309,56 +308,6 @@ class Session:
         )
         if plan.operator_stop_s is not None:
             self.supervisor.interrupt_after(plan.operator_stop_s)
-
-    def _mounting_check(self) -> None:
-        """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
-        of the profile tilted in turn to a few degrees and back, on a stand loop of its own
-        (the same path as the motion: setpoints or the trajectory queue, every limit and
-        tracking check), recorded like the rest of the run (``mounting_start``,
-        ``mounting_motion_start``: outside the analysis window, which starts at the profile's
-        ``motion_start``). The instrument's response is fitted and judged: a unit mounted
-        reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
-        back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
-        sure — then the one cleanup path)."""
-        mc = self.cfg.run.mounting_check
-        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
-        if not mc.enabled:
-            return
-        assert w is not None and rec is not None and stand is not None and self.loop is not None
-        plan = self.prep.tilt or mounting_plan(cfg, self.axes, str(cfg.source or "the config"))
-        mode = plan.mode
-        stand_rows: list[tuple[float, dict[str, float]]] = []
-
-        def tap(s: Any) -> None:
-            stand_rows.append((s.t_host, dict(s.angle_deg)))
-
-        w.event("mounting_start", axes=list(self.axes), tilt_deg=mc.tilt_deg, hold_s=mc.hold_s,
-                duration_s=plan.duration_s, mode=mode)
-        self.display.message(
-            f"mounting check: {' then '.join(self.axes)} tilted to +{mc.tilt_deg:g}° and back "
-            f"({plan.duration_s:.0f} s)")
-        self.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
-        self.loop = loop = new_loop(self, plan, StateMachine(self.clock))
-        loop.motion_event = "mounting_motion_start"
-        rec.collect(True)
-        rec.stand_taps.append(tap)
-        try:
-            loop.start()
-            play(self, loop, "mounting check")
-        finally:
-            rec.stand_taps.remove(tap)
-            samples = rec.collect(False)
-        # the live σ: the profile's motion only
-        rec.sigma = RunningSigma(self.axes, clock=self.clock)
-        loop.stop()
-        # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
-        # own "moving" off, as a table or a pre-test needs to start
-        stand.go_to_zero()
-        self.loop = new_loop(self, self.plan)
-        self.loop.start()  # hold until the motion (or the pre-test) begins
-        result = mounting_result(stand_rows, samples, self.axes, cfg)
-        w.update_meta(mounting_check=result.values)
-        self.precheck(result)
 
     def _equalise(self) -> None:
         """The equalisation pre-test (``run.equalise``): the low-level multisine played and
