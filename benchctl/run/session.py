@@ -47,23 +47,12 @@ complete.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from benchctl.analysis.equalise import (
-    corrected_table,
-    estimate_response,
-    response_at,
-)
-from benchctl.analysis.excitation import (
-    reach_of,
-)
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
@@ -71,15 +60,12 @@ from benchctl.devices.base import AngleSensor, Stand
 from benchctl.errors import (
     DISK_FULL_ERRNOS,
     ConfigError,
-    DataError,
-    LimitError,
     RecordingError,
     SafetyAbort,
 )
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
-from benchctl.profiles import check_motion
-from benchctl.recording import RecordingWriter, load_recording
+from benchctl.recording import RecordingWriter
 from benchctl.redact import redact
 from benchctl.results.measurements import (
     Measurement,
@@ -100,11 +86,11 @@ from benchctl.run.devices import (
     simulators,
 )
 from benchctl.run.display import Display, NullDisplay, SafeDisplay
+from benchctl.run.equalise import equalise
 from benchctl.run.evaluation import analyse, analysis_window
-from benchctl.run.live import RunningSigma
 from benchctl.run.lock import stand_lock
 from benchctl.run.meta import base_meta, deviations
-from benchctl.run.motion import motion, new_loop, play
+from benchctl.run.motion import motion, new_loop
 from benchctl.run.mounting_check import mounting_check
 from benchctl.run.outputs import (
     Console,
@@ -120,14 +106,13 @@ from benchctl.run.outputs import (
     record_in,
     stand_lines,
 )
-from benchctl.run.plan import MotionPlan, make_plan
+from benchctl.run.plan import MotionPlan
 from benchctl.run.precision import (
     PrecisionWatch,
 )
 from benchctl.run.prepare import (
     PreparedMotion,
     RunOptions,
-    motion_rate_hz,
     prepare_motion,
 )
 from benchctl.run.realtime import PrioritySetter
@@ -309,101 +294,6 @@ class Session:
         if plan.operator_stop_s is not None:
             self.supervisor.interrupt_after(plan.operator_stop_s)
 
-    def _equalise(self) -> None:
-        """The equalisation pre-test (``run.equalise``): the low-level multisine played and
-        recorded, the stand's response on the profile's lines estimated, the drive corrected
-        and checked against the limits like any motion; the main motion's loop then waits in
-        hold with the corrected plan."""
-
-        pre, w, stand = self.prep.pretest, self.writer, self.stand
-        assert pre is not None and w is not None and stand is not None and self.loop is not None
-        cfg, eq = self.cfg, self.cfg.run.equalise
-        self.machine.to(RunState.EQUALISING, "pre-test")
-        self.loop.stop()  # the hold loop: the pre-test's own loop takes the stand over
-        self.loop = loop = new_loop(self, pre.plan, StateMachine(self.clock))
-        loop.motion_event = "equalise_motion_start"
-        if pre.plan.mode == "table":
-            assert pre.plan.tables is not None
-            stand.upload_table(pre.plan.tables)
-            w.event("table_uploaded", axes=list(pre.plan.tables), pretest=True)
-        w.event("equalise_start", level=eq.level, duration_s=pre.plan.duration_s,
-                axes={a: d.to_dict() for a, d in pre.designs.items()})
-        self.display.message(f"equalisation pre-test: {pre.plan.duration_s:.1f} s at "
-                             f"{eq.level:g} × the profile's amplitudes")
-        loop.start()
-        play(self, loop)
-        t_start = loop.t_motion_start
-        assert t_start is not None
-        # the pre-test's loop holds the stand (heartbeat, samples, checks) until the main
-        # motion's loop takes over, however long the correction takes to compute
-        if self.recorder is not None:  # the live σ: the profile's motion only
-            self.recorder.sigma = RunningSigma(self.axes)
-        # the response per axis, from the recording (the same instants the verdict will use)
-        rec = load_recording(self.path)
-        target = self.prep.motion
-        rate = motion_rate_hz(cfg.stand)
-        drives, report = {}, {}
-        for axis, design in pre.designs.items():
-            tr, xr, _, _ = rec.pair(axis, window=False)
-            drive = None
-            if cfg.stand.mode == "stream":  # the stand's input: the setpoints as they went out
-                drive = (rec.column("setpoints", "t_send"), rec.column("setpoints", f"{axis}_deg"))
-            try:
-                resp = estimate_response(tr, xr, design, t_start, drive)
-            except DataError as e:
-                raise DataError(f"{self.path}: equalisation pre-test on {axis}: {e}") from None
-            tab = target.tables[axis]
-            h, sd = response_at(resp, tab.freq_hz)
-            corr = corrected_table(tab, h, sd, reach_of(cfg.stand.limits), rate,
-                                   min_gain_db=eq.min_gain_db, max_boost_db=eq.max_boost_db,
-                                   max_uncertainty_db=eq.max_uncertainty_db)
-            drives[axis] = corr.drive
-            report[axis] = {**corr.to_dict(), "pretest": design.to_dict(),
-                            "pretest_response": resp.to_dict()}
-        drive = dataclasses.replace(target, table_by_axis=drives)
-        try:  # the corrected drive through the same checks as any motion
-            result = check_motion(drive, cfg.stand.limits, rate_hz=rate)
-        except LimitError as e:
-            raise LimitError(
-                f"{self.path}: the equalised drive (field stand.limits): {e}"
-            ) from None
-
-        def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-            return {a: np.asarray(v, dtype=float) for a, v in result.motion.evaluate(t).items()}
-
-        old = self.plan  # the prepared plan stays as it was: equalisation makes a new one
-        self.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
-                                   old.fade_in_s, old.fade_out_s, mode=old.mode,
-                                   tables=dict(result.motion.tables or {}))
-        disturbed = {"missed_cycles": loop.missed_cycles, "rejoins": loop.rejoins,
-                     "underruns": loop.underruns}
-        summary = {"level": eq.level, "drive_check": result.to_dict(), "axes": report,
-                   "pretest_stats": disturbed}
-        if any(disturbed.values()):  # the stand left the pre-test's lines for a moment
-            msg = ("equalisation: the pre-test's motion was disturbed ("
-                   + ", ".join(f"{k} {v}" for k, v in disturbed.items() if v)
-                   + "): the response on its lines may be off by tenths of a dB")
-            summary["warning"] = msg
-            log.warning("%s", msg)
-            self.display.message(msg)
-        w.event("equalise_done", **summary)
-        w.update_meta(equalisation=summary)
-        self.meta["equalisation"] = summary
-        for axis, r in report.items():
-            bad = r["not_corrected"]
-            self.display.message(
-                f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
-                f" on {len(r['freq_hz'])} lines; "
-                + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
-        if self.plan.mode == "table":
-            assert self.plan.tables is not None
-            stand.upload_table(self.plan.tables)
-            w.event("table_uploaded", axes=list(self.plan.tables))
-        self.supervisor.check()  # a fault while the correction was computed
-        loop.stop()
-        self.loop = new_loop(self, self.plan)
-        self.loop.start()  # hold until the motion begins
-
     def _stop_loops(self) -> None:
         if self.loop is not None:
             self.loop.stop()
@@ -497,7 +387,7 @@ class Session:
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
                 if self.prep.pretest is not None:
-                    self._equalise()
+                    self.plan = equalise(self)
                 motion(self)
                 # normal end: the stand is at rest; the same cleanup path, nothing to ramp
                 rep = shutdown(
