@@ -57,21 +57,12 @@ from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, Stand
-from benchctl.errors import (
-    DISK_FULL_ERRNOS,
-    ConfigError,
-    RecordingError,
-    SafetyAbort,
-)
+from benchctl.errors import DISK_FULL_ERRNOS, ConfigError, RecordingError, SafetyAbort
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.recording import RecordingWriter
 from benchctl.redact import redact
-from benchctl.results.measurements import (
-    Measurement,
-    precheck_measurements,
-    reported_serial,
-)
+from benchctl.results.measurements import Measurement, precheck_measurements, reported_serial
 from benchctl.results.record import abort_kind, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
@@ -107,41 +98,23 @@ from benchctl.run.outputs import (
     stand_lines,
 )
 from benchctl.run.plan import MotionPlan
-from benchctl.run.precision import (
-    PrecisionWatch,
-)
-from benchctl.run.prepare import (
-    PreparedMotion,
-    RunOptions,
-    prepare_motion,
-)
+from benchctl.run.precision import PrecisionWatch
+from benchctl.run.prepare import PreparedMotion, RunOptions, prepare_motion
 from benchctl.run.realtime import PrioritySetter
 from benchctl.run.recorder import Recorder
-from benchctl.run.report import (
-    Report,
-    archive,
-    archive_abort,
-    write_report,
-)
+from benchctl.run.report import Report, archive, archive_abort, write_report
 from benchctl.run.result import RunResult, measured_verdict, stand_after
-from benchctl.run.stand_loop import (
-    SerializedStand,
-    StandLoop,
-    start_instrument,
-)
+from benchctl.run.stand_loop import SerializedStand, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, fault_source, shutdown
 from benchctl.sim.disturb import Disturbances
-from benchctl.text import (
-    check_serial,
-)
+from benchctl.text import check_serial
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
 
 
 log = logging.getLogger(__name__)
-
 
 
 # -------------------------------------------------------------------------- the run
@@ -208,43 +181,78 @@ class Session:
         # has no stand left open to read
         self._end_final: dict[str, Any] | None = None
 
-    # ---- helpers
-    def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
-        if self.writer is not None:
-            # a write failure is already a fault of the run (the writer's on_error): the state
-            # still moves
-            with contextlib.suppress(RecordingError):
-                self.writer.event(
-                    "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
-                )
-        self.display.state(str(new), reason)
+    def run(self) -> RunResult:
+        """The whole run. Raises (``BenchError``) only when the recording cannot be created;
+        after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
+        here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
+        self.meta = base_meta(self.cfg, self.opts, self.rule, self.prep.meta)
+        self.machine.subscribe(self._on_state)
+        self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
+        with self.supervisor.signals(), contextlib.ExitStack() as stack:
+            self._open_recording(stack)
+            try:
+                if self.start_simulators:
+                    self._start_simulators(stack)
+                self.supervisor.check()  # a signal while the recording was being created
+                self._prechecks()
+                self._devices()
+                self._hold()
+                if self.prep.pretest is not None:
+                    self.plan = equalise(self)  # the prepared plan stays as it was
+                motion(self)
+                self._settle()
+                window, report, results = self._evaluate()
+                return self._outputs(window, report, results)
+            except BaseException as e:  # every way out, the same path
+                if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
+                    self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
+                                          fault_source(e))
+                return self._abort()
+            finally:
+                self.display.close()
 
-    def precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
-        """Record and show a precheck (``shown``: its own line instead of the usual one)."""
+    # ---- the phases, in order
+    def _open_recording(self, stack: contextlib.ExitStack) -> None:
+        """The recording, with the run's log (unwound after the cleanup); with a ``sim:``
+        section, the simulators (they stop after the stand is at rest)."""
+        try:
+            self.writer = RecordingWriter(
+                self.path, self.axes, self.meta, on_error=self._recording_failed,
+                clock=self.clock,
+            )
+        except OSError as e:
+            full = RecordingError.disk_full(e, self.path)
+            if full is not None:  # nothing opened, nothing moved
+                raise full from None
+            raise ConfigError(
+                f"{self.path}: cannot create the recording folder: {e.strerror}"
+            ) from None
+        self.meta = self.writer.meta
+        self.log_path = stack.enter_context(run_log(self.path))
+        self.display.message(f"recording to {self.path}")
+
+    def _start_simulators(self, stack: contextlib.ExitStack) -> None:
         assert self.writer is not None
-        self.prechecks.append(result.to_dict())
-        self.writer.event("precheck", **result.to_dict())
-        self.display.message(
-            shown or f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
-        )
-        pc.require(result)
-        self.supervisor.check()
+        self.cfg = stack.enter_context(simulators(
+            self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
+            horizon_s=self.plan.duration_s + 600.0,
+        ))
+        self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
 
-    def wait(self, seconds: float) -> None:
-        """Wait on the main thread, leaving at once on a fault."""
-        if self.supervisor.stop_event.wait(seconds):
-            self.supervisor.check()
-
-    # ---- phases
     def _prechecks(self) -> None:
+        """The prechecks before a device opens: disk space, the profile within the limits."""
+        self.machine.to(RunState.PRECHECKS)
+        self.precheck(pc.check_disk(self.out_dir, self.cfg.run.min_free_disk_mb,
+                                    quiet=self.clock.virtual))
+        self.precheck(self.prep.check)
+
+    def _devices(self) -> None:
+        """The devices opened, every stand sample and setpoint recorded from here on, cleanup
+        included; each device answers and identifies itself, the unit is the one named, the
+        stand is ready and at rest."""
         cfg, w = self.cfg, self.writer
         assert w is not None
-        self.machine.to(RunState.PRECHECKS)
-        self.precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb,
-                                     quiet=self.clock.virtual))
-        self.precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
-        # from here on every stand sample and setpoint goes into the recording, cleanup included
         self.recorder = rec = Recorder(w, self.supervisor, self.axes, clock=self.clock)
         rec.attach(stand_raw)
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
@@ -267,55 +275,87 @@ class Session:
             self.precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
         self.precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
+    def _hold(self) -> None:
+        """The stand loop holds the stand; the prechecks on the host and the instrument, the
+        stand enabled and at zero, the mounting check, then (table mode) the table uploaded."""
+        assert self.stand is not None and self.sensor is not None and self.recorder is not None
         self.loop = new_loop(self, self.plan)
-        start_instrument(self.sensor, rec)
+        start_instrument(self.sensor, self.recorder)
         self.loop.start()  # hold: heartbeat and stand samples from now on
         realtime(self, self.loop)
         host_check(self)
         rate_and_zero(self)
         mounting_check(self)
         if self.plan.mode == "table" and self.prep.pretest is None:
-            assert self.plan.tables is not None
-            stand.upload_table(self.plan.tables)
-            w.event("table_uploaded", axes=list(self.plan.tables))
+            assert self.plan.tables is not None and self.writer is not None
+            self.stand.upload_table(self.plan.tables)
+            self.writer.event("table_uploaded", axes=list(self.plan.tables))
 
-    def _disturbed(self, plan: Disturbances) -> None:
-        """Simulated time with seeded disturbances: record and show the seed and the schedule,
-        and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
-        assert self.writer is not None
-        self.writer.event("disturbances", **plan.describe())
-        self.writer.update_meta(disturbances=plan.describe())
-        self.display.message(
-            f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
-            f"{len(plan.faults)} faults"
-            + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
-            + "); the same seed replays this run exactly"
+    def _settle(self) -> None:
+        """The motion's normal end: the stand at rest, disabled, the devices closed — the same
+        cleanup path an abort takes, nothing to ramp; a step that failed is a fault."""
+        rep = shutdown(
+            stop_loops=self._stop_loops,
+            stand=self.stand,
+            sensor=self.sensor,
+            writer=None,
+            state="done",
+            reason="",
+            moved=False,
         )
-        if plan.operator_stop_s is not None:
-            self.supervisor.interrupt_after(plan.operator_stop_s)
+        self._final_stats = self.stats()
+        # shown and recorded again should the run abort after this (a full disk)
+        self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
+        self._end_final = rep.final_state
+        self.stand = self.sensor = None  # closed: an abort from here has nothing to move
+        self.moved = False
+        for step in rep.steps:
+            if not step["ok"]:
+                raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
+        self.supervisor.check()
 
-    def _stop_loops(self) -> None:
-        if self.loop is not None:
-            self.loop.stop()
-        if self.precision is not None:  # a check still reading the recording: let it finish
-            self.precision.join()
+    def _evaluate(self) -> tuple[tuple[float, float], Report, dict[str, Any]]:
+        """The verdict over the analysis window (``benchctl.run.evaluation``), kept (printed,
+        end.json) should an abort follow."""
+        self.machine.advance_to(RunState.ANALYSING)
+        window = analysis_window(self)
+        report, results = analyse(self, window)
+        self.report = report
+        self.supervisor.check()  # a signal during the analysis still ends the run
+        return window, report, results
 
-    def stats(self) -> dict[str, Any]:
-        if self._final_stats is not None:
-            return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
-        st: dict[str, Any] = self.loop.stats() if self.loop else {}
-        if self.sensor is not None:
-            st["instrument_bad_frames"] = self.sensor.stats.bad_total
-            st["instrument_bad_by_reason"] = dict(self.sensor.stats.bad)
-        if self.writer is not None:
-            st["rows"] = dict(self.writer.counts)
-        return st
+    def _outputs(self, window: tuple[float, float], report: Report,
+                 results: dict[str, Any]) -> RunResult:
+        """The outputs that make the run done (a full disk: raised, the run's abort), the
+        recording closed ``done``, then the outputs again on the final data files."""
+        assert self.writer is not None
+        run = self._finished(report.verdict, report.exit_code, report.verdict,
+                             report=report, results=results)
+        files = emit(self._sinks(), run)
+        self.writer.event("verdict", **report.to_dict(full=False))
+        self.machine.to(RunState.DONE)
+        self.writer.close(
+            "done",
+            report.verdict,
+            analysis_window=list(window),
+            stats=report.stats,
+            report=[f.name for f in files if f.parent == self.path],
+        )
+        # the data files are final now: the record and the report again, with their
+        # SHA-256 (the record above stands should this one not be written), the
+        # verdict shown, the archive
+        again = emit(self._sinks(), replace(run, closed=True))
+        return RunResult(
+            "done",
+            report.verdict,
+            report.exit_code,
+            self.path,
+            report,
+            report.stats,
+            log=self.log_path,
+            record=record_in(again) or record_in(files),
+        )
 
-    def _deviations(self) -> list[str]:
-        """What departs from the test as specified (``benchctl.run.meta.deviations``)."""
-        return deviations(self.prep.meta)
-
-    # ---- the outputs
     def _sinks(self) -> list[Sink]:
         """The run's outputs in their order (``benchctl.run.outputs``), each handed its writer
         from here: the same list for a done run and an aborted one."""
@@ -348,107 +388,7 @@ class Session:
             closed=closed,
         )
 
-    # ---- the run
-    def _recording_failed(self, e: RecordingError) -> None:
-        """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
-        self.supervisor.fault(e, "recording")
-
-    def run(self) -> RunResult:
-        """The whole run. Raises (``BenchError``) only when the recording cannot be created;
-        after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
-        here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
-        self.meta = base_meta(self.cfg, self.opts, self.rule, self.prep.meta)
-        self.machine.subscribe(self._on_state)
-        self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
-        with self.supervisor.signals(), contextlib.ExitStack() as stack:
-            try:
-                self.writer = RecordingWriter(
-                    self.path, self.axes, self.meta, on_error=self._recording_failed,
-                    clock=self.clock,
-                )
-            except OSError as e:
-                full = RecordingError.disk_full(e, self.path)
-                if full is not None:  # nothing opened, nothing moved
-                    raise full from None
-                raise ConfigError(
-                    f"{self.path}: cannot create the recording folder: {e.strerror}"
-                ) from None
-            self.meta = self.writer.meta
-            # unwound after the cleanup: the simulators stop after the stand is at rest
-            self.log_path = stack.enter_context(run_log(self.path))
-            self.display.message(f"recording to {self.path}")
-            try:
-                if self.start_simulators:
-                    self.cfg = stack.enter_context(simulators(
-                        self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
-                        horizon_s=self.plan.duration_s + 600.0,
-                    ))
-                    self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
-                self.supervisor.check()  # a signal while the recording was being created
-                self._prechecks()
-                if self.prep.pretest is not None:
-                    self.plan = equalise(self)
-                motion(self)
-                # normal end: the stand is at rest; the same cleanup path, nothing to ramp
-                rep = shutdown(
-                    stop_loops=self._stop_loops,
-                    stand=self.stand,
-                    sensor=self.sensor,
-                    writer=None,
-                    state="done",
-                    reason="",
-                    moved=False,
-                )
-                self._final_stats = self.stats()
-                # shown and recorded again should the run abort after this (a full disk)
-                self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
-                self._end_final = rep.final_state
-                self.stand = self.sensor = None  # closed: an abort from here has nothing to move
-                self.moved = False
-                for step in rep.steps:
-                    if not step["ok"]:
-                        raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
-                self.supervisor.check()
-                self.machine.advance_to(RunState.ANALYSING)
-                window = analysis_window(self)
-                report, results = analyse(self, window)
-                self.report = report  # measured: kept (printed, end.json) should an abort follow
-                self.supervisor.check()  # a signal during the analysis still ends the run
-                # the outputs that make the run done (a full disk: raised, the run's abort)
-                run = self._finished(report.verdict, report.exit_code, report.verdict,
-                                     report=report, results=results)
-                files = emit(self._sinks(), run)
-                self.writer.event("verdict", **report.to_dict(full=False))
-                self.machine.to(RunState.DONE)
-                self.writer.close(
-                    "done",
-                    report.verdict,
-                    analysis_window=list(window),
-                    stats=report.stats,
-                    report=[f.name for f in files if f.parent == self.path],
-                )
-                # the data files are final now: the record and the report again, with their
-                # SHA-256 (the record above stands should this one not be written), the
-                # verdict shown, the archive
-                again = emit(self._sinks(), replace(run, closed=True))
-                return RunResult(
-                    "done",
-                    report.verdict,
-                    report.exit_code,
-                    self.path,
-                    report,
-                    report.stats,
-                    log=self.log_path,
-                    record=record_in(again) or record_in(files),
-                )
-            except BaseException as e:  # every way out, the same path
-                if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
-                    self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
-                                          fault_source(e))
-                return self._abort()
-            finally:
-                self.display.close()
-
+    # ---- the abort path
     def _abort(self) -> RunResult:
         """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
@@ -518,6 +458,73 @@ class Session:
             "aborted", reason, Outcome.ABORTED.exit_code, self.path, None, stats, steps,
             log=self.log_path, abort=abort, record=record, measured=measured,
         )
+
+    # ---- what the phases share
+    def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
+        if self.writer is not None:
+            # a write failure is already a fault of the run (the writer's on_error): the state
+            # still moves
+            with contextlib.suppress(RecordingError):
+                self.writer.event(
+                    "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
+                )
+        self.display.state(str(new), reason)
+
+    def precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
+        """Record and show a precheck (``shown``: its own line instead of the usual one)."""
+        assert self.writer is not None
+        self.prechecks.append(result.to_dict())
+        self.writer.event("precheck", **result.to_dict())
+        self.display.message(
+            shown or f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
+        )
+        pc.require(result)
+        self.supervisor.check()
+
+    def wait(self, seconds: float) -> None:
+        """Wait on the main thread, leaving at once on a fault."""
+        if self.supervisor.stop_event.wait(seconds):
+            self.supervisor.check()
+
+    def _recording_failed(self, e: RecordingError) -> None:
+        """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
+        self.supervisor.fault(e, "recording")
+
+    def _disturbed(self, plan: Disturbances) -> None:
+        """Simulated time with seeded disturbances: record and show the seed and the schedule,
+        and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
+        assert self.writer is not None
+        self.writer.event("disturbances", **plan.describe())
+        self.writer.update_meta(disturbances=plan.describe())
+        self.display.message(
+            f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
+            f"{len(plan.faults)} faults"
+            + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
+            + "); the same seed replays this run exactly"
+        )
+        if plan.operator_stop_s is not None:
+            self.supervisor.interrupt_after(plan.operator_stop_s)
+
+    def _stop_loops(self) -> None:
+        if self.loop is not None:
+            self.loop.stop()
+        if self.precision is not None:  # a check still reading the recording: let it finish
+            self.precision.join()
+
+    def stats(self) -> dict[str, Any]:
+        if self._final_stats is not None:
+            return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
+        st: dict[str, Any] = self.loop.stats() if self.loop else {}
+        if self.sensor is not None:
+            st["instrument_bad_frames"] = self.sensor.stats.bad_total
+            st["instrument_bad_by_reason"] = dict(self.sensor.stats.bad)
+        if self.writer is not None:
+            st["rows"] = dict(self.writer.counts)
+        return st
+
+    def _deviations(self) -> list[str]:
+        """What departs from the test as specified (``benchctl.run.meta.deviations``)."""
+        return deviations(self.prep.meta)
 
 
 def run_test(
