@@ -1,10 +1,12 @@
 """A run's devices and folders: the stand and the instrument opened from the bench config
-(``open_devices``), the simulators of a simulated bench (``simulators``), the recording's
+(``open_devices``) and closed as the run's ``ExitStack`` unwinds, the backstop of the one cleanup
+path (``close_at_exit``), the simulators of a simulated bench (``simulators``), the recording's
 folder (``recording_dir``) and a device's identity as the record keeps it."""
 
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -24,6 +26,8 @@ from benchctl.text import (
     file_name_part,
     from_device,
 )
+
+log = logging.getLogger(__name__)
 
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 
@@ -121,3 +125,19 @@ def identity_text(d: dict[str, Any]) -> str:
     return " ".join(
         str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
     )
+
+
+def close_at_exit(stack: contextlib.ExitStack, stand: Stand, sensor: AngleSensor) -> None:
+    """The devices' backstop: each one closed as the run's ``stack`` unwinds (the stand first,
+    as the cleanup closes them). The one cleanup path (``benchctl.run.supervisor.shutdown``:
+    bring to rest, disable, close) has closed them by then: a second close does nothing, and a
+    failing one is logged, never raised."""
+    stack.callback(_close_quietly, "instrument", sensor)
+    stack.callback(_close_quietly, "stand", stand)
+
+
+def _close_quietly(name: str, device: Stand | AngleSensor) -> None:
+    try:
+        device.close()
+    except Exception as e:
+        log.warning("%s not closed: %s: %s", name, type(e).__name__, e)

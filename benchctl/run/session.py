@@ -71,6 +71,7 @@ from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
     _identity,
+    close_at_exit,
     identity_text,
     open_devices,
     recording_dir,
@@ -195,7 +196,7 @@ class Session:
                     self._start_simulators(stack)
                 self.supervisor.check()  # a signal while the recording was being created
                 self._prechecks()
-                self._devices()
+                self._devices(stack)
                 self._hold()
                 if self.prep.pretest is not None:
                     self.plan = equalise(self)  # the prepared plan stays as it was
@@ -246,13 +247,15 @@ class Session:
                                     quiet=self.clock.virtual))
         self.precheck(self.prep.check)
 
-    def _devices(self) -> None:
-        """The devices opened, every stand sample and setpoint recorded from here on, cleanup
+    def _devices(self, stack: contextlib.ExitStack) -> None:
+        """The devices opened, their close the run's ``stack``'s backstop (the cleanup path
+        closes them first), every stand sample and setpoint recorded from here on, cleanup
         included; each device answers and identifies itself, the unit is the one named, the
         stand is ready and at rest."""
         cfg, w = self.cfg, self.writer
         assert w is not None
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
+        close_at_exit(stack, stand_raw, self.sensor)
         self.recorder = rec = Recorder(w, self.supervisor, self.axes, clock=self.clock)
         rec.attach(stand_raw)
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
