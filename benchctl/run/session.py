@@ -1,29 +1,39 @@
 """The whole test, start to verdict: ``run_test(cfg, profile_path, options) -> RunResult``.
 
-Order of things (each state change is an event in the recording):
+This module keeps the phases, in order, and the abort path; each phase's work is in a module of
+its own, taking the run as a ``RunContext`` (``benchctl.run.context``). Order of things (each
+state change is an event in the recording):
 
-1. before anything opens: the profile is loaded, synthesised and checked against the stand
-   limits; its axes must be the stand's and the instrument's (bad input → ``BenchError``, exit 2,
-   nothing moves, no recording);
+1. **prepare**, before anything opens: the profile is loaded, synthesised and checked against
+   the stand limits, its axes the stand's and the instrument's, the plan made
+   (``benchctl.run.prepare``: the same for the CLI, plans and the Python API); bad input →
+   ``BenchError``, exit 2, nothing moves, no recording. The prepared plan is never changed;
 2. on a real stand, its lock is taken (one run per stand: ``benchctl.run.lock``; a stand in use
    is refused with ``StandInUse`` naming the holder, nothing opened); the recording is created
-   (metadata: config, profile with seed, serial, operator, station, software version, start
-   time), with the run's log ``benchctl.log``; with a ``sim:`` section the simulators are started
-   (their output in the recording's ``sim.log``);
-3. **prechecks**: disk space, each device answers and identifies itself (identities into the
-   metadata), stand ready and at rest; the stand loop starts (asking for
+   (metadata, ``benchctl.run.meta``: config, profile with seed, serial, operator, station,
+   software version, start time), with the run's log ``benchctl.log``; with a ``sim:`` section
+   the simulators are started (their output in the recording's ``sim.log``);
+3. **prechecks**: disk space, the profile within the limits; the **devices** opened
+   (``benchctl.run.devices``: their close pushed on the run's ``ExitStack``, the backstop of
+   the cleanup path), each answers and identifies itself (identities into the metadata), stand
+   ready and at rest; the stand loop starts and **holds** the stand (asking for
    ``run.realtime_priority``, recorded whether granted) and the host's scheduling latency is
    measured and judged (``benchctl.run.fitness``; not on simulated time); the instrument
    streams at its rate and agrees with the stand at rest, then the stand is enabled and
-   brought to zero, the **mounting check** tilts each axis to a few degrees and back and
-   refuses a unit mounted reversed or with its axes swapped (``run.mounting_check``;
-   ``benchctl.run.mounting``), and (table mode) the table is uploaded;
-4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
-5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
-   abort takes, here with nothing to ramp);
-6. **analysing**: per axis, on the steady part of the profile (fades excluded), measurements
-   with their limits judged by the decision rule (``benchctl.results.measurements``), verdict,
-   report, archive; → **done**, the recording closed ``done``.
+   brought to zero (``benchctl.run.device_checks``), the **mounting check** tilts each axis to
+   a few degrees and back and refuses a unit mounted reversed or with its axes swapped
+   (``run.mounting_check``; ``benchctl.run.mounting_check``), and (table mode) the table is
+   uploaded;
+4. with ``run.equalise``, **equalising**: a pre-test played, the drive corrected, a new plan
+   (``benchctl.run.equalise``);
+5. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time and
+   watched by the one watch loop (``benchctl.run.motion``);
+6. the stand **settles** at rest, is disabled, the devices are closed (the same cleanup path
+   an abort takes, here with nothing to ramp);
+7. **analysing**: per axis, on the steady part of the profile (fades excluded), measurements
+   with their limits judged by the decision rule (``benchctl.run.evaluation``,
+   ``benchctl.results.measurements``), verdict, report, archive; → **done**, the recording
+   closed ``done``.
 
 Every run — done or aborted — ends with ``record.json`` in the recording
 (``benchctl.results.record``); an aborted one says whether the operator stopped it, the
@@ -33,7 +43,9 @@ report.html, the verdict's banner, the index line, the archive — are one list 
 
 Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
 that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
-ends the run ``aborted`` with the first fault's reason.
+(``Session._abort``) ends the run ``aborted`` with the first fault's reason: the safety shutdown
+first (``benchctl.run.supervisor.shutdown``: loops stopped, the stand brought to rest, disabled,
+the devices closed, the recording closed), then the outputs.
 
 A full disk (ENOSPC, EDQUOT, EFBIG) anywhere — the recording's streams, the report, the record,
 the archive's index — is such a fault (``recording: disk full: cannot write <file> …``): the
