@@ -1,6 +1,7 @@
 """A run's devices and folders: the stand and the instrument opened from the bench config
 (``open_devices``) and closed as the run's ``ExitStack`` unwinds, the backstop of the one cleanup
-path (``close_at_exit``), the simulators of a simulated bench (``simulators``), the recording's
+path (``close_at_exit``), the simulators of a simulated bench (``simulators``; their seeded
+disturbances recorded and shown: ``announce_disturbances``), the recording's
 folder (``recording_dir``) and a device's identity as the record keeps it."""
 
 from __future__ import annotations
@@ -16,9 +17,10 @@ from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
 from benchctl.devices.instrument import open_instrument
 from benchctl.devices.modbus import open_stand
-from benchctl.errors import (
-    ConfigError,
-)
+from benchctl.errors import ConfigError
+from benchctl.recording import RecordingWriter
+from benchctl.run.display import Display
+from benchctl.run.supervisor import Supervisor
 from benchctl.sim.bench import SimBench
 from benchctl.sim.disturb import Disturbances
 from benchctl.sim.launch import start_simulators
@@ -92,6 +94,22 @@ def simulators(
 
     with start_simulators(cfg, log_path=log_path) as sim:
         yield sim.config
+
+
+def announce_disturbances(plan: Disturbances, *, writer: RecordingWriter, display: Display,
+                          supervisor: Supervisor) -> None:
+    """Simulated time with seeded disturbances: record and show the seed and the schedule,
+    and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
+    writer.event("disturbances", **plan.describe())
+    writer.update_meta(disturbances=plan.describe())
+    display.message(
+        f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
+        f"{len(plan.faults)} faults"
+        + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
+        + "); the same seed replays this run exactly"
+    )
+    if plan.operator_stop_s is not None:
+        supervisor.interrupt_after(plan.operator_stop_s)
 
 
 def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock = REAL) -> Path:

@@ -83,6 +83,7 @@ from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
     _identity,
+    announce_disturbances,
     close_at_exit,
     identity_text,
     open_devices,
@@ -120,7 +121,6 @@ from benchctl.run.result import RunResult, measured_verdict, stand_after
 from benchctl.run.stand_loop import SerializedStand, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, fault_source, shutdown
-from benchctl.sim.disturb import Disturbances
 from benchctl.text import check_serial
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
@@ -247,7 +247,9 @@ class Session:
     def _start_simulators(self, stack: contextlib.ExitStack) -> None:
         assert self.writer is not None
         self.cfg = stack.enter_context(simulators(
-            self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
+            self.cfg, self.path / SIM_LOG, self.clock,
+            partial(announce_disturbances, writer=self.writer, display=self.display,
+                    supervisor=self.supervisor),
             horizon_s=self.plan.duration_s + 600.0,
         ))
         self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
@@ -504,21 +506,6 @@ class Session:
     def _recording_failed(self, e: RecordingError) -> None:
         """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
         self.supervisor.fault(e, "recording")
-
-    def _disturbed(self, plan: Disturbances) -> None:
-        """Simulated time with seeded disturbances: record and show the seed and the schedule,
-        and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
-        assert self.writer is not None
-        self.writer.event("disturbances", **plan.describe())
-        self.writer.update_meta(disturbances=plan.describe())
-        self.display.message(
-            f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
-            f"{len(plan.faults)} faults"
-            + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
-            + "); the same seed replays this run exactly"
-        )
-        if plan.operator_stop_s is not None:
-            self.supervisor.interrupt_after(plan.operator_stop_s)
 
     def _stop_loops(self) -> None:
         if self.loop is not None:
