@@ -226,8 +226,8 @@ class Session:
 
     # ---- the phases, in order
     def _open_recording(self, stack: contextlib.ExitStack) -> None:
-        """The recording, with the run's log (unwound after the cleanup); with a ``sim:``
-        section, the simulators (they stop after the stand is at rest)."""
+        """The recording, with the run's log (on the run's ``stack``: unwound after the
+        cleanup)."""
         try:
             self.writer = RecordingWriter(
                 self.path, self.axes, self.meta, on_error=self._recording_failed,
@@ -245,6 +245,8 @@ class Session:
         self.display.message(f"recording to {self.path}")
 
     def _start_simulators(self, stack: contextlib.ExitStack) -> None:
+        """With a ``sim:`` section, the simulators (on the run's ``stack``: they stop after the
+        stand is at rest), the run's config pointed at them."""
         assert self.writer is not None
         self.cfg = stack.enter_context(simulators(
             self.cfg, self.path / SIM_LOG, self.clock,
@@ -392,15 +394,15 @@ class Session:
         warnings; without one (aborted before the analysis), the prechecks' and the host's."""
         if report is not None:
             measurements: list[Measurement] = report.measurements
-            deviations, warnings = report.deviations, report.warnings
+            departures, warnings = report.deviations, report.warnings
         else:
             measurements = precheck_measurements(self.prechecks)
-            deviations, warnings = self._deviations(), list(self.host_warnings)
+            departures, warnings = self._deviations(), list(self.host_warnings)
         return FinishedRun(
             outcome, exit_code, reason, self.path, Path(self.out_dir),
             meta=self.writer.meta if self.writer is not None else self.meta,  # + devices
             decision_rule=self.rule, clock=self.clock, measurements=measurements,
-            deviations=deviations, warnings=warnings, report=report, results=results or {},
+            deviations=departures, warnings=warnings, report=report, results=results or {},
             abort=abort, measured=measured, log=self.log_path, figures=self.cfg.run.figures,
             closed=closed,
         )
