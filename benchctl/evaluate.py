@@ -2,8 +2,8 @@
 
 ``benchctl.analysis`` works on arrays: two streams of instants and angles in, σ and the rest
 out. What turns a *recording* into those arrays, and the profile into the analysis's lines, is
-here, once, for every caller: the run's verdict (``Session._analyse``), the running precision
-check (``run.precision.check_window``), ``benchctl analyze`` on a recording (and
+here, once, for every caller: the run's verdict (``run.evaluation.analyse``), the running
+precision check (``run.precision.check_window``), ``benchctl analyze`` on a recording (and
 :func:`analyze_recording`, its Python form) and ``benchctl predict``. Each step is the same for
 all of them:
 

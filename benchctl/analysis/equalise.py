@@ -1,6 +1,6 @@
 """Equalisation: the stand's own response on the profile's lines, and the drive corrected by it.
 
-Pure computation on arrays, no I/O. The run (``benchctl.run.session``, ``run.equalise``) plays a
+Pure computation on arrays, no I/O. The run (``benchctl.run.equalise``, ``run.equalise``) plays a
 short low-level pre-test, hands its recorded stand angle here, and sends the corrected drive
 through the same limit checks as any motion before the stand moves.
 

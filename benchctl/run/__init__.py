@@ -5,7 +5,8 @@ Entry point: ``run_test(cfg, profile_path, RunOptions(serial=…, operator=…))
 
 from benchctl.outcomes import ExitCode, Outcome
 from benchctl.run.prepare import RunOptions
-from benchctl.run.session import RunResult, run_test
+from benchctl.run.result import RunResult
+from benchctl.run.session import run_test
 from benchctl.run.state import RunState
 
 # the exit codes by the names this package has given them (``ExitCode``)

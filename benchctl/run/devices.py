@@ -1,10 +1,13 @@
 """A run's devices and folders: the stand and the instrument opened from the bench config
-(``open_devices``), the simulators of a simulated bench (``simulators``), the recording's
+(``open_devices``) and closed as the run's ``ExitStack`` unwinds, the backstop of the one cleanup
+path (``close_at_exit``), the simulators of a simulated bench (``simulators``; their seeded
+disturbances recorded and shown: ``announce_disturbances``), the recording's
 folder (``recording_dir``) and a device's identity as the record keeps it."""
 
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -14,9 +17,10 @@ from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, DeviceIdentity, Stand
 from benchctl.devices.instrument import open_instrument
 from benchctl.devices.modbus import open_stand
-from benchctl.errors import (
-    ConfigError,
-)
+from benchctl.errors import ConfigError
+from benchctl.recording import RecordingWriter
+from benchctl.run.display import Display
+from benchctl.run.supervisor import Supervisor
 from benchctl.sim.bench import SimBench
 from benchctl.sim.disturb import Disturbances
 from benchctl.sim.launch import start_simulators
@@ -24,6 +28,8 @@ from benchctl.text import (
     file_name_part,
     from_device,
 )
+
+log = logging.getLogger(__name__)
 
 SIM_LOG = "sim.log"  # the simulators' output, in the recording
 
@@ -90,6 +96,22 @@ def simulators(
         yield sim.config
 
 
+def announce_disturbances(plan: Disturbances, *, writer: RecordingWriter, display: Display,
+                          supervisor: Supervisor) -> None:
+    """Simulated time with seeded disturbances: record and show the seed and the schedule,
+    and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
+    writer.event("disturbances", **plan.describe())
+    writer.update_meta(disturbances=plan.describe())
+    display.message(
+        f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
+        f"{len(plan.faults)} faults"
+        + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
+        + "); the same seed replays this run exactly"
+    )
+    if plan.operator_stop_s is not None:
+        supervisor.interrupt_after(plan.operator_stop_s)
+
+
 def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock = REAL) -> Path:
     """A new folder name in ``out_dir``: ``<prefix><UTC time>_<serial>`` (``_2``, ``_3`` … when
     taken), the serial as a safe file-name part of at most 64 bytes
@@ -114,3 +136,26 @@ def _identity(d: DeviceIdentity) -> dict[str, Any]:
         "protocol": from_device(d.protocol),
         "extra": {from_device(k): from_device(v) for k, v in d.extra.items()},
     }
+
+
+def identity_text(d: dict[str, Any]) -> str:
+    """A device's identity (``_identity``) on one line, as its precheck shows it."""
+    return " ".join(
+        str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
+    )
+
+
+def close_at_exit(stack: contextlib.ExitStack, stand: Stand, sensor: AngleSensor) -> None:
+    """The devices' backstop: each one closed as the run's ``stack`` unwinds (the stand first,
+    as the cleanup closes them). The one cleanup path (``benchctl.run.supervisor.shutdown``:
+    bring to rest, disable, close) has closed them by then: a second close does nothing, and a
+    failing one is logged, never raised."""
+    stack.callback(_close_quietly, "instrument", sensor)
+    stack.callback(_close_quietly, "stand", stand)
+
+
+def _close_quietly(name: str, device: Stand | AngleSensor) -> None:
+    try:
+        device.close()
+    except Exception as e:
+        log.warning("%s not closed: %s: %s", name, type(e).__name__, e)

@@ -1,6 +1,6 @@
 """The mounting check's pure half: the tilt's points, the instrument's response fitted to
 them, and the verdict with the operator's message. No I/O, no clock (the run layer,
-``Session._mounting_check``, plays the tilt on the stand and hands the samples here).
+``benchctl.run.mounting_check``, plays the tilt on the stand and hands the samples here).
 
 **The tilt.** Each axis in turn goes from rest at zero to ``+tilt_deg``, holds there, comes
 back to zero and holds again, the others held at zero. The ramps are

@@ -1,6 +1,7 @@
-"""The mounting check's verdict from the tilt's samples: the stand's measured angles
-interpolated at the instrument's instants, the response fitted and judged
-(``benchctl.run.mounting``)."""
+"""The mounting check (``run.mounting_check``): the tilt played on a stand loop of its own
+(``mounting_check``) and its verdict from the tilt's samples: the stand's measured angles
+interpolated at the instrument's instants, the response fitted and judged (``mounting_result``,
+``benchctl.run.mounting``)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,11 @@ from benchctl.errors import (
 )
 from benchctl.run import mounting as mt
 from benchctl.run import prechecks as pc
+from benchctl.run.context import RunContext
+from benchctl.run.live import RunningSigma
+from benchctl.run.motion import new_loop, play
+from benchctl.run.prepare import mounting_plan
+from benchctl.run.state import StateMachine
 
 
 def mounting_result(
@@ -60,3 +66,54 @@ def mounting_result(
                          for r in readings for a in axes if r == a)
         return pc.CheckResult(name, True, f"mounted as configured: {seen}", values)
     return pc.CheckResult(name, False, verdict.detail, values)
+
+
+def mounting_check(run: RunContext) -> None:
+    """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
+    of the profile tilted in turn to a few degrees and back, on a stand loop of its own
+    (the same path as the motion: setpoints or the trajectory queue, every limit and
+    tracking check), recorded like the rest of the run (``mounting_start``,
+    ``mounting_motion_start``: outside the analysis window, which starts at the profile's
+    ``motion_start``). The instrument's response is fitted and judged: a unit mounted
+    reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
+    back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
+    sure — then the one cleanup path)."""
+    mc = run.cfg.run.mounting_check
+    cfg, w, rec, stand = run.cfg, run.writer, run.recorder, run.stand
+    if not mc.enabled:
+        return
+    assert w is not None and rec is not None and stand is not None and run.loop is not None
+    plan = run.prep.tilt or mounting_plan(cfg, run.axes, str(cfg.source or "the config"))
+    mode = plan.mode
+    stand_rows: list[tuple[float, dict[str, float]]] = []
+
+    def tap(s: Any) -> None:
+        stand_rows.append((s.t_host, dict(s.angle_deg)))
+
+    w.event("mounting_start", axes=list(run.axes), tilt_deg=mc.tilt_deg, hold_s=mc.hold_s,
+            duration_s=plan.duration_s, mode=mode)
+    run.display.message(
+        f"mounting check: {' then '.join(run.axes)} tilted to +{mc.tilt_deg:g}° and back "
+        f"({plan.duration_s:.0f} s)")
+    run.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
+    run.loop = loop = new_loop(run, plan, StateMachine(run.clock))
+    loop.motion_event = "mounting_motion_start"
+    rec.collect(True)
+    rec.stand_taps.append(tap)
+    try:
+        loop.start()
+        play(run, loop, "mounting check")
+    finally:
+        rec.stand_taps.remove(tap)
+        samples = rec.collect(False)
+    # the live σ: the profile's motion only
+    rec.sigma = RunningSigma(run.axes, clock=run.clock)
+    loop.stop()
+    # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
+    # own "moving" off, as a table or a pre-test needs to start
+    stand.go_to_zero()
+    run.loop = new_loop(run, run.plan)
+    run.loop.start()  # hold until the motion (or the pre-test) begins
+    result = mounting_result(stand_rows, samples, run.axes, cfg)
+    w.update_meta(mounting_check=result.values)
+    run.precheck(result)

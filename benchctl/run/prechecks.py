@@ -18,7 +18,7 @@ failed one into ``PrecheckFailed`` (a ``SafetyAbort``: the run aborts, exit code
   ``instrument.static_tolerance_deg``;
 - the unit is mounted as ``instrument.axes`` says (``run.mounting_check``: each axis tilted
   to a few degrees and back, the response fitted; ``benchctl.run.mounting`` and
-  ``Session._mounting_check``): one mounted reversed or with roll and pitch swapped is
+  ``benchctl.run.mounting_check``): one mounted reversed or with roll and pitch swapped is
   refused, the message saying what was seen and how to fix it.
 """
 

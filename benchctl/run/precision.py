@@ -153,7 +153,7 @@ def profile_period(motion: Any, axes: Sequence[str], where: str) -> float:
 def check_window(path: Path, request: EvaluationRequest) -> dict[str, AxisCheck]:
     """σ and its interval per axis on the recording at ``path`` as written so far, over
     ``request.window`` (host time, whole periods): the verdict's evaluation
-    (``Session._evaluation``: the same crop, line set and options; no sine steps nor
+    (``run.evaluation.evaluation``: the same crop, line set and options; no sine steps nor
     cross-axis response, which the stop does not look at), and the excitation judgement over
     the same window."""
 

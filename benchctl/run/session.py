@@ -1,29 +1,39 @@
 """The whole test, start to verdict: ``run_test(cfg, profile_path, options) -> RunResult``.
 
-Order of things (each state change is an event in the recording):
+This module keeps the phases, in order, and the abort path; each phase's work is in a module of
+its own, taking the run as a ``RunContext`` (``benchctl.run.context``). Order of things (each
+state change is an event in the recording):
 
-1. before anything opens: the profile is loaded, synthesised and checked against the stand
-   limits; its axes must be the stand's and the instrument's (bad input → ``BenchError``, exit 2,
-   nothing moves, no recording);
+1. **prepare**, before anything opens: the profile is loaded, synthesised and checked against
+   the stand limits, its axes the stand's and the instrument's, the plan made
+   (``benchctl.run.prepare``: the same for the CLI, plans and the Python API); bad input →
+   ``BenchError``, exit 2, nothing moves, no recording. The prepared plan is never changed;
 2. on a real stand, its lock is taken (one run per stand: ``benchctl.run.lock``; a stand in use
    is refused with ``StandInUse`` naming the holder, nothing opened); the recording is created
-   (metadata: config, profile with seed, serial, operator, station, software version, start
-   time), with the run's log ``benchctl.log``; with a ``sim:`` section the simulators are started
-   (their output in the recording's ``sim.log``);
-3. **prechecks**: disk space, each device answers and identifies itself (identities into the
-   metadata), stand ready and at rest; the stand loop starts (asking for
+   (metadata, ``benchctl.run.meta``: config, profile with seed, serial, operator, station,
+   software version, start time), with the run's log ``benchctl.log``; with a ``sim:`` section
+   the simulators are started (their output in the recording's ``sim.log``);
+3. **prechecks**: disk space, the profile within the limits; the **devices** opened
+   (``benchctl.run.devices``: their close pushed on the run's ``ExitStack``, the backstop of
+   the cleanup path), each answers and identifies itself (identities into the metadata), stand
+   ready and at rest; the stand loop starts and **holds** the stand (asking for
    ``run.realtime_priority``, recorded whether granted) and the host's scheduling latency is
    measured and judged (``benchctl.run.fitness``; not on simulated time); the instrument
    streams at its rate and agrees with the stand at rest, then the stand is enabled and
-   brought to zero, the **mounting check** tilts each axis to a few degrees and back and
-   refuses a unit mounted reversed or with its axes swapped (``run.mounting_check``;
-   ``benchctl.run.mounting``), and (table mode) the table is uploaded;
-4. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time;
-5. the stand settles at rest, is disabled, the devices are closed (the same cleanup path an
-   abort takes, here with nothing to ramp);
-6. **analysing**: per axis, on the steady part of the profile (fades excluded), measurements
-   with their limits judged by the decision rule (``benchctl.results.measurements``), verdict,
-   report, archive; → **done**, the recording closed ``done``.
+   brought to zero (``benchctl.run.device_checks``), the **mounting check** tilts each axis to
+   a few degrees and back and refuses a unit mounted reversed or with its axes swapped
+   (``run.mounting_check``; ``benchctl.run.mounting_check``), and (table mode) the table is
+   uploaded;
+4. with ``run.equalise``, **equalising**: a pre-test played, the drive corrected, a new plan
+   (``benchctl.run.equalise``);
+5. **fade-in → running → fade-out**, driven by the stand loop on the profile's own time and
+   watched by the one watch loop (``benchctl.run.motion``);
+6. the stand **settles** at rest, is disabled, the devices are closed (the same cleanup path
+   an abort takes, here with nothing to ramp);
+7. **analysing**: per axis, on the steady part of the profile (fades excluded), measurements
+   with their limits judged by the decision rule (``benchctl.run.evaluation``,
+   ``benchctl.results.measurements``), verdict, report, archive; → **done**, the recording
+   closed ``done``.
 
 Every run — done or aborted — ends with ``record.json`` in the recording
 (``benchctl.results.record``); an aborted one says whether the operator stopped it, the
@@ -33,7 +43,9 @@ report.html, the verdict's banner, the index line, the archive — are one list 
 
 Any fault on the way — from any thread, a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT), a recording
 that cannot be written, or an exception here — goes to the supervisor, and the one cleanup path
-ends the run ``aborted`` with the first fault's reason.
+(``Session._abort``) ends the run ``aborted`` with the first fault's reason: the safety shutdown
+first (``benchctl.run.supervisor.shutdown``: loops stopped, the stand brought to rest, disabled,
+the devices closed, the recording closed), then the outputs.
 
 A full disk (ENOSPC, EDQUOT, EFBIG) anywhere — the recording's streams, the report, the record,
 the archive's index — is such a fault (``recording: disk full: cannot write <file> …``): the
@@ -47,74 +59,44 @@ complete.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
-import math
-import shlex
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from benchctl import __version__
-from benchctl.analysis.equalise import (
-    corrected_table,
-    estimate_response,
-    response_at,
-)
-from benchctl.analysis.excitation import (
-    RunningFidelity,
-    limits_of,
-    reach_of,
-)
 from benchctl.clock import REAL, Clock
 from benchctl.clock.virtual import VirtualClock
 from benchctl.config import BenchConfig
 from benchctl.devices.base import AngleSensor, Stand
-from benchctl.errors import (
-    DISK_FULL_ERRNOS,
-    AnalysisError,
-    BenchError,
-    ConfigError,
-    DataError,
-    LimitError,
-    RecordingError,
-    SafetyAbort,
-    is_disk_full,
-)
-from benchctl.evaluate import EvaluationOptions, EvaluationRequest, RunProfile, evaluate
+from benchctl.errors import DISK_FULL_ERRNOS, ConfigError, RecordingError, SafetyAbort
 from benchctl.exits import run_log, set_log_dir
 from benchctl.outcomes import ExitCode, Outcome
-from benchctl.profiles import check_motion
-from benchctl.recording import RecordingWriter, load_recording
+from benchctl.recording import RecordingWriter
 from benchctl.redact import redact
-from benchctl.results.measurements import (
-    WARNING,
-    Measurement,
-    axis_measurements,
-    limits_from_config,
-    precheck_measurements,
-    reported_serial,
-    serial_measurement,
-)
-from benchctl.results.record import abort_kind, sha256_file, write_record
+from benchctl.results.measurements import Measurement, precheck_measurements, reported_serial
+from benchctl.results.record import abort_kind, write_record
 from benchctl.run import fitness
 from benchctl.run import prechecks as pc
+from benchctl.run.device_checks import host_check, rate_and_zero, realtime
 from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
     _identity,
+    announce_disturbances,
+    close_at_exit,
+    identity_text,
     open_devices,
     recording_dir,
     simulators,
 )
-from benchctl.run.display import Display, NullDisplay, SafeDisplay, Snapshot
-from benchctl.run.live import RunningSigma
+from benchctl.run.display import Display, NullDisplay, SafeDisplay
+from benchctl.run.equalise import equalise
+from benchctl.run.evaluation import analyse, analysis_window
 from benchctl.run.lock import stand_lock
-from benchctl.run.mounting_check import mounting_result
+from benchctl.run.meta import base_meta, deviations
+from benchctl.run.motion import motion, new_loop
+from benchctl.run.mounting_check import mounting_check
 from benchctl.run.outputs import (
     Console,
     FinishedRun,
@@ -129,117 +111,23 @@ from benchctl.run.outputs import (
     record_in,
     stand_lines,
 )
-from benchctl.run.plan import MotionPlan, make_plan
-from benchctl.run.precision import (
-    PrecisionCheck,
-    PrecisionWatch,
-    check_window,
-    ended_summary,
-    profile_period,
-    relative_halfwidth,
-    whole_periods_in,
-)
-from benchctl.run.prepare import (
-    PreparedMotion,
-    RunOptions,
-    motion_rate_hz,
-    mounting_plan,
-    prepare_motion,
-)
-from benchctl.run.realtime import PrioritySetter, RealtimeResult, not_requested
+from benchctl.run.plan import MotionPlan
+from benchctl.run.precision import PrecisionWatch
+from benchctl.run.prepare import PreparedMotion, RunOptions, prepare_motion
+from benchctl.run.realtime import PrioritySetter
 from benchctl.run.recorder import Recorder
-from benchctl.run.report import (
-    Report,
-    archive,
-    archive_abort,
-    axis_verdict,
-    write_report,
-)
-from benchctl.run.stand_loop import (
-    HOST_STALL_S,
-    LoopLimits,
-    SerializedStand,
-    StandLoop,
-    start_instrument,
-)
+from benchctl.run.report import Report, archive, archive_abort, write_report
+from benchctl.run.result import RunResult, measured_verdict, stand_after
+from benchctl.run.stand_loop import SerializedStand, StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
-from benchctl.run.supervisor import Supervisor, describe, shutdown
-from benchctl.sim.disturb import Disturbances
-from benchctl.text import (
-    check_serial,
-)
+from benchctl.run.supervisor import Supervisor, describe, fault_source, shutdown
+from benchctl.text import check_serial
 
 if TYPE_CHECKING:  # imported where used: the archive pulls in SQLAlchemy
     from benchctl.archive.service import RunArchive
 
 
 log = logging.getLogger(__name__)
-
-RATE_WINDOWS = 3  # the instrument's rate is measured over up to this many windows
-STALL_S = 3.0  # the stand loop silent this long (beyond device timeouts) is a fault
-FIDELITY_EVERY_S = 1.0  # the running excitation estimate: updated this often during the motion
-REALTIME_ANSWER_S = 2.0  # the stand loop says whether it got real-time priority within this
-
-
-
-
-@dataclass
-class RunResult:
-    state: str  # done | aborted
-    reason: str
-    exit_code: ExitCode
-    recording: Path | None
-    report: Report | None = None
-    stats: dict[str, Any] = field(default_factory=dict)
-    shutdown: list[dict[str, Any]] = field(default_factory=list)
-    log: Path | None = None  # the run's log file (<recording>/benchctl.log)
-    abort: dict[str, Any] | None = None  # aborted: {kind: operator|equipment|software, reason}
-    record: Path | None = None  # <recording>/record.json when written
-    # aborted after the analysis (its outputs could not be written): the verdict measured
-    measured: dict[str, Any] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        if self.report is not None:
-            d = self.report.to_dict(full=True)
-            d["record"] = None if self.record is None else str(self.record)
-            return d
-        return {
-            "verdict": Outcome.ABORTED,
-            "state": self.state,
-            "reason": self.reason,
-            "abort": self.abort,
-            "record": None if self.record is None else str(self.record),
-            "exit_code": self.exit_code,
-            "recording": None if self.recording is None else str(self.recording),
-            "log": None if self.log is None else str(self.log),
-            "stats": self.stats,
-            "shutdown": self.shutdown,
-            "measured": self.measured,
-        }
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 # -------------------------------------------------------------------------- the run
@@ -306,670 +194,187 @@ class Session:
         # has no stand left open to read
         self._end_final: dict[str, Any] | None = None
 
-    # ---- helpers
-    def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
-        if self.writer is not None:
-            # a write failure is already a fault of the run (the writer's on_error): the state
-            # still moves
-            with contextlib.suppress(RecordingError):
-                self.writer.event(
-                    "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
-                )
-        self.display.state(str(new), reason)
+    def run(self) -> RunResult:
+        """The whole run. Raises (``BenchError``) only when the recording cannot be created;
+        after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
+        here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
+        self.meta = base_meta(self.cfg, self.opts, self.rule, self.prep.meta)
+        self.machine.subscribe(self._on_state)
+        self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
+        with self.supervisor.signals(), contextlib.ExitStack() as stack:
+            self._open_recording(stack)
+            try:
+                if self.start_simulators:
+                    self._start_simulators(stack)
+                self.supervisor.check()  # a signal while the recording was being created
+                self._prechecks()
+                self._devices(stack)
+                self._hold()
+                if self.prep.pretest is not None:
+                    self.plan = equalise(self)  # the prepared plan stays as it was
+                motion(self)
+                self._settle()
+                window, report, results = self._evaluate()
+                return self._outputs(window, report, results)
+            except BaseException as e:  # every way out, the same path
+                if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
+                    self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
+                                          fault_source(e))
+                return self._abort()
+            finally:
+                self.display.close()
 
-    def _precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
-        """Record and show a precheck (``shown``: its own line instead of the usual one)."""
+    # ---- the phases, in order
+    def _open_recording(self, stack: contextlib.ExitStack) -> None:
+        """The recording, with the run's log (on the run's ``stack``: unwound after the
+        cleanup)."""
+        try:
+            self.writer = RecordingWriter(
+                self.path, self.axes, self.meta, on_error=self._recording_failed,
+                clock=self.clock,
+            )
+        except OSError as e:
+            full = RecordingError.disk_full(e, self.path)
+            if full is not None:  # nothing opened, nothing moved
+                raise full from None
+            raise ConfigError(
+                f"{self.path}: cannot create the recording folder: {e.strerror}"
+            ) from None
+        self.meta = self.writer.meta
+        self.log_path = stack.enter_context(run_log(self.path))
+        self.display.message(f"recording to {self.path}")
+
+    def _start_simulators(self, stack: contextlib.ExitStack) -> None:
+        """With a ``sim:`` section, the simulators (on the run's ``stack``: they stop after the
+        stand is at rest), the run's config pointed at them."""
         assert self.writer is not None
-        self.prechecks.append(result.to_dict())
-        self.writer.event("precheck", **result.to_dict())
-        self.display.message(
-            shown or f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
-        )
-        pc.require(result)
-        self.supervisor.check()
+        self.cfg = stack.enter_context(simulators(
+            self.cfg, self.path / SIM_LOG, self.clock,
+            partial(announce_disturbances, writer=self.writer, display=self.display,
+                    supervisor=self.supervisor),
+            horizon_s=self.plan.duration_s + 600.0,
+        ))
+        self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
 
-    def _wait(self, seconds: float) -> None:
-        """Wait on the main thread, leaving at once on a fault."""
-        if self.supervisor.stop_event.wait(seconds):
-            self.supervisor.check()
-
-    def _snapshot(self) -> Snapshot:
-        assert self.recorder is not None and self.loop is not None
-        live = self.recorder.live
-        elapsed = remaining = None
-        if live.t_motion_start is not None:
-            elapsed = self.clock.monotonic() - live.t_motion_start
-            remaining = self.loop.plan.duration_s - elapsed  # shorter after an early stop
-        return Snapshot(
-            state=str(self.machine.state),
-            elapsed_s=elapsed,
-            remaining_s=remaining,
-            stand_deg=dict(live.stand.angle_deg) if live.stand else {},
-            instrument_deg={a: live.instrument.angle_deg.get(a, float("nan")) for a in self.axes}
-            if live.instrument
-            else {},
-            tracking_error_deg=dict(live.tracking_error_deg),
-            sigma_deg=self.recorder.sigma.sigma(),
-            missed_cycles=self.loop.missed_cycles,
-            instrument_samples=self.recorder.n_instrument,
-            serial=self.opts.serial,
-            operator=self.opts.operator,
-            limit_deg=self.cfg.run.limit_sigma_deg,
-            cycles=self.loop.cycles,
-            rejoins=self.loop.rejoins,
-            mode=self.plan.mode,
-            underruns=self.loop.underruns,
-            sigma_judged_after_s=self._sigma_judged_after(),
-        )
-
-    def _sigma_judged_after(self) -> float | None:
-        """Motion time from which the running σ is judged live: the fade-in and one whole
-        period of a periodic multisine (every line excited once); None without a period."""
-        plan = self.plan
-        periods = [t.period_s for t in (plan.tables or {}).values()]
-        if not periods or None in periods or getattr(self.prep.motion, "segments", None):
-            return None
-        return plan.fade_in_s + max(float(p) for p in periods if p is not None)
-
-    def _base_meta(self) -> dict[str, Any]:
-        cfg = self.cfg
-        return {
-            "serial": self.opts.serial,
-            "operator": self.opts.operator,
-            "station": cfg.station,
-            "software_version": __version__,
-            "config_path": str(cfg.source) if cfg.source else None,
-            "config": redact(cfg.model_dump(mode="json")),  # no password (archive.url)
-            "mode": cfg.stand.mode,
-            "limit_sigma_deg": cfg.run.limit_sigma_deg,
-            "decision_rule": self.rule,
-            "part_number": self.opts.part_number or cfg.unit.part_number,
-            "config_sha256": sha256_file(cfg.source),
-            "profile_sha256": sha256_file(self.prep.meta.get("profile_path")),
-            **self.prep.meta,
-        }
-
-    # ---- phases
     def _prechecks(self) -> None:
+        """The prechecks before a device opens: disk space, the profile within the limits."""
+        self.machine.to(RunState.PRECHECKS)
+        self.precheck(pc.check_disk(self.out_dir, self.cfg.run.min_free_disk_mb,
+                                    quiet=self.clock.virtual))
+        self.precheck(self.prep.check)
+
+    def _devices(self, stack: contextlib.ExitStack) -> None:
+        """The devices opened, their close the run's ``stack``'s backstop (the cleanup path
+        closes them first), every stand sample and setpoint recorded from here on, cleanup
+        included; each device answers and identifies itself, the unit is the one named, the
+        stand is ready and at rest."""
         cfg, w = self.cfg, self.writer
         assert w is not None
-        self.machine.to(RunState.PRECHECKS)
-        self._precheck(pc.check_disk(self.out_dir, cfg.run.min_free_disk_mb,
-                                     quiet=self.clock.virtual))
-        self._precheck(self.prep.check)
         stand_raw, self.sensor = self.device_factory(cfg, self.path)
-        # from here on every stand sample and setpoint goes into the recording, cleanup included
+        close_at_exit(stack, stand_raw, self.sensor)
         self.recorder = rec = Recorder(w, self.supervisor, self.axes, clock=self.clock)
         rec.attach(stand_raw)
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
         self.stand = stand
         ids = {"stand": _identity(stand.connect())}
-        self._precheck(pc.CheckResult("stand answers", True, _id_text(ids["stand"]), ids["stand"]))
+        self.precheck(
+            pc.CheckResult("stand answers", True, identity_text(ids["stand"]), ids["stand"])
+        )
         ids["instrument"] = _identity(self.sensor.connect())
-        self._precheck(
+        self.precheck(
             pc.CheckResult(
-                "instrument answers", True, _id_text(ids["instrument"]), ids["instrument"]
+                "instrument answers", True, identity_text(ids["instrument"]), ids["instrument"]
             )
         )
         w.update_meta(devices=ids)
         if cfg.unit.serial_check == "require":  # the unit named must be the one mounted
-            self._precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
+            self.precheck(pc.check_serial(self.opts.serial, reported_serial(ids["instrument"])))
         status = stand.read_status()
         if status.fault or status.estop:  # latched: the check names the command that clears it
-            self._precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
-        self._precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
+            self.precheck(pc.check_stand_ready(status, None, self.axes, cfg.source))
+        self.precheck(pc.check_stand_ready(status, stand.read_sample(), self.axes, cfg.source))
 
-        self.loop = self._new_loop(self.plan)
-        start_instrument(self.sensor, rec)
+    def _hold(self) -> None:
+        """The stand loop holds the stand; the prechecks on the host and the instrument, the
+        stand enabled and at zero, the mounting check, then (table mode) the table uploaded."""
+        assert self.stand is not None and self.sensor is not None and self.recorder is not None
+        self.loop = new_loop(self, self.plan)
+        start_instrument(self.sensor, self.recorder)
         self.loop.start()  # hold: heartbeat and stand samples from now on
-        self._realtime(self.loop)
-        self._host_check()
-        self._rate_and_zero()
-        self._mounting_check()
+        realtime(self, self.loop)
+        host_check(self)
+        rate_and_zero(self)
+        mounting_check(self)
         if self.plan.mode == "table" and self.prep.pretest is None:
-            assert self.plan.tables is not None
-            stand.upload_table(self.plan.tables)
-            w.event("table_uploaded", axes=list(self.plan.tables))
+            assert self.plan.tables is not None and self.writer is not None
+            self.stand.upload_table(self.plan.tables)
+            self.writer.event("table_uploaded", axes=list(self.plan.tables))
 
-    def _realtime(self, loop: StandLoop) -> None:
-        """Record and say whether the stand loop thread got ``run.realtime_priority``."""
-        assert self.writer is not None
-        priority = self.cfg.run.realtime_priority
-        if priority is None:
-            return
-        if self.clock.virtual:
-            got = not_requested("simulated time")
-        else:
-            loop.realtime_known.wait(REALTIME_ANSWER_S)
-            got = loop.realtime or RealtimeResult(
-                priority, False, f"real-time priority {priority}: not granted: the stand loop "
-                f"did not answer within {REALTIME_ANSWER_S:g} s")
-        self.writer.event("realtime_priority", **got.to_dict())
-        self.display.message(
-            got.detail if got.granted or got.requested is None
-            else f"{got.detail}; the run goes on at normal priority"
+    def _settle(self) -> None:
+        """The motion's normal end: the stand at rest, disabled, the devices closed — the same
+        cleanup path an abort takes, nothing to ramp; a step that failed is a fault."""
+        rep = shutdown(
+            stop_loops=self._stop_loops,
+            stand=self.stand,
+            sensor=self.sensor,
+            writer=None,
+            state="done",
+            reason="",
+            moved=False,
         )
-
-    def _host_check(self) -> None:
-        """The host fitness check (``run.host_check``): a precheck, not measured on simulated
-        time (unless a probe is handed in)."""
-        cfg, w = self.cfg, self.writer
-        assert w is not None
-        skipped = (fitness.SKIP_DISABLED if not cfg.run.host_check.enabled
-                   else fitness.SKIP_VIRTUAL if self.host_probe is None and self.clock.virtual
-                   else None)
-        if skipped is not None:
-            w.event("host_check", skipped=True, reason=skipped)
-            self.display.message(skipped)
-            return
-        check = fitness.host_check(cfg, self.clock, self.supervisor.stop_event,
-                                   probe=self.host_probe, setter=self.priority_setter)
-        self.supervisor.check()  # a fault or a signal while it measured
-        warning = check.warning()
-        if warning is not None:
-            self.host_warnings.append(warning)
-            log.warning("%s", warning)
-        result = check.check_result()
-        shown = (check.line if check.ok
-                 else f"{check.line}: the run goes on, with a warning in its record"
-                 if result.ok else f"{check.line}: the run is refused before the stand moves")
-        self._precheck(result, shown)
-
-    def _disturbed(self, plan: Disturbances) -> None:
-        """Simulated time with seeded disturbances: record and show the seed and the schedule,
-        and press Ctrl-C (the SIGINT path) at the operator's drawn moment."""
-        assert self.writer is not None
-        self.writer.event("disturbances", **plan.describe())
-        self.writer.update_meta(disturbances=plan.describe())
-        self.display.message(
-            f"simulated disturbances: seed {plan.spec.seed} ({len(plan.stalls)} host stalls, "
-            f"{len(plan.faults)} faults"
-            + (f", operator stop at {plan.operator_stop_s:g} s" if plan.operator_stop_s else "")
-            + "); the same seed replays this run exactly"
-        )
-        if plan.operator_stop_s is not None:
-            self.supervisor.interrupt_after(plan.operator_stop_s)
-
-    def _new_loop(self, plan: MotionPlan, machine: StateMachine | None = None) -> StandLoop:
-        """A stand loop for ``plan`` (not started); ``machine``: whose states it moves (the
-        run's; the pre-test its own, so the run stays in ``equalising``)."""
-        cfg = self.cfg
-        assert self.stand is not None and self.recorder is not None
-        return StandLoop(
-            self.stand,
-            self.recorder,
-            self.supervisor,
-            self.machine if machine is None else machine,
-            plan,
-            LoopLimits(
-                angle_deg=cfg.stand.limits.angle_deg,
-                tracking_tolerance_deg=cfg.stand.tracking_tolerance_deg,
-                following_lag_s=cfg.stand.following_lag_s,
-                profile_tolerance_deg=cfg.run.profile_tolerance_deg,
-                silence_timeout_s=cfg.instrument.silence_timeout_s,
-                heartbeat_period_s=cfg.stand.heartbeat_period_s,
-                sample_rate_hz=cfg.stand.sample_rate_hz,
-                zero_tolerance_deg=cfg.stand.zero_tolerance_deg,
-                rate_deg_s=cfg.stand.limits.rate_deg_s,
-                accel_deg_s2=cfg.stand.limits.accel_deg_s2,
-                buffer_s=cfg.stand.buffer_s,
-            ),
-            clock=self.clock,
-            host_cost_s=cfg.sim.host_cost_s if cfg.sim is not None and self.clock.virtual else 0.0,
-            realtime_priority=cfg.run.realtime_priority,
-            priority_setter=self.priority_setter,
-        )
-
-    def _rate_and_zero(self) -> None:
-        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
-        assert w is not None and rec is not None and stand is not None
-
-        # a window with the wrong rate is measured again (a host or a bus held up for a moment
-        # skews one window; an instrument at the wrong rate fails every one)
-        for attempt in range(1, RATE_WINDOWS + 1):
-            rec.collect(True)
-            t0 = self.clock.monotonic()
-            self._wait(cfg.run.precheck_window_s)
-            samples = rec.collect(False)
-            window = self.clock.monotonic() - t0
-            rate = pc.check_instrument_rate(
-                samples,
-                window,
-                cfg.instrument.expected_rate_hz,
-                cfg.run.instrument_rate_tolerance,
-                self.axes,
-            )
-            if rate.ok or attempt == RATE_WINDOWS:
-                break
-            w.event("precheck", **rate.to_dict(), attempt=attempt, measured_again=True)
-            self.display.message(
-                f"precheck {rate.name}: {rate.detail}; measuring again ({attempt}/{RATE_WINDOWS})"
-            )
-        self._precheck(rate)
-        here = stand.read_sample()
-        self._precheck(
-            pc.check_static_agreement(
-                samples, here.angle_deg, cfg.instrument.static_tolerance_deg, self.axes
-            )
-        )
-        stand.enable()
-        self.moved = True  # from here on the cleanup ramps to zero
-        if any(abs(v) > cfg.stand.zero_tolerance_deg for v in here.angle_deg.values()):
-            self.display.message("bringing the stand to zero")
-            stand.go_to_zero()
-        self._precheck(pc.check_stand_at_zero(stand.read_sample(), cfg.stand.zero_tolerance_deg))
-
-    def _mounting_check(self) -> None:
-        """The mounting check (``run.mounting_check``; ``benchctl.run.mounting``): each axis
-        of the profile tilted in turn to a few degrees and back, on a stand loop of its own
-        (the same path as the motion: setpoints or the trajectory queue, every limit and
-        tracking check), recorded like the rest of the run (``mounting_start``,
-        ``mounting_motion_start``: outside the analysis window, which starts at the profile's
-        ``motion_start``). The instrument's response is fitted and judged: a unit mounted
-        reversed or with its axes swapped is a precheck FAILED (the run refused, the stand
-        back at rest at zero — the tilt ends there, and the stand's own ramp to zero makes
-        sure — then the one cleanup path)."""
-        mc = self.cfg.run.mounting_check
-        cfg, w, rec, stand = self.cfg, self.writer, self.recorder, self.stand
-        if not mc.enabled:
-            return
-        assert w is not None and rec is not None and stand is not None and self.loop is not None
-        plan = self.prep.tilt or mounting_plan(cfg, self.axes, str(cfg.source or "the config"))
-        mode = plan.mode
-        stand_rows: list[tuple[float, dict[str, float]]] = []
-
-        def tap(s: Any) -> None:
-            stand_rows.append((s.t_host, dict(s.angle_deg)))
-
-        w.event("mounting_start", axes=list(self.axes), tilt_deg=mc.tilt_deg, hold_s=mc.hold_s,
-                duration_s=plan.duration_s, mode=mode)
-        self.display.message(
-            f"mounting check: {' then '.join(self.axes)} tilted to +{mc.tilt_deg:g}° and back "
-            f"({plan.duration_s:.0f} s)")
-        self.loop.stop()  # the hold loop: the tilt's own loop takes the stand over
-        self.loop = loop = self._new_loop(plan, StateMachine(self.clock))
-        loop.motion_event = "mounting_motion_start"
-        rec.collect(True)
-        rec.stand_taps.append(tap)
-        try:
-            loop.start()
-            self._play(loop, "mounting check")
-        finally:
-            rec.stand_taps.remove(tap)
-            samples = rec.collect(False)
-        # the live σ: the profile's motion only
-        rec.sigma = RunningSigma(self.axes, clock=self.clock)
-        loop.stop()
-        # the tilt ended at rest near zero (the loop's settle): now at zero with the stand's
-        # own "moving" off, as a table or a pre-test needs to start
-        stand.go_to_zero()
-        self.loop = self._new_loop(self.plan)
-        self.loop.start()  # hold until the motion (or the pre-test) begins
-        result = mounting_result(stand_rows, samples, self.axes, cfg)
-        w.update_meta(mounting_check=result.values)
-        self._precheck(result)
-
-    def _equalise(self) -> None:
-        """The equalisation pre-test (``run.equalise``): the low-level multisine played and
-        recorded, the stand's response on the profile's lines estimated, the drive corrected
-        and checked against the limits like any motion; the main motion's loop then waits in
-        hold with the corrected plan."""
-
-        pre, w, stand = self.prep.pretest, self.writer, self.stand
-        assert pre is not None and w is not None and stand is not None and self.loop is not None
-        cfg, eq = self.cfg, self.cfg.run.equalise
-        self.machine.to(RunState.EQUALISING, "pre-test")
-        self.loop.stop()  # the hold loop: the pre-test's own loop takes the stand over
-        self.loop = loop = self._new_loop(pre.plan, StateMachine(self.clock))
-        loop.motion_event = "equalise_motion_start"
-        if pre.plan.mode == "table":
-            assert pre.plan.tables is not None
-            stand.upload_table(pre.plan.tables)
-            w.event("table_uploaded", axes=list(pre.plan.tables), pretest=True)
-        w.event("equalise_start", level=eq.level, duration_s=pre.plan.duration_s,
-                axes={a: d.to_dict() for a, d in pre.designs.items()})
-        self.display.message(f"equalisation pre-test: {pre.plan.duration_s:.1f} s at "
-                             f"{eq.level:g} × the profile's amplitudes")
-        loop.start()
-        self._play(loop)
-        t_start = loop.t_motion_start
-        assert t_start is not None
-        # the pre-test's loop holds the stand (heartbeat, samples, checks) until the main
-        # motion's loop takes over, however long the correction takes to compute
-        if self.recorder is not None:  # the live σ: the profile's motion only
-            self.recorder.sigma = RunningSigma(self.axes)
-        # the response per axis, from the recording (the same instants the verdict will use)
-        rec = load_recording(self.path)
-        target = self.prep.motion
-        rate = motion_rate_hz(cfg.stand)
-        drives, report = {}, {}
-        for axis, design in pre.designs.items():
-            tr, xr, _, _ = rec.pair(axis, window=False)
-            drive = None
-            if cfg.stand.mode == "stream":  # the stand's input: the setpoints as they went out
-                drive = (rec.column("setpoints", "t_send"), rec.column("setpoints", f"{axis}_deg"))
-            try:
-                resp = estimate_response(tr, xr, design, t_start, drive)
-            except DataError as e:
-                raise DataError(f"{self.path}: equalisation pre-test on {axis}: {e}") from None
-            tab = target.tables[axis]
-            h, sd = response_at(resp, tab.freq_hz)
-            corr = corrected_table(tab, h, sd, reach_of(cfg.stand.limits), rate,
-                                   min_gain_db=eq.min_gain_db, max_boost_db=eq.max_boost_db,
-                                   max_uncertainty_db=eq.max_uncertainty_db)
-            drives[axis] = corr.drive
-            report[axis] = {**corr.to_dict(), "pretest": design.to_dict(),
-                            "pretest_response": resp.to_dict()}
-        drive = dataclasses.replace(target, table_by_axis=drives)
-        try:  # the corrected drive through the same checks as any motion
-            result = check_motion(drive, cfg.stand.limits, rate_hz=rate)
-        except LimitError as e:
-            raise LimitError(
-                f"{self.path}: the equalised drive (field stand.limits): {e}"
-            ) from None
-
-        def evaluate(t: np.ndarray) -> dict[str, np.ndarray]:
-            return {a: np.asarray(v, dtype=float) for a, v in result.motion.evaluate(t).items()}
-
-        old = self.plan  # the prepared plan stays as it was: equalisation makes a new one
-        self.plan = make_plan(evaluate, old.axes, old.duration_s, 1.0 / old.period_s,
-                                   old.fade_in_s, old.fade_out_s, mode=old.mode,
-                                   tables=dict(result.motion.tables or {}))
-        disturbed = {"missed_cycles": loop.missed_cycles, "rejoins": loop.rejoins,
-                     "underruns": loop.underruns}
-        summary = {"level": eq.level, "drive_check": result.to_dict(), "axes": report,
-                   "pretest_stats": disturbed}
-        if any(disturbed.values()):  # the stand left the pre-test's lines for a moment
-            msg = ("equalisation: the pre-test's motion was disturbed ("
-                   + ", ".join(f"{k} {v}" for k, v in disturbed.items() if v)
-                   + "): the response on its lines may be off by tenths of a dB")
-            summary["warning"] = msg
-            log.warning("%s", msg)
-            self.display.message(msg)
-        w.event("equalise_done", **summary)
-        w.update_meta(equalisation=summary)
-        self.meta["equalisation"] = summary
-        for axis, r in report.items():
-            bad = r["not_corrected"]
-            self.display.message(
-                f"equalised {axis}: response {min(r['gain_db']):+.2f} … {max(r['gain_db']):+.2f} dB"
-                f" on {len(r['freq_hz'])} lines; "
-                + (f"{len(bad)} line(s) not fully corrected" if bad else "every line corrected"))
-        if self.plan.mode == "table":
-            assert self.plan.tables is not None
-            stand.upload_table(self.plan.tables)
-            w.event("table_uploaded", axes=list(self.plan.tables))
-        self.supervisor.check()  # a fault while the correction was computed
-        loop.stop()
-        self.loop = self._new_loop(self.plan)
-        self.loop.start()  # hold until the motion begins
-
-    def _play(self, loop: StandLoop, what: str = "pre-test") -> None:
-        """Play ``loop``'s plan (``what``: the pre-test, the mounting check) to its end,
-        watching it as the motion is watched (faults, stalls, a silent instrument, a time
-        limit)."""
-        self._watch(loop, what, loop.plan.duration_s)
+        self._final_stats = self.stats()
+        # shown and recorded again should the run abort after this (a full disk)
+        self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
+        self._end_final = rep.final_state
+        self.stand = self.sensor = None  # closed: an abort from here has nothing to move
+        self.moved = False
+        for step in rep.steps:
+            if not step["ok"]:
+                raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
         self.supervisor.check()
 
-    def _watch(
-        self,
-        loop: StandLoop,
-        what: str,
-        duration_s: float,
-        before: Callable[[float, float], None] | None = None,
-        after: Callable[[float, float], None] | None = None,
-    ) -> None:
-        """The one watch loop over a stand loop playing ``what`` until its motion is done or a
-        fault is raised: every 0.1 s the loop's health (``_check_loop``), a time limit (the
-        motion's ``duration_s`` and a minute for settling and slack: a hung loop cannot hang
-        the run) and the display; ``before``/``after`` (given the time) add the motion's own
-        watches, before the health check and after the time limit (each called with the time
-        and the time the watch began)."""
-        loop.begin_motion()
-        limit = duration_s + 60.0
-        t0 = self.clock.monotonic()
-        t_wake = t0
-        resumed = -math.inf  # this thread's last wake-up after a stall of the process
-        while not loop.motion_done.wait(0.1):
-            if self.supervisor.faulted:
-                break
-            now = self.clock.monotonic()
-            if before is not None:
-                before(now, t0)
-            if now - t_wake > 0.1 + HOST_STALL_S:  # this process was held up: the threads
-                resumed = now  # get a moment to catch up before their silence counts
-            t_wake = now
-            self._check_loop(loop, now, resumed, what)
-            if now - t0 > limit:
-                raise SafetyAbort(f"{what} did not finish within {limit:.0f} s")
-            if after is not None:
-                after(now, t0)
-            self.display.update(self._snapshot())
+    def _evaluate(self) -> tuple[tuple[float, float], Report, dict[str, Any]]:
+        """The verdict over the analysis window (``benchctl.run.evaluation``), kept (printed,
+        end.json) should an abort follow."""
+        self.machine.advance_to(RunState.ANALYSING)
+        window = analysis_window(self)
+        report, results = analyse(self, window)
+        self.report = report
+        self.supervisor.check()  # a signal during the analysis still ends the run
+        return window, report, results
 
-    def _check_loop(self, loop: StandLoop, now: float, resumed: float, what: str) -> None:
-        """The main thread's watch over a stand loop playing ``what``: the loop alive, cycling,
-        and the instrument talking — counted from ``resumed``, this process's last wake-up
-        after a stall of its own, so a held-up host is never taken for a silent device."""
-        if not loop.alive:
-            raise SafetyAbort(f"stand loop ended without finishing the {what}")
-        last = loop.t_last_cycle
-        stall = STALL_S + self.cfg.stand.timeout_s * (self.cfg.stand.retries + 1)
-        if last is not None and now - max(last, resumed) > stall:
-            raise SafetyAbort(f"stand loop stalled: no cycle for {now - last:.1f} s")
-        silent = min(loop.instrument_silence(now), now - resumed)
-        if silent > self.cfg.instrument.silence_timeout_s + 0.5:
-            raise SafetyAbort(
-                f"instrument silent: no sample for {silent:.2f} s "
-                f"(silence_timeout_s = {self.cfg.instrument.silence_timeout_s} s)"
-            )
-
-    def _motion(self) -> None:
-        loop = self.loop
-        assert loop is not None and self.recorder is not None
-        watch: list[Any] | None = None  # the running excitation estimates, once moving
-        t_fidelity: float | None = None  # the last update (first: the watch's start)
-
-        def excitation(now: float, t0: float) -> None:
-            nonlocal watch, t_fidelity
-            if t_fidelity is None:
-                t_fidelity = t0
-            if watch is None and loop.t_motion_start is not None:
-                watch = self._excitation_watch()
-            if watch and now - t_fidelity >= FIDELITY_EVERY_S:
-                t_fidelity = now
-                for rf in watch:
-                    rf.update()
-                    why = rf.abort_reason()
-                    if why:
-                        raise SafetyAbort(why)
-
-        def precision(now: float, _t0: float) -> None:
-            if self.precision is None and loop.t_motion_start is not None:
-                self.precision = self._precision_watch()
-            if self.precision is not None:
-                self._precision_poll(now)
-
-        self._watch(loop, "motion", self.plan.duration_s, excitation, precision)
-        self.recorder.stand_taps.clear()
-        self.supervisor.check()
-
-    def _excitation_watch(self) -> list[Any]:
-        """The running excitation estimates (``run.excitation.abort_run``): one per axis with
-        a harmonic table and a band to judge, listening to the stand's samples from now on."""
-
-        ex = self.cfg.run.excitation
-        motion = self.prep.motion
-        tables = getattr(motion, "tables", None) or {}
-        if not ex.abort_run or getattr(motion, "segments", None) or self.recorder is None:
-            return []
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        out = []
-        for axis in self.axes:
-            if axis not in tables:
-                continue
-            rf = RunningFidelity(tables[axis], self._window(), self.loop.t_motion_start,
-                                 limits=limits_of(ex), reach=reach_of(self.cfg.stand.limits),
-                                 axis=axis)
-            if not rf.bands:
-                continue
-
-            def tap(s: Any, rf: RunningFidelity = rf, axis: str = axis) -> None:
-                rf.add(s.t_host, s.angle_deg.get(axis, math.nan))
-
-            self.recorder.stand_taps.append(tap)
-            out.append(rf)
-        return out
-
-    def _precision_watch(self) -> PrecisionWatch | None:
-        """The precision checks, once moving (None when no precision was requested)."""
-        requested = self.prep.meta.get("precision_requested")
-        loop, plan = self.loop, self.plan
-        if requested is None or loop is None or loop.t_motion_start is None:
-            return None
-        period = profile_period(self.prep.motion, self.axes, "run.precision")
-        t_start = loop.t_motion_start
-        steady = plan.duration_s - plan.fade_in_s - plan.fade_out_s
-
-        def analyse(window: tuple[float, float]) -> dict[str, Any]:
-            return check_window(self.path, self._evaluation(window, t_start))
-
-        return PrecisionWatch(analyse, float(requested), t_start + plan.fade_in_s, period,
-                              whole_periods_in(steady, period), clock=self.clock)
-
-    def _precision_poll(self, now: float) -> None:
-        """A finished check: into the recording; when it says stop, the stand loop fades out."""
-        watch, loop = self.precision, self.loop
-        assert watch is not None and loop is not None
-        check: PrecisionCheck | None = watch.poll(now)
-        if check is None:
-            return
+    def _outputs(self, window: tuple[float, float], report: Report,
+                 results: dict[str, Any]) -> RunResult:
+        """The outputs that make the run done (a full disk: raised, the run's abort), the
+        recording closed ``done``, then the outputs again on the final data files."""
         assert self.writer is not None
-        with contextlib.suppress(RecordingError):
-            self.writer.event("precision_check", **check.to_dict())
-        msg = (f"precision check, {check.periods} period(s): "
-               + ("σ " + ", ".join(f"{a} {c.sigma:.4f}° ±{100 * c.precision:.2f} %"
-                                   for a, c in check.axes.items()) + "; " if check.axes else "")
-               + check.decision.reason)
-        self.display.message(msg)
-        if check.decision.stop and loop.ended_early is None:
-            loop.request_end(reason=check.decision.reason, precision=check.precision,
-                             requested=watch.requested, periods=check.periods,
-                             check_window=list(check.window))
+        run = self._finished(report.verdict, report.exit_code, report.verdict,
+                             report=report, results=results)
+        files = emit(self._sinks(), run)
+        self.writer.event("verdict", **report.to_dict(full=False))
+        self.machine.to(RunState.DONE)
+        self.writer.close(
+            "done",
+            report.verdict,
+            analysis_window=list(window),
+            stats=report.stats,
+            report=[f.name for f in files if f.parent == self.path],
+        )
+        # the data files are final now: the record and the report again, with their
+        # SHA-256 (the record above stands should this one not be written), the
+        # verdict shown, the archive
+        again = emit(self._sinks(), replace(run, closed=True))
+        return RunResult(
+            "done",
+            report.verdict,
+            report.exit_code,
+            self.path,
+            report,
+            report.stats,
+            log=self.log_path,
+            record=record_in(again) or record_in(files),
+        )
 
-    def _ended(self, report: Report) -> dict[str, Any]:
-        """Why the motion ended, and the precision the verdict reached (the report's
-        ``ended``)."""
-        loop = self.loop
-        early = None if loop is None else loop.ended_early
-        motion_s = None
-        if loop is not None and loop.t_motion_start is not None and loop.t_motion_end is not None:
-            motion_s = loop.t_motion_end - loop.t_motion_start
-        precision = max((relative_halfwidth(v.sigma_deg, v.sigma_ci95_deg)
-                         for v in report.axes.values()), default=math.inf)
-        period = None
-        tables = getattr(self.prep.motion, "tables", None) or {}
-        if tables and not getattr(self.prep.motion, "segments", None):
-            period = next(iter(tables.values())).period_s
-        lo, hi = report.window
-        periods = None if not period else whole_periods_in(hi - lo, float(period))
-        return ended_summary(early, precision, self.prep.meta.get("precision_requested"),
-                             motion_s, periods, period)
-
-    def _stop_loops(self) -> None:
-        if self.loop is not None:
-            self.loop.stop()
-        if self.precision is not None:  # a check still reading the recording: let it finish
-            self.precision.join()
-
-    def _stats(self) -> dict[str, Any]:
-        if self._final_stats is not None:
-            return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
-        st: dict[str, Any] = self.loop.stats() if self.loop else {}
-        if self.sensor is not None:
-            st["instrument_bad_frames"] = self.sensor.stats.bad_total
-            st["instrument_bad_by_reason"] = dict(self.sensor.stats.bad)
-        if self.writer is not None:
-            st["rows"] = dict(self.writer.counts)
-        return st
-
-    def _window(self) -> tuple[float, float]:
-        assert self.loop is not None and self.loop.t_motion_start is not None
-        p = self.plan
-        t0 = self.loop.t_motion_start
-        early = self.loop.ended_early
-        if early is not None and self.precision is not None:  # the whole periods to the stop
-            lo = t0 + p.fade_in_s
-            n = whole_periods_in(early["t_profile_s"] - p.fade_in_s, self.precision.period_s)
-            return lo, lo + n * self.precision.period_s
-        lo, hi = t0 + p.fade_in_s, t0 + p.duration_s - p.fade_out_s
-        if hi - lo < 0.5 * p.duration_s:  # mostly fades: analyse the whole motion
-            lo, hi = t0, t0 + p.duration_s
-        return lo, hi
-
-    def _evaluation(self, window: tuple[float, float], t_motion_start: float | None,
-                    **more: Any) -> EvaluationRequest:
-        """What the verdict and the precision checks evaluate over ``window``: every axis, the
-        bench config's analysis options and settling, the profile as this run plays it (its
-        motion started at ``t_motion_start``, host s); the recording is still open (no
-        integrity to check yet)."""
-        a = self.cfg.run.analysis
-        return EvaluationRequest(
-            axes=self.axes, window=window, options=EvaluationOptions.of_config(a),
-            settle_s=a.departure_settle_s,
-            profile=RunProfile.of_run(self.prep.motion, t_motion_start, self.cfg),
-            require_intact=False, source=str(self.path), **more)
-
-    def _analyse(self, window: tuple[float, float]) -> tuple[Report, dict[str, Any]]:
-        """The verdict: the recording evaluated over ``window`` (``benchctl.evaluate``: the
-        profile as this run plays it, the bench config's analysis options, the underruns and
-        rejoins left out with the settling it states), each axis judged, the report."""
-        t0 = self.loop.t_motion_start if self.loop is not None else None
-        ev = evaluate(self.path, self._evaluation(window, t0, excitation_alarm=True))
-        results: dict[str, Any] = dict(ev.results)
-        for msg in ev.alarms.values():
-            log.warning("%s", msg)
-        verdicts = {axis: axis_verdict(axis, res, self.cfg.run.limit_sigma_deg, self.rule)
-                    for axis, res in results.items()}
-        meta = {k: self.meta.get(k) for k in _REPORT_META}
-        meta["timing"] = self.cfg.timing.to_dict()  # the bench's offset, applied by rec.pair
-        measurements, warnings = self._measurements(verdicts, results)
-        report = Report(verdicts, self.path, meta, self._stats(), window,
-                        decision_rule=self.rule, measurements=measurements,
-                        deviations=self._deviations(), warnings=warnings)
-        report.ended = self._ended(report)
-        return report, results
-
-    def _deviations(self) -> list[str]:
-        """What departs from the test as specified: a profile scaled to fit the stand."""
-        out = []
-        scale = self.prep.meta.get("scale")
-        if scale is not None and scale != 1.0:
-            out.append(f"profile scaled by {scale:g} to fit the stand limits (--scale-to-fit): "
-                       "the motion is not the profile's as specified")
-        return out
-
-    def _measurements(self, verdicts: dict[str, Any],
-                      results: dict[str, Any]) -> tuple[list[Measurement], list[str]]:
-        """Every result with its limits and outcome (benchctl.results.measurements), and the
-        warnings for the record: the analyses', a serial mismatch."""
-        limits = limits_from_config(self.cfg)
-        out = precheck_measurements(self.prechecks)
-        for axis, v in verdicts.items():
-            out.extend(axis_measurements(axis, v.to_dict(full=True), limits, self.rule))
-        warnings = [*self.host_warnings]
-        warnings += [f"{axis}: {w}" for axis, r in results.items()
-                     for w in getattr(r, "warnings", [])]
-        meta = self.writer.meta if self.writer is not None else self.meta
-        dut = (meta.get("devices") or {}).get("instrument")
-        sm = serial_measurement(self.opts.serial, reported_serial(dut))
-        if self.cfg.unit.serial_check != "require":  # else its precheck says it, decisive
-            out.append(sm)
-        if sm.outcome == WARNING:
-            warnings.append(f"serial mismatch: {sm.note}")
-            log.warning("serial mismatch: %s", sm.note)
-        return out, warnings
-
-    # ---- the outputs
     def _sinks(self) -> list[Sink]:
         """The run's outputs in their order (``benchctl.run.outputs``), each handed its writer
         from here: the same list for a done run and an aborted one."""
@@ -989,120 +394,20 @@ class Session:
         warnings; without one (aborted before the analysis), the prechecks' and the host's."""
         if report is not None:
             measurements: list[Measurement] = report.measurements
-            deviations, warnings = report.deviations, report.warnings
+            departures, warnings = report.deviations, report.warnings
         else:
             measurements = precheck_measurements(self.prechecks)
-            deviations, warnings = self._deviations(), list(self.host_warnings)
+            departures, warnings = self._deviations(), list(self.host_warnings)
         return FinishedRun(
             outcome, exit_code, reason, self.path, Path(self.out_dir),
             meta=self.writer.meta if self.writer is not None else self.meta,  # + devices
             decision_rule=self.rule, clock=self.clock, measurements=measurements,
-            deviations=deviations, warnings=warnings, report=report, results=results or {},
+            deviations=departures, warnings=warnings, report=report, results=results or {},
             abort=abort, measured=measured, log=self.log_path, figures=self.cfg.run.figures,
             closed=closed,
         )
 
-    # ---- the run
-    def _recording_failed(self, e: RecordingError) -> None:
-        """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
-        self.supervisor.fault(e, "recording")
-
-    def run(self) -> RunResult:
-        """The whole run. Raises (``BenchError``) only when the recording cannot be created;
-        after that every way out — a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, the run's from
-        here on), a fault, a full disk, an exception — is a ``RunResult`` through ``_abort``."""
-        self.meta = self._base_meta()
-        self.machine.subscribe(self._on_state)
-        self.display = SafeDisplay(self.display)  # a terminal gone (SIGHUP) must not stop cleanup
-        with self.supervisor.signals(), contextlib.ExitStack() as stack:
-            try:
-                self.writer = RecordingWriter(
-                    self.path, self.axes, self.meta, on_error=self._recording_failed,
-                    clock=self.clock,
-                )
-            except OSError as e:
-                full = RecordingError.disk_full(e, self.path)
-                if full is not None:  # nothing opened, nothing moved
-                    raise full from None
-                raise ConfigError(
-                    f"{self.path}: cannot create the recording folder: {e.strerror}"
-                ) from None
-            self.meta = self.writer.meta
-            # unwound after the cleanup: the simulators stop after the stand is at rest
-            self.log_path = stack.enter_context(run_log(self.path))
-            self.display.message(f"recording to {self.path}")
-            try:
-                if self.start_simulators:
-                    self.cfg = stack.enter_context(simulators(
-                        self.cfg, self.path / SIM_LOG, self.clock, self._disturbed,
-                        horizon_s=self.plan.duration_s + 600.0,
-                    ))
-                    self.writer.update_meta(config=redact(self.cfg.model_dump(mode="json")))
-                self.supervisor.check()  # a signal while the recording was being created
-                self._prechecks()
-                if self.prep.pretest is not None:
-                    self._equalise()
-                self._motion()
-                # normal end: the stand is at rest; the same cleanup path, nothing to ramp
-                rep = shutdown(
-                    stop_loops=self._stop_loops,
-                    stand=self.stand,
-                    sensor=self.sensor,
-                    writer=None,
-                    state="done",
-                    reason="",
-                    moved=False,
-                )
-                self._final_stats = self._stats()
-                # shown and recorded again should the run abort after this (a full disk)
-                self._end_steps = [{**st, "when": "motion end"} for st in rep.steps]
-                self._end_final = rep.final_state
-                self.stand = self.sensor = None  # closed: an abort from here has nothing to move
-                self.moved = False
-                for step in rep.steps:
-                    if not step["ok"]:
-                        raise SafetyAbort(f"cleanup step {step['step']} failed: {step['detail']}")
-                self.supervisor.check()
-                self.machine.advance_to(RunState.ANALYSING)
-                window = self._window()
-                report, results = self._analyse(window)
-                self.report = report  # measured: kept (printed, end.json) should an abort follow
-                self.supervisor.check()  # a signal during the analysis still ends the run
-                # the outputs that make the run done (a full disk: raised, the run's abort)
-                run = self._finished(report.verdict, report.exit_code, report.verdict,
-                                     report=report, results=results)
-                files = emit(self._sinks(), run)
-                self.writer.event("verdict", **report.to_dict(full=False))
-                self.machine.to(RunState.DONE)
-                self.writer.close(
-                    "done",
-                    report.verdict,
-                    analysis_window=list(window),
-                    stats=report.stats,
-                    report=[f.name for f in files if f.parent == self.path],
-                )
-                # the data files are final now: the record and the report again, with their
-                # SHA-256 (the record above stands should this one not be written), the
-                # verdict shown, the archive
-                again = emit(self._sinks(), replace(run, closed=True))
-                return RunResult(
-                    "done",
-                    report.verdict,
-                    report.exit_code,
-                    self.path,
-                    report,
-                    report.stats,
-                    log=self.log_path,
-                    record=record_in(again) or record_in(files),
-                )
-            except BaseException as e:  # every way out, the same path
-                if not isinstance(e, SafetyAbort) or not self.supervisor.faulted:
-                    self.supervisor.fault(RecordingError.disk_full(e, self.path) or e,
-                                          _source(e))
-                return self._abort()
-            finally:
-                self.display.close()
-
+    # ---- the abort path
     def _abort(self) -> RunResult:
         """The one cleanup path after the first fault; never raises (each step is guarded)."""
         f = self.supervisor.first
@@ -1125,7 +430,7 @@ class Session:
         self.display.message(f"ABORTED: {reason}")
         self.display.message("bringing the stand to rest and closing the recording")
         try:
-            stats = self._stats()
+            stats = self.stats()
         except Exception as e:
             log.warning("run statistics not available: %s", describe(e), exc_info=e)
             stats = {}
@@ -1134,7 +439,7 @@ class Session:
             extra["later_faults"] = [g.reason for g in self.supervisor.later]
         if self._end_steps:  # the stand was brought to rest at the motion's end
             extra["motion_end_shutdown"] = self._end_steps
-        measured = _measured(self.report)
+        measured = measured_verdict(self.report)
         if measured is not None:
             extra["measured"] = measured
             abort["measured_verdict"] = measured["verdict"]
@@ -1173,107 +478,57 @@ class Session:
             log=self.log_path, abort=abort, record=record, measured=measured,
         )
 
+    # ---- what the phases share
+    def _on_state(self, old: RunState, new: RunState, t: float, reason: str) -> None:
+        if self.writer is not None:
+            # a write failure is already a fault of the run (the writer's on_error): the state
+            # still moves
+            with contextlib.suppress(RecordingError):
+                self.writer.event(
+                    "state", t_state=t, **{"from": str(old), "to": str(new)}, reason=reason
+                )
+        self.display.state(str(new), reason)
 
-_REPORT_META = (
-    "serial",
-    "operator",
-    "station",
-    "profile_name",
-    "profile_path",
-    "seed",
-    "duration_s",
-    "mode",
-    "start_utc",
-    "software_version",
-    "limit_sigma_deg",
-    "scale",
-    "equalisation",
-)
+    def precheck(self, result: pc.CheckResult, shown: str | None = None) -> None:
+        """Record and show a precheck (``shown``: its own line instead of the usual one)."""
+        assert self.writer is not None
+        self.prechecks.append(result.to_dict())
+        self.writer.event("precheck", **result.to_dict())
+        self.display.message(
+            shown or f"precheck {result.name}: {'ok' if result.ok else 'FAILED'} — {result.detail}"
+        )
+        pc.require(result)
+        self.supervisor.check()
 
+    def wait(self, seconds: float) -> None:
+        """Wait on the main thread, leaving at once on a fault."""
+        if self.supervisor.stop_event.wait(seconds):
+            self.supervisor.check()
 
-def stand_after(final: dict[str, Any] | None, *, zero_tolerance_deg: float,
-                config: Path | str | None, known: bool = True) -> dict[str, Any]:
-    """Where an abort left the stand (``record.json``'s ``abort.stand``), from the cleanup's
-    ``ShutdownReport.final_state`` (None: the stand did not answer): each axis's angle and
-    rate, the fault code and its text, the E-stop, the servo, at rest (every |rate| ≤
-    ``REST_RATE_DEG_S``), at zero; and, when it is
-    not at rest at zero, the commands that bring it there (``benchctl stand reset`` when
-    faulted, then ``benchctl stand home``, with the run's config). ``known`` False: no stand was
-    connected (nothing moved)."""
-    cfg = shlex.quote(str(config)) if config else "CFG"
-    out: dict[str, Any] = {
-        "known": final is not None, "axes": {}, "enabled": None, "fault_code": None,
-        "fault_text": None, "estop": None, "at_rest": None, "at_zero": None, "commands": [],
-    }
-    if final is None:
-        if known:
-            out["commands"] = [f"benchctl stand status --config {cfg}"]
-            out["text"] = ("unknown: the stand did not answer; see "
-                           f"`benchctl stand status --config {cfg}`")
-        else:
-            out["text"] = "the stand was not connected: it has not moved"
-        return out
-    angles = {a: float(v) for a, v in (final.get("angle_deg") or {}).items()}
-    rates = {a: float(v) for a, v in (final.get("rate_deg_s") or {}).items()}
-    code = int(final.get("fault_code") or 0)
-    estop = bool(final.get("estop"))
-    # at rest as the next run's precheck has it by rate (|rate| ≤ REST_RATE_DEG_S); the status
-    # bit ``moving`` is not used: read just after the servo went off it may still show a
-    # settling stand (a few hundredths of °/s) as moving
-    at_rest = bool(all(abs(v) <= pc.REST_RATE_DEG_S for v in rates.values()))
-    at_zero = bool(at_rest and all(abs(v) <= zero_tolerance_deg for v in angles.values()))
-    commands = []
-    if code or estop:
-        commands.append(f"benchctl stand reset --config {cfg}")
-    if not at_zero:
-        commands.append(f"benchctl stand home --config {cfg}")
-    out.update(
-        axes={a: {"angle_deg": angles[a], "rate_deg_s": rates.get(a, 0.0)} for a in angles},
-        enabled=bool(final.get("enabled")), fault_code=code,
-        fault_text=str(final.get("fault_text") or "") if code else "", estop=estop,
-        at_rest=at_rest, at_zero=at_zero, commands=commands,
-    )
-    where = ", ".join(f"{a} {v:+.3f}°" for a, v in angles.items())
-    flags = ["at rest" if at_rest else "MOVING",
-             "servo on" if out["enabled"] else "servo off"]
-    if code:
-        flags.append(f"fault {code}" + (f" ({out['fault_text']})" if out["fault_text"] else ""))
-    if estop:
-        flags.append("E-stop pressed")
-    out["text"] = f"{where}; {', '.join(flags)}" + ("" if at_zero else "; NOT at zero")
-    return out
+    def _recording_failed(self, e: RecordingError) -> None:
+        """The writer's first failure (disk full…), from whichever thread wrote: a fault."""
+        self.supervisor.fault(e, "recording")
 
+    def _stop_loops(self) -> None:
+        if self.loop is not None:
+            self.loop.stop()
+        if self.precision is not None:  # a check still reading the recording: let it finish
+            self.precision.join()
 
-def _measured(report: Report | None) -> dict[str, Any] | None:
-    """An aborted run's verdict measured before the abort (end.json's ``measured``)."""
-    if report is None:
-        return None
-    return {
-        "verdict": report.verdict,
-        "axes": {a: {"sigma": v.sigma_deg, "sigma_ci95": list(v.sigma_ci95_deg),
-                     "limit": v.limit_deg, "verdict": v.outcome}
-                 for a, v in report.axes.items()},
-        "note": "measured before the run was aborted; its report, record or archive could not "
-                "all be written",
-    }
+    def stats(self) -> dict[str, Any]:
+        if self._final_stats is not None:
+            return dict(self._final_stats, rows=dict(self.writer.counts) if self.writer else {})
+        st: dict[str, Any] = self.loop.stats() if self.loop else {}
+        if self.sensor is not None:
+            st["instrument_bad_frames"] = self.sensor.stats.bad_total
+            st["instrument_bad_by_reason"] = dict(self.sensor.stats.bad)
+        if self.writer is not None:
+            st["rows"] = dict(self.writer.counts)
+        return st
 
-
-def _id_text(d: dict[str, Any]) -> str:
-    return " ".join(
-        str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
-    )
-
-
-def _source(e: BaseException) -> str:
-    if isinstance(e, KeyboardInterrupt):
-        return "signal"
-    if isinstance(e, RecordingError) or is_disk_full(e):
-        return "recording"
-    if isinstance(e, AnalysisError | DataError):
-        return "analysis"
-    if isinstance(e, BenchError):
-        return "run"
-    return "run (exception)"
+    def _deviations(self) -> list[str]:
+        """What departs from the test as specified (``benchctl.run.meta.deviations``)."""
+        return deviations(self.prep.meta)
 
 
 def run_test(

@@ -23,7 +23,14 @@ from typing import Any
 
 from benchctl.clock import REAL, Clock, ThreadLike
 from benchctl.devices.base import AngleSensor, Stand
-from benchctl.errors import BenchError, RecordingError, SafetyAbort
+from benchctl.errors import (
+    AnalysisError,
+    BenchError,
+    DataError,
+    RecordingError,
+    SafetyAbort,
+    is_disk_full,
+)
 from benchctl.exits import EXIT_SIGNALS, ignored
 from benchctl.recording import RecordingWriter
 
@@ -249,3 +256,16 @@ def shutdown(
         if dev is not None:
             _try(rep, f"close {name}", dev.close)
     return rep
+
+
+def fault_source(e: BaseException) -> str:
+    """The source a fault raised on the run's main thread is reported with."""
+    if isinstance(e, KeyboardInterrupt):
+        return "signal"
+    if isinstance(e, RecordingError) or is_disk_full(e):
+        return "recording"
+    if isinstance(e, AnalysisError | DataError):
+        return "analysis"
+    if isinstance(e, BenchError):
+        return "run"
+    return "run (exception)"

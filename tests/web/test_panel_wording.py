@@ -20,7 +20,7 @@ from panel import SHORT_PROFILE, child_env
 from repo_paths import ROOT
 
 from benchctl.run import fitness
-from benchctl.run.session import stand_after
+from benchctl.run.result import stand_after
 from benchctl.text import SERIAL_MAX
 from benchctl.web.panelrun import Run, outcome
 from benchctl.web.wording import Words

@@ -6,7 +6,8 @@ from run_fakes import FakeSensor, FakeStand
 
 from benchctl.devices.base import StandSample
 from benchctl.errors import StandFault
-from benchctl.run.session import stand_after, stand_lines
+from benchctl.run.outputs import stand_lines
+from benchctl.run.result import stand_after
 from benchctl.run.supervisor import shutdown
 
 
