@@ -118,7 +118,8 @@ from benchctl.run.realtime import PrioritySetter
 from benchctl.run.recorder import Recorder
 from benchctl.run.report import Report, archive, archive_abort, write_report
 from benchctl.run.result import RunResult, measured_verdict, stand_after
-from benchctl.run.stand_loop import SerializedStand, StandLoop, start_instrument
+from benchctl.run.serialized_stand import SerializedStand
+from benchctl.run.stand_loop import StandLoop, start_instrument
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor, describe, fault_source, shutdown
 from benchctl.text import check_serial

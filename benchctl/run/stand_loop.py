@@ -61,9 +61,6 @@ from benchctl.run.plan import MotionPlan
 from benchctl.run.point_source import PointSource
 from benchctl.run.realtime import PrioritySetter, RealtimeResult, request_realtime
 from benchctl.run.recorder import Recorder
-
-# re-exported (the redundant alias): the run's session imports it from here
-from benchctl.run.serialized_stand import SerializedStand as SerializedStand
 from benchctl.run.state import RunState, StateMachine
 from benchctl.run.supervisor import Supervisor
 

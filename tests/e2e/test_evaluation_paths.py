@@ -1,5 +1,5 @@
 """One evaluation path (``benchctl.evaluate``): the five ways a recording becomes σ give the
-same σ for the same recording and window — the run's verdict (``Session._analyse``), the
+same σ for the same recording and window — the run's verdict (``run.evaluation.analyse``), the
 running precision check (``run.precision.check_window``, here over the verdict's window),
 ``analyze_recording``, ``benchctl analyze`` and ``benchctl predict``'s measured σ. One short
 run of a repeating roll profile (T_p = 12 s, two whole periods) on simulated time."""

@@ -65,3 +65,24 @@ def test_the_check_sees_such_imports() -> None:
     assert imported("from test_predict import NOISE\n") == {"test_predict"}
     assert imported("def f():\n    import stand_rig.x as y\n") == {"stand_rig"}
     assert imported("from . import sibling\n") == set()
+
+
+LONG = 650  # "about 600 lines": a module over this says why it stays whole
+ABOUT = re.compile(r"about ([0-9 ]+) lines")
+
+
+def test_a_long_module_says_why_it_stays_whole() -> None:
+    """Each Python file over ``LONG`` lines states in its docstring why it is one file, with
+    its size (``about N lines``, N within 20 % of the count, so the reason is kept current)."""
+    missing = []
+    for d in ("benchctl", "tests", "benchmarks", "docs"):
+        for p in sorted((ROOT / d).rglob("*.py")):
+            text = p.read_text()
+            n = text.count("\n")
+            if n <= LONG:
+                continue
+            doc = ast.get_docstring(ast.parse(text)) or ""
+            m = ABOUT.search(doc)
+            if m is None or abs(int(m.group(1).replace(" ", "")) - n) > 0.2 * n:
+                missing.append(f"{p.relative_to(ROOT)}: {n} lines")
+    assert missing == []
