@@ -84,7 +84,10 @@ def _chromium_roots() -> set[int]:
 
     found = set()
     for p in psutil.Process().children(recursive=True):
-        parent = p.parent()
+        try:
+            parent = p.parent()
+        except psutil.Error:  # ended since it was listed (another test's short-lived child)
+            continue
         if chromium(p) and (parent is None or not chromium(parent)):
             found.add(p.pid)
     return found
