@@ -40,7 +40,7 @@ def plain(obj: Any) -> Any:
         if isinstance(obj, np.generic):
             return plain(obj.item())
         if isinstance(obj, np.ndarray):
-            return [plain(v) for v in obj.tolist()]
+            return _array(np, obj)
     if isinstance(obj, Mapping):
         return {_key(k): plain(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple | set | frozenset):
@@ -55,6 +55,19 @@ def plain(obj: Any) -> Any:
     if isinstance(obj, PurePath):
         return str(obj)
     return str(obj)
+
+
+def _array(np: Any, a: Any) -> list[Any]:
+    """A numpy array as a list, as :func:`plain` makes each element: a flat numeric array in
+    one step (``tolist`` gives Python numbers; its non-finite floats then ``None``), any other
+    element by element."""
+    if a.ndim == 1 and a.dtype.kind in "biuf":
+        out: list[Any] = a.tolist()
+        if a.dtype.kind == "f":
+            for i in np.flatnonzero(~np.isfinite(a)).tolist():
+                out[i] = None
+        return out
+    return [plain(v) for v in a.tolist()]
 
 
 def _key(k: Any) -> str:

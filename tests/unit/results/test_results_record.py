@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from live_bench import ROOT
 from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
@@ -235,6 +235,23 @@ def test_strict_json_nan_to_null_and_numpy() -> None:
     with pytest.raises(ValueError, match="NaN"):
         loads_strict('{"x": NaN}')
     assert plain({"k": float("nan")}) == {"k": None}
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=50),
+       st.sampled_from(["float64", "float32", "int64", "uint8", "bool"]))
+def test_an_array_is_plain_as_its_elements_are(values: list[float], dtype: str) -> None:
+    """A flat numeric array made plain in one step is what its elements made plain one by
+    one are (the fast path of ``plain``: Python numbers, non-finite floats None)."""
+    src = np.array(values, dtype=float)
+    if dtype != "float64" and dtype != "float32":
+        src = np.nan_to_num(src, nan=0.0, posinf=1.0, neginf=-1.0)
+        src = np.clip(src, 0, 1) if dtype in ("uint8", "bool") else np.clip(src, -1e9, 1e9)
+    with np.errstate(over="ignore", invalid="ignore"):
+        a = src.astype(dtype)
+    by_element = [plain(v) for v in a.tolist()]
+    assert plain(a) == by_element
+    assert dumps(a) == dumps(by_element)
 
 
 def test_no_bare_json_dump_in_the_package() -> None:
