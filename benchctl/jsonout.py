@@ -45,6 +45,8 @@ def plain(obj: Any) -> Any:
         return {_key(k): plain(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple | set | frozenset):
         items = sorted(obj, key=repr) if isinstance(obj, set | frozenset) else obj
+        if all(type(v) is float for v in items):  # a series: no call per value
+            return [v if v - v == 0.0 else None for v in items]  # v − v: NaN unless finite
         return [plain(v) for v in items]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return plain(dataclasses.asdict(obj))

@@ -252,6 +252,8 @@ def test_an_array_is_plain_as_its_elements_are(values: list[float], dtype: str) 
     by_element = [plain(v) for v in a.tolist()]
     assert plain(a) == by_element
     assert dumps(a) == dumps(by_element)
+    # and a list of Python floats, the same way (a list of floats is made plain in one step)
+    assert plain(values) == [v if math.isfinite(v) else None for v in values]
 
 
 def test_no_bare_json_dump_in_the_package() -> None:
