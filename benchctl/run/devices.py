@@ -125,7 +125,7 @@ def recording_dir(out_dir: Path, serial: str, prefix: str = "", *, clock: Clock 
     return p
 
 
-def _identity(d: DeviceIdentity) -> dict[str, Any]:
+def identity_of(d: DeviceIdentity) -> dict[str, Any]:
     """A device's identity for the metadata: what it reports, never refused, each string cut
     to ``benchctl.text.DEVICE_TEXT_MAX`` (shown safe wherever it is printed)."""
     return {
@@ -139,7 +139,7 @@ def _identity(d: DeviceIdentity) -> dict[str, Any]:
 
 
 def identity_text(d: dict[str, Any]) -> str:
-    """A device's identity (``_identity``) on one line, as its precheck shows it."""
+    """A device's identity (``identity_of``) on one line, as its precheck shows it."""
     return " ".join(
         str(d[k]) for k in ("vendor", "model", "serial", "firmware", "protocol") if d.get(k)
     )

@@ -82,9 +82,9 @@ from benchctl.run.device_checks import host_check, rate_and_zero, realtime
 from benchctl.run.devices import (
     SIM_LOG,
     DeviceFactory,
-    _identity,
     announce_disturbances,
     close_at_exit,
+    identity_of,
     identity_text,
     open_devices,
     recording_dir,
@@ -277,11 +277,11 @@ class Session:
         rec.attach(stand_raw)
         stand = SerializedStand(stand_raw, clock=self.clock).as_stand()
         self.stand = stand
-        ids = {"stand": _identity(stand.connect())}
+        ids = {"stand": identity_of(stand.connect())}
         self.precheck(
             pc.CheckResult("stand answers", True, identity_text(ids["stand"]), ids["stand"])
         )
-        ids["instrument"] = _identity(self.sensor.connect())
+        ids["instrument"] = identity_of(self.sensor.connect())
         self.precheck(
             pc.CheckResult(
                 "instrument answers", True, identity_text(ids["instrument"]), ids["instrument"]
