@@ -56,13 +56,10 @@ from benchctl.analysis.fidelitylimits import (
     FidelityLimits,
     StandReach,
     bands_of,
-    limits_of,  # noqa: F401 - imported from here by the run (benchctl.run.session)
-    reach_of,  # noqa: F401 - likewise
 )
 from benchctl.analysis.linefit import fit_lines
 from benchctl.analysis.linenoise import line_noise
 from benchctl.analysis.lines import LinesError
-from benchctl.analysis.runningfidelity import RunningFidelity  # noqa: F401 - imported from here by the run
 from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]

@@ -10,7 +10,7 @@ import logging
 import numpy as np
 
 from benchctl.analysis.equalise import corrected_table, estimate_response, response_at
-from benchctl.analysis.excitation import reach_of
+from benchctl.analysis.fidelitylimits import reach_of
 from benchctl.errors import DataError, LimitError
 from benchctl.profiles import check_motion
 from benchctl.recording import load_recording

@@ -13,7 +13,8 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from benchctl.analysis.excitation import RunningFidelity, limits_of, reach_of
+from benchctl.analysis.fidelitylimits import limits_of, reach_of
+from benchctl.analysis.runningfidelity import RunningFidelity
 from benchctl.config import BenchConfig
 from benchctl.errors import RecordingError, SafetyAbort
 from benchctl.run.context import RunContext
