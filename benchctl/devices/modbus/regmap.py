@@ -24,7 +24,7 @@ from typing import Any, Literal
 from benchctl.errors import LimitError
 
 FieldType = Literal["uint16", "int16", "uint32", "int32", "float32", "string"]
-_TYPES: dict[str, int] = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
+WORDS_OF_TYPE: dict[str, int] = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
 _INT_RANGE: dict[str, tuple[int, int]] = {
     "uint16": (0, 0xFFFF),
     "int16": (-0x8000, 0x7FFF),
@@ -66,7 +66,7 @@ class Field:
 
     @functools.cached_property
     def n_registers(self) -> int:
-        return (self.length + 1) // 2 if self.type == "string" else _TYPES[self.type]
+        return (self.length + 1) // 2 if self.type == "string" else WORDS_OF_TYPE[self.type]
 
     def shifted(self, base: int, name: str) -> Field:
         """The same field at ``base`` + its address (table layouts hold offsets)."""

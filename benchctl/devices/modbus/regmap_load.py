@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from benchctl.devices.modbus.regmap import (
-    _TYPES,
+    WORDS_OF_TYPE,
     AxisMap,
     Field,
     RegisterMap,
@@ -66,8 +66,8 @@ class _Loader:
                 raise self.fail(f"{where}.{k}", data[k], f"one of the keys {sorted(known)}")
         address = self.integer(data, offset_key, where, 0, 0xFFFF)
         ftype = data.get("type")
-        if ftype not in (*_TYPES, "string"):
-            raise self.fail(f"{where}.type", ftype, f"one of {[*_TYPES, 'string']}")
+        if ftype not in (*WORDS_OF_TYPE, "string"):
+            raise self.fail(f"{where}.type", ftype, f"one of {[*WORDS_OF_TYPE, 'string']}")
         length = 0
         if ftype == "string":
             length = self.integer(data, "length", where, 1, 250)

@@ -17,7 +17,7 @@ from benchctl.clock import REAL, Clock
 from benchctl.devices.base import StandLimitsView, StandSample
 from benchctl.devices.modbus.link import ModbusLink
 from benchctl.devices.modbus.regmap import RegisterMap, pdu_address
-from benchctl.devices.modbus.stand_io import StandIO, _chunks
+from benchctl.devices.modbus.stand_io import StandIO, register_runs
 from benchctl.errors import DeviceTimeout, LimitError
 from benchctl.kinematics import HELD_AFTER_PERIODS, AxisCommand, Limits, check_step
 
@@ -133,7 +133,7 @@ class SetpointStand(StandIO):
         """
         with self._lock:
             words, new, now = self._prepare_setpoint(angle_deg)
-            runs = _chunks(words, self.map.max_write)
+            runs = register_runs(words, self.map.max_write)
             if not (self.map.read_write_multiple and len(runs) == 1):
                 t_send = self._clock()
                 self._write_words(words)

@@ -31,7 +31,7 @@ from benchctl.devices.modbus.link import ModbusLink, rtu_link, tcp_link
 from benchctl.devices.modbus.regmap import Field, RegisterMap, pdu_address, span
 from benchctl.devices.modbus.regmap_load import load_register_map
 from benchctl.devices.modbus.setpoints import SetpointStand
-from benchctl.devices.modbus.stand_io import _chunks
+from benchctl.devices.modbus.stand_io import register_runs
 from benchctl.devices.modbus.table_limits import check_table
 from benchctl.errors import DeviceError, LimitError, ProtocolError
 from benchctl.harmonics import HarmonicTable
@@ -110,7 +110,7 @@ class ModbusStand(SetpointStand):
         for a in self.axes:
             words.update(self._table_words(a, tables.get(a)))
         self._write_words(words)
-        for addr, count in _chunks(words, self.map.max_read):
+        for addr, count in register_runs(words, self.map.max_read):
             got = self._read(addr, count)
             want = [words[addr + i] for i in range(count)]
             if got != want:
@@ -419,7 +419,7 @@ class ModbusStand(SetpointStand):
                     w0, w1 = m.encode(point, x)
                     words[addr], words[addr + 1] = w0, w1
                     addr += 2
-            runs = _chunks(words, self.map.max_write)
+            runs = register_runs(words, self.map.max_write)
             if read and self.map.read_write_multiple and len(runs) == 1:
                 t0 = self._clock()
                 regs = self.link.read_write_registers(

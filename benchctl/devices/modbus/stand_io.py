@@ -229,7 +229,7 @@ class StandIO:
 
     def _write_words(self, words: Mapping[int, int]) -> None:
         """Write registers (address → word) in as few requests as the map allows (FC6 for one)."""
-        for addr, count in _chunks(words, self.map.max_write):
+        for addr, count in register_runs(words, self.map.max_write):
             vals = [words[addr + i] for i in range(count)]
             if count == 1:
                 self.link.write_register(pdu_address(addr), vals[0])
@@ -239,7 +239,7 @@ class StandIO:
     def _read(self, addr: int, count: int) -> list[int]:
         chunks = self._read_chunks.get((addr, count))
         if chunks is None:  # the same few spans every cycle: worked out once
-            chunks = _chunks({addr + i: 0 for i in range(count)}, self.map.max_read)
+            chunks = register_runs({addr + i: 0 for i in range(count)}, self.map.max_read)
             self._read_chunks[(addr, count)] = chunks
         out: list[int] = []
         for a, c in chunks:
@@ -247,7 +247,7 @@ class StandIO:
         return out
 
 
-def _chunks(words: Mapping[int, int], max_count: int) -> list[tuple[int, int]]:
+def register_runs(words: Mapping[int, int], max_count: int) -> list[tuple[int, int]]:
     """(address, count) runs of consecutive addresses, each at most ``max_count`` long."""
     out: list[tuple[int, int]] = []
     for a in sorted(words):
