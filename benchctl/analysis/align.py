@@ -271,7 +271,7 @@ def _bridgeable(
     sample inside); bridged when the rms of its misses there is below ``BRIDGE_TOL`` of the
     reference's rms (a host stall leaves such gaps in a slow motion polled fast), with that
     rms as its error."""
-    from scipy.interpolate import make_interp_spline  # about 2 s to import: a spline only
+    from scipy.interpolate import make_interp_spline  # about 0.5 s to import: a spline only
 
     out = np.full(len(d), np.nan)
     tol = BRIDGE_TOL * float(np.std(x))
@@ -476,7 +476,7 @@ def _stamp_test(al: Aligned, ref: _Stream, dev: _Stream, on_stamps: tuple[bool, 
                 ) -> tuple[StampShare, StampShare]:
     """``β`` of the device's and the reference's scatter, from the record laid on their stamps
     (``timing.stamp_shares``); a stream not on its stamps (``on_stamps``) is not tested."""
-    from scipy.interpolate import make_interp_spline  # about 2 s to import: a spline only
+    from scipy.interpolate import make_interp_spline  # about 0.5 s to import: a spline only
 
     m = al.mask
     ts = al.t[m]

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import stdtrit
 
 from benchctl.analysis.align import align
 from benchctl.analysis.linefit import fit_lines, grid_offsets, refine_period
@@ -135,9 +136,6 @@ def cross_axis_response(
     cs = c * s
     sd = math.sqrt(float(np.sum(cs))) / info
     dof = float(np.sum(cs)) ** 2 / max(float(np.sum(cs**2 / noise.dof)), 1e-300)
-    # scipy.special: about 0.6 s to import, needed only for a cross-axis interval
-    from scipy.special import stdtrit
-
     t = float(stdtrit(dof, 0.975))
     gain = np.abs(r / cxb[idx_oth])
     phase = np.degrees(np.angle(r / cxb[idx_oth]))

@@ -20,7 +20,7 @@ def plot_result(result: AnalysisResult, dest: str | Path, *, serial: str | None 
     gain table's periods are marked (dotted, in the legend); with ``limit_deg`` the PSD panel
     shows σ accumulated over frequency against the limit; ``serial`` and ``date`` go into the
     figure's title."""
-    # matplotlib: about 0.9 s to import, needed only when a figure is drawn
+    # matplotlib: about 0.5 s to import, needed only when a figure is drawn
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(8, 11))

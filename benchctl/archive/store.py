@@ -297,7 +297,7 @@ class Archive:
             os.close(fd)  # releases the lock
 
     def _upgrade(self, conn: Connection) -> None:
-        # Alembic: about 0.5 s to import, needed only when the schema is behind
+        # Alembic: about 0.25 s to import, needed only when the schema is behind
         from alembic import command
         from alembic.config import Config
 

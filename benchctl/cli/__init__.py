@@ -3,8 +3,8 @@
 Each subcommand lives in its own module here with a ``register(subparsers)`` function that
 adds its parser and sets ``handler`` (a function taking the parsed args and returning the exit
 code). Heavy imports happen inside handlers so ``benchctl --help`` stays fast: the parser
-alone takes about 0.45 s; the run, archive, report and plan layers with SciPy, Matplotlib,
-Alembic and jsonschema imported up front take about 8 s on a loaded 2-core machine (measured
+alone takes about 0.15 s; the run, archive, report and plan layers with SciPy, Matplotlib,
+Alembic and jsonschema imported up front take about 3.5 s on an idle 2-core machine (measured
 with ``/usr/bin/time``), paid by every subcommand, ``--help`` and shell completion included.
 
 Exit codes (``benchctl.outcomes.ExitCode``): 0 pass/success, 1 a measured FAIL (only that),

@@ -69,7 +69,7 @@ def estimate_psd(
     segment_s : float
         Welch segment length, s; the frequency resolution is ``1/segment_s`` Hz.
     """
-    from scipy import signal  # scipy.signal: about 2.7 s to import, for a recorded profile only
+    from scipy import signal  # scipy.signal: about 1 s to import, for a recorded profile only
 
     t = np.asarray(t_s, dtype=float)
     x = np.asarray(angle_deg, dtype=float)

@@ -448,7 +448,7 @@ class Recording:
 
     def export_mat(self, dest: str | Path) -> Path:
         """All streams and metadata into one MATLAB .mat file (struct per stream)."""
-        from scipy.io import savemat  # scipy.io: about 0.4 s to import, for a .mat export only
+        from scipy.io import savemat  # scipy.io: about 0.2 s to import, for a .mat export only
 
         d = Path(dest)
         payload: dict[str, Any] = {name: dict(cols) for name, cols in self.streams.items()}

@@ -45,7 +45,7 @@ GAP_IN, SHARED_GAP_IN = 0.46, 0.14
 
 def _figure(width_in: float, height_in: float, rows: int = 1,
             gap_in: float = GAP_IN) -> tuple[Figure, list[Axes]]:
-    # matplotlib: about 0.9 s to import, needed only when a figure is drawn
+    # matplotlib: about 0.5 s to import, needed only when a figure is drawn
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(width_in, height_in))
