@@ -10,7 +10,13 @@ through a known instrument, ``analysis_synthetic``; the truth is the error proce
   the local polynomial method) for the kinds that depend on the noise at the lines:
   ``white`` 0.1° beside a gain error of 0.05°; ``in_band`` noise at 0.25 ± 0.05 Hz, inside
   the motion's band; ``drift``, a corner at 0.005 Hz holding 54 % of the noise's variance;
-  ``linear``, 99.9 % linear (a 50 ms lag and 0.03° of white noise).
+  ``linear``, 99.9 % linear (a 50 ms lag and 0.03° of white noise);
+- non-stationary, 900 s in 9 periods of 100 s: ``walk``, a random walk of 0.1° over the
+  record beside white noise 0.1° and a gain error; ``modulated``, a gain
+  ``0.99·(1 + 0.01 sin(2π·0.003 t + φ))`` with φ random (the test does not start at the
+  modulation's zero) and 0.03° of white noise. Their truth is σ of the process (the README),
+  and the script also prints how often the record was flagged non-stationary and the ratio
+  of the interval's mean half-width to 1.96 × the spread of σ̂ over the records.
 
 Each coverage is binomial: over R records its standard deviation is √(0.95·0.05/R) — 0.0069
 at R = 1000, 0.0126 at R = 300. ``tests/unit/analysis/test_analysis_uncertainty.py`` runs
@@ -115,6 +121,72 @@ KINDS = {
     # 99.9 % linear: a 50 ms lag (0.91°) and 0.03° white noise
     "linear": (first_order(0.05), lambda rng, r: rng.normal(0, 0.03, (r, N4)), 0.03**2),
 }
+# -- non-stationary kinds: 900 s at 4 Hz in 9 periods of 100 s ---------------------------------
+# The truth is σ of the process: the root mean square about the record's mean that tests of
+# this length give on average (README, "σ of the process").
+WALK_AT_T = 0.1  # a random walk's standard deviation after the whole record, deg
+
+
+def _walk(rng: np.random.Generator, reps: int) -> NDArray[np.float64]:
+    """A random walk from 0 (steps of equal variance), beside white noise 0.1°."""
+    steps = rng.normal(0.0, WALK_AT_T / np.sqrt(N4), (reps, N4))
+    return np.cumsum(steps, axis=1) + rng.normal(0.0, 0.1, (reps, N4))
+
+
+#: a random walk of variance q² over the record, mean removed, has E = q²/6·(1 − 1/N²)
+WALK_VARIANCE = WALK_AT_T**2 / 6.0 * (1.0 - 1.0 / N4**2) + 0.1**2 * (1.0 - 1.0 / N4)
+MOD_DEPTH, MOD_HZ, MOD_GAIN, MOD_NOISE = 0.01, 0.003, 0.99, 0.03
+
+
+def modulated_error(x: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.float64]:
+    """ε of a gain ``0.99·(1 + 0.01 sin(2π·0.003 t + φ))``, φ uniform (the modulation is
+    not locked to the test's start), and white noise 0.03°."""
+    phase = rng.uniform(0.0, 2.0 * np.pi)
+    g = MOD_GAIN * (1.0 + MOD_DEPTH * np.sin(2.0 * np.pi * MOD_HZ * T4 + phase))
+    return (g - 1.0) * x + rng.normal(0.0, MOD_NOISE, N4)
+
+
+def modulated_variance(x: NDArray[np.float64]) -> float:
+    """E over φ of the record's mean square about its mean (x of zero mean over whole
+    periods): ``mean(x²·E(g − 1)²) − E(mean((g − 1)x))²`` with the second term 0 to 1e-6
+    relative, from an 720-point quadrature over φ."""
+    phases = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
+    total = 0.0
+    for ph in phases:
+        e = (MOD_GAIN * (1.0 + MOD_DEPTH * np.sin(2.0 * np.pi * MOD_HZ * T4 + ph)) - 1.0) * x
+        total += float(np.var(e))
+    return total / len(phases) + MOD_NOISE**2 * (1.0 - 1.0 / N4)
+
+
+def nonstationary_coverage(kind: str, records: int) -> tuple[float, float, float, float]:
+    """(coverage, flagged share, mean σ̂/σ, width ratio) over ``records`` records of a random
+    walk (``walk``) or a modulated gain (``modulated``): the width ratio is the mean
+    half-width of σ's interval over 1.96 × the spread (standard deviation) of σ̂."""
+    ms = Multisine(period_s=100.0, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
+    x = ms.reference(T4)
+    rng = np.random.default_rng(31 + len(kind))
+    if kind == "walk":
+        y0 = ms.through(gain(0.99), T4)
+        truth = np.sqrt(ms.error_variance(gain(0.99)) + WALK_VARIANCE)
+        errs = _walk(rng, records)
+    else:
+        y0 = x
+        truth = np.sqrt(modulated_variance(x))
+        errs = np.stack([modulated_error(x, rng) for _ in range(records)])
+    hits = flagged = 0
+    sig = np.empty(records)
+    half = np.empty(records)
+    for i in range(records):
+        r = analyze(T4, x, T4, y0 + errs[i])
+        lo, hi = r.sigma_ci95
+        hits += lo <= truth <= hi
+        st = r.uncertainty["stationarity"]
+        flagged += st is not None and not st["stationary"]
+        sig[i], half[i] = r.sigma, (hi - lo) / 2.0
+    return (hits / records, flagged / records, float(sig.mean() / truth),
+            float(half.mean() / (1.959964 * sig.std(ddof=1))))
+
+
 #: the kinds that depend on the noise at the lines: checked on one-period records too
 ONE_PERIOD_KINDS = ("in_band", "linear")
 
@@ -153,6 +225,12 @@ LONG_RECORDS = {"multisine": 800, "coloured": 800, "kind": 1000, "one_period": 6
 SUITE_RECORDS = {"multisine": 300, "coloured": 300, "kind": 300, "one_period": 300}
 
 
+def _show_flags(kind: str, res: tuple[float, float, float, float]) -> tuple[float, float]:
+    print(f"  {kind}: flagged non-stationary in {res[1]:.3f} of the records; interval "
+          f"half-width / (1.96 × spread of σ̂) = {res[3]:.2f}", flush=True)
+    return res[0], res[2]
+
+
 def binomial_sd(records: int, p: float = 0.95) -> float:
     return math.sqrt(p * (1 - p) / records)
 
@@ -161,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--records", type=int, help="records per case (default: the long ones)")
     ap.add_argument("--case", action="append", help="only these cases (multisine, coloured, "
-                    "white, in_band, drift, linear, in_band_1p, linear_1p)")
+                    "white, in_band, drift, linear, in_band_1p, linear_1p, walk, modulated)")
     a = ap.parse_args(argv)
     cases: list[tuple[str, Callable[[int], tuple[float, float | None]], int]] = [
         ("multisine", lambda n: (multisine_gain_white(n), None), LONG_RECORDS["multisine"]),
@@ -172,6 +250,9 @@ def main(argv: list[str] | None = None) -> int:
     for k in ONE_PERIOD_KINDS:
         cases.append((f"{k}_1p", lambda n, k=k: kind_coverage(k, 900.0, n)[:2],
                       LONG_RECORDS["one_period"]))
+    for k in ("walk", "modulated"):
+        cases.append((k, lambda n, k=k: _show_flags(k, nonstationary_coverage(k, n)),
+                      LONG_RECORDS["kind"]))
     print(f"{'case':<12} {'records':>7} {'coverage':>9} {'± sd':>7} {'σ̂/σ':>8} {'s':>6}")
     for name, run, default in cases:
         if a.case and name not in a.case:

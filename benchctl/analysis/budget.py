@@ -37,7 +37,12 @@ of σ):
   ``bridge_variance`` (averaged over all samples; ``align``), which adds to σ²:
   ``u = bridge_variance/(2σ)``; 0 without bridging (between the reference's samples the
   spline of a smooth, oversampled motion errs by far less);
-- **non-stationarity**: *not assessed* — a flag, no number, never a zero.
+- **non-stationarity** (type A): over six or more whole periods the error's power is tested
+  period against period (``stationarity.assess``). Stationary: a contribution of 0, with the
+  test's figures. Not stationary: the variance the changing power adds to σ̂²,
+  ``u = √V/(2σ)`` with the estimate's few degrees of freedom (σ's interval is widened by the
+  same term, so the record's term is stated without it). Fewer periods: *not assessed* — a
+  flag, no number, never a zero.
 
 A contribution whose input is not known (the bench config states no encoder resolution or
 uncertainty, a CSV carries none) is **not stated**: no number, and the combined uncertainty
@@ -218,6 +223,7 @@ def uncertainty_budget(
     timing_bias_variance: float,
     bridge_variance: float,
     reference: Reference,
+    stationarity: dict[str, Any] | None = None,
 ) -> Budget:
     """The budget of the headline ``sigma`` (deg; module notes).
 
@@ -226,7 +232,8 @@ def uncertainty_budget(
     its ν; ``timing_cross_variance``: the standard deviation of σ² from timing (``cross``, deg²);
     ``timing_bias_variance``: the variance timing adds to σ², the bridged gaps' included
     (deg²); ``bridge_variance``: the bridged gaps' share of it (deg²); ``reference``: the
-    reference angle's stated resolution and uncertainty.
+    reference angle's stated resolution and uncertainty; ``stationarity``: the
+    period-to-period test (``Stationarity.to_dict``), None when not made.
     """
     for name, v in (("sigma", sigma), ("sigma_corrected", sigma_corrected),
                     ("timing_cross_variance", timing_cross_variance),
@@ -244,8 +251,11 @@ def uncertainty_budget(
     s = sigma
     out: list[Contribution] = []
     nu = float(dof)
+    u_ns = (0.0 if stationarity is None else
+            sigma_u(math.sqrt(max(stationarity["added_variance"], 0.0)), s))
+    u_rec = math.sqrt(max(((hi - lo) / (2.0 * Z95)) ** 2 - u_ns**2, 0.0))
     out.append(Contribution(
-        "record", "finite record and noise", "A", EVALUATED, (hi - lo) / (2.0 * Z95),
+        "record", "finite record and noise", "A", EVALUATED, u_rec,
         f"half the statistical 95 % interval [{lo:.6g}, {hi:.6g}]° ÷ 1.96, ν = {nu:.4g}",
         "scaled χ² (σ² of the record)", nu))
     out.append(Contribution(
@@ -291,10 +301,27 @@ def uncertainty_budget(
         ("no bridged reference gap" if bridge_variance == 0.0 else
          f"the spline's estimated mean square miss across bridged gaps {bridge_variance:.3g} "
          "deg² ÷ 2σ"), "normal", math.inf, bridge_variance))
-    out.append(Contribution(
-        "nonstationarity", "non-stationarity", None, NOT_ASSESSED, None,
-        "not assessed: σ is taken as that of a stationary error over the record"))
+    out.append(_nonstationarity(stationarity, u_ns))
     return Budget(s, tuple(out))
+
+
+def _nonstationarity(test: dict[str, Any] | None, u: float) -> Contribution:
+    if test is None:
+        return Contribution(
+            "nonstationarity", "non-stationarity", None, NOT_ASSESSED, None,
+            "not assessed (fewer than six whole periods): σ is taken as that of a stationary "
+            "error over the record")
+    figures = (f"power period to period: χ² {test['statistic']:.4g} on {test['dof']} degrees "
+               f"of freedom, p = {test['p_value']:.2g}")
+    if test["stationary"]:
+        return Contribution("nonstationarity", "non-stationarity", "A", EVALUATED, 0.0,
+                            f"tested, stationary ({figures})", "none", math.inf)
+    nu = float(test["added_dof"])
+    return Contribution(
+        "nonstationarity", "non-stationarity", "A", EVALUATED, u,
+        f"NOT stationary ({figures}): the changing power adds {test['added_variance']:.3g} "
+        "deg⁴ to var(σ̂²) ÷ 2σ; in σ's interval, the record's term stated without it",
+        "Student's t", nu)
 
 
 def budget_lines(budget: dict[str, Any] | None, indent: str = "        ") -> list[str]:

@@ -63,6 +63,7 @@ from benchctl.analysis.lines import (
     LineSet,
     whole_periods,
 )
+from benchctl.analysis.stationarity import Stationarity, assess, low_part
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 
 FloatArray = NDArray[np.float64]
@@ -70,6 +71,9 @@ ComplexArray = NDArray[np.complex128]
 IntArray = NDArray[np.int64]
 
 LOW_BINS = 5  # the lowest DFT bins: their own term of the σ interval (drift) …
+#: … or, with no line among the lowest 2·DRIFT_BINS bins, these bins' frequencies as the
+#: residual's lowest 2·DRIFT_BINS cosine coefficients (stationarity.low_part: a drift)
+DRIFT_BINS = 10
 GROUP_RATIO = 3  # … then groups of bins each this many times longer
 REFERENCE_FIT_MIN = 0.99  # the fitted lines must hold this share of the reference's variance
 #: a line is *reliable* when its signal-to-noise ratio ``|c^x_k|²/(2 s_k)`` (= 1/E|Ĥ_k − H_k|²)
@@ -113,6 +117,7 @@ class LineAnalysis:
     reliable: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     snr_floor: float = SNR_FLOOR
     band: dict[str, Any] | None = None  # the band-limited variance (analyze_lines' band_hz)
+    stationarity: Stationarity | None = None  # the period-to-period test (stationarity.py)
 
     @property
     def gain(self) -> FloatArray:
@@ -165,6 +170,7 @@ class LineAnalysis:
             "dof": self.dof,
             "dof_parts": dict(self.dof_parts),
             "reference_fit": self.reference_fit,
+            "stationarity": None if self.stationarity is None else self.stationarity.to_dict(),
         }
 
 
@@ -172,10 +178,10 @@ def t975(dof: FloatArray) -> FloatArray:
     return np.asarray(stdtrit(np.asarray(dof, dtype=float), 0.975), dtype=float)
 
 
-def _bin_groups(nb: int) -> list[tuple[int, int]]:
-    """The DFT bins 1 … nb−1 in groups [a, b): the lowest ``LOW_BINS``, then groups
+def _bin_groups(nb: int, low: int = LOW_BINS) -> list[tuple[int, int]]:
+    """The DFT bins 1 … nb−1 in groups [a, b): the lowest ``low``, then groups
     ``GROUP_RATIO`` times longer each."""
-    edges = [1, LOW_BINS + 1]
+    edges = [1, low + 1]
     while edges[-1] < nb:
         edges.append(min(nb, edges[-1] + GROUP_RATIO * (edges[-1] - edges[-2])))
     return list(itertools.pairwise(edges))
@@ -306,11 +312,26 @@ def analyze_lines(
     var_bin[bins] += s**2 / (1.0 + 2.0 / noise.dof)
     coef = np.ones(nb)
     coef[1] += mean_removal / max(level[1], 1e-300) if level[1] > 0 else 0.0
-    groups = _bin_groups(nb)
+    # no line among the lowest bins: a drift's term from the residual's cosine transform
+    drift_term = not np.any(bins <= 2 * DRIFT_BINS)
+    groups = _bin_groups(nb, DRIFT_BINS if drift_term else LOW_BINS)
     parts = _parts(coef * level, coef**2 * var_bin, groups, coef)
+    resid = fit.residual[1] - fit.residual[0]
+    low_var = float(np.sum((coef**2 * var_bin)[groups[0][0]:groups[0][1]]))
+    if drift_term:
+        g1 = groups[1] if len(groups) > 1 else groups[0]
+        floor = 0.5 * float(np.mean(level[g1[0]:g1[1]][probe[g1[0]:g1[1]]])) if np.any(
+            probe[g1[0]:g1[1]]) else 0.0
+        value, low_var, nu = low_part(resid, mask, DRIFT_BINS, mean_removal, floor)
+        parts[0] = (value, nu)
+    stat = assess(np.where(mask, y - x, 0.0), resid, mask, dt, n_periods,
+                  float(np.sum(np.maximum(lin_k, 0.0) * s)))
+    widen = 0.0 if stat is None else stat.widening()
     cross = max(0.0, float(np.sum(2.0 * lin_k * s)))  # unbiased: P̂_k not clipped
-    var_ci = mls_interval(theta, parts, cross)
-    total_var = float(np.sum(coef**2 * var_bin)) + cross
+    var_ci = mls_interval(theta, parts, cross + widen)
+    total_var = (float(np.sum(coef**2 * var_bin)) - float(np.sum(
+        (coef**2 * var_bin)[groups[0][0]:groups[0][1]])) + low_var + cross
+        + (0.0 if stat is None else stat.extra_variance))
     dof = 2.0 * theta**2 / total_var if total_var > 0 else float("inf")
     # linear part: Gaussian; incoherent part: the noise components with the estimation
     # error of the noise at the lines in place of its realisation
@@ -329,7 +350,9 @@ def analyze_lines(
         wb = bins[weak]
         level_inc[wb] += lin_k[weak]
         var_inc[wb] += np.maximum(p_line[weak], s[weak]) ** 2
-    inc_ci = mls_interval(incoherent, _parts(coef * level_inc, var_inc, groups, coef))
+    inc_parts = _parts(coef * level_inc, var_inc, groups, coef)
+    inc_parts[0] = parts[0] if drift_term else inc_parts[0]
+    inc_ci = mls_interval(incoherent, inc_parts, widen)
     inc_ci = (max(inc_ci[0], 0.0), max(inc_ci[1], 0.0))
     dof_parts = {f"{a}-{b - 1}": nu for (a, b), (_, nu) in zip(groups, parts, strict=True)}
     band = None
@@ -344,6 +367,12 @@ def analyze_lines(
             notes.append("no distortion estimate: an odd multisine, but the record holds one "
                          "period (the noise lies between the harmonics only over two or more: "
                          "give the profile a repeat_period_s)")
+    if stat is not None and not stat.stationary:
+        notes.append(
+            f"the error is not stationary: its power differs from segment to segment "
+            f"({stat.segments} of {stat.segment_s:.4g} s; χ² {stat.statistic:.4g} on "
+            f"{stat.segments - 1} degrees of freedom, p = {stat.p_value:.2g}); σ is this "
+            "test's, and its interval is widened for the process's")
     return LineAnalysis(
         lines=lines,
         period_nominal=nominal,
@@ -374,6 +403,7 @@ def analyze_lines(
         snr=snr,
         reliable=reliable,
         band=band,
+        stationarity=stat,
     )
 
 

@@ -167,10 +167,12 @@ def test_to_dict_has_the_documented_keys() -> None:
             "coherence", "snr", "reliable", "snr_floor", "n_reliable", "noise", "noise_dof",
             "noise_method", "linear", "linear_ci95",
             "incoherent", "incoherent_ci95", "mean_removal", "variance", "variance_ci95",
-            "sigma", "sigma_ci95", "dof", "dof_parts", "reference_fit"} == set(d["lines"])
+            "sigma", "sigma_ci95", "dof", "dof_parts", "reference_fit",
+            "stationarity"} == set(d["lines"])
     assert {"period_s", "freq", "excited", "gain", "gain_ci95", "phase_deg", "phase_ci95_deg",
             "coherence", "source"} == set(d["periods"][0])
-    assert {"method", "mean_removal", "sigma_corrected", "dof_parts"} <= set(d["uncertainty"])
+    assert {"method", "mean_removal", "sigma_corrected", "dof_parts",
+            "stationarity"} <= set(d["uncertainty"])
     assert len(d["psd"]["freq"]) == len(d["psd"]["error"])
     assert len(d["sigma_ci95"]) == 2
 
