@@ -37,12 +37,12 @@ of σ):
   ``bridge_variance`` (averaged over all samples; ``align``), which adds to σ²:
   ``u = bridge_variance/(2σ)``; 0 without bridging (between the reference's samples the
   spline of a smooth, oversampled motion errs by far less);
-- **non-stationarity** (type A): over six or more whole periods the error's power is tested
-  period against period (``stationarity.assess``). Stationary: a contribution of 0, with the
-  test's figures. Not stationary: the variance the changing power adds to σ̂²,
+- **non-stationarity** (type A): over one, or six or more, whole periods the error's power
+  is tested segment against segment (``stationarity.assess``). Stationary: a contribution of
+  0, with the test's figures. Not stationary: the variance the changing power adds to σ̂²,
   ``u = √V/(2σ)`` with the estimate's few degrees of freedom (σ's interval is widened by the
-  same term, so the record's term is stated without it). Fewer periods: *not assessed* — a
-  flag, no number, never a zero.
+  same term, so the record's term is stated without it). Two to five periods, or no
+  line-wise estimate: *not assessed* — a flag, no number, never a zero.
 
 A contribution whose input is not known (the bench config states no encoder resolution or
 uncertainty, a CSV carries none) is **not stated**: no number, and the combined uncertainty
@@ -309,8 +309,8 @@ def _nonstationarity(test: dict[str, Any] | None, u: float) -> Contribution:
     if test is None:
         return Contribution(
             "nonstationarity", "non-stationarity", None, NOT_ASSESSED, None,
-            "not assessed (fewer than six whole periods): σ is taken as that of a stationary "
-            "error over the record")
+            "not assessed (a record of two to five whole periods, or without a line-wise "
+            "estimate): σ is taken as that of a stationary error over the record")
     figures = (f"power period to period: χ² {test['statistic']:.4g} on {test['dof']} degrees "
                f"of freedom, p = {test['p_value']:.2g}")
     if test["stationary"]:

@@ -35,6 +35,9 @@ class LineNoise:
     dof: FloatArray  # real degrees of freedom of each estimate
     lpm: NDArray[np.bool_]  # True where from the local polynomial method
     var_sum: float  # variance of Σ_k s_k (estimation error)
+    #: at a line from the local polynomial method, ``E_k − P(f_k)·c^x_k``: the noise's part of
+    #: its coefficient (with the polynomial's own error); 0 at the others
+    deviation: ComplexArray | None = None
 
 
 def _nearest_offsets(reach: int) -> IntArray:
@@ -68,6 +71,7 @@ def line_noise(
         np.add.at(weight, np.clip(idx, 0, nb - 1)[enough][take[enough]], 1.0 / NOISE_BINS)
     var_sum = float(np.sum(weight**2 * u**2 / 2.0))
     lpm = ~enough
+    deviation = np.zeros(kk, dtype=complex)
     if lpm.any():
         size = LPM_LINES + 1  # the line itself and LPM_LINES neighbours
         if kk < size:
@@ -87,10 +91,11 @@ def line_noise(
         proj = np.einsum("kjp,kj->kp", phi.conj(), rhs)
         theta = np.linalg.solve(gram, proj[:, :, None])[:, :, 0]
         res = rhs - np.einsum("kjp,kp->kj", phi, theta)
+        deviation[pos] = e[pos] - cx[pos] * theta[:, 0]  # P(f_k) at the line itself: θ₀
         free = LPM_LINES - (LPM_DEGREE + 1)
         power[pos] = np.sum(np.abs(res) ** 2, axis=1) / (2.0 * free)
         dof[pos] = 2.0 * free
         w = np.zeros(kk)
         np.add.at(w, win.ravel(), use.ravel() / free)
         var_sum += float(np.sum(w**2 * power**2))
-    return LineNoise(power, dof, lpm, var_sum)
+    return LineNoise(power, dof, lpm, var_sum, deviation)

@@ -63,7 +63,14 @@ from benchctl.analysis.lines import (
     LineSet,
     whole_periods,
 )
-from benchctl.analysis.stationarity import Stationarity, assess, low_part
+from benchctl.analysis.stationarity import (
+    MIN_SEGMENTS,
+    ONE_PERIOD_SEGMENTS,
+    Stationarity,
+    assess,
+    fit_drift,
+    low_part,
+)
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 
 FloatArray = NDArray[np.float64]
@@ -202,6 +209,18 @@ def _parts(
     return out
 
 
+def noise_series(spec: ComplexArray, deviation: ComplexArray, bins: IntArray, n: int,
+                 n_valid: int, mask: NDArray[np.bool_]) -> FloatArray:
+    """The error less its linear part on a one-period record (its lines' noise from the local
+    polynomial method): the lines' residual (``spec``, its rfft) with, at each such line, the
+    coefficient's deviation from the smooth response (``c = 2X/N_v``; 0 at a band-edge line
+    whose noise came from unexcited bins), back in time. Without the deviations the residual
+    of a noise inside the band is little but its leakage, which sits at the record's ends."""
+    full = spec.copy()
+    full[bins] = deviation * (n_valid / 2.0)
+    return np.where(mask, np.fft.irfft(full, n), 0.0)
+
+
 def _power(spectrum: ComplexArray, n: int) -> float:
     """``Σ_s r_s²`` of a real series of length n from its rfft (Parseval)."""
     a = spectrum.real**2 + spectrum.imag**2
@@ -297,35 +316,51 @@ def analyze_lines(
     # the linear part from the reliable lines; a weak line's excess over its noise cannot be
     # told from noise: it stays in the incoherent part (σ̂² is the same either way)
     linear = float(lin_k[reliable].sum())
-    # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2
+    q = u * (n_valid / n)  # the residual's periodogram in variance units
+    q[0] = 0.0
+    resid = fit.residual[1] - fit.residual[0]
+    # no line among the lowest bins: a drift's term from the residual's cosine transform
+    drift_term = not np.any(bins <= 2 * DRIFT_BINS)
+    groups = _bin_groups(nb, DRIFT_BINS if drift_term else LOW_BINS)
+    drift = None
+    if drift_term:
+        g1 = groups[1] if len(groups) > 1 else groups[0]
+        above = probe[g1[0]:g1[1]]
+        floor = 0.5 * float(np.mean(q[g1[0]:g1[1]][above])) if above.any() else 0.0
+        drift = fit_drift(resid, mask, DRIFT_BINS, floor)
+    # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2; a drift
+    # whose level rises without bound towards zero frequency has no such level: its record
+    # mean is the drift's own, and only the noise floor's var(ε̄) is added back
     level1 = float(s[bins == 1][0]) if np.any(bins == 1) else float(u[1])
-    mean_removal = 0.5 * level1
+    mean_removal = drift.floor if drift is not None and drift.steep else 0.5 * level1
     incoherent = (float(_power(spec, n)) / n_valid + float(s.sum()) + mean_removal
                   + float(lin_k[weak].sum()))
     theta = linear + incoherent  # = σ̂² + mean_removal over whole periods without gaps
     # --- intervals: noise per bin (variance units) and its variance
-    q = u * (n_valid / n)  # the residual's periodogram in variance units
-    q[0] = 0.0
     level = np.where(probe, q, 0.0)
     var_bin = level**2 / 2.0
     level[bins] += s
     var_bin[bins] += s**2 / (1.0 + 2.0 / noise.dof)
     coef = np.ones(nb)
     coef[1] += mean_removal / max(level[1], 1e-300) if level[1] > 0 else 0.0
-    # no line among the lowest bins: a drift's term from the residual's cosine transform
-    drift_term = not np.any(bins <= 2 * DRIFT_BINS)
-    groups = _bin_groups(nb, DRIFT_BINS if drift_term else LOW_BINS)
-    parts = _parts(coef * level, coef**2 * var_bin, groups, coef)
-    resid = fit.residual[1] - fit.residual[0]
+    parts: list[tuple[float, ...]] = list(_parts(coef * level, coef**2 * var_bin, groups, coef))
     low_var = float(np.sum((coef**2 * var_bin)[groups[0][0]:groups[0][1]]))
-    if drift_term:
-        g1 = groups[1] if len(groups) > 1 else groups[0]
-        floor = 0.5 * float(np.mean(level[g1[0]:g1[1]][probe[g1[0]:g1[1]]])) if np.any(
-            probe[g1[0]:g1[1]]) else 0.0
-        value, low_var, nu = low_part(resid, mask, DRIFT_BINS, mean_removal, floor)
-        parts[0] = (value, nu)
-    stat = assess(np.where(mask, y - x, 0.0), resid, mask, dt, n_periods,
-                  float(np.sum(np.maximum(lin_k, 0.0) * s)))
+    if drift is not None:
+        value, low_var, nu, g_low, h_low = low_part(drift, mean_removal)
+        parts[0] = (value, nu, g_low, h_low)
+    if n_periods >= MIN_SEGMENTS:
+        stat = assess(np.where(mask, y - x, 0.0), resid, mask, dt, n_periods,
+                      float(np.sum(np.maximum(lin_k, 0.0) * s)),
+                      lowest_line_bin=int(bins.min()))
+    elif n_periods == 1 and noise.lpm.any() and noise.deviation is not None:
+        ns = noise_series(spec, noise.deviation, bins, n, n_valid, mask)
+        smooth = np.zeros(nb, dtype=complex)
+        smooth[bins] = np.where(noise.lpm, e - noise.deviation, e) * (n_valid / 2.0)
+        stat = assess(np.where(mask, y - x, 0.0), ns, mask, dt, ONE_PERIOD_SEGMENTS,
+                      float(np.sum(np.maximum(lin_k, 0.0) * s)),
+                      baseline=np.fft.irfft(smooth, n), lowest_line_bin=int(bins.min()))
+    else:
+        stat = None
     widen = 0.0 if stat is None else stat.widening()
     cross = max(0.0, float(np.sum(2.0 * lin_k * s)))  # unbiased: P̂_k not clipped
     var_ci = mls_interval(theta, parts, cross + widen)
@@ -350,11 +385,11 @@ def analyze_lines(
         wb = bins[weak]
         level_inc[wb] += lin_k[weak]
         var_inc[wb] += np.maximum(p_line[weak], s[weak]) ** 2
-    inc_parts = _parts(coef * level_inc, var_inc, groups, coef)
-    inc_parts[0] = parts[0] if drift_term else inc_parts[0]
+    inc_parts: list[tuple[float, ...]] = list(_parts(coef * level_inc, var_inc, groups, coef))
+    inc_parts[0] = parts[0] if drift is not None else inc_parts[0]
     inc_ci = mls_interval(incoherent, inc_parts, widen)
     inc_ci = (max(inc_ci[0], 0.0), max(inc_ci[1], 0.0))
-    dof_parts = {f"{a}-{b - 1}": nu for (a, b), (_, nu) in zip(groups, parts, strict=True)}
+    dof_parts = {f"{a}-{b - 1}": p[1] for (a, b), p in zip(groups, parts, strict=True)}
     band = None
     if band_hz is not None:
         band = _band(band_hz, n * dt, bins, lin_k, s, level, var_bin, groups)

@@ -12,18 +12,23 @@ The cosine transform (DCT-II) of the residual is the record's natural basis for 
 mean-removed Brownian motion's Karhunen–Loève functions are ``cos(kπt/T)``, so its coefficients
 are independent, each one degree of freedom (a χ²₁). :func:`low_part` takes the lowest
 coefficients (to the frequency of the DFT's lowest ``low_bins`` bins) as the low term of the
-interval: value ``Σ d_k²``, variance ``Σ ⅔·d_k²·…`` (the unbiased estimate of ``2θ_k²`` for a
-χ²₁), Satterthwaite's ν.
+interval: value ``Σ d_k²``; its pivot ``Σ d_k²/Σ θ_k`` a weighted sum of χ²₁ whose weights are
+a power law fitted to the coefficients (:func:`fit_drift`), its quantiles exact
+(``uncertainty.weighted_chi2_factors``). A drift that rises without bound towards zero
+frequency has no level there: the mean removal then adds back only the noise floor's
+``var(ε̄)``, not half the first bin's (the record's mean is the drift's own).
 
-**A changing power** (a slowly modulated gain, a noise that grows): the residual's mean
-square differs from period to period by more than chance. :func:`assess` tests it: the
-residual, its slow part (below two cycles per segment: the drift above) taken out, is cut
-into segments — the record's whole periods when it has at least ``MIN_SEGMENTS``, else that
-many equal parts — and each segment's mean square ``m_j`` compared with its variance under
-stationarity, ``var(m_j) = (2/n_j) Σ_τ c(τ)²`` (``c`` the residual's autocovariance, from
-its smoothed periodogram; white noise: ``2σ⁴/n_j``): ``X = Σ (m_j − m̄)²/var(m_j)`` is a χ²
-with J − 1 degrees of freedom for a stationary error. Above its ``1 − FALSE_ALARM`` quantile
-the record is flagged *non-stationary*.
+**A changing power** (a slowly modulated gain, a noise that grows): the error's mean square
+differs from period to period by more than chance. :func:`assess` tests it over at least
+``MIN_SEGMENTS`` whole periods: the error, its slow part (below two cycles a period: the
+drift above) taken out, is cut into its periods, and each one's mean square ``m_j`` compared
+with its variance under stationarity, ``var(m_j) = (2/n_j) Σ_τ c(τ)²`` (``c`` the residual's
+autocovariance, from its smoothed periodogram; white noise: ``2σ⁴/n_j``) plus the lines'
+cross term with the noise: ``X = Σ (m_j − m̄)²/var(m_j)`` is a χ² with J − 1 degrees of
+freedom for a stationary error. On a one-period record (every line's noise from the local
+polynomial method) the series is the error, less its smooth linear part's mean square, in
+``ONE_PERIOD_SEGMENTS`` equal parts; a record of two to five periods is not assessed. Above
+its ``1 − FALSE_ALARM`` quantile the record is flagged *non-stationary*.
 
 A flagged record's σ is that of its own test, not of the process: a power that changes at
 the record's own time scale is averaged over too few of its cycles. The variance that adds to
@@ -53,11 +58,20 @@ from numpy.typing import NDArray
 from scipy.fft import dct, idct
 from scipy.special import chdtrc, stdtrit
 
+from benchctl.analysis.uncertainty import weighted_chi2_factors
+
 FloatArray = NDArray[np.float64]
 
 MIN_SEGMENTS = 6  # segments of the stationarity test (whole periods when there are as many)
+ONE_PERIOD_SEGMENTS = 8  # … and of a one-period record's
 FALSE_ALARM = 1e-3  # the test's false-alarm rate on a stationary error
 SMOOTH_BINS = 16  # periodogram bins averaged for the autocovariance's Σ c²
+#: the drift term's shape: of the power laws whose log-likelihood is within this of the best,
+#: the one with the fewest degrees of freedom. Chosen on the Monte Carlo of
+#: benchmarks/sigma_coverage.py: 0 (the best fit) covers a random walk 89 % of the time,
+#: 3.0 (the 95 % region of two parameters) a stationary low-pass noise 99 %; 0.75 gives
+#: 94.4 % and 97.1 %
+SHAPE_DROP = 0.75
 ENVELOPE_TERMS = 3  # DCT coefficients of the segment mean squares for the level at zero
 Z975 = 1.959963984540054
 
@@ -107,43 +121,56 @@ def _demeaned(r: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
     return out
 
 
-def _power_law(v: FloatArray, floor: float) -> FloatArray:
-    """The expected values ``θ_k = c + a·k^(−b)`` of independent χ²₁-scaled values ``v_k``
-    (k = 1 …), fitted by maximum likelihood over a grid of ``a ≥ 0`` and ``0 ≤ b ≤ 4``, the
-    floor ``c`` given: a drift's shape, smooth where the values themselves scatter by a
-    factor of ten (one degree of freedom each)."""
-    k = np.arange(1, len(v) + 1, dtype=float)
-    top = max(float(v.max()), floor, 1e-300)
-    a = np.concatenate(([0.0], top * np.geomspace(1e-4, 4.0, 80)))
-    b = np.linspace(0.0, 4.0, 17)
-    theta = floor + a[:, None, None] * k[None, None, :] ** -b[None, :, None]
-    theta = np.maximum(theta, 1e-300)
-    loglik = -np.sum(np.log(theta) + v / theta, axis=-1)
-    i, j = np.unravel_index(int(np.argmax(loglik)), loglik.shape)
-    return np.asarray(theta[i, j], dtype=float)
+@dataclass(frozen=True)
+class Drift:
+    """The residual's lowest cosine coefficients (variance units) and their fitted shape."""
+
+    values: FloatArray  # d_k²/n, k = 1 … 2·low_bins
+    shape: FloatArray  # θ_k of the interval: the fewest degrees of freedom in the 95 % region
+    floor: float  # c: one coefficient's noise level just above them
+    steep: bool  # the best fit falls as k^(−b), b ≥ 1: no finite level at zero frequency
 
 
-def low_part(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
-             mean_removal: float, floor: float) -> tuple[float, float, float]:
-    """The interval's low term from the DCT-II of the residual (module notes): the lowest
-    ``2·low_bins`` coefficients (frequencies ``k/(2T)``, up to the DFT's bin ``low_bins``),
-    with the mean removal's share, in variance units: ``(value, variance, ν)``. ν is that of
-    the coefficients' fitted shape (:func:`_power_law`; ``floor``: the noise level of one
-    coefficient just above them), not of the values themselves — a record whose first
-    coefficient happens to be small would otherwise get many degrees of freedom and an
-    interval too narrow just when it reads low."""
+def fit_drift(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
+              floor: float) -> Drift:
+    """The expected values ``θ_k = c + a·k^(−b)`` of the residual's lowest ``2·low_bins``
+    cosine coefficients (χ²₁-scaled), fitted by maximum likelihood over a grid of ``a ≥ 0`` and
+    ``0 ≤ b ≤ 4``, the floor ``c`` given: a drift's shape, smooth where the values themselves
+    scatter by a factor of ten (one degree of freedom each). The interval takes, of the shapes
+    whose log-likelihood is within ``SHAPE_DROP`` of the best, the one with the fewest degrees
+    of freedom: a record whose first coefficients happen to be small looks flat, and would
+    otherwise get a narrow interval just when it reads low."""
     r = _demeaned(residual, mask)
     n_valid = max(int(mask.sum()), 1)
     d = dct(r, type=2, norm="ortho")[1 : 2 * low_bins + 1]
     v = d * d / n_valid
-    total = float(v.sum())
+    c = max(floor, 0.0)
+    k = np.arange(1, len(v) + 1, dtype=float)
+    top = max(float(v.max()), c, 1e-300)
+    a = np.concatenate(([0.0], top * np.geomspace(1e-4, 4.0, 80)))
+    b = np.linspace(0.0, 4.0, 17)
+    theta = np.maximum(c + a[:, None, None] * k[None, None, :] ** -b[None, :, None], 1e-300)
+    loglik = -0.5 * np.sum(np.log(theta) + v / theta, axis=-1)
+    best = np.unravel_index(int(np.argmax(loglik)), loglik.shape)
+    nu = theta.sum(axis=-1) ** 2 / np.sum(theta * theta, axis=-1)
+    nu = np.where(loglik >= loglik.max() - SHAPE_DROP, nu, np.inf)
+    i, j = np.unravel_index(int(np.argmin(nu)), nu.shape)
+    steep = bool(a[best[0]] > 0.0 and b[best[1]] >= 1.0)
+    return Drift(values=v, shape=np.asarray(theta[i, j], dtype=float), floor=c, steep=steep)
+
+
+def low_part(drift: Drift, mean_removal: float) -> tuple[float, float, float, float, float]:
+    """The interval's low term (module notes) with the mean removal's share, in variance
+    units: ``(value, variance, ν, G, H)``; ν that of the drift's shape (:func:`fit_drift`), G
+    and H the interval factors of its pivot (``weighted_chi2_factors``)."""
+    total = float(drift.values.sum())
     if total <= 0.0:
-        return 0.0, 0.0, math.inf
-    scale = 1.0 + mean_removal / total
-    value = total * scale
-    theta = _power_law(v, max(floor, 0.0))
+        return 0.0, 0.0, math.inf, 0.0, 0.0
+    value = total + mean_removal
+    theta = drift.shape
     nu = float(theta.sum() ** 2 / np.sum(theta * theta))
-    return value, 2.0 * value * value / nu, nu
+    g, h = weighted_chi2_factors(theta)
+    return value, 2.0 * value * value / nu, nu, g, h
 
 
 def _sum_c2(r: FloatArray) -> float:
@@ -157,33 +184,44 @@ def _sum_c2(r: FloatArray) -> float:
     return float(np.sum(sm * sm) / n / (1.0 + 1.0 / m))
 
 
-def assess(error: FloatArray, residual: FloatArray, mask: NDArray[np.bool_], dt: float,
-           n_periods: int, line_cross: float) -> Stationarity | None:
-    """The period-to-period test of the error's power (module notes); ``None`` when the
-    record is too short for ``MIN_SEGMENTS`` segments of 32 samples.
+def assess(series: FloatArray, noise: FloatArray, mask: NDArray[np.bool_], dt: float,
+           segments: int, line_cross: float, baseline: FloatArray | None = None,
+           lowest_line_bin: int | None = None) -> Stationarity | None:
+    """The segment-to-segment test of the error's power (module notes); ``None`` when the
+    record is too short for ``segments`` segments of 32 samples.
 
-    Over ``n_periods ≥ MIN_SEGMENTS`` whole periods the segments are the periods and the
-    series is the error ε itself: a linear instrument's error then has the same lines in each
-    period, and a gain that changes shows in them; its mean square varies by the noise's and
-    by the cross term of lines and noise, ``line_cross`` (``Σ_k P_k s_k``, line units) times
-    ``2J``. Otherwise the series is the lines' residual (the lines' power varies from one
-    segment to the next by the motion's own envelope)."""
-    n = len(residual)
-    segments = n_periods
-    if n_periods < MIN_SEGMENTS or n < 32 * segments:
+    ``series`` is cut into ``segments`` equal parts; ``noise`` is the noise whose spectrum
+    gives a segment mean square's variance under stationarity. Over whole periods the
+    series is the error ε itself (a linear instrument's error has the same lines in each
+    period, and a gain that changes shows in them), its mean square varying by the noise's
+    and by the cross term of lines and noise, ``line_cross`` (``Σ_k P_k s_k``, line units)
+    times ``2J``; ``noise`` is then the lines' residual. On one period the motion's own
+    envelope makes the lines' power differ from segment to segment: each segment's mean
+    square of the smooth linear part, ``baseline``, is taken off (what is left is the noise's
+    and its cross term with the lines), and ``noise`` is the error less that linear part
+    (:func:`benchctl.analysis.linewise.noise_series`). The slow part taken out stops below
+    ``lowest_line_bin`` (DFT bins of the record), so that no line loses power to it."""
+    n = len(series)
+    if segments < MIN_SEGMENTS or n < 32 * segments:
         return None
-    r = _demeaned(error, mask)
-    d = dct(r, type=2, norm="ortho")
-    d[: 4 * segments] = 0.0  # below two cycles per segment: the drift's, see low_part
-    hp = np.where(mask, idct(d, type=2, norm="ortho"), 0.0)
+    # below two cycles per segment (DCT index k ↔ frequency k/(2T)): the drift's, see low_part
+    cut = 4 * segments if lowest_line_bin is None else min(4 * segments, 2 * lowest_line_bin)
+
+    def high_pass(v: FloatArray) -> FloatArray:
+        d = dct(_demeaned(v, mask), type=2, norm="ortho")
+        d[:cut] = 0.0
+        return np.where(mask, idct(d, type=2, norm="ortho"), 0.0)
+
+    hp = high_pass(series)
     edges = np.linspace(0, n, segments + 1).round().astype(int)
     counts = np.add.reduceat(mask.astype(np.float64), edges[:-1])
     if np.any(counts < 16):
         return None
     ms = np.add.reduceat(hp * hp, edges[:-1]) / counts
-    rd = _demeaned(residual, mask)
-    rd = np.where(mask, idct(np.where(np.arange(n) < 4 * segments, 0.0,
-                                      dct(rd, type=2, norm="ortho")), type=2, norm="ortho"), 0.0)
+    if baseline is not None:
+        b = high_pass(baseline)
+        ms = ms - np.add.reduceat(b * b, edges[:-1]) / counts
+    rd = high_pass(noise)
     c2 = _sum_c2(rd) * n / max(int(mask.sum()), 1)
     # var(m_j) of a stationary Gaussian noise, and the lines' cross term with it
     var = 2.0 * c2 / counts + 2.0 * segments * max(line_cross, 0.0)
@@ -204,5 +242,5 @@ def assess(error: FloatArray, residual: FloatArray, mask: NDArray[np.bool_], dt:
         stationary=stationary, extra_variance=extra, extra_dof=extra_dof)
 
 
-__all__ = ["ENVELOPE_TERMS", "FALSE_ALARM", "MIN_SEGMENTS", "Stationarity", "assess",
-           "low_part"]
+__all__ = ["ENVELOPE_TERMS", "FALSE_ALARM", "MIN_SEGMENTS", "ONE_PERIOD_SEGMENTS", "Drift",
+           "Stationarity", "assess", "fit_drift", "low_part"]
