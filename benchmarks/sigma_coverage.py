@@ -14,7 +14,8 @@ through a known instrument, ``analysis_synthetic``; the truth is the error proce
 - non-stationary, 900 s in 9 periods of 100 s: ``walk``, a random walk of 0.1° over the
   record beside white noise 0.1° and a gain error; ``modulated``, a gain
   ``0.99·(1 + 0.01 sin(2π·0.003 t + φ))`` with φ random (the test does not start at the
-  modulation's zero) and 0.03° of white noise. Their truth is σ of the process (the README),
+  modulation's zero) and 0.03° of white noise; both also as one period of 900 s
+  (``walk_1p``, ``modulated_1p``). Their truth is σ of the process (the README),
   and the script also prints how often the record was flagged non-stationary and the ratio
   of the interval's mean half-width to 1.96 × the spread of σ̂ over the records.
 
@@ -158,11 +159,14 @@ def modulated_variance(x: NDArray[np.float64]) -> float:
     return total / len(phases) + MOD_NOISE**2 * (1.0 - 1.0 / N4)
 
 
-def nonstationary_coverage(kind: str, records: int) -> tuple[float, float, float, float]:
+def nonstationary_coverage(kind: str, records: int,
+                           period: float = 100.0) -> tuple[float, float, float, float]:
     """(coverage, flagged share, mean σ̂/σ, width ratio) over ``records`` records of a random
     walk (``walk``) or a modulated gain (``modulated``): the width ratio is the mean
-    half-width of σ's interval over 1.96 × the spread (standard deviation) of σ̂."""
-    ms = Multisine(period_s=100.0, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
+    half-width of σ's interval over 1.96 × the spread (standard deviation) of σ̂; ``period``
+    100 s (nine periods) or 900 s (one)."""
+    ms = Multisine(period_s=period, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
+    opts = {"period_s": period} if period >= T4.size / FS4 else {}
     x = ms.reference(T4)
     rng = np.random.default_rng(31 + len(kind))
     if kind == "walk":
@@ -177,7 +181,7 @@ def nonstationary_coverage(kind: str, records: int) -> tuple[float, float, float
     sig = np.empty(records)
     half = np.empty(records)
     for i in range(records):
-        r = analyze(T4, x, T4, y0 + errs[i])
+        r = analyze(T4, x, T4, y0 + errs[i], **opts)
         lo, hi = r.sigma_ci95
         hits += lo <= truth <= hi
         st = r.uncertainty["stationarity"]
@@ -239,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--records", type=int, help="records per case (default: the long ones)")
     ap.add_argument("--case", action="append", help="only these cases (multisine, coloured, "
-                    "white, in_band, drift, linear, in_band_1p, linear_1p, walk, modulated)")
+                    "white, in_band, drift, linear, in_band_1p, linear_1p, walk, modulated, walk_1p, "
+                    "modulated_1p)")
     a = ap.parse_args(argv)
     cases: list[tuple[str, Callable[[int], tuple[float, float | None]], int]] = [
         ("multisine", lambda n: (multisine_gain_white(n), None), LONG_RECORDS["multisine"]),
@@ -253,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     for k in ("walk", "modulated"):
         cases.append((k, lambda n, k=k: _show_flags(k, nonstationary_coverage(k, n)),
                       LONG_RECORDS["kind"]))
+        cases.append((f"{k}_1p", lambda n, k=k: _show_flags(
+            f"{k}_1p", nonstationary_coverage(k, n, 900.0)), LONG_RECORDS["one_period"]))
     print(f"{'case':<12} {'records':>7} {'coverage':>9} {'± sd':>7} {'σ̂/σ':>8} {'s':>6}")
     for name, run, default in cases:
         if a.case and name not in a.case:

@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.fft import irfft
 from scipy.special import stdtrit
 
 from benchctl.analysis.distortion import Distortion, analyze_distortion
@@ -209,16 +210,16 @@ def _parts(
     return out
 
 
-def noise_series(spec: ComplexArray, deviation: ComplexArray, bins: IntArray, n: int,
-                 n_valid: int, mask: NDArray[np.bool_]) -> FloatArray:
-    """The error less its linear part on a one-period record (its lines' noise from the local
-    polynomial method): the lines' residual (``spec``, its rfft) with, at each such line, the
-    coefficient's deviation from the smooth response (``c = 2X/N_v``; 0 at a band-edge line
-    whose noise came from unexcited bins), back in time. Without the deviations the residual
+def noise_spectrum(spec: ComplexArray, deviation: ComplexArray, bins: IntArray,
+                   n_valid: int) -> ComplexArray:
+    """The rfft of the error less its linear part on a one-period record (its lines' noise
+    from the local polynomial method): the lines' residual (``spec``, its rfft) with, at each
+    such line, the coefficient's deviation from the smooth response (``c = 2X/N_v``; 0 at a
+    band-edge line whose noise came from unexcited bins). Without the deviations the residual
     of a noise inside the band is little but its leakage, which sits at the record's ends."""
     full = spec.copy()
     full[bins] = deviation * (n_valid / 2.0)
-    return np.where(mask, np.fft.irfft(full, n), 0.0)
+    return full
 
 
 def _power(spectrum: ComplexArray, n: int) -> float:
@@ -318,7 +319,6 @@ def analyze_lines(
     linear = float(lin_k[reliable].sum())
     q = u * (n_valid / n)  # the residual's periodogram in variance units
     q[0] = 0.0
-    resid = fit.residual[1] - fit.residual[0]
     # no line among the lowest bins: a drift's term from the residual's cosine transform
     drift_term = not np.any(bins <= 2 * DRIFT_BINS)
     groups = _bin_groups(nb, DRIFT_BINS if drift_term else LOW_BINS)
@@ -327,7 +327,7 @@ def analyze_lines(
         g1 = groups[1] if len(groups) > 1 else groups[0]
         above = probe[g1[0]:g1[1]]
         floor = 0.5 * float(np.mean(q[g1[0]:g1[1]][above])) if above.any() else 0.0
-        drift = fit_drift(resid, mask, DRIFT_BINS, floor)
+        drift = fit_drift(irfft(spec, n), mask, DRIFT_BINS, floor)  # the residual of ε
     # the mean removal took out var(ε̄) ≈ the noise level at 1/T (line units) / 2; a drift
     # whose level rises without bound towards zero frequency has no such level: its record
     # mean is the drift's own, and only the noise floor's var(ε̄) is added back
@@ -349,16 +349,16 @@ def analyze_lines(
         value, low_var, nu, g_low, h_low = low_part(drift, mean_removal)
         parts[0] = (value, nu, g_low, h_low)
     if n_periods >= MIN_SEGMENTS:
-        stat = assess(np.where(mask, y - x, 0.0), resid, mask, dt, n_periods,
+        stat = assess(np.where(mask, y - x, 0.0), spec, mask, dt, n_periods,
                       float(np.sum(np.maximum(lin_k, 0.0) * s)),
                       lowest_line_bin=int(bins.min()))
     elif n_periods == 1 and noise.lpm.any() and noise.deviation is not None:
-        ns = noise_series(spec, noise.deviation, bins, n, n_valid, mask)
         smooth = np.zeros(nb, dtype=complex)
         smooth[bins] = np.where(noise.lpm, e - noise.deviation, e) * (n_valid / 2.0)
-        stat = assess(np.where(mask, y - x, 0.0), ns, mask, dt, ONE_PERIOD_SEGMENTS,
-                      float(np.sum(np.maximum(lin_k, 0.0) * s)),
-                      baseline=np.fft.irfft(smooth, n), lowest_line_bin=int(bins.min()))
+        stat = assess(np.where(mask, y - x, 0.0), noise_spectrum(spec, noise.deviation, bins,
+                                                                 n_valid),
+                      mask, dt, ONE_PERIOD_SEGMENTS, float(np.sum(np.maximum(lin_k, 0.0) * s)),
+                      baseline=irfft(smooth, n), lowest_line_bin=int(bins.min()))
     else:
         stat = None
     widen = 0.0 if stat is None else stat.widening()

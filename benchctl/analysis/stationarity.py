@@ -61,6 +61,8 @@ from scipy.special import chdtrc, stdtrit
 from benchctl.analysis.uncertainty import weighted_chi2_factors
 
 FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+IntArray = NDArray[np.int64]
 
 MIN_SEGMENTS = 6  # segments of the stationarity test (whole periods when there are as many)
 ONE_PERIOD_SEGMENTS = 8  # … and of a one-period record's
@@ -173,56 +175,61 @@ def low_part(drift: Drift, mean_removal: float) -> tuple[float, float, float, fl
     return value, 2.0 * value * value / nu, nu, g, h
 
 
-def _sum_c2(r: FloatArray) -> float:
-    """``Σ_τ c(τ)²`` of a stationary series from its periodogram, smoothed over
-    ``SMOOTH_BINS`` bins and corrected for the smoothing's bias (``E Ī² = S²(1 + 1/m)``)."""
-    n = len(r)
-    s = np.abs(np.fft.fft(r)) ** 2 / n  # two-sided periodogram, E = S_j
-    m = min(SMOOTH_BINS, n)
-    kernel = np.ones(m) / m
-    sm = np.convolve(np.concatenate((s[-(m // 2):], s, s[: m - m // 2 - 1])), kernel, "valid")
-    return float(np.sum(sm * sm) / n / (1.0 + 1.0 / m))
+def _sum_c2(spectrum: ComplexArray, n: int, cut: int) -> float:
+    """``Σ_τ c(τ)²`` of a stationary series of length ``n`` from its rfft, the bins below
+    ``cut`` left out (the drift's): the periodogram ``S_j = |X_j|²/n`` smoothed over
+    ``SMOOTH_BINS`` bins and corrected for the smoothing's bias (``E Ī² = S²(1 + 1/m)``),
+    ``(1/n) Σ_j S_j²`` over the two-sided bins."""
+    s = (spectrum.real**2 + spectrum.imag**2) / n
+    s[:cut] = 0.0
+    m = min(SMOOTH_BINS, len(s))
+    sm = np.convolve(s, np.ones(m) / m, "same")
+    sq = sm * sm
+    total = 2.0 * float(sq.sum()) - float(sq[0]) - (float(sq[-1]) if n % 2 == 0 else 0.0)
+    return total / n / (1.0 + 1.0 / m)
 
 
-def assess(series: FloatArray, noise: FloatArray, mask: NDArray[np.bool_], dt: float,
-           segments: int, line_cross: float, baseline: FloatArray | None = None,
+def assess(series: FloatArray, noise_spectrum: ComplexArray, mask: NDArray[np.bool_],
+           dt: float, segments: int, line_cross: float, baseline: FloatArray | None = None,
            lowest_line_bin: int | None = None) -> Stationarity | None:
     """The segment-to-segment test of the error's power (module notes); ``None`` when the
     record is too short for ``segments`` segments of 32 samples.
 
-    ``series`` is cut into ``segments`` equal parts; ``noise`` is the noise whose spectrum
-    gives a segment mean square's variance under stationarity. Over whole periods the
-    series is the error ε itself (a linear instrument's error has the same lines in each
-    period, and a gain that changes shows in them), its mean square varying by the noise's
-    and by the cross term of lines and noise, ``line_cross`` (``Σ_k P_k s_k``, line units)
-    times ``2J``; ``noise`` is then the lines' residual. On one period the motion's own
-    envelope makes the lines' power differ from segment to segment: each segment's mean
-    square of the smooth linear part, ``baseline``, is taken off (what is left is the noise's
-    and its cross term with the lines), and ``noise`` is the error less that linear part
-    (:func:`benchctl.analysis.linewise.noise_series`). The slow part taken out stops below
-    ``lowest_line_bin`` (DFT bins of the record), so that no line loses power to it."""
+    ``series``, its slow part below two cycles a segment taken out by its cosine transform
+    (a drift's, :func:`fit_drift`; or below ``lowest_line_bin``, DFT bins of the record, if
+    lower), is cut into ``segments`` equal parts; ``noise_spectrum`` (the rfft of the
+    zero-filled noise) gives a segment mean square's variance under stationarity, from its
+    bins above the same cut.
+
+    Over whole periods the series is the error ε itself: a linear instrument's error has the
+    same lines in each period, and a gain that changes shows in them. Its mean square varies
+    by the noise's and by the cross term of lines and noise, ``line_cross`` (``Σ_k P_k s_k``,
+    line units) times ``2J``; the noise is the lines' residual. On one period the motion's
+    own envelope makes the lines' power differ from segment to segment: each segment's mean
+    square of the smooth linear part, ``baseline``, is taken off (what is left is the
+    noise's and its cross term with the lines), and the noise is the error less that linear
+    part (:func:`benchctl.analysis.linewise.noise_spectrum`)."""
     n = len(series)
     if segments < MIN_SEGMENTS or n < 32 * segments:
         return None
-    # below two cycles per segment (DCT index k ↔ frequency k/(2T)): the drift's, see low_part
-    cut = 4 * segments if lowest_line_bin is None else min(4 * segments, 2 * lowest_line_bin)
-
-    def high_pass(v: FloatArray) -> FloatArray:
-        d = dct(_demeaned(v, mask), type=2, norm="ortho")
-        d[:cut] = 0.0
-        return np.where(mask, idct(d, type=2, norm="ortho"), 0.0)
-
-    hp = high_pass(series)
-    edges = np.linspace(0, n, segments + 1).round().astype(int)
+    edges = np.linspace(0, n, segments + 1).round().astype(np.int64)
     counts = np.add.reduceat(mask.astype(np.float64), edges[:-1])
     if np.any(counts < 16):
         return None
+    cut = 2 * segments if lowest_line_bin is None else min(2 * segments, lowest_line_bin)
+
+    def high_pass(v: FloatArray) -> FloatArray:
+        d = dct(_demeaned(v, mask), type=2, norm="ortho")
+        d[: 2 * cut] = 0.0  # DCT index k is frequency k/(2T): DFT bin k/2
+        return np.where(mask, idct(d, type=2, norm="ortho"), 0.0)
+
+    hp = high_pass(series)
     ms = np.add.reduceat(hp * hp, edges[:-1]) / counts
-    if baseline is not None:
+    if baseline is not None:  # the same filter: a line near the cut loses the same to it
         b = high_pass(baseline)
         ms = ms - np.add.reduceat(b * b, edges[:-1]) / counts
-    rd = high_pass(noise)
-    c2 = _sum_c2(rd) * n / max(int(mask.sum()), 1)
+    n_valid = max(float(mask.sum()), 1.0)
+    c2 = _sum_c2(noise_spectrum, n, cut) * (n / n_valid) ** 2
     # var(m_j) of a stationary Gaussian noise, and the lines' cross term with it
     var = 2.0 * c2 / counts + 2.0 * segments * max(line_cross, 0.0)
     w = 1.0 / var

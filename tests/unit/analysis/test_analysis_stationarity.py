@@ -78,9 +78,10 @@ def test_three_periods_are_not_assessed() -> None:
 def test_assess_needs_six_segments_of_32_samples() -> None:
     r = np.random.default_rng(4).normal(size=600)
     mask = np.ones(600, dtype=bool)
-    assert assess(r, r, mask, 0.25, 5, 0.0) is None
-    assert assess(r, r, mask, 0.25, 20, 0.0) is None  # 30 samples a segment
-    st = assess(r, r, mask, 0.25, 6, 0.0)
+    spec = np.fft.rfft(r)
+    assert assess(r, spec, mask, 0.25, 5, 0.0) is None
+    assert assess(r, spec, mask, 0.25, 20, 0.0) is None  # 30 samples a segment
+    st = assess(r, spec, mask, 0.25, 6, 0.0)
     assert st is not None and st.segments == 6 and st.segment_s == pytest.approx(25.0)
     assert st.stationary and st.widening() == 0.0
 
