@@ -243,8 +243,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--records", type=int, help="records per case (default: the long ones)")
     ap.add_argument("--case", action="append", help="only these cases (multisine, coloured, "
-                    "white, in_band, drift, linear, in_band_1p, linear_1p, walk, modulated, walk_1p, "
-                    "modulated_1p)")
+                    "white, in_band, drift, linear, in_band_1p, linear_1p, walk, modulated, "
+                    "walk_1p, modulated_1p)")
     a = ap.parse_args(argv)
     cases: list[tuple[str, Callable[[int], tuple[float, float | None]], int]] = [
         ("multisine", lambda n: (multisine_gain_white(n), None), LONG_RECORDS["multisine"]),
