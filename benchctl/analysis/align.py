@@ -22,7 +22,9 @@ What is done, in order:
    k = 3): the reference is smooth and oversampled, its interpolation error is negligible.
    The device's output is never interpolated: the error ``ε_i = y_i − x(t_i)`` is formed at
    the device's own instants.
-4. Device samples outside the span of the reference, or inside a long gap of the reference
+4. Device samples outside the span of the reference (by more than ``EDGE_STEPS`` of its
+   median step: a corrected clock can move the last stamp a hair past it, and the spline's
+   end extends that far exactly enough), or inside a long gap of the reference
    (a step longer than 4.5× its median step), are excluded. Shorter reference gaps (up to
    three missing samples, e.g. a slipped Modbus cycle) are bridged by the spline: for a
    motion below 1 Hz sampled at 100 Hz its error across 40 ms is below 10⁻⁴ of the
@@ -71,6 +73,10 @@ from benchctl.errors import DataError
 
 FloatArray = NDArray[np.float64]
 
+#: a device instant this share of the reference's median step beyond its first or last
+#: sample is still read (the spline's end, extended): a skew correction of a few tenths of a
+#: millisecond must not cost a record its last sample and with it its whole periods
+EDGE_STEPS = 0.01
 BRIDGE_STEPS = 4.5  # a reference gap up to 4 median steps long (3 missing samples) is bridged
 BRIDGE_MAX_S = 2.0  # a longer one up to this long is bridged when the motion is smooth enough:
 BRIDGE_TOL = 1e-2  # … the spline's rms error across such a gap, tried where the reference is
@@ -505,14 +511,15 @@ def _lay(
     k, t_dev = dev.k, dev.t
     same = shift_s == 0.0 and len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_use)
     t_eval = t_use - shift_s
-    ok = (t_eval >= t_ref[0]) & (t_eval <= t_ref[-1])
+    d_ref = np.diff(t_ref)
+    edge = EDGE_STEPS * float(np.median(d_ref))  # the spline's ends reach a hair further
+    ok = (t_eval >= t_ref[0] - edge) & (t_eval <= t_ref[-1] + edge)
     if not ok.any():
         raise DataError(
             f"the streams do not overlap in time: reference {t_ref[0]:.6g} … {t_ref[-1]:.6g} s, "
             f"device {t_dev[0]:.6g} … {t_dev[-1]:.6g} s"
             + (f" (shifted by {shift_s:.6g} s)" if shift_s else "")
         )
-    d_ref = np.diff(t_ref)
     gap_ref = d_ref > BRIDGE_STEPS * float(np.median(d_ref))
     seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
     inside = (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1])

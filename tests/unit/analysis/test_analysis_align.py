@@ -7,7 +7,7 @@ import pytest
 from analysis_synthetic import Multisine, gain, orthogonal_noise
 
 from benchctl.analysis import analyze
-from benchctl.analysis.align import align, slot_indices
+from benchctl.analysis.align import EDGE_STEPS, align, slot_indices
 from benchctl.errors import DataError
 
 MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=0.6, rms_deg=5.0)
@@ -42,8 +42,10 @@ def test_device_samples_outside_or_in_reference_gaps_are_excluded() -> None:
     al = align(tr[keep], MS.reference(tr[keep]), td, MS.reference(td))
     lo, hi = tr[keep][tr[keep] < 40][-1], tr[keep][tr[keep] > 42][0]
     inside_gap = np.sum((td > lo) & (td < hi))
-    outside = np.sum((td < 0) | (td > tr[-1]))
+    edge = EDGE_STEPS * 0.01  # a hair past either end is read (the spline's end)
+    outside = np.sum((td < -edge) | (td > tr[-1] + edge))
     assert al.excluded == inside_gap + outside
+    assert np.any((td < 0) & (td >= -edge))  # −5 + 100·0.05 lands at −1.8e-15: kept
     assert al.reference.gap_count == 1
     assert al.reference.longest_gap_s == pytest.approx(2.02, abs=1e-6)
 
