@@ -39,7 +39,10 @@ from ``period_s``, or detected in the reference, see :func:`benchctl.analysis.li
    lives there, with few degrees of freedom) and the rest, each a scaled χ² with
    Satterthwaite's ν from its own bins (``var ≈ level²``), corrected for ν's bias
    (:func:`unbiased_dof`); combined by the modified large-sample method so that each keeps
-   its own skew.
+   its own skew. With no line among the lowest ``2·DRIFT_BINS`` bins, those bins' term is a
+   drift's, from the residual's cosine transform with its exact quantiles; and a power that
+   changes from segment to segment widens the interval
+   (:mod:`benchctl.analysis.stationarity`).
 
 Pure computation on arrays; see :func:`analyze_lines`.
 """
@@ -125,7 +128,7 @@ class LineAnalysis:
     reliable: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     snr_floor: float = SNR_FLOOR
     band: dict[str, Any] | None = None  # the band-limited variance (analyze_lines' band_hz)
-    stationarity: Stationarity | None = None  # the period-to-period test (stationarity.py)
+    stationarity: Stationarity | None = None  # the segment-to-segment test (stationarity.py)
 
     @property
     def gain(self) -> FloatArray:
