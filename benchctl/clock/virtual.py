@@ -13,7 +13,8 @@ Hazards, and what the clock does about them:
 
 - A thread that waits *outside* the clock (``time.sleep``, a socket, a plain ``threading``
   lock) keeps the baton and everything stops. A real-time watchdog (``hang_s`` of the host's
-  time without one hand-over) names the thread and the line it is on, raises
+  time without one hand-over; a gap in which the whole process was stopped counts as two of
+  its steps at most) names the thread and the line it is on, raises
   :class:`~benchctl.errors.SimulationHang` in it (delivered as soon as it runs Python code
   again) and keeps the message in :attr:`VirtualClock.hang`.
 - Every thread waiting with no deadline and nobody left to wake it: the thread that entered the
@@ -437,14 +438,22 @@ class VirtualClock:
 
     # -- the watchdog -------------------------------------------------------------------------
     def _watch(self) -> None:
+        # host time without a hand-over, counted in the watchdog's own steps: a step longer
+        # than two of them means the whole process was stopped (SIGSTOP, a suspended machine)
+        # and the thread holding the clock was not stuck, so it counts as two at most
+        interval = min(1.0, self.hang_s / 4)
         last = self.switches
-        quiet_since = time.monotonic()
-        while not self._watchdog_stop.wait(min(1.0, self.hang_s / 4)):
+        quiet = 0.0
+        prev = time.monotonic()
+        while not self._watchdog_stop.wait(interval):
+            now = time.monotonic()
+            step, prev = min(now - prev, 2.0 * interval), now
             if self.switches != last:
                 last = self.switches
-                quiet_since = time.monotonic()
+                quiet = 0.0
                 continue
-            if time.monotonic() - quiet_since < self.hang_s:
+            quiet += step
+            if quiet < self.hang_s:
                 continue
             cur = self._current
             if cur is None or cur.ident is None:
@@ -460,7 +469,7 @@ class VirtualClock:
             ctypes.pythonapi.PyThreadState_SetAsyncExc(
                 ctypes.c_ulong(cur.ident), ctypes.py_object(SimulationHang)
             )
-            quiet_since = time.monotonic()
+            quiet = 0.0
 
 
 class VEvent:

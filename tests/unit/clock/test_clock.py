@@ -167,6 +167,25 @@ def test_a_wait_outside_the_clock_is_named_by_the_watchdog() -> None:
     assert "MainThread" in clock.hang and "time.sleep(0.05)" in clock.hang
 
 
+def test_a_stopped_process_is_not_a_hang(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole process stopped for longer than ``hang_s`` (SIGSTOP, a suspended machine)
+    while a thread held the clock: host time jumps, but that thread was not stuck. A
+    campaign run paused that way for 50 min ended in SimulationHang (seed 600569)."""
+    import benchctl.clock.virtual as virtual
+
+    jump = [0.0]
+    real = time.monotonic
+    monkeypatch.setattr(virtual.time, "monotonic", lambda: real() + jump[0])
+    clock = VirtualClock(start_s=0.0, hang_s=4.0)  # the watchdog looks every 1 s
+    with clock.running():
+        start = real()
+        jump[0] = 3000.0  # the host's clock leaps, as after SIGCONT …
+        while real() < start + 1.3:  # … while this thread holds the clock, busy, past the
+            pass  # watchdog's first look (that look saw 3000 s without a hand-over)
+        clock.sleep(0.01)
+    assert clock.hang is None
+
+
 def test_a_thread_not_started_by_the_clock_is_refused() -> None:
     clock = VirtualClock(start_s=0.0)
     errors: list[BaseException] = []
