@@ -148,9 +148,8 @@ def modulated_error(x: NDArray[np.float64], rng: np.random.Generator) -> NDArray
 
 
 def modulated_variance(x: NDArray[np.float64]) -> float:
-    """E over φ of the record's mean square about its mean (x of zero mean over whole
-    periods): ``mean(x²·E(g − 1)²) − E(mean((g − 1)x))²`` with the second term 0 to 1e-6
-    relative, from an 720-point quadrature over φ."""
+    """E over φ of the record's mean square about its mean: the modulated gain's error
+    averaged over a 720-point quadrature of φ, plus the white noise's variance."""
     phases = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
     total = 0.0
     for ph in phases:

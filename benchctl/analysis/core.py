@@ -441,12 +441,13 @@ def _result(
     ci = budget.ci
     # σ's uncertainty budget (budget.py): the same sources, GUM style, for the headline σ
     sigma_corrected = float(np.sqrt(variance + mean_removal))
+    stationarity = (None if la is None or la.stationarity is None
+                    else la.stationarity.to_dict())
     gum = uncertainty_budget(
         sigma=sigma, sigma_corrected=sigma_corrected, ci_statistical=budget.ci_statistical,
         dof=dof, timing_cross_variance=budget.cross, timing_bias_variance=budget.bias,
         bridge_variance=al.bridge_variance, reference=reference or Reference(),
-        stationarity=(None if la is None or la.stationarity is None
-                      else la.stationarity.to_dict()))
+        stationarity=stationarity)
     if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
         warnings.append(al.timing_warning(variance, budget.cross, budget.offset_u_s))
     if al.device.gap_count:
@@ -530,8 +531,7 @@ def _result(
             "mean_removal": mean_removal,
             "sigma_corrected": sigma_corrected,
             "dof_parts": None if la is None else dict(la.dof_parts),
-            "stationarity": (None if la is None or la.stationarity is None
-                             else la.stationarity.to_dict()),
+            "stationarity": stationarity,
             "dof_motion_random": dof_rand if np.isfinite(dof_rand) else None,
             "sigma_ci95_motion_random": [ci_rand[0], ci_rand[1]],
             "duration_for_5pct": duration_for_precision(duration_eff, dof),

@@ -347,7 +347,8 @@ def analyze_lines(
     coef = np.ones(nb)
     coef[1] += mean_removal / max(level[1], 1e-300) if level[1] > 0 else 0.0
     parts: list[tuple[float, ...]] = list(_parts(coef * level, coef**2 * var_bin, groups, coef))
-    low_var = float(np.sum((coef**2 * var_bin)[groups[0][0]:groups[0][1]]))
+    group0 = float(np.sum((coef**2 * var_bin)[groups[0][0]:groups[0][1]]))
+    low_var = group0  # the lowest group's variance: its bins', or the drift term's
     if drift is not None:
         value, low_var, nu, g_low, h_low = low_part(drift, mean_removal)
         parts[0] = (value, nu, g_low, h_low)
@@ -367,9 +368,8 @@ def analyze_lines(
     widen = 0.0 if stat is None else stat.widening()
     cross = max(0.0, float(np.sum(2.0 * lin_k * s)))  # unbiased: P̂_k not clipped
     var_ci = mls_interval(theta, parts, cross + widen)
-    total_var = (float(np.sum(coef**2 * var_bin)) - float(np.sum(
-        (coef**2 * var_bin)[groups[0][0]:groups[0][1]])) + low_var + cross
-        + (0.0 if stat is None else stat.extra_variance))
+    total_var = (float(np.sum(coef**2 * var_bin)) - group0 + low_var + cross
+                 + (0.0 if stat is None else stat.extra_variance))
     dof = 2.0 * theta**2 / total_var if total_var > 0 else float("inf")
     # linear part: Gaussian; incoherent part: the noise components with the estimation
     # error of the noise at the lines in place of its realisation

@@ -1,5 +1,5 @@
-"""Is the error stationary? The residual's power period by period, against what a stationary
-error's spectrum predicts; and the slow parts of σ's interval that a spectrum alone gets wrong.
+"""Is the error stationary? Its power segment by segment, against what a stationary error's
+spectrum predicts; and the slow parts of σ's interval that a spectrum alone gets wrong.
 
 The line-wise estimate's interval of σ (:mod:`benchctl.analysis.linewise`) holds for an error
 whose incoherent part is stationary: its variance estimate then has the degrees of freedom its
@@ -62,7 +62,6 @@ from benchctl.analysis.uncertainty import weighted_chi2_factors
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
-IntArray = NDArray[np.int64]
 
 MIN_SEGMENTS = 6  # segments of the stationarity test (whole periods when there are as many)
 ONE_PERIOD_SEGMENTS = 8  # … and of a one-period record's
@@ -80,7 +79,7 @@ Z975 = 1.959963984540054
 
 @dataclass(frozen=True)
 class Stationarity:
-    """The period-to-period test of the residual's power (deg², per segment)."""
+    """The segment-to-segment test of the error's power (deg², per segment)."""
 
     segments: int
     segment_s: float
