@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import queue
 import threading
 import time
@@ -296,3 +297,31 @@ def test_a_host_stall_holds_the_hosts_threads_not_the_devices() -> None:
         d.join()
     assert host == [0.3, 0.6, 0.9, 1.55]  # due at 1.2: ran at 1.55
     assert device == [round(0.1 * k, 9) for k in range(1, 21)]  # on time throughout
+
+
+def _affinity() -> set[int] | None:
+    get = getattr(os, "sched_getaffinity", None)
+    return None if get is None else set(get(0))
+
+
+def test_a_running_clock_keeps_its_threads_on_one_cpu_and_gives_the_set_back() -> None:
+    """Inside ``running()`` the entering thread and the threads the clock starts share one CPU
+    (where the process may use more than one); on leaving, the former set is back. A clock
+    made with ``pin_cpu=False`` changes nothing."""
+    before = _affinity()
+    c = VirtualClock()
+    seen: list[set[int] | None] = []
+    with c.running():
+        inside = _affinity()
+        t = c.thread(lambda: seen.append(_affinity()), name="worker")
+        t.start()
+        t.join()
+    after = _affinity()
+    assert after == before
+    if before is not None and len(before) > 1:
+        assert inside is not None and len(inside) == 1 and inside <= before
+        assert seen == [inside]
+    else:  # one CPU allowed, or no affinity call here: nothing to change
+        assert inside == before and seen == [before]
+    with VirtualClock(pin_cpu=False).running():
+        assert _affinity() == before
