@@ -25,13 +25,16 @@ Hazards, and what the clock does about them:
   wait raises :class:`ClockClosed` (a ``BaseException``, so ``except Exception`` loops unwind).
 
 One CPU: while a clock runs, its threads are kept on the CPU the entering thread was on
-(``pin_cpu``, on Linux; its former CPU set is given back as it leaves). Only one of them runs
-at a time anyway, and a hand-over between threads on two CPUs costs a cross-CPU wake-up and a
-contended interpreter lock each time: 50–100 µs against about 9 µs on one CPU on a 2-core
-virtual machine, about a fifth of the paper's 15-minute test's host time (220 000 hand-overs).
+(``pin_cpu``, on Linux; its former CPU set is given back as it leaves). Every two seconds the
+watchdog lets the operating system place them anew for 20 ms and keeps them where the thread
+holding the baton went, so a CPU shared with another busy process is not kept for a whole run.
+Only one of them runs at a time anyway, and a hand-over between threads on two CPUs costs a
+cross-CPU wake-up and a contended interpreter lock each time: 50–100 µs against about 9 µs on
+one CPU on a 2-core virtual machine, about a fifth of the paper's 15-minute test's host time
+(220 000 hand-overs).
 The schedule, and so every byte a run records, does not depend on it.
 
-Why this module stays whole (about 850 lines): it is one scheduler. The primitives below the
+Why this module stays whole (about 880 lines): it is one scheduler. The primitives below the
 clock (``VEvent``, ``VLock``/``VRLock``, ``VCondition``, ``VQueue``, ``VThread``) are not users
 of a public interface but the scheduler's own blocking points: each one takes the clock's mutex
 (``_mu``), reads its simulated now (``_now``), parks the calling task and hands the baton on
@@ -72,10 +75,18 @@ _get_ident = threading.get_ident
 DEFAULT_EPOCH = datetime(2026, 1, 1, tzinfo=UTC)
 
 
-def _current_cpu() -> int | None:
-    """The CPU the calling thread runs on now (Linux: field 39 of its ``stat``), or None."""
+#: every how many watchdog steps (1 s each) the clock's threads may be moved to another CPU,
+#: and for how long (s) the operating system may place them anew then (``_repin``)
+REPIN_STEPS = 2
+REPIN_WINDOW_S = 0.02
+
+
+def _cpu_of(native_id: int | None = None) -> int | None:
+    """The CPU a thread of this process (its operating system id; None: the calling thread)
+    last ran on (Linux: field 39 of its ``stat``), or None."""
+    path = "/proc/thread-self/stat" if native_id is None else f"/proc/self/task/{native_id}/stat"
     try:
-        with open("/proc/thread-self/stat", "rb") as f:
+        with open(path, "rb") as f:
             stat = f.read()
         return int(stat[stat.rindex(b")") + 2:].split()[36])
     except (OSError, ValueError, IndexError):
@@ -94,7 +105,7 @@ def pin_to_this_cpu() -> set[int] | None:
         return None
     try:
         allowed = set(get(0))
-        cpu = _current_cpu()
+        cpu = _cpu_of()
         if len(allowed) < 2 or cpu is None or cpu not in allowed:
             return None
         set_(0, {cpu})
@@ -117,6 +128,7 @@ class _Task:
         "joiners",
         "kill",
         "name",
+        "native",
         "resume_timed_out",
         "sem",
         "timed_out",
@@ -139,6 +151,8 @@ class _Task:
         self.kill = False
         self.error: BaseException | None = None
         self.ident: int | None = None
+        #: the operating system's id of its thread (its CPU is moved by that id)
+        self.native: int | None = None
         self.joiners: list[_Task] = []
 
 
@@ -200,6 +214,8 @@ class VirtualClock:
         self.hang: str | None = None
         self._watchdog: threading.Thread | None = None
         self._watchdog_stop = threading.Event()
+        #: the CPU set the clock's threads had before they were kept on one CPU, or None
+        self._pinned: set[int] | None = None
 
     # -- time -----------------------------------------------------------------------------
     def monotonic(self) -> float:
@@ -314,12 +330,13 @@ class VirtualClock:
                 raise SimulationHang("the virtual clock is already running")
             task = _Task(threading.current_thread().name)
             task.ident = me
+            task.native = threading.get_native_id()
             self._tasks[me] = task
             self._alive.append(task)
             self._root = task
             self._current = task
         # before any clock thread starts: they inherit the entering thread's CPU set
-        restore = pin_to_this_cpu() if self.pin_cpu else None
+        restore = self._pinned = pin_to_this_cpu() if self.pin_cpu else None
         self._watchdog_stop.clear()
         self._watchdog = threading.Thread(
             target=self._watch, name="virtual-clock-watchdog", daemon=True
@@ -338,6 +355,8 @@ class VirtualClock:
                 self._current = None
                 self._closing = False
             if restore is not None:
+                self._pinned = None
+                self._watchdog.join(timeout=1.0)  # not moving threads any more (a host wait)
                 with contextlib.suppress(OSError):
                     os.sched_setaffinity(0, restore)
 
@@ -484,6 +503,30 @@ class VirtualClock:
             nxt.sem.release()
 
     # -- the watchdog -------------------------------------------------------------------------
+    def _repin(self, allowed: set[int]) -> None:
+        """Let the operating system place the clock's threads anew for a moment, then keep them
+        on the CPU the one holding the baton went to: a CPU shared with another busy process
+        when the clock was entered (another run kept on it, a child process that has ended
+        since) is not kept for the whole run while another CPU stands idle."""
+
+        def natives() -> list[int]:
+            with self._mu:
+                return [t.native for t in self._alive if t.native is not None]
+
+        me = threading.get_native_id()
+        for tid in [*natives(), me]:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, allowed)
+        if self._watchdog_stop.wait(REPIN_WINDOW_S):
+            return  # the clock is being left: its entering thread gives the set back
+        cur = self._current
+        cpu = None if cur is None or cur.native is None else _cpu_of(cur.native)
+        if cpu is None or cpu not in allowed:
+            return
+        for tid in [*natives(), me]:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, {cpu})
+
     def _watch(self) -> None:
         # host time without a hand-over, counted in the watchdog's own steps: a step longer
         # than two of them means the whole process was stopped (SIGSTOP, a suspended machine)
@@ -492,7 +535,11 @@ class VirtualClock:
         last = self.switches
         quiet = 0.0
         prev = time.monotonic()
+        steps = 0
         while not self._watchdog_stop.wait(interval):
+            steps += 1
+            if self._pinned is not None and steps % REPIN_STEPS == 0:
+                self._repin(self._pinned)
             now = time.monotonic()
             step, prev = min(now - prev, 2.0 * interval), now
             if self.switches != last:
@@ -805,6 +852,7 @@ class VThread:
 
         def body() -> None:
             task.ident = threading.get_ident()
+            task.native = threading.get_native_id()
             with c._mu:
                 c._tasks[task.ident] = task
             registered.set()

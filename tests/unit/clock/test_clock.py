@@ -325,3 +325,33 @@ def test_a_running_clock_keeps_its_threads_on_one_cpu_and_gives_the_set_back() -
         assert inside == before and seen == [before]
     with VirtualClock(pin_cpu=False).running():
         assert _affinity() == before
+
+
+def test_the_clocks_threads_may_move_together_to_another_cpu() -> None:
+    """``_repin`` (the watchdog's, every two seconds): the clock's threads are let free for a
+    moment and kept together again where the thread holding the baton went, one CPU of the
+    former set; leaving the clock gives the whole set back."""
+    before = _affinity()
+    if before is None or len(before) < 2:
+        with VirtualClock().running():
+            assert _affinity() == before  # nothing kept, nothing moved
+        return
+    c = VirtualClock()
+    seen: list[set[int] | None] = []
+    with c.running():
+        go = c.event()
+
+        def worker() -> None:
+            go.wait()
+            seen.append(_affinity())
+
+        t = c.thread(worker, name="worker")
+        t.start()
+        c.sleep(0.1)  # the worker runs up to its wait
+        c._repin(before)
+        here = _affinity()
+        go.set()
+        t.join()
+    assert here is not None and len(here) == 1 and here <= before
+    assert seen == [here]
+    assert _affinity() == before
