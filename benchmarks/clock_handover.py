@@ -2,12 +2,12 @@
 
 Two clock threads pass the baton back and forth through two events (``set`` then ``wait``), N
 times each way: every pass is one hand-over between two operating-system threads, the step a
-simulated run takes about 540 times per simulated second (the stand loop, the instrument's
-reader, the simulators). Measured twice in one process, alternating, so that both see the same
-load: ``VirtualClock(pin_cpu=True)`` (the default: the threads kept on one CPU while the clock
-runs) and ``pin_cpu=False``. Printed: host µs and CPU µs per hand-over, each the median of the
-rounds, and their ratio. The machine's load average is printed before and after: this is a
-measurement on a shared machine.
+simulated run takes about 245 times per simulated second (the stand loop, the instrument's
+reader, the simulators; 220 000 times in the paper's 15-minute test). Measured twice in one
+process, alternating, so that both see the same load: ``VirtualClock(pin_cpu=True)`` (the
+default: the threads kept on one CPU while the clock runs) and ``pin_cpu=False``. Printed: host
+µs and CPU µs per hand-over, each the median of the rounds, and their ratio. The machine's load
+average is printed before and after: this is a measurement on a shared machine.
 
 Usage: python benchmarks/clock_handover.py [--n 20000] [--rounds 3]
 """
