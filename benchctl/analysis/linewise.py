@@ -225,6 +225,12 @@ def noise_spectrum(spec: ComplexArray, deviation: ComplexArray, bins: IntArray,
     return full
 
 
+def _centred_power(x: FloatArray, mask: NDArray[np.bool_]) -> float:
+    """``Σ (x − x̄)²`` over the slots ``mask`` holds."""
+    xd = np.where(mask, x - x[mask].mean(), 0.0)
+    return float(np.dot(xd, xd))
+
+
 def _power(spectrum: ComplexArray, n: int) -> float:
     """``Σ_s r_s²`` of a real series of length n from its rfft (Parseval)."""
     a = spectrum.real**2 + spectrum.imag**2
@@ -279,8 +285,7 @@ def analyze_lines(
     if changed:
         fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
     cx, cy = fit.coef[0], fit.coef[1]
-    xd = np.where(mask, x - x[mask].mean(), 0.0)
-    ref_var = float(np.dot(xd, xd))
+    ref_var = _centred_power(x, mask)
     rpow = fit.residual_power()
     ref_fit = 1.0 - float(rpow[0]) / ref_var
     if ref_fit < REFERENCE_FIT_MIN or np.any(cx == 0):
@@ -291,6 +296,11 @@ def analyze_lines(
         )
     e = cy - cx
     spec = fit.spectrum[1] - fit.spectrum[0]  # the residual of ε = y − x
+    # of the fit, only what is used below: its two residual spectra (two records' length of
+    # memory) are kept for the distortion estimate alone
+    exact, iterations = fit.exact, fit.iterations
+    both = fit.spectrum if lines.is_odd_multisine and n_periods >= 2 else None
+    del fit
     u = 2.0 * (spec.real**2 + spec.imag**2) / float(n_valid) ** 2  # line units
     nb = len(u)
     bins = np.rint(lines.freq * n * dt).astype(np.int64)
@@ -398,8 +408,8 @@ def analyze_lines(
         band = _band(band_hz, n * dt, bins, lin_k, s, level, var_bin, groups)
     distortion, notes = None, []
     if lines.is_odd_multisine:
-        if n_periods >= 2:
-            distortion = analyze_distortion(fit.spectrum[0], fit.spectrum[1], n_valid, n_periods,
+        if both is not None:
+            distortion = analyze_distortion(both[0], both[1], n_valid, n_periods,
                                             lines.period_s, lines.all_excited)
         elif lines.odd:
             notes.append("no distortion estimate: an odd multisine, but the record holds one "
@@ -434,8 +444,8 @@ def analyze_lines(
         dof=dof,
         dof_parts=dof_parts,
         reference_fit=ref_fit,
-        exact=fit.exact,
-        iterations=fit.iterations,
+        exact=exact,
+        iterations=iterations,
         warnings=notes,
         distortion=distortion,
         snr=snr,

@@ -117,8 +117,9 @@ class Stationarity:
 
 def _demeaned(r: FloatArray, mask: NDArray[np.bool_]) -> FloatArray:
     out = np.where(mask, r, 0.0)
-    if mask.any():
-        out = np.where(mask, out - out[mask].mean(), 0.0)
+    if mask.any():  # in place: one record's length of memory, not two
+        out -= out[mask].mean()
+        out[~mask] = 0.0
     return out
 
 
@@ -217,16 +218,20 @@ def assess(series: FloatArray, noise_spectrum: ComplexArray, mask: NDArray[np.bo
         return None
     cut = 2 * segments if lowest_line_bin is None else min(2 * segments, lowest_line_bin)
 
-    def high_pass(v: FloatArray) -> FloatArray:
-        d = dct(_demeaned(v, mask), type=2, norm="ortho")
+    def high_pass_power(v: FloatArray) -> FloatArray:
+        """Each segment's mean square of ``v`` high-passed (arrays reused in place: a long
+        record's analysis peaks here)."""
+        d = dct(_demeaned(v, mask), type=2, norm="ortho", overwrite_x=True)
         d[: 2 * cut] = 0.0  # DCT index k is frequency k/(2T): DFT bin k/2
-        return np.where(mask, idct(d, type=2, norm="ortho"), 0.0)
+        hp = idct(d, type=2, norm="ortho", overwrite_x=True)
+        del d
+        hp[~mask] = 0.0
+        np.square(hp, out=hp)
+        return np.asarray(np.add.reduceat(hp, edges[:-1]) / counts, dtype=float)
 
-    hp = high_pass(series)
-    ms = np.add.reduceat(hp * hp, edges[:-1]) / counts
+    ms = high_pass_power(series)
     if baseline is not None:  # the same filter: a line near the cut loses the same to it
-        b = high_pass(baseline)
-        ms = ms - np.add.reduceat(b * b, edges[:-1]) / counts
+        ms = ms - high_pass_power(baseline)
     n_valid = max(float(mask.sum()), 1.0)
     c2 = _sum_c2(noise_spectrum, n, cut) * (n / n_valid) ** 2
     # var(m_j) of a stationary Gaussian noise, and the lines' cross term with it
