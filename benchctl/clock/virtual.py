@@ -30,9 +30,8 @@ watchdog lets the operating system place them anew for 20 ms and keeps them wher
 holding the baton went, so a CPU shared with another busy process is not kept for a whole run.
 Only one of them runs at a time anyway, and a hand-over between threads on two CPUs costs a
 cross-CPU wake-up and a contended interpreter lock each time: 50–100 µs against about 9 µs on
-one CPU on a 2-core virtual machine, about a fifth of the paper's 15-minute test's host time
-(220 000 hand-overs).
-The schedule, and so every byte a run records, does not depend on it.
+one CPU on a 2-core virtual machine, about a quarter of the paper's 15-minute test's host time
+(220 000 hand-overs). The schedule, and so every byte a run records, does not depend on it.
 
 Why this module stays whole (about 880 lines): it is one scheduler. The primitives below the
 clock (``VEvent``, ``VLock``/``VRLock``, ``VCondition``, ``VQueue``, ``VThread``) are not users
@@ -509,23 +508,21 @@ class VirtualClock:
         when the clock was entered (another run kept on it, a child process that has ended
         since) is not kept for the whole run while another CPU stands idle."""
 
-        def natives() -> list[int]:
+        def place(cpus: set[int]) -> None:  # the clock's threads and this watchdog
             with self._mu:
-                return [t.native for t in self._alive if t.native is not None]
+                tids = [t.native for t in self._alive if t.native is not None]
+            for tid in [*tids, threading.get_native_id()]:
+                with contextlib.suppress(OSError):
+                    os.sched_setaffinity(tid, cpus)
 
-        me = threading.get_native_id()
-        for tid in [*natives(), me]:
-            with contextlib.suppress(OSError):
-                os.sched_setaffinity(tid, allowed)
+        place(allowed)
         if self._watchdog_stop.wait(REPIN_WINDOW_S):
             return  # the clock is being left: its entering thread gives the set back
         cur = self._current
         cpu = None if cur is None or cur.native is None else _cpu_of(cur.native)
         if cpu is None or cpu not in allowed:
             return
-        for tid in [*natives(), me]:
-            with contextlib.suppress(OSError):
-                os.sched_setaffinity(tid, {cpu})
+        place({cpu})
 
     def _watch(self) -> None:
         # host time without a hand-over, counted in the watchdog's own steps: a step longer
