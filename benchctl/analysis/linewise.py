@@ -369,10 +369,13 @@ def analyze_lines(
     elif n_periods == 1 and noise.lpm.any() and noise.deviation is not None:
         smooth = np.zeros(nb, dtype=complex)
         smooth[bins] = np.where(noise.lpm, e - noise.deviation, e) * (n_valid / 2.0)
+        baseline = irfft(smooth, n)
+        del smooth  # a record's length less at the analysis's peak (in assess)
         stat = assess(np.where(mask, y - x, 0.0), noise_spectrum(spec, noise.deviation, bins,
                                                                  n_valid),
                       mask, dt, ONE_PERIOD_SEGMENTS, float(np.sum(np.maximum(lin_k, 0.0) * s)),
-                      baseline=irfft(smooth, n), lowest_line_bin=int(bins.min()))
+                      baseline=baseline, lowest_line_bin=int(bins.min()))
+        del baseline
     else:
         stat = None
     widen = 0.0 if stat is None else stat.widening()
