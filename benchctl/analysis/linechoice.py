@@ -56,21 +56,21 @@ def _line_set(
     n = len(al.mask)
     if isinstance(lines, LineSet):
         return lines, None
-    if period_s is not None:
-        count = whole_periods(n, al.dt, LineSet(float(period_s), np.array([1]), "period"))
-        harm = reference_lines(al.x, al.mask, count)
-        if harm.size == 0:
-            raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
-        return LineSet(float(period_s), harm, "period"), None
-    if lines != "auto":
+    if period_s is None and lines != "auto":
         return None, None
     x_spectrum = None
-    if bool(al.mask.all()):  # one transform of x for the detection and the fit
+    if bool(al.mask.all()):  # one transform of x for the lines and the fit
         x_spectrum = rfft(al.x)
         power = x_spectrum.real**2 + x_spectrum.imag**2
         power[0] = 0.0
     else:
         power = periodogram(al.x, al.mask)
+    if period_s is not None:
+        count = whole_periods(n, al.dt, LineSet(float(period_s), np.array([1]), "period"))
+        harm = reference_lines(al.x, al.mask, count, power)
+        if harm.size == 0:
+            raise LinesError(f"the reference is excited at no harmonic of {period_s:g} s")
+        return LineSet(float(period_s), harm, "period"), x_spectrum
     count_or_none = detect_period(al.x, al.mask, power)
     if count_or_none is None:
         return None, None
@@ -118,7 +118,11 @@ def line_analysis(
             warnings.append(whole[1])
         if ls is None:
             return None
-        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, x_spectrum, band_hz)
+        # the reference's spectrum handed over, not kept here: the line-wise estimate lets it
+        # go after its first fit (a record's length of memory less at its peak)
+        handed = [x_spectrum]
+        del x_spectrum
+        la = analyze_lines(al.x, al.y, al.mask, al.dt, ls, al.t, handed.pop(), band_hz)
         warnings.extend(la.warnings)
         return la
     except LinesError as e:

@@ -280,6 +280,7 @@ def analyze_lines(
     nominal = lines.period_s
     fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets,
                     x_spectrum)
+    del x_spectrum  # used once (the caller keeps none: memory at the peak below)
     lines, changed = refine_period(x, mask, dt, lines, offsets, fit)
     n_periods = whole_periods(n, dt, lines)
     if changed:

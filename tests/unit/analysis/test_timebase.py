@@ -435,3 +435,41 @@ def test_stamps_on_a_grid_take_the_short_way_to_the_same_slots() -> None:
     assert k[500] - k[499] == 2
     rng = np.random.default_rng(3)
     assert not tb._uniform(grid + rng.normal(0.0, 1e-4, grid.size))
+
+
+@settings(max_examples=60)
+@given(
+    n=st.integers(min_value=16, max_value=400),
+    nb=st.integers(min_value=2, max_value=8),
+    q=st.sampled_from([0.5, 0.1, 0.05]),
+    drop=st.floats(min_value=0.0, max_value=0.6),
+    seed=st.integers(min_value=0, max_value=2**31 - 1),
+)
+def test_block_levels_are_the_sorted_blocks_quantiles(
+    n: int, nb: int, q: float, drop: float, seed: int
+) -> None:
+    """Each block's level is the ``q`` quantile (linear between order statistics) of its kept
+    residuals, exactly as a sort of every block gives it, whichever blocks are whole (their
+    order statistics come from a partition) and whichever lose samples (a sort)."""
+    from benchctl.analysis.clockfit import _block_levels
+
+    rng = np.random.default_rng(seed)
+    x = np.arange(n, dtype=float)
+    r = rng.normal(size=n)
+    r[rng.random(n) < 0.1] = 1.0  # ties
+    keep = rng.random(n) >= drop
+    size = -(-n // nb)
+    kx, kl = _block_levels(x, r, keep, nb, q)
+    want_x, want_l = [], []
+    for b in range(nb):
+        sl = slice(b * size, min(n, (b + 1) * size))
+        kept = np.sort(r[sl][keep[sl]])
+        if kept.size < max(8, size // 10) or sl.start >= n:
+            continue
+        pos = q * (kept.size - 1)
+        lo = math.floor(pos)
+        hi = min(lo + 1, kept.size - 1)
+        want_l.append(kept[lo] + (pos - lo) * (kept[hi] - kept[lo]))
+        want_x.append(float(np.mean(x[sl])))
+    assert np.array_equal(kl, np.array(want_l))
+    np.testing.assert_allclose(kx, want_x, rtol=0, atol=1e-9)
