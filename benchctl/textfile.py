@@ -7,15 +7,20 @@ what it is and what was expected — before anything is read. A device (``/dev/z
 ``O_NONBLOCK`` (opening a FIFO with no writer never waits) and checked with ``fstat`` on that
 same descriptor, so what is checked is what is read. The size is checked twice: by ``fstat``,
 and while reading (a file that grows, or one whose size the kernel does not know, stops one byte
-past the cap).
+past the cap). A library that parses faster from a path than from bytes (numpy's loadtxt) may
+read the same file again through the descriptor (:func:`input_file`: ``/proc/self/fd/N``, the
+same inode) while it is still open; what it read is used only if the file is unchanged since.
 
 Text is UTF-8 (:func:`decode_utf8`), or an error that names the line and the byte.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchctl.errors import InputError
@@ -71,13 +76,51 @@ def read_input(path: Path, what: str, error: type[InputError], max_bytes: int) -
     """The bytes of ``path``, a regular file of at most ``max_bytes``; else ``error`` naming
     the file, what it is (a device, a FIFO, a folder, its size) and ``what`` was expected.
     Never blocks on a FIFO or a device and never reads more than ``max_bytes + 1`` bytes."""
+    with input_file(path, what, error, max_bytes) as f:
+        return f.data
+
+
+@dataclass(frozen=True)
+class InputFile:
+    """A file read by :func:`input_file`: its bytes, and the open descriptor they came from."""
+
+    path: Path
+    data: bytes
+    fd: int
+    stat: os.stat_result
+
+    def reopened(self) -> str | None:
+        """A path by which a library may read the very same file again while it is open
+        (``/proc/self/fd/N``: the same inode, whatever its name now points at), or None where
+        the system has no such path. Check :meth:`unchanged` after that read."""
+        proc = f"/proc/self/fd/{self.fd}"
+        return proc if os.path.exists(proc) else None
+
+    def unchanged(self) -> bool:
+        """The file still holds what was read: its size, modification and change times are
+        those it had before the read (a second reader read the same bytes)."""
+        try:
+            now = os.fstat(self.fd)
+        except OSError:
+            return False
+        then = self.stat
+        return (now.st_size, now.st_mtime_ns, now.st_ctime_ns) == (
+            len(self.data), then.st_mtime_ns, then.st_ctime_ns)
+
+
+@contextlib.contextmanager
+def input_file(path: Path, what: str, error: type[InputError],
+               max_bytes: int) -> Iterator[InputFile]:
+    """:func:`read_input`, the descriptor kept open while the block runs (see
+    :meth:`InputFile.reopened`)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError as e:
         raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
     try:
         try:
-            _check(os.fstat(fd), path, what, error, max_bytes)
+            st = os.fstat(fd)
+            _check(st, path, what, error, max_bytes)
             chunks: list[bytes] = []
             total = 0
             while True:
@@ -92,9 +135,11 @@ def read_input(path: Path, what: str, error: type[InputError], max_bytes: int) -
                     )
         except OSError as e:
             raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+        data = b"".join(chunks)
+        del chunks
+        yield InputFile(Path(path), data, fd, st)
     finally:
         os.close(fd)
-    return b"".join(chunks)
 
 
 def check_input_file(path: Path, what: str, error: type[InputError], max_bytes: int) -> None:

@@ -400,3 +400,36 @@ def test_a_table_longer_than_the_stands_is_refused_before_anything_opens() -> No
     # a table that fits is prepared
     ok = prepare_motion(cfg, ROOT / "profiles/sine_5s_5deg.yaml", RunOptions("S", "O"))
     assert ok.plan.tables is not None
+
+
+# ------------------------------------------------------------- a CSV read once, parsed fast
+def test_a_csv_parsed_by_its_descriptor_is_the_bytes_read_and_a_changed_file_is_noticed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """loadtxt reads the open file again by /proc/self/fd (its fast path); the columns are
+    exactly those of the bytes read, and where the file changed after it was read the bytes
+    read are parsed instead (never a mix of two versions of the file)."""
+    from benchctl.analysis import inputs
+    from benchctl.errors import DataError
+    from benchctl.textfile import InputFile, input_file
+
+    p = tmp_path / "r.csv"
+    t = np.arange(2000) * 0.01
+    rows = "".join(f"{a:.2f},{np.sin(a):.6f},{np.cos(a):.6f}\n" for a in t)
+    p.write_text("\ufefftime,reference,device\r\n" + rows.replace("\n", "\r\n"))
+    fast = load_single_csv(p)
+    assert np.array_equal(fast.t_ref, np.round(t, 2)) and fast.x_ref[5] == round(math.sin(0.05), 6)
+    # the slow path (no /proc path) gives the same arrays
+    monkeypatch.setattr(InputFile, "reopened", lambda self: None)
+    slow = load_single_csv(p)
+    for a, b in ((fast.t_ref, slow.t_ref), (fast.x_ref, slow.x_ref), (fast.y_dev, slow.y_dev)):
+        assert np.array_equal(a, b)
+    monkeypatch.undo()
+    # changed after the read: unchanged() says so, and the bytes read are what is parsed
+    with input_file(p, "CSV file", DataError, 1 << 20) as f:
+        assert f.reopened() is not None and f.unchanged()
+        with p.open("a") as fh:
+            fh.write("20.00,1.0,1.0\r\n")
+        assert not f.unchanged()
+        cols = inputs._columns(p, f.data, [("time", "--time-col"), ("device", "--device-col")], f)
+    assert len(cols[0]) == 2000 and np.array_equal(cols[1], slow.y_dev)
