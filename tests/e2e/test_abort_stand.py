@@ -174,6 +174,7 @@ def test_benchctl_run_ends_its_screen_with_where_the_stand_is(
     data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
     data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
     data["run"]["output_dir"] = str(tmp_path / "runs")
+    data["run"]["figures"] = False  # the screen is what is checked, not the report's figures
     data["sim"]["faults"] = [{"target": "stand", "kind": "stand_fault", "after_motion_s": 2.0,
                               "params": {"code": 2}}]
     cfg = tmp_path / "bench.yaml"

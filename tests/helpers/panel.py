@@ -23,6 +23,24 @@ from repo_paths import ROOT
 SHORT_PROFILE = ROOT / "profiles/paper_vessel_roll_short120.yaml"
 
 
+def sim_virtual_without_figures(tmp: Path) -> Path:
+    """config/sim_virtual.yaml (simulated time) as ``tmp/bench-nofig.yaml``, its paths absolute
+    and ``run.figures: false``: the panel's runs and plans with their reports' tables but no
+    figures (matplotlib, seconds of each run's child after its verdict), for the tests about
+    the panel that look at no figure (the figures' own tests are tests/unit/report/)."""
+    import yaml
+
+    src = ROOT / "config/sim_virtual.yaml"
+    data = yaml.safe_load(src.read_text())
+    data["stand"]["register_map"] = str((src.parent / data["stand"]["register_map"]).resolve())
+    data["instrument"]["eds"] = str((src.parent / data["instrument"]["eds"]).resolve())
+    data["run"]["output_dir"] = str(tmp / "runs")
+    data["run"]["figures"] = False
+    path = tmp / "bench-nofig.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -320,10 +320,14 @@ def bench_config(tmp: Path, **run: Any) -> BenchConfig:
         # once: after a rejoin nothing settles (the analysis leaves out the hold and the path).
         # The mounting check is off unless a test turns it on: the fakes time their faults
         # from the first setpoint sent (the tilt's, with the check on), and these tests count
-        # the recording's setpoints as the profile's (test_mounting.py tests it on the fakes)
+        # the recording's setpoints as the profile's (test_mounting.py tests it on the fakes).
+        # No report figures (matplotlib: 1-3 s of each run, drawn after the verdict from
+        # report.json's data): nothing on the fakes looks at them; the report's own tests
+        # (tests/unit/report/) and the end-to-end runs (test_run_e2e.py) draw them, and a test
+        # that wants them here passes figures=True
         "run": {"limit_sigma_deg": 0.4, "output_dir": str(tmp), "precheck_window_s": 0.5,
                 "analysis": {"departure_settle_s": 0.0},
-                "mounting_check": {"enabled": False}, **run},
+                "mounting_check": {"enabled": False}, "figures": False, **run},
     }
     return parse_config(data, tmp / "bench.yaml")
 

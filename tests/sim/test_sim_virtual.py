@@ -26,6 +26,9 @@ def _config(tmp_path: Path, disturb: dict[str, Any] | None = None) -> Path:
     data["stand"]["register_map"] = str(ROOT / "drivers/stand_generic.yaml")
     data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
     data["run"]["output_dir"] = str(tmp_path / "runs")
+    # no report figures (matplotlib, seconds of each run, drawn after the verdict): the runs
+    # here are compared by their recorded data and event log, which the figures are not in
+    data["run"]["figures"] = False
     if disturb is not None:
         data["sim"]["disturb"] = disturb
     tmp_path.mkdir(parents=True, exist_ok=True)

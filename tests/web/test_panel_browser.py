@@ -14,7 +14,7 @@ import psutil
 import pytest
 from browser import chromium
 from owned_trees import OWNED_ROOTS
-from panel import free_port, get_json, post_json, serve, wait_for
+from panel import free_port, get_json, post_json, serve, sim_virtual_without_figures, wait_for
 from playwright.sync_api import Browser as PwBrowser
 from playwright.sync_api import Page, sync_playwright
 from repo_paths import ROOT
@@ -132,7 +132,8 @@ def run_status(url: str) -> Any:
 def test_a_run_to_its_verdict_by_keyboard_alone(tmp_path: Path, browser: Browser) -> None:
     page = browser.page
     page.add_init_script(ANGLES_OBSERVER)
-    with serve(tmp_path) as url:  # config/sim_virtual.yaml: simulated time, 30 s of motion
+    # config/sim_virtual.yaml (simulated time, 30 s of motion), its report without figures
+    with serve(tmp_path, config=sim_virtual_without_figures(tmp_path)) as url:
         page.goto(url)
         wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
         page.keyboard.type("20260001")
@@ -262,7 +263,8 @@ def test_a_plan_with_its_prompts_as_dialogs(tmp_path: Path, browser: Browser) ->
     come up as dialogs (No focused: Enter alone never says yes), answered from the keyboard;
     the verdict lists the steps, each with its report."""
     page = browser.page
-    with serve(tmp_path, "--plan", str(ROOT / "plans/ci_short.yaml")) as url:
+    with serve(tmp_path, "--plan", str(ROOT / "plans/ci_short.yaml"),
+               config=sim_virtual_without_figures(tmp_path)) as url:
         page.goto(url)
         page.select_option("#profile", label="ci_short")
         page.fill("#operator", "qa")
@@ -369,7 +371,8 @@ def test_a_run_in_russian_every_text_in_the_language(tmp_path: Path, browser: Br
     """The station in Russian: a refused serial in the panel's words (the check's English as
     the detail), the run's messages and its verdict screen (the verdict, the axes) in Russian."""
     page = browser.page
-    with serve(tmp_path, "--lang", "ru") as url:  # simulated time
+    with serve(tmp_path, "--lang", "ru",  # simulated time, the report without figures
+               config=sim_virtual_without_figures(tmp_path)) as url:
         page.goto(url)
         wait_for("the serial field focused", lambda: browser.focused() == "serial", 10)
         page.keyboard.press("Enter")  # nothing typed

@@ -143,8 +143,9 @@ class Run:
         for i, (t, v) in enumerate(zip(ti.tolist(), y.tolist(), strict=True)):
             w.write_instrument(InstrumentSample(t_host=t, angle_deg={"roll": v}, counter=i))
         send, slot = self.setpoints()
-        for a, b in zip(send.tolist(), slot.tolist(), strict=True):
-            w.write_setpoint(a, {"roll": float(x_profile(np.array([b]))[0])}, b)
+        # the profile at every slot at once (elementwise: each value the one slot's alone)
+        for a, b, x in zip(send.tolist(), slot.tolist(), x_profile(slot).tolist(), strict=True):
+            w.write_setpoint(a, {"roll": x}, b)
         for e in self.events():
             fields = {k: v for k, v in e.items() if k != "kind"}
             w.event(str(e["kind"]), **fields)

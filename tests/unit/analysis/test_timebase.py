@@ -258,10 +258,13 @@ def _write(
     w = RecordingWriter(path, ("roll",), _meta(driver))
     status = StandStatus(True, True, True, False, False, False)
     tr = np.arange(t_true[0] - 1.0, t_true[-1] + 1.0, 0.01)
+    # the reference at every instant at once (elementwise: each value the same as one instant's
+    # alone, without recomputing the multisine's lines per sample)
+    xr = ms.reference(tr)
     for i, t in enumerate(tr):
         rtt = 0.5 if (rtt_spike and i % 997 == 500) else 0.0004
         stamp = t + (0.25 if rtt > 0.1 else 0.0)  # a stalled poll: its midpoint far off
-        w.write_stand(StandSample(stamp, rtt, {"roll": float(ms.reference(np.array([t]))[0])},
+        w.write_stand(StandSample(stamp, rtt, {"roll": float(xr[i])},
                                   {"roll": 0.0}, {"roll": 0.0}, status))
     y = ms.through(first_order(0.05), t_true)
     for i in range(len(recv)):

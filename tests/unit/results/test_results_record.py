@@ -501,6 +501,7 @@ def test_record_of_a_simulated_run_through_the_cli(
     ran."""
     cfg_src = yaml.safe_load((ROOT / "config/sim_virtual.yaml").read_text(encoding="utf-8"))
     cfg_src["stand"]["calibration_due"] = "2027-03-31"
+    cfg_src["run"]["figures"] = False  # the record is checked here, not the report's figures
     for section, key in (("stand", "register_map"), ("instrument", "eds")):
         cfg_src[section][key] = str((ROOT / "config" / cfg_src[section][key]).resolve())
     cfg_path = tmp_path / "sim.yaml"
