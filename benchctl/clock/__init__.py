@@ -131,6 +131,13 @@ class Clock(Protocol):
         arrival, not also when they were sent)."""
         ...
 
+    def from_signal(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` for a signal handler (which runs in the main thread between two of its
+        bytecodes, wherever it was). The real clock runs it now; the virtual clock, whose own
+        mutex the interrupted thread may hold, takes no lock there and then: the thread holding
+        its baton runs ``fn`` at its next wait."""
+        ...
+
 
 class RealClock:
     """The operating system's clocks and ``threading``: a run on hardware."""
@@ -179,6 +186,9 @@ class RealClock:
 
     def set_at(self, event: EventLike, when: float) -> None:
         event.set()
+
+    def from_signal(self, fn: Callable[[], None]) -> None:
+        fn()
 
     def __repr__(self) -> str:
         return "RealClock()"

@@ -193,6 +193,9 @@ class VirtualClock:
         self.hang_s = hang_s
         self._mu = threading.Lock()
         self._ready: deque[_Task | _Callback] = deque()
+        #: what signal handlers handed in (from_signal): appended without a lock, run by the
+        #: thread holding the baton at its next wait
+        self._signalled: deque[Callable[[], None]] = deque()
         self._in_callback = 0
         #: (deadline, seq, task, wait id, resume) of a timed wait, or (when, seq, event, 0,
         #: False) of an event set at a time (set_at), or (when, seq, callback, 0, False)
@@ -243,6 +246,22 @@ class VirtualClock:
             return
         with self._mu:
             heapq.heappush(self._timers, (when, next(self._seq), event, 0, False))
+
+    def from_signal(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` for a signal handler: the handler runs in the main thread between two of
+        its bytecodes — maybe inside this clock, holding its mutex, where a clock primitive
+        taken in the handler deadlocked the run (a real Ctrl-C on simulated time) — so nothing
+        is taken here; the thread holding the baton runs ``fn`` at its next wait, before it
+        gives the baton up (``fn`` may use the clock as that thread could)."""
+        self._signalled.append(fn)  # a deque's append: atomic, no lock
+
+    def _run_signalled(self) -> None:
+        while self._signalled:
+            try:
+                fn = self._signalled.popleft()
+            except IndexError:  # pragma: no cover - taken meanwhile by a nested wait
+                return
+            fn()
 
     def call_at(self, when: float, fn: Callable[[], Any], name: str) -> None:
         """Run ``fn`` at simulated time ``when`` (a time already passed: as soon as the threads
@@ -459,6 +478,8 @@ class VirtualClock:
         """Give the baton up until woken (True) or ``deadline`` passes (False)."""
         if self._in_callback:
             raise SimulationHang(f"a clock callback waited ({what}): callbacks never wait")
+        if self._signalled:
+            self._run_signalled()
         task = self._me()
         with self._mu:
             if task.kill and not closing_ok:

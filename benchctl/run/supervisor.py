@@ -145,7 +145,10 @@ class Supervisor:
 
         def handler(signum: int, frame: FrameType | None) -> None:
             name = signal.Signals(signum).name
-            self.fault(SafetyAbort(f"interrupted by {name}"), "signal")
+            # through the clock: on simulated time the interrupted main thread may hold the
+            # clock's mutex, which the fault's stop event takes (a run hung there for good)
+            self.clock.from_signal(
+                lambda: self.fault(SafetyAbort(f"interrupted by {name}"), "signal"))
 
         old = {s: signal.signal(s, handler) for s in EXIT_SIGNALS if not ignored(s)}
         try:

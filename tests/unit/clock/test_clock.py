@@ -355,3 +355,36 @@ def test_the_clocks_threads_may_move_together_to_another_cpu() -> None:
     assert here is not None and len(here) == 1 and here <= before
     assert seen == [here]
     assert _affinity() == before
+
+
+def test_a_signal_that_lands_inside_the_clock_is_the_runs_fault_not_a_deadlock() -> None:
+    """A real Ctrl-C on simulated time: Python runs the run's handler in the main thread
+    between two bytecodes, here while that thread holds the clock's mutex (where it lands
+    when it hands the baton over). The handler reached the fault's stop event, which takes
+    that mutex: the run hung for good. Through ``from_signal`` the fault is the run's at the
+    next wait, and whoever waits on its stop event wakes."""
+    import signal
+
+    from benchctl.run.supervisor import Supervisor
+
+    clock = VirtualClock(hang_s=30.0)
+    woke: list[float] = []
+    with clock.running():
+        sup = Supervisor(clock=clock)
+
+        def waiter() -> None:
+            if sup.stop_event.wait(5.0):
+                woke.append(clock.monotonic())
+
+        t = clock.thread(waiter, name="waiter")
+        t.start()
+        clock.sleep(0.5)
+        with sup.signals():
+            with clock._mu:  # the handler must run while this thread holds the mutex
+                signal.raise_signal(signal.SIGINT)
+                held = True  # the handler has run by this bytecode (main thread)
+            assert held and sup.first is None  # handed over, not reported under the mutex
+            clock.sleep(0.1)  # the next wait: the fault reported, the waiter woken
+        t.join()
+    assert sup.first is not None and "interrupted by SIGINT" in sup.first.reason
+    assert woke and woke[0] == pytest.approx(1000.5)
