@@ -18,15 +18,17 @@ path, and reading them side by side is how one checks that they are the same pat
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
+import logging
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -730,72 +732,76 @@ def test_unexpected_exception_without_an_output_folder_logs_to_temp(
     assert log.parent == tmp_path / "tmp" and "Traceback" in log.read_text()
 
 
-_CHILD_BOOM = """
-import sys
-from benchctl.run import session
-def boom(self):
-    raise ZeroDivisionError("boom inside the run")
-session.Session._prechecks = boom
-from benchctl.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
+@contextlib.contextmanager
+def _fresh_console() -> Iterator[None]:
+    """The root logger without this test process's handlers (pytest's log capture) while the
+    block lasts, as in a process of its own: ``main`` then adds its console handler, and log
+    lines go to stderr as on an operator's console."""
+    root = logging.getLogger()
+    saved = root.handlers[:]
+    root.handlers.clear()
+    try:
+        yield
+    finally:
+        root.handlers[:] = saved
 
 
-@pytest.mark.realtime  # a real child process's console
-def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(tmp_path: Path) -> None:
+# The console of the two tests below is this process's stdout and stderr read at their file
+# descriptors (``capfd``), the root logger as in a process of its own (``_fresh_console``):
+# what Python itself would print there (a traceback from the interpreter's own hooks) is read
+# too, as a child's console was.
+def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    def boom(self: Session) -> None:
+        raise ZeroDivisionError("boom inside the run")
+
+    monkeypatch.setattr(session_mod.Session, "_prechecks", boom)
     cfg = _cfg_file(tmp_path, lock_dir=str(tmp_path / "locks"))
     runs = tmp_path / "runs"
-    cmd = [sys.executable, "-c", _CHILD_BOOM, "run", "--config", str(cfg)]
-    cmd += [
-        "--profile",
-        str(CI_SHORT),
-        "--duration",
-        DURATION,
-        "--serial",
-        "B-1",
-        "--operator",
-        "o",
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2, proc.stderr
-    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
+    argv = ["run", "--config", str(cfg), "--profile", str(CI_SHORT), "--duration", DURATION]
+    with _fresh_console():
+        code = main([*argv, "--serial", "B-1", "--operator", "o"])
+    out, err = capfd.readouterr()
+    assert code == 2, err
+    assert "Traceback" not in err and "Traceback" not in out, err
     rec = recording_in(runs)
     assert rec is not None
     log = rec / "benchctl.log"
-    assert "ABORTED: run (exception): unexpected ZeroDivisionError: boom inside the run" in (
-        proc.stdout
-    )
-    assert f"  log {log}" in proc.stdout
-    assert f"(traceback in {log})" in proc.stderr  # the console's one line names the file
+    assert "ABORTED: run (exception): unexpected ZeroDivisionError: boom inside the run" in out
+    assert f"  log {log}" in out
+    assert f"(traceback in {log})" in err  # the console's one line names the file
     text = log.read_text()
     assert "Traceback" in text and "ZeroDivisionError: boom inside the run" in text
     assert load_recording(rec).state == "aborted"
 
 
-_CHILD_THREAD_BOOM = """
-import sys, threading
-from benchctl.cli import run as run_cli
-def handle(args):
-    t = threading.Thread(target=lambda: 1 / 0, name="stray")
-    t.start()
-    t.join()
-    return 0
-run_cli.handle = handle
-from benchctl.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
+def test_exception_in_a_stray_thread_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    import tempfile
+    import threading
 
+    import benchctl.cli.run as run_cli
 
-@pytest.mark.realtime  # a real child process's console
-def test_exception_in_a_stray_thread_is_one_line(tmp_path: Path) -> None:
-    env = {**os.environ, "TMPDIR": str(tmp_path)}
-    cmd = [sys.executable, "-c", _CHILD_THREAD_BOOM, "run", "--config", "x", "--profile", "y"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env)
-    assert proc.returncode == 0, proc.stderr
-    assert "Traceback" not in proc.stderr, proc.stderr
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+
+    def handle(args: Any) -> int:
+        t = threading.Thread(target=lambda: 1 / 0, name="stray")
+        t.start()
+        t.join()
+        return 0
+
+    monkeypatch.setattr(run_cli, "handle", handle)
+    with _fresh_console():
+        assert main(["run", "--config", "x", "--profile", "y"]) == 0
+    _out, err = capfd.readouterr()
+    assert "Traceback" not in err, err
     m = re.search(
         r"exception in thread stray: unexpected ZeroDivisionError: .* \(traceback in (\S+)\)",
-        proc.stderr,
+        err,
     )
-    assert m, proc.stderr
+    assert m, err
+    assert Path(m.group(1)).parent == tmp_path
     assert "Traceback" in Path(m.group(1)).read_text()
