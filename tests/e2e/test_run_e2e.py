@@ -90,6 +90,7 @@ def test_run_end_to_end_sigma_as_stated(
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     request: pytest.FixtureRequest,
+    monkeypatch: pytest.MonkeyPatch,
     transport: str,
     instrument: str,
     mode: str,
@@ -98,22 +99,28 @@ def test_run_end_to_end_sigma_as_stated(
 ) -> None:
     """On simulated time over in-process links (the real drivers, the same simulators), and
     once on the host's time over a real RTU pty and NMEA 0183 pty (``realtime``: about the
-    links, so without the mounting check's tilt and the host check, FOCUSED)."""
+    links, so without the mounting check's tilt, FOCUSED). That run on the host's clock also
+    measures the host (a short host check) and asks for a real-time priority, refused
+    (``_HostCheckAndPriority``)."""
     clock: Clock = request.getfixturevalue("vclock") if virtual else REAL
     profile = _profile(tmp_path, text, "profile")
     stand: dict[str, Any] = {"mode": mode}
     sim: dict[str, Any] = {}
     if transport == "rtu":  # RS-485 at 460800 Bd: a 100 Hz write + read cycle fits in 10 ms
         stand["baudrate"] = sim["baudrate"] = 460800
+    host = None if virtual else _HostCheckAndPriority(monkeypatch)
     with live_bench(
         tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
         # the figures drawn on simulated time; the real-time run is about the links
-        clock=clock, run={"figures": virtual, **({} if virtual else FOCUSED)},
+        clock=clock, run={"figures": virtual, **({} if host is None else host.run_settings)},
     ) as b:
-        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
+        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock,
+                       display=None if host is None else host)
         assert res.state == "done" and res.exit_code == 0, res.reason
         _check_sigma(b, res, profile)
         assert b.stand_at_rest()
+    if host is not None:
+        host.check(res)
     rec = load_recording(res.recording)  # type: ignore[arg-type]
     assert rec.meta["devices"]["stand"]["protocol"].startswith(f"modbus-{transport}")
     assert rec.meta["mode"] == mode and rec.meta["seed"] == 5
@@ -130,6 +137,62 @@ def test_run_end_to_end_sigma_as_stated(
     assert main(["analyze", str(rec.path), "--axis", "roll", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["sigma"] == pytest.approx(res.report.axes["roll"].sigma_deg, rel=1e-9)
+
+
+class _HostCheckAndPriority:
+    """A run on the host's clock that measures the host and asks for a real-time priority: the
+    host check for 0.3 s (its periods, counts and signs only — never a timing that load could
+    break) and ``run.realtime_priority: 50`` refused (EPERM, by the setter the run is given in
+    place of the operating system's): said, recorded, the run goes on at normal priority. The
+    run's display, every message in order."""
+
+    REFUSED = ("real-time priority 50: not granted: Operation not permitted (run as a user with "
+               "CAP_SYS_NICE, or with rtprio 50 or more in /etc/security/limits.conf)")
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        import errno
+
+        from benchctl.run import realtime
+
+        self.asked: list[int] = []
+        self.messages: list[str] = []
+
+        def eperm(priority: int) -> None:
+            self.asked.append(priority)
+            raise OSError(errno.EPERM, "Operation not permitted")
+
+        monkeypatch.setattr(realtime, "os_setter", lambda: eperm)
+        self.run_settings = {**FOCUSED, "host_check": {"window_s": 0.3},
+                             "realtime_priority": 50}
+
+    # the run's display
+    def state(self, state: str, reason: str = "") -> None:
+        pass
+
+    def update(self, snap: Any) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def check(self, res: Any) -> None:
+        assert f"{self.REFUSED}; the run goes on at normal priority" in self.messages
+        assert self.asked == [50, 50, 50]  # the stand loop's thread, the two measuring threads
+        line = next(m for m in self.messages if m.startswith("host latency"))
+        assert line.startswith("host latency: max ") and " over 0.3 s, " in line
+        r = load_recording(res.recording)
+        (ev,) = [e for e in r.events if e["kind"] == "precheck" and e["name"] == "host latency"]
+        assert [p["period_s"] for p in ev["values"]["periods"]] == [0.001, 0.01]
+        assert 1 <= ev["values"]["all"]["count"] <= 330 and ev["values"]["all"]["max_s"] >= 0
+        assert ev["values"]["realtime"]["granted"] is False
+        assert [e["detail"] for e in r.events if e["kind"] == "realtime_priority"] == [
+            self.REFUSED]
 
 
 # ------------------------------------------------------------------------------ child process
