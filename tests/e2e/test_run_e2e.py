@@ -128,6 +128,7 @@ def test_run_end_to_end_sigma_as_stated(
         host.check(res)
     rec = load_recording(res.recording)  # type: ignore[arg-type]
     assert rec.meta["devices"]["stand"]["protocol"].startswith(f"modbus-{transport}")
+    _stand_identified_and_ready(rec)
     assert rec.meta["mode"] == mode and rec.meta["seed"] == 5
     st = res.stats
     assert st["instrument_lost"] == 0 and st["instrument_bad_frames"] == 0
@@ -142,6 +143,16 @@ def test_run_end_to_end_sigma_as_stated(
     assert main(["analyze", str(rec.path), "--axis", "roll", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["sigma"] == pytest.approx(res.report.axes["roll"].sigma_deg, rel=1e-9)
+
+
+def _stand_identified_and_ready(rec: Any) -> None:
+    """The driver connected and identified the simulated stand over the run's link (over a real
+    socket and a real pty on the host's time: the realtime runs), and found it ready."""
+    ident = rec.meta["devices"]["stand"]
+    assert (ident["vendor"], ident["serial"]) == ("benchctl", "SIM-0001"), ident
+    (ready,) = [e for e in rec.events
+                if e["kind"] == "precheck" and e["name"] == "stand ready and at rest"]
+    assert ready["ok"], ready
 
 
 class _HostCheckAndPriority:

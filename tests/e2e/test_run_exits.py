@@ -212,6 +212,12 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
     rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
+    # the driver connected and identified the stand over a real socket, and found it ready
+    assert (r.meta["devices"]["stand"]["vendor"], r.meta["devices"]["stand"]["serial"]) == (
+        "benchctl", "SIM-0001")
+    assert r.meta["devices"]["stand"]["protocol"].startswith("modbus-tcp 127.0.0.1:")
+    assert [e["ok"] for e in r.events
+            if e["kind"] == "precheck" and e["name"] == "stand ready and at rest"] == [True]
     assert r.state == "aborted" and r.end is not None
     assert r.end["reason"] == f"signal: interrupted by {sig.name}"
     steps = _steps(r.end)
