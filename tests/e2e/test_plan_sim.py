@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import signal
 import time
@@ -367,9 +368,16 @@ def test_the_plan_timeout_ends_the_running_step_and_skips_the_rest(
 @pytest.mark.realtime  # a real SIGINT to this process (the issue's "Ctrl-C in a plan")
 def test_ctrl_c_during_a_step_stops_the_plan_and_cleanup_still_runs(tmp_path: Path) -> None:
     """SIGINT while the first step moves: the run takes it (the stand brought to rest, the
-    record ABORTED by the operator), the plan stops there and its cleanup runs."""
+    record ABORTED by the operator), the plan stops there and its cleanup runs. The run's own
+    side of it (a real SIGINT mid-motion on the host's time: the one cleanup path, every step
+    of it, the recording closed ``aborted`` and readable, the handler there before given back)
+    is checked here too: that was tests/unit/run/test_run_session.py's one real-time test."""
+    from benchctl.evaluate import analyze_recording
+    from benchctl.recording import load_recording
+
     roll = _profile(tmp_path, "roll20", 20)
     out = tmp_path / "runs"
+    before = signal.getsignal(signal.SIGINT)
     # about the signal: the mounting check's tilt and the host check left out (FOCUSED)
     with live_bench(tmp_path, run=FOCUSED) as b:
         plan = _plan(tmp_path, [{"name": "one", "profile": str(roll), "on_fail": "continue"},
@@ -380,7 +388,22 @@ def test_ctrl_c_during_a_step_stops_the_plan_and_cleanup_still_runs(tmp_path: Pa
         at_rest = b.stand_at_rest()
     assert (res.outcome, res.exit_code) == ("ABORTED", 2) and res.interrupted
     assert [s.status for s in res.steps] == ["ABORTED", "SKIPPED"]
-    assert res.steps[0].abort is not None and res.steps[0].abort["kind"] == "operator"
-    assert "SIGINT" in res.steps[0].reason
-    assert load_record(res.steps[0].record_path or "")["abort"]["kind"] == "operator"
+    step = res.steps[0]
+    assert step.abort is not None and step.abort["kind"] == "operator"
+    assert "interrupted by SIGINT" in step.reason
+    assert load_record(step.record_path or "")["abort"]["kind"] == "operator"
     assert [a.status for a in res.cleanup] == ["ok"] and at_rest
+    # the run's one cleanup path, every step of it, the stand left disabled
+    steps = {s["step"]: s for s in step.abort["shutdown"]}
+    for name in ("stop loops", "ramp to zero", "disable", "read final state", "stop instrument",
+                 "record shutdown", "close recording", "close stand", "close instrument"):
+        assert steps[name]["ok"], (name, step.abort["shutdown"])
+    assert "(servo off" in steps["final angle"]["detail"], steps["final angle"]
+    # the recording: closed aborted with the signal's reason, moving when it came, readable
+    rec = load_recording(step.recording or "")
+    assert rec.state == "aborted" and rec.end is not None
+    assert "interrupted by SIGINT" in rec.end["reason"]
+    assert [e["to"] for e in rec.events if e["kind"] == "state"][-1] == "aborted"
+    assert rec.end["stats"]["setpoints_sent"] > 50
+    assert math.isfinite(analyze_recording(rec.path, "roll").sigma)
+    assert signal.getsignal(signal.SIGINT) is before  # the run gave its handler back

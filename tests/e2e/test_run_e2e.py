@@ -52,6 +52,7 @@ from benchctl.run.supervisor import Supervisor
 
 pytestmark = pytest.mark.slow
 SYSTEMATIC = 0.01  # stated vs measured σ: allowed beside the interval (see _check_sigma)
+REALTIME_S = 14.0  # the run on the host's time (ROLL, 20 s, shortened)
 
 
 def _profile(tmp_path: Path, text: str, name: str) -> Path:
@@ -60,8 +61,9 @@ def _profile(tmp_path: Path, text: str, name: str) -> Path:
     return p
 
 
-def _check_sigma(bench: LiveBench, res: Any, profile: Path) -> None:
-    prep = prepare_motion(bench.cfg, profile, RunOptions("x", "y"))
+def _check_sigma(bench: LiveBench, res: Any, profile: Path,
+                 duration_s: float | None = None) -> None:
+    prep = prepare_motion(bench.cfg, profile, RunOptions("x", "y", duration_s=duration_s))
     assert res.report is not None
     for axis in prep.plan.axes:
         expect = expected_sigma(bench, prep.motion, axis)
@@ -90,6 +92,7 @@ def test_run_end_to_end_sigma_as_stated(
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     request: pytest.FixtureRequest,
+    monkeypatch: pytest.MonkeyPatch,
     transport: str,
     instrument: str,
     mode: str,
@@ -98,29 +101,39 @@ def test_run_end_to_end_sigma_as_stated(
 ) -> None:
     """On simulated time over in-process links (the real drivers, the same simulators), and
     once on the host's time over a real RTU pty and NMEA 0183 pty (``realtime``: about the
-    links, so without the mounting check's tilt and the host check, FOCUSED)."""
+    links, so without the mounting check's tilt, FOCUSED). That run on the host's clock also
+    measures the host (a short host check) and asks for a real-time priority, refused
+    (``_HostCheckAndPriority``)."""
     clock: Clock = request.getfixturevalue("vclock") if virtual else REAL
     profile = _profile(tmp_path, text, "profile")
     stand: dict[str, Any] = {"mode": mode}
     sim: dict[str, Any] = {}
     if transport == "rtu":  # RS-485 at 460800 Bd: a 100 Hz write + read cycle fits in 10 ms
         stand["baudrate"] = sim["baudrate"] = 460800
+    host = None if virtual else _HostCheckAndPriority(monkeypatch)
+    # on the host's time the profile's whole-period minimum (its lowest line is 0.1 Hz: 10 s
+    # between the fades), as tests/e2e/test_run_stalls.py's; on simulated time all of it
+    duration_s = None if virtual else REALTIME_S
     with live_bench(
         tmp_path, transport=transport, instrument=instrument, stand=stand, sim_stand=sim,
         # the figures drawn on simulated time; the real-time run is about the links
-        clock=clock, run={"figures": virtual, **({} if virtual else FOCUSED)},
+        clock=clock, run={"figures": virtual, **({} if host is None else host.run_settings)},
     ) as b:
-        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci"), clock=clock)
+        res = run_test(b.cfg, profile, RunOptions("E2E-1", "ci", duration_s=duration_s),
+                       clock=clock, display=None if host is None else host)
         assert res.state == "done" and res.exit_code == 0, res.reason
-        _check_sigma(b, res, profile)
+        _check_sigma(b, res, profile, duration_s)
         assert b.stand_at_rest()
+    if host is not None:
+        host.check(res)
     rec = load_recording(res.recording)  # type: ignore[arg-type]
     assert rec.meta["devices"]["stand"]["protocol"].startswith(f"modbus-{transport}")
+    _stand_identified_and_ready(rec)
     assert rec.meta["mode"] == mode and rec.meta["seed"] == 5
     st = res.stats
     assert st["instrument_lost"] == 0 and st["instrument_bad_frames"] == 0
     rows = rec.streams["stand"]["t_host"]
-    assert rows.size > 0.8 * 100 * 20  # the reference at ~100 Hz over the profile
+    assert rows.size > 0.8 * 100 * (duration_s or 20)  # the reference at ~100 Hz, throughout
     assert (rec.path / "report.json").is_file()
     assert (rec.path / "analysis_roll.png").is_file() == virtual
     if instrument == "canopen":
@@ -130,6 +143,72 @@ def test_run_end_to_end_sigma_as_stated(
     assert main(["analyze", str(rec.path), "--axis", "roll", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["sigma"] == pytest.approx(res.report.axes["roll"].sigma_deg, rel=1e-9)
+
+
+def _stand_identified_and_ready(rec: Any) -> None:
+    """The driver connected and identified the simulated stand over the run's link (over a real
+    socket and a real pty on the host's time: the realtime runs), and found it ready."""
+    ident = rec.meta["devices"]["stand"]
+    assert (ident["vendor"], ident["serial"]) == ("benchctl", "SIM-0001"), ident
+    (ready,) = [e for e in rec.events
+                if e["kind"] == "precheck" and e["name"] == "stand ready and at rest"]
+    assert ready["ok"], ready
+
+
+class _HostCheckAndPriority:
+    """A run on the host's clock that measures the host and asks for a real-time priority: the
+    host check for 0.3 s (its periods, counts and signs only — never a timing that load could
+    break) and ``run.realtime_priority: 50`` refused (EPERM, by the setter the run is given in
+    place of the operating system's): said, recorded, the run goes on at normal priority. The
+    run's display, every message in order."""
+
+    REFUSED = ("real-time priority 50: not granted: Operation not permitted (run as a user with "
+               "CAP_SYS_NICE, or with rtprio 50 or more in /etc/security/limits.conf)")
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        import errno
+
+        from benchctl.run import realtime
+
+        self.asked: list[int] = []
+        self.messages: list[str] = []
+
+        def eperm(priority: int) -> None:
+            self.asked.append(priority)
+            raise OSError(errno.EPERM, "Operation not permitted")
+
+        monkeypatch.setattr(realtime, "os_setter", lambda: eperm)
+        self.run_settings = {**FOCUSED, "host_check": {"window_s": 0.3},
+                             "realtime_priority": 50}
+
+    # the run's display
+    def state(self, state: str, reason: str = "") -> None:
+        pass
+
+    def update(self, snap: Any) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def check(self, res: Any) -> None:
+        assert f"{self.REFUSED}; the run goes on at normal priority" in self.messages
+        assert self.asked == [50, 50, 50]  # the stand loop's thread, the two measuring threads
+        line = next(m for m in self.messages if m.startswith("host latency"))
+        assert line.startswith("host latency: max ") and " over 0.3 s, " in line
+        r = load_recording(res.recording)
+        (ev,) = [e for e in r.events if e["kind"] == "precheck" and e["name"] == "host latency"]
+        assert [p["period_s"] for p in ev["values"]["periods"]] == [0.001, 0.01]
+        assert 1 <= ev["values"]["all"]["count"] <= 330 and ev["values"]["all"]["max_s"] >= 0
+        assert ev["values"]["realtime"]["granted"] is False
+        assert [e["detail"] for e in r.events if e["kind"] == "realtime_priority"] == [
+            self.REFUSED]
 
 
 # ------------------------------------------------------------------------------ child process

@@ -18,15 +18,17 @@ path, and reading them side by side is how one checks that they are the same pat
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
+import logging
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -110,16 +112,6 @@ def _steps(end: dict[str, Any]) -> dict[str, bool]:
     return {s["step"]: s["ok"] for s in end["shutdown"]}
 
 
-def _sig_caught(pid: int, sig: int) -> bool:
-    """The process has a handler for ``sig`` (its SigCgt mask in /proc)."""
-    try:
-        text = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return False
-    m = re.search(r"^SigCgt:\s*([0-9a-f]+)$", text, re.M)
-    return m is not None and bool(int(m.group(1), 16) >> (sig - 1) & 1)
-
-
 def _cfg_file(tmp_path: Path, **run: Any) -> Path:
     """A hardware-like config whose stand nothing listens on (a run that got as far as
     connecting fails there, not before)."""
@@ -149,8 +141,10 @@ def _sim_cfg_file(tmp_path: Path, **run: Any) -> Path:
     data["instrument"]["eds"] = str(ROOT / "drivers/cia410_inclinometer.eds")
     data["instrument"]["channel"] = str(tmp_path / "slcan0")
     # these tests are about signals and exits: the mounting check's 9 s tilt and the host
-    # check's 2 s are left out (each has its own tests; the README's command runs both)
-    data["run"].update(mounting_check={"enabled": False}, host_check={"enabled": False})
+    # check's 2 s are left out (each has its own tests; the README's command runs both), and
+    # the report's figures (1–3 s per axis: drawn by the README's command, as live_bench)
+    data["run"].update(mounting_check={"enabled": False}, host_check={"enabled": False},
+                       figures=False)
     data["run"].update(output_dir=str(tmp_path / "runs"), **run)
     p = tmp_path / "sim.yaml"
     p.write_text(yaml.safe_dump(data))
@@ -167,7 +161,10 @@ def _run_main(cfg: Path, *extra: str) -> int:
 
 
 # ------------------------------------------------------------------------------ signals
-@pytest.mark.realtime  # real signals to this process
+# A real signal to this process is handled in its main thread before ``os.kill`` returns to the
+# test (the handler runs at the next bytecode): no clock and no other process in it, so the
+# tests of the handlers run in the simulated-time tier (as tests/e2e/test_plan_consent.py's
+# signals at a prompt do); the real signals to a child run mid-profile stay ``realtime``.
 @pytest.mark.parametrize(
     "sig",
     [signal.SIGINT, signal.SIGTERM, pytest.param(signal.SIGHUP, marks=NOHUP), signal.SIGQUIT],
@@ -215,6 +212,12 @@ def test_signal_mid_profile_takes_the_one_cleanup_path(tmp_path: Path, sig: sign
     rec = recording_in(runs)
     assert rec is not None
     r = load_recording(rec)
+    # the driver connected and identified the stand over a real socket, and found it ready
+    assert (r.meta["devices"]["stand"]["vendor"], r.meta["devices"]["stand"]["serial"]) == (
+        "benchctl", "SIM-0001")
+    assert r.meta["devices"]["stand"]["protocol"].startswith("modbus-tcp 127.0.0.1:")
+    assert [e["ok"] for e in r.events
+            if e["kind"] == "precheck" and e["name"] == "stand ready and at rest"] == [True]
     assert r.state == "aborted" and r.end is not None
     assert r.end["reason"] == f"signal: interrupted by {sig.name}"
     steps = _steps(r.end)
@@ -284,33 +287,36 @@ def test_sighup_with_private_simulators_logs_them_into_the_recording(tmp_path: P
     _wait(gone, 20.0, "the simulators' child to exit")
 
 
-@pytest.mark.realtime  # real signals to a child while it starts
 @pytest.mark.parametrize(
     "sig", [signal.SIGTERM, pytest.param(signal.SIGHUP, marks=NOHUP)], ids=["SIGTERM", "SIGHUP"]
 )
-def test_signal_during_startup_is_a_clean_exit_2(tmp_path: Path, sig: signal.Signals) -> None:
-    """A signal right after the start, before any run exists (today: killed, -15, silent)."""
+def test_signal_during_startup_is_a_clean_exit_2(
+    tmp_path: Path, sig: signal.Signals, monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """A signal during the start, before any run exists (today: killed, -15, silent): only
+    ``main``'s handlers (benchctl.exits) are there. The real signal is sent to this process
+    from inside the start, as ``benchctl run`` reads its config, so it lands there every time
+    (a signal to a child just started landed anywhere in its start, or in its run); the
+    console checked at the file descriptors (``capfd``): one line, no traceback."""
+    import benchctl.config as config_mod
+
+    real_load = config_mod.load_config
+
+    def load_config(path: Any, *a: Any, **k: Any) -> Any:
+        os.kill(os.getpid(), sig)  # the handler raises here, in this (the main) thread
+        return real_load(path, *a, **k)
+
+    monkeypatch.setattr(config_mod, "load_config", load_config)
     cfg = _sim_cfg_file(tmp_path)
-    runs = tmp_path / "runs"
-    proc = _child(cfg, runs)
-    try:
-        # as soon as main() has its handlers: the process is still starting up
-        _wait(lambda: _sig_caught(proc.pid, sig) or proc.poll() is not None, 30.0, "handlers")
-        proc.send_signal(sig)
-        code, out, err = _finish(proc)
-    finally:
-        _reap(proc)
+    code = _run_main(cfg)
+    out, err = capfd.readouterr()
     assert code == 2, (code, out, err[-3000:])
     assert "Traceback" not in err and "Traceback" not in out, err
-    assert f"interrupted by {sig.name}" in out + err, (out, err)
-    rec = recording_in(runs)
-    if rec is None:  # the usual case: it never got as far as the run
-        assert err.strip().splitlines()[-1] == f"benchctl run: interrupted by {sig.name}", err
-    else:  # the machine was slow enough for the run to start: then it is an abort like any
-        assert load_recording(rec).state == "aborted"
+    assert err.strip().splitlines()[-1] == f"benchctl run: interrupted by {sig.name}", err
+    assert recording_in(tmp_path / "runs") is None  # it never got as far as the run
 
 
-@pytest.mark.realtime  # real SIGTERMs to this process
 def test_main_restores_the_signal_handlers_and_respects_ignored_ones(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -734,72 +740,76 @@ def test_unexpected_exception_without_an_output_folder_logs_to_temp(
     assert log.parent == tmp_path / "tmp" and "Traceback" in log.read_text()
 
 
-_CHILD_BOOM = """
-import sys
-from benchctl.run import session
-def boom(self):
-    raise ZeroDivisionError("boom inside the run")
-session.Session._prechecks = boom
-from benchctl.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
+@contextlib.contextmanager
+def _fresh_console() -> Iterator[None]:
+    """The root logger without this test process's handlers (pytest's log capture) while the
+    block lasts, as in a process of its own: ``main`` then adds its console handler, and log
+    lines go to stderr as on an operator's console."""
+    root = logging.getLogger()
+    saved = root.handlers[:]
+    root.handlers.clear()
+    try:
+        yield
+    finally:
+        root.handlers[:] = saved
 
 
-@pytest.mark.realtime  # a real child process's console
-def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(tmp_path: Path) -> None:
+# The console of the two tests below is this process's stdout and stderr read at their file
+# descriptors (``capfd``), the root logger as in a process of its own (``_fresh_console``):
+# what Python itself would print there (a traceback from the interpreter's own hooks) is read
+# too, as a child's console was.
+def test_unexpected_exception_inside_a_run_no_traceback_on_the_console(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    def boom(self: Session) -> None:
+        raise ZeroDivisionError("boom inside the run")
+
+    monkeypatch.setattr(session_mod.Session, "_prechecks", boom)
     cfg = _cfg_file(tmp_path, lock_dir=str(tmp_path / "locks"))
     runs = tmp_path / "runs"
-    cmd = [sys.executable, "-c", _CHILD_BOOM, "run", "--config", str(cfg)]
-    cmd += [
-        "--profile",
-        str(CI_SHORT),
-        "--duration",
-        DURATION,
-        "--serial",
-        "B-1",
-        "--operator",
-        "o",
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2, proc.stderr
-    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
+    argv = ["run", "--config", str(cfg), "--profile", str(CI_SHORT), "--duration", DURATION]
+    with _fresh_console():
+        code = main([*argv, "--serial", "B-1", "--operator", "o"])
+    out, err = capfd.readouterr()
+    assert code == 2, err
+    assert "Traceback" not in err and "Traceback" not in out, err
     rec = recording_in(runs)
     assert rec is not None
     log = rec / "benchctl.log"
-    assert "ABORTED: run (exception): unexpected ZeroDivisionError: boom inside the run" in (
-        proc.stdout
-    )
-    assert f"  log {log}" in proc.stdout
-    assert f"(traceback in {log})" in proc.stderr  # the console's one line names the file
+    assert "ABORTED: run (exception): unexpected ZeroDivisionError: boom inside the run" in out
+    assert f"  log {log}" in out
+    assert f"(traceback in {log})" in err  # the console's one line names the file
     text = log.read_text()
     assert "Traceback" in text and "ZeroDivisionError: boom inside the run" in text
     assert load_recording(rec).state == "aborted"
 
 
-_CHILD_THREAD_BOOM = """
-import sys, threading
-from benchctl.cli import run as run_cli
-def handle(args):
-    t = threading.Thread(target=lambda: 1 / 0, name="stray")
-    t.start()
-    t.join()
-    return 0
-run_cli.handle = handle
-from benchctl.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
+def test_exception_in_a_stray_thread_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    import tempfile
+    import threading
 
+    import benchctl.cli.run as run_cli
 
-@pytest.mark.realtime  # a real child process's console
-def test_exception_in_a_stray_thread_is_one_line(tmp_path: Path) -> None:
-    env = {**os.environ, "TMPDIR": str(tmp_path)}
-    cmd = [sys.executable, "-c", _CHILD_THREAD_BOOM, "run", "--config", "x", "--profile", "y"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env)
-    assert proc.returncode == 0, proc.stderr
-    assert "Traceback" not in proc.stderr, proc.stderr
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+
+    def handle(args: Any) -> int:
+        t = threading.Thread(target=lambda: 1 / 0, name="stray")
+        t.start()
+        t.join()
+        return 0
+
+    monkeypatch.setattr(run_cli, "handle", handle)
+    with _fresh_console():
+        assert main(["run", "--config", "x", "--profile", "y"]) == 0
+    _out, err = capfd.readouterr()
+    assert "Traceback" not in err, err
     m = re.search(
         r"exception in thread stray: unexpected ZeroDivisionError: .* \(traceback in (\S+)\)",
-        proc.stderr,
+        err,
     )
-    assert m, proc.stderr
+    assert m, err
+    assert Path(m.group(1)).parent == tmp_path
     assert "Traceback" in Path(m.group(1)).read_text()

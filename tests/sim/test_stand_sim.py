@@ -3,9 +3,11 @@
 On simulated time (the ``vclock`` fixture): the stand simulator and the driver over an
 in-process link carrying Modbus TCP or RTU frames (pymodbus's own client and framing on the
 driver's side, the simulator's wire on the other), its physics, watchdog, stalls and timeouts
-exact. Over a real socket and a real pty (``realtime``): the driver connects and identifies the
-stand, a TCP connection the stand drops is ``ConnectionLost``, and a stopped simulator leaves
-no pty, symlink or descriptor behind.
+exact. Over a real socket and a real pty (``realtime``): a TCP connection the stand drops is
+``ConnectionLost``, and a stopped simulator leaves no pty, symlink or descriptor behind. (The
+driver connecting to it and identifying it over a real socket and a real pty: the realtime runs
+of tests/e2e/test_run_exits.py, SIGTERM over TCP, and tests/e2e/test_run_e2e.py, over an RTU
+pty.)
 """
 
 from __future__ import annotations
@@ -43,14 +45,6 @@ def rig(
 ) -> Iterator[tuple[SimStand, ModbusStand]]:
     """On simulated time: Modbus TCP, then RTU frames over an in-process link."""
     with simulated(SLOW, request.param, vclock) as r:
-        yield r
-
-
-@pytest.fixture(params=[pytest.param("tcp", marks=pytest.mark.realtime),
-                        pytest.param("rtu", marks=pytest.mark.realtime)])
-def real_rig(request: pytest.FixtureRequest) -> Iterator[tuple[SimStand, ModbusStand]]:
-    """On the host's time: Modbus TCP over a socket, then RTU over a pty (``realtime``)."""
-    with simulated(SLOW, request.param, REAL) as r:
         yield r
 
 
@@ -135,12 +129,6 @@ def fit_phasor(t: np.ndarray, x: np.ndarray, f_hz: float) -> complex:
 
 def test_driver_satisfies_the_stand_protocol(rig: tuple[SimStand, ModbusStand]) -> None:
     _satisfies_the_stand_protocol(rig[1])
-
-
-def test_driver_over_a_real_socket_and_pty_satisfies_the_stand_protocol(
-    real_rig: tuple[SimStand, ModbusStand],
-) -> None:
-    _satisfies_the_stand_protocol(real_rig[1])
 
 
 def _satisfies_the_stand_protocol(stand: ModbusStand) -> None:

@@ -4,7 +4,9 @@ The figures and the verdict are pure functions, checked on exact synthetic laten
 (closed form) and by a property test; the session's refusal and warning through an injected
 measurement on simulated time (no real latency needed); the real priority request through an
 injected setter (granted, EPERM). What measures on the host's clock is ``realtime`` and asserts
-only structure, counts and signs — never a timing that load could break.
+only structure, counts and signs — never a timing that load could break. A whole run on the
+host's clock that measures it and has its priority refused: tests/e2e/test_run_e2e.py's run over
+ptys (``_HostCheckAndPriority``).
 """
 
 from __future__ import annotations
@@ -401,38 +403,6 @@ def test_a_disabled_check_is_not_measured(tmp_path: Path, vclock: VirtualClock) 
                              probe)
     assert res.exit_code == 0 and calls == []
     assert "host latency not measured: run.host_check.enabled is false" in lines.messages
-
-
-@pytest.mark.realtime
-def test_a_run_on_the_hosts_clock_measures_it_and_asks_for_its_priority(tmp_path: Path) -> None:
-    """The real measurement in a real-clock run (0.3 s), and a priority refused (EPERM): said,
-    recorded, the run goes on. Structure and counts only."""
-    asked: list[int] = []
-
-    def eperm(priority: int) -> None:
-        asked.append(priority)
-        raise OSError(errno.EPERM, "Operation not permitted")
-
-    stand = FakeStand(("roll",))
-    sensor = FakeSensor(stand, gain=1.0)
-    lines = Lines()
-    cfg = _cfg(tmp_path, host_check={"window_s": 0.3}, realtime_priority=50)
-    prep = sine_motion(("roll",), duration_s=2.0, mode="table", fade_s=0.5)
-    res = Session(cfg, prep, RunOptions("I1", "tester"), display=lines,
-                  device_factory=lambda c, p: (stand, sensor), priority_setter=eperm).run()
-    assert res.state == "done", res.reason
-    refused = ("real-time priority 50: not granted: Operation not permitted (run as a user with "
-               "CAP_SYS_NICE, or with rtprio 50 or more in /etc/security/limits.conf)")
-    assert f"{refused}; the run goes on at normal priority" in lines.messages
-    assert asked == [50, 50, 50]  # the stand loop's thread and the two measuring threads
-    host = _host_line(lines)
-    assert host.startswith("host latency: max ") and " over 0.3 s, " in host
-    r = load_recording(res.recording)  # type: ignore[arg-type]
-    (ev,) = [e for e in r.events if e["kind"] == "precheck" and e["name"] == "host latency"]
-    assert [p["period_s"] for p in ev["values"]["periods"]] == [0.001, 0.01]
-    assert 1 <= ev["values"]["all"]["count"] <= 330 and ev["values"]["all"]["max_s"] >= 0
-    assert ev["values"]["realtime"]["granted"] is False
-    assert [e["detail"] for e in r.events if e["kind"] == "realtime_priority"] == [refused]
 
 
 # ------------------------------------------------------------------ benchctl host-check

@@ -1,17 +1,17 @@
 """The whole session against in-process fakes of the Stand and AngleSensor protocols: the
 state machine's course, the verdict, and the one cleanup path for each way out. On simulated
-time (the ``vclock`` fixture): the fakes, the run's threads and its waits on one VirtualClock;
-only the real SIGINT stays on the host's time (``realtime``).
+time (the ``vclock`` fixture): the fakes, the run's threads and its waits on one VirtualClock.
 
-(The end-to-end tests over the real protocols and simulators are in test_run_e2e.py.)
+(The end-to-end tests over the real protocols and simulators are in test_run_e2e.py; a real
+SIGINT mid-motion, on the host's time — the OS runs its handler in the main thread whenever it
+arrives, outside a virtual clock's one-thread-at-a-time schedule —, with the run's cleanup
+checked step by step: tests/e2e/test_plan_sim.py's Ctrl-C in a plan, ``realtime``.)
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import signal
 from pathlib import Path
 from typing import Any
 
@@ -233,26 +233,6 @@ def test_every_way_out_takes_the_one_cleanup_path(
     else:
         assert stand.ramped and steps["ramp to zero"]
     assert end["stats"]["setpoints_sent"] > 50  # it was moving when it happened
-
-
-@pytest.mark.realtime  # a real SIGINT: the OS runs its handler in the main thread whenever it
-# arrives, outside a virtual clock's one-thread-at-a-time schedule
-def test_sigint_mid_motion(tmp_path: Path) -> None:
-    stand = FakeStand()
-    sensor = FakeSensor(stand)
-    sent = []
-
-    def kill(tm: float) -> None:
-        if tm >= 1.2 and not sent:
-            sent.append(tm)
-            os.kill(os.getpid(), signal.SIGINT)
-
-    stand.on_motion_time = kill
-    before = signal.getsignal(signal.SIGINT)
-    res = _run(tmp_path, stand, sensor, mode="stream")
-    _assert_aborted(res, stand, sensor, "interrupted by SIGINT")
-    assert stand.ramped
-    assert signal.getsignal(signal.SIGINT) is before  # restored
 
 
 def test_precheck_failure_never_moves_the_stand(tmp_path: Path, vclock: VirtualClock) -> None:
