@@ -40,6 +40,7 @@ from live_bench import (
     motion_for,
     recording_in,
 )
+from run_fakes import Lines
 
 from benchctl.cli import main
 from benchctl.clock import REAL, Clock
@@ -155,7 +156,7 @@ def _stand_identified_and_ready(rec: Any) -> None:
     assert ready["ok"], ready
 
 
-class _HostCheckAndPriority:
+class _HostCheckAndPriority(Lines):
     """A run on the host's clock that measures the host and asks for a real-time priority: the
     host check for 0.3 s (its periods, counts and signs only — never a timing that load could
     break) and ``run.realtime_priority: 50`` refused (EPERM, by the setter the run is given in
@@ -170,8 +171,8 @@ class _HostCheckAndPriority:
 
         from benchctl.run import realtime
 
+        super().__init__()
         self.asked: list[int] = []
-        self.messages: list[str] = []
 
         def eperm(priority: int) -> None:
             self.asked.append(priority)
@@ -180,22 +181,6 @@ class _HostCheckAndPriority:
         monkeypatch.setattr(realtime, "os_setter", lambda: eperm)
         self.run_settings = {**FOCUSED, "host_check": {"window_s": 0.3},
                              "realtime_priority": 50}
-
-    # the run's display
-    def state(self, state: str, reason: str = "") -> None:
-        pass
-
-    def update(self, snap: Any) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        self.messages.append(text)
-
-    def verdict(self, verdict: str, detail: str = "") -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
     def check(self, res: Any) -> None:
         assert f"{self.REFUSED}; the run goes on at normal priority" in self.messages

@@ -380,3 +380,26 @@ def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0, clock: Clock = R
 def sigma_sine_gain(amp: float, gain: float) -> float:
     """σ of (g−1)·A·sin over whole periods: |g−1|·A/√2."""
     return abs(gain - 1.0) * amp / math.sqrt(2.0)
+
+
+class Lines:
+    """A run's display that keeps every message the operator would read, in order (the
+    states, figures and verdict it is shown go nowhere)."""
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def state(self, state: str, reason: str = "") -> None:
+        pass
+
+    def update(self, snap: Any) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        pass
+
+    def close(self) -> None:
+        pass

@@ -23,7 +23,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from repo_paths import ROOT
-from run_fakes import FakeSensor, FakeStand, bench_config, sine_motion
+from run_fakes import FakeSensor, FakeStand, Lines, bench_config, sine_motion
 
 from benchctl.cli import main
 from benchctl.clock import REAL, Clock, EventLike
@@ -268,28 +268,6 @@ def test_the_stand_loop_thread_asks_for_its_priority(tmp_path: Path, setter: Any
 
 
 # ------------------------------------------------------------------ the run (simulated time)
-class Lines:
-    """The operator's terminal: every message, in order."""
-
-    def __init__(self) -> None:
-        self.messages: list[str] = []
-
-    def state(self, state: str, reason: str = "") -> None:
-        pass
-
-    def update(self, snap: Any) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        self.messages.append(text)
-
-    def verdict(self, verdict: str, detail: str = "") -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
 def _probe(lateness_s: float, n: int = 2000) -> tuple[fitness.Probe, list[Any]]:
     calls: list[Any] = []
 
