@@ -84,7 +84,6 @@ def read_input(path: Path, what: str, error: type[InputError], max_bytes: int) -
 class InputFile:
     """A file read by :func:`input_file`: its bytes, and the open descriptor they came from."""
 
-    path: Path
     data: bytes
     fd: int
     stat: os.stat_result
@@ -137,7 +136,7 @@ def input_file(path: Path, what: str, error: type[InputError],
             raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
         data = b"".join(chunks)
         del chunks
-        yield InputFile(Path(path), data, fd, st)
+        yield InputFile(data, fd, st)
     finally:
         os.close(fd)
 

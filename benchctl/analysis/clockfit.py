@@ -123,19 +123,23 @@ def _block_levels(
     # a block whose samples are all kept (most): its two order statistics by a partition, the
     # same values a sort puts there (a sort of every block cost a long record ≈ 50 ms a pass)
     full = cnt == size
-    for rows, part in ((full, "partition"), (~full, "sort")):
-        if not rows.any():
-            continue
-        b = rr[rows]
-        if part == "partition":
-            b = np.partition(b, sorted({int(lo[rows][0]), int(hi[rows][0])}), axis=1)
-        else:
-            b = np.sort(b, axis=1)  # NaN last
-        i = np.arange(b.shape[0])
-        lo_r, hi_r = lo[rows], hi[rows]
-        level[rows] = b[i, lo_r] + (pos[rows] - lo_r) * (b[i, hi_r] - b[i, lo_r])
+    for rows in (full, ~full):
+        if rows.any():
+            level[rows] = _interpolated(rr[rows], pos[rows], lo[rows], hi[rows],
+                                        whole=rows is full)
     good = cnt >= max(8, size // 10)
     return np.nanmean(xx[good], axis=1), level[good]
+
+
+def _interpolated(b: FloatArray, pos: FloatArray, lo: NDArray[np.int64], hi: NDArray[np.int64],
+                  *, whole: bool) -> FloatArray:
+    """Each row's order statistics ``lo`` and ``hi`` (NaN last), interpolated at ``pos``.
+    ``whole``: no row holds a NaN, and every row has the same ``lo`` and ``hi`` (a partition
+    puts them in place; otherwise a sort)."""
+    b = (np.partition(b, sorted({int(lo[0]), int(hi[0])}), axis=1) if whole
+         else np.sort(b, axis=1))
+    i = np.arange(b.shape[0])
+    return np.asarray(b[i, lo] + (pos - lo) * (b[i, hi] - b[i, lo]), dtype=np.float64)
 
 
 def _centre_scale(r: FloatArray, one_sided: bool, floor: float) -> tuple[float, float]:

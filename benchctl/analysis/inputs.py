@@ -197,10 +197,9 @@ def _loadtxt(raw: bytes, cols: list[int], opened: InputFile | None) -> FloatArra
           "comments": "#", "encoding": "utf-8-sig"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "no data": reported by the caller
-        again = opened.reopened() if opened is not None else None
-        if again is not None:
+        if opened is not None and (again := opened.reopened()) is not None:
             data = np.loadtxt(again, **kw)  # type: ignore[call-overload]
-            if opened is not None and opened.unchanged():
+            if opened.unchanged():
                 return np.asarray(data, dtype=np.float64)
         text = io.TextIOWrapper(io.BytesIO(raw), encoding="utf-8-sig", newline=None)
         return np.asarray(np.loadtxt(text, **kw), dtype=np.float64)  # type: ignore[call-overload]

@@ -255,14 +255,6 @@ class VirtualClock:
         gives the baton up (``fn`` may use the clock as that thread could)."""
         self._signalled.append(fn)  # a deque's append: atomic, no lock
 
-    def _run_signalled(self) -> None:
-        while self._signalled:
-            try:
-                fn = self._signalled.popleft()
-            except IndexError:  # pragma: no cover - taken meanwhile by a nested wait
-                return
-            fn()
-
     def call_at(self, when: float, fn: Callable[[], Any], name: str) -> None:
         """Run ``fn`` at simulated time ``when`` (a time already passed: as soon as the threads
         runnable now have run), by the clock itself, in whichever of its threads gives up the
@@ -478,8 +470,8 @@ class VirtualClock:
         """Give the baton up until woken (True) or ``deadline`` passes (False)."""
         if self._in_callback:
             raise SimulationHang(f"a clock callback waited ({what}): callbacks never wait")
-        if self._signalled:
-            self._run_signalled()
+        while self._signalled:  # only the baton holder comes here: none taken meanwhile
+            self._signalled.popleft()()
         task = self._me()
         with self._mu:
             if task.kill and not closing_ok:
