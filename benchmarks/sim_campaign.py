@@ -85,7 +85,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchctl.clock.virtual import VirtualClock  # noqa: E402
 from benchctl.config import BenchConfig, load_config  # noqa: E402
-from benchctl.errors import BenchError  # noqa: E402
+from benchctl.errors import BenchError, SafetyAbort  # noqa: E402
 from benchctl.recording.digest import combined_digest  # noqa: E402
 from benchctl.run.devices import open_devices  # noqa: E402
 from benchctl.run.prepare import RunOptions  # noqa: E402
@@ -241,9 +241,35 @@ def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) ->
     return draw
 
 
+class _StopAtMotion:
+    """A run's display that ends the run (the operator's path, through its supervisor) as it
+    enters its fade-in: an undisturbed twin run only to learn when its motion starts."""
+
+    def __init__(self, sup: Supervisor) -> None:
+        self.sup = sup
+
+    def state(self, state: str, reason: str = "") -> None:
+        if state == "fade-in":
+            self.sup.fault(SafetyAbort("campaign: the twin stops where its motion starts"),
+                           "signal")
+
+    def update(self, snap: Any) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        pass
+
+    def verdict(self, verdict: str, detail: str = "") -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
-         plan: Disturbances | None) -> dict[str, Any]:
-    """One run on its own VirtualClock, the simulators beside it; what the checks need."""
+         plan: Disturbances | None, *, to_motion: bool = False) -> dict[str, Any]:
+    """One run on its own VirtualClock, the simulators beside it; what the checks need.
+    ``to_motion``: the run ends as its motion starts (``_StopAtMotion``)."""
     assert cfg.sim is not None
     clock = VirtualClock(epoch=cfg.sim.epoch_utc)
     assert clock.monotonic() == CLOCK_START
@@ -262,6 +288,7 @@ def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
                               duration_s=float(draw["duration"]))
             try:
                 res = run_test(run_cfg, ROOT / "profiles" / draw["profile"], opts,
+                               display=_StopAtMotion(sup) if to_motion else None,
                                device_factory=lambda c, rec: open_devices(c, rec, clock=clock),
                                supervisor=sup, clock=clock)
             except BenchError as e:  # refused before anything moved (a profile over a limit)
@@ -396,10 +423,7 @@ def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
         bad.append(f"abort with every stall shorter than the buffer "
                    f"(longest {max((d for _, d in stalls), default=0):.3f} s): {res.reason}")
     # 4. σ against the undisturbed run of the same configuration
-    stats = res.stats or {}
-    clean = stats.get("underruns", 0) == 0 and stats.get("rejoins", 0) == 0
-    if (not draw["faulty"] and res.state == "done" and clean and reference is not None
-            and res.report is not None):
+    if reference is not None and check4_applies(draw, got):
         for axis, ref in reference.items():
             got_axis = res.report.axes.get(axis) if hasattr(res.report, "axes") else None
             if got_axis is None:
@@ -410,6 +434,17 @@ def check_run(draw: dict[str, Any], got: dict[str, Any], cfg: BenchConfig,
                 bad.append(f"sigma: {axis} {s:.5f} deg outside the undisturbed run's "
                            f"[{lo:.5f}, {hi:.5f}]")
     return bad
+
+
+def check4_applies(draw: dict[str, Any], got: dict[str, Any]) -> bool:
+    """Check 4 judges this run (and needs its undisturbed twin's σ): not faulty, not refused,
+    done with a report, and without an underrun or a rejoin."""
+    if draw["faulty"] or "refused" in got:
+        return False
+    res = got["result"]
+    stats = res.stats or {}
+    clean = stats.get("underruns", 0) == 0 and stats.get("rejoins", 0) == 0
+    return bool(res.state == "done" and clean and res.report is not None)
 
 
 def _sigmas(res: Any) -> dict[str, Any] | None:
@@ -461,23 +496,36 @@ def _outside_imported() -> list[str]:
 
 
 def _reference(draw: dict[str, Any], out: Path, cache: str | None,
-               version: str) -> dict[str, Any]:
-    """The configuration's undisturbed run (cached by code version and configuration): σ and
-    its interval per axis (``sigmas``, None unless it ended done), and the simulated second
-    its motion began (``motion_start_s``, None when it did not)."""
+               version: str, *, full: bool) -> dict[str, Any]:
+    """The configuration's undisturbed run (cached by code version and configuration): the
+    simulated second its motion began (``motion_start_s``, None when it did not) and, with
+    ``full``, σ and its interval per axis (``sigmas``, None unless it ended done).
+
+    Without ``full`` the twin runs only up to its motion's start (its fade-in; the run is the
+    same up to there, whatever follows): a run whose check 4 does not apply (it aborted, it
+    underran, it was refused) never pays for a whole undisturbed run."""
     cfg_path = config_for(draw, out / "u", None)
     text = cfg_path.read_text().replace(str(out / "u"), "OUT")
     key = hashlib.sha256(json.dumps([version, text, draw["profile"], draw["duration"]])
                          .encode()).hexdigest()[:24]
     hit = Path(cache) / f"{key}.json" if cache else None
+    doc: dict[str, Any] = {}
     if hit is not None and hit.is_file():
-        doc: dict[str, Any] = json.loads(hit.read_text())
+        doc = json.loads(hit.read_text())
+    if "motion_start_s" in doc and (not full or "sigmas" in doc):
         return doc
-    ref = _run(load_config(cfg_path), draw, out / "u", None)
+    ref = _run(load_config(cfg_path), draw, out / "u", None, to_motion=not full)
     res = ref.get("result")
-    doc = {"version": version, "t_sim_s": ref.get("t_sim"),
-           "sigmas": _sigmas(res) if res is not None and res.state == "done" else None,
-           "motion_start_s": _motion_start(res)}
+    start = _motion_start(res)
+    if "motion_start_s" in doc and doc["motion_start_s"] != start:
+        # the same run up to its motion, stopped there or run in full: a harness fault
+        raise RuntimeError(f"the undisturbed twin's motion began at {start} s run in full, at "
+                           f"{doc['motion_start_s']} s stopped there")
+    doc.update({"version": version, "motion_start_s": start})
+    if full:
+        doc.update({"t_sim_s": ref.get("t_sim"),
+                    "sigmas": (_sigmas(res) if res is not None and res.state == "done"
+                               else None)})
     if hit is not None:
         hit.parent.mkdir(parents=True, exist_ok=True)
         tmp = hit.with_suffix(f".{os.getpid()}.tmp")
@@ -512,7 +560,7 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
             # the undisturbed twin first: disturbed from its motion's start on, the run begins
             # its motion at the same simulated instant, the instrument's samples (and their
             # noise) in step with it — σ then differs only by what the disturbances did
-            ref = _reference(draw, out, cache, version)
+            ref = _reference(draw, out, cache, version, full=False)
             if ref["motion_start_s"] is not None:
                 draw["disturb"]["from_s"] = round(ref["motion_start_s"] + 0.001, 6)
         cfg_path = config_for(draw, out / "d", draw["disturb"])
@@ -522,8 +570,8 @@ def one(args: tuple[int, list[int], str, str | None, tuple[str, ...], str | None
         draw["plan_stalls"] = plan.stalls
         got = _run(cfg, draw, out / "d", plan)
         reference = None
-        if ref is not None and "refused" not in got and got["result"].state == "done":
-            reference = ref["sigmas"]
+        if ref is not None and check4_applies(draw, got):
+            reference = _reference(draw, out, cache, version, full=True)["sigmas"]
         bad = check_run(draw, got, cfg, reference)
         res = got.get("result")
         line = {
