@@ -66,7 +66,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from benchctl.analysis.clockfit import WANDER_BLOCK, Clock, fit_slots
+from benchctl.analysis.clockfit import WANDER_BLOCK, Clock, fit_slots, fit_slots_scatter
 from benchctl.analysis.ranges import check_grid, check_times, check_values
 from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
@@ -252,10 +252,13 @@ def slot_indices(t: FloatArray) -> tuple[NDArray[np.int64], float, float]:
     return k, clk.dt, float(clk.at(0.0))
 
 
-def _timing(t: FloatArray, k: NDArray[np.int64], clk: Clock) -> StreamTiming:
+def _timing(t: FloatArray, k: NDArray[np.int64], clk: Clock,
+            jitter: FloatArray | None = None) -> StreamTiming:
+    """The stream's timing; ``jitter``: ``t − clk.at(k)``, if made already."""
     steps = np.diff(k)
     gaps = steps > 1
-    jitter = t - clk.at(k)
+    if jitter is None:
+        jitter = t - clk.at(k)
     return StreamTiming(
         dt=clk.dt,
         jitter_rms=float(np.sqrt(np.mean((jitter - jitter.mean()) ** 2))),
@@ -349,8 +352,8 @@ class _Stream:
 
     @classmethod
     def of(cls, t: FloatArray, label: Label) -> _Stream:
-        k, clk = fit_slots(t)
-        return cls(t, k, clk, _timing(t, k, clk), label)
+        k, clk, scatter = fit_slots_scatter(t)
+        return cls(t, k, clk, _timing(t, k, clk, scatter), label)
 
     @property
     def scatter(self) -> FloatArray:

@@ -105,16 +105,29 @@ def _row_medians(a: FloatArray) -> tuple[FloatArray, NDArray[np.int64]]:
     return np.where(cnt > 0, 0.5 * (lo + hi), np.nan), cnt
 
 
-def _block_levels(
-    x: FloatArray, r: FloatArray, keep: NDArray[np.bool_], nb: int, q: float
-) -> tuple[FloatArray, FloatArray]:
-    """Mean ``x`` and ``q``-quantile of the kept ``r`` of ``nb`` consecutive blocks (blocks
-    with fewer than max(8, a tenth) kept samples are skipped)."""
+def _block_means(x: FloatArray, nb: int) -> FloatArray:
+    """Mean ``x`` of each of ``nb`` consecutive blocks (the last ones short, or empty: NaN)."""
     n = len(x)
     size = -(-n // nb)
-    pad = np.full(nb * size - n, np.nan)
-    rr = np.concatenate((np.where(keep, r, np.nan), pad)).reshape(nb, size)
-    xx = np.concatenate((x, pad)).reshape(nb, size)
+    held = -(-n // size)  # the blocks that hold a sample
+    out = np.full(nb, np.nan)
+    out[:held] = np.nanmean(np.concatenate((x, np.full(held * size - n, np.nan)))
+                            .reshape(held, size), axis=1)
+    return out
+
+
+def _block_levels(
+    x: FloatArray, r: FloatArray, keep: NDArray[np.bool_], nb: int, q: float,
+    x_means: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Mean ``x`` and ``q``-quantile of the kept ``r`` of ``nb`` consecutive blocks (blocks
+    with fewer than max(8, a tenth) kept samples are skipped). ``x_means``: the blocks' mean
+    ``x`` (:func:`_block_means`), if made already (the clock's passes share them)."""
+    n = len(x)
+    size = -(-n // nb)
+    flat = np.full(nb * size, np.nan)
+    np.copyto(flat[:n], r, where=keep)
+    rr = flat.reshape(nb, size)
     cnt = np.sum(~np.isnan(rr), axis=1)
     pos = q * np.maximum(cnt - 1, 0)
     lo = np.floor(pos).astype(np.int64)
@@ -123,21 +136,29 @@ def _block_levels(
     # a block whose samples are all kept (most): its two order statistics by a partition, the
     # same values a sort puts there (a sort of every block cost a long record ≈ 50 ms a pass)
     full = cnt == size
-    for rows in (full, ~full):
-        if rows.any():
-            level[rows] = _interpolated(rr[rows], pos[rows], lo[rows], hi[rows],
-                                        whole=rows is full)
+    if full.all():  # every block: partitioned in place, no copy of them
+        level = _interpolated(rr, pos, lo, hi, whole=True, own=True)
+    else:
+        for rows in (full, ~full):
+            if rows.any():
+                level[rows] = _interpolated(rr[rows], pos[rows], lo[rows], hi[rows],
+                                            whole=rows is full, own=True)
     good = cnt >= max(8, size // 10)
-    return np.nanmean(xx[good], axis=1), level[good]
+    if x_means is None:
+        x_means = _block_means(x, nb)
+    return x_means[good], level[good]
 
 
 def _interpolated(b: FloatArray, pos: FloatArray, lo: NDArray[np.int64], hi: NDArray[np.int64],
-                  *, whole: bool) -> FloatArray:
+                  *, whole: bool, own: bool = False) -> FloatArray:
     """Each row's order statistics ``lo`` and ``hi`` (NaN last), interpolated at ``pos``.
     ``whole``: no row holds a NaN, and every row has the same ``lo`` and ``hi`` (a partition
-    puts them in place; otherwise a sort)."""
-    b = (np.partition(b, sorted({int(lo[0]), int(hi[0])}), axis=1) if whole
-         else np.sort(b, axis=1))
+    puts them in place; otherwise a sort). ``own``: ``b`` may be reordered in place."""
+    if whole and own:
+        b.partition(sorted({int(lo[0]), int(hi[0])}), axis=1)
+    else:
+        b = (np.partition(b, sorted({int(lo[0]), int(hi[0])}), axis=1) if whole
+             else np.sort(b, axis=1))
     i = np.arange(b.shape[0])
     return np.asarray(b[i, lo] + (pos - lo) * (b[i, hi] - b[i, lo]), dtype=np.float64)
 
@@ -194,6 +215,7 @@ def robust_clock(
     knots = np.empty(0)
     wv = np.empty(0)
     nb = n // block if n >= 2 * block else 0
+    x_means = _block_means(xr, nb) if nb else None  # the same blocks in every pass
     a0, b = fit_line(xr, tr)
     a = a0 - b * float(xr.mean())  # t ≈ a + b·xr
     for it in range(10):
@@ -202,7 +224,7 @@ def robust_clock(
         # with the load and would tilt the clock (a busy second half: a rate error of 10⁻⁴)
         q = (ONE_SIDED_QUANTILE if it == 0 else ONE_SIDED_BLOCK) if one_sided else 0.5
         resid = tr - (a + b * xr)
-        kx, kl = (_block_levels(xr, resid, inl, nb, q) if nb
+        kx, kl = (_block_levels(xr, resid, inl, nb, q, x_means) if nb
                   else (np.empty(0), np.empty(0)))
         if kx.size >= 2:
             c0, c1 = fit_line(kx, kl)
@@ -218,17 +240,21 @@ def robust_clock(
         r = tr - (a + b * xr) - w
         floor = floor_s if floor_s is not None else 1e-6 * abs(b) + 1e-12
         c, sc = _centre_scale(r, one_sided, floor)
-        new = (r - c <= REJECT_LATE * sc) & (r - c >= -REJECT_EARLY * sc)
+        rc = r - c
+        new = (rc <= REJECT_LATE * sc) & (rc >= -REJECT_EARLY * sc)
+        del rc
         if new.sum() < max(2, n // 4):  # never fewer than a quarter: keep the earliest
             new = r <= np.quantile(r, 0.25)
         if it > 0 and np.array_equal(new, inl):
             break
         inl = new
-    r = tr - (a + b * xr) - w
+    # r: the last pass's residuals, of the a, b and w the loop ends with
     if one_sided and inl.any():  # receipts: the clock at their lower envelope, the earliest
         a += float(np.quantile(r[inl], ONE_SIDED_FLOOR))  # on time (their least latency)
         r = tr - (a + b * xr) - w
-    jit = float(np.sqrt(np.mean((r[inl] - r[inl].mean()) ** 2))) if inl.any() else 0.0
+    r_in = r[inl]
+    jit = float(np.sqrt(np.mean((r_in - r_in.mean()) ** 2))) if r_in.size else 0.0
+    del r_in
     n_in = max(1, int(inl.sum()))
     if knots.size:
         per_block = max(1.0, n_in / knots.size)
@@ -410,14 +436,27 @@ def fit_slots(t: ArrayLike, *, one_sided: bool = False) -> tuple[NDArray[np.int6
     a uniform clock: jitter, bursts of late stamps and a slowly wandering clock do not move
     samples to other slots; a lasting jump of about one step is a dropped sample.
     ``one_sided``: the stamps are receipts, only ever late (see ``robust_clock``)."""
-    ta = np.asarray(t, dtype=float)
+    k, clk, _ = _slots(np.asarray(t, dtype=float), one_sided)
+    return k, clk
+
+
+def fit_slots_scatter(t: FloatArray) -> tuple[NDArray[np.int64], Clock, FloatArray]:
+    """:func:`fit_slots` and the stamps' scatter about their clock, ``t − clock(k)`` (s)."""
+    k, clk, scatter = _slots(t, False)
+    return k, clk, (t - clk.at(k) if scatter is None else scatter)
+
+
+def _slots(ta: FloatArray, one_sided: bool
+           ) -> tuple[NDArray[np.int64], Clock, FloatArray | None]:
+    """:func:`fit_slots`, with the scatter when it was made on the way (stamps on a grid)."""
     if _uniform(ta):  # a grid already (a CSV's times, a fitted clock): one slot per stamp
         k = np.arange(len(ta), dtype=np.int64)
         clk = robust_clock(k, ta, one_sided=one_sided)
-        if np.array_equal(_increasing(k + np.rint((ta - clk.at(k)) / clk.dt).astype(np.int64)),
-                          k):
-            return k, clk
-    return refine_slots(ta, first_slots(ta), one_sided=one_sided)
+        scatter = ta - clk.at(k)
+        if np.array_equal(_increasing(k + np.rint(scatter / clk.dt).astype(np.int64)), k):
+            return k, clk, scatter
+    k, clk = refine_slots(ta, first_slots(ta), one_sided=one_sided)
+    return k, clk, None
 
 
 UNIFORM_TOL = 1e-4  # stamps whose steps all lie within this share of their mean step: a grid

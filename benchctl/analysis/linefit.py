@@ -77,6 +77,7 @@ class LineFit:
     iterations: int
     n: int
     _residual: FloatArray | None = None
+    _power: FloatArray | None = None
 
     @property
     def residual(self) -> FloatArray:
@@ -85,12 +86,15 @@ class LineFit:
         return self._residual
 
     def residual_power(self) -> FloatArray:
-        """``Σ_s r_s²`` of each channel (Parseval on the spectrum)."""
-        a = self.spectrum.real**2 + self.spectrum.imag**2
-        total = 2.0 * a.sum(axis=-1) - a[..., 0]
-        if self.n % 2 == 0:
-            total = total - a[..., -1]
-        return np.asarray(total / self.n, dtype=float)
+        """``Σ_s r_s²`` of each channel (Parseval on the spectrum; made once, as the residual
+        is: the spectrum is not changed after the fit)."""
+        if self._power is None:
+            a = self.spectrum.real**2 + self.spectrum.imag**2
+            total = 2.0 * a.sum(axis=-1) - a[..., 0]
+            if self.n % 2 == 0:
+                total = total - a[..., -1]
+            self._power = np.asarray(total / self.n, dtype=float)
+        return self._power.copy()
 
 
 class _Operator:
@@ -194,10 +198,9 @@ def fit_lines(
             spec = rfft(v, axis=-1)
         mean = spec[..., 0].real / n
         coef = 2.0 * spec[..., bins] / n
-        resid_spec = spec.copy()
-        resid_spec[..., 0] = 0.0
-        resid_spec[..., bins] = 0.0
-        return LineFit(coef, mean, resid_spec, True, 0, n)
+        spec[..., 0] = 0.0  # the residual's spectrum, in place (spec is this fit's own)
+        spec[..., bins] = 0.0
+        return LineFit(coef, mean, spec, True, 0, n)
     op = _Operator(n, mask, dt, period_s, harmonics, None if uniform else offsets)
     rhs = op.adjoint(v)
     kk = len(harmonics)
@@ -270,6 +273,7 @@ def refine_period(
     lines: LineSet,
     offsets: FloatArray | None = None,
     fit: LineFit | None = None,
+    xvar: float | None = None,
 ) -> tuple[LineSet, bool]:
     """The line set with its period fitted to the reference (Gauss–Newton on T_p, the lines
     refitted at each step): a stand playing on its own clock, or a period detected from a
@@ -277,21 +281,28 @@ def refine_period(
     record that would leave part of every line in the residual. Stops once a step turns the
     highest line by less than ``PERIOD_PHASE_TOL`` over the record (that last step is
     taken), or at once when the lines leave less than ``REFINE_SKIP`` of the reference's
-    variance in the residual. ``fit``: a fit at ``lines`` whose first row is x, if made.
-    Returns the line set and whether its period changed.
+    variance in the residual. ``fit``: a fit at ``lines`` whose first row is x, if made;
+    ``xvar``: ``Σ (x − x̄)²`` over the mask, if known. Returns the line set and whether its
+    period changed.
     """
     n = len(mask)
     span = n * dt
-    xd = np.where(mask, x - float(x[mask].mean()), 0.0)
-    xvar = float(np.dot(xd, xd))
-    t = np.arange(n) * dt + (0.0 if offsets is None else offsets)
-    t = t - float(t[mask].mean())  # centred: the derivative then lies outside the lines' span
+    if xvar is None:
+        xd = np.where(mask, x - float(x[mask].mean()), 0.0)
+        xvar = float(np.dot(xd, xd))
+        del xd
+    t: FloatArray | None = None  # made at the first step (none when the lines fit at once)
     changed = False
     for _ in range(REFINE_MAX_ITER):
         if fit is None:
             fit = fit_lines(x[None, :], mask, dt, lines.period_s, lines.harmonics, offsets)
         if float(fit.residual_power()[0]) <= REFINE_SKIP * xvar:
             break
+        if t is None:
+            grid = np.arange(n) * dt + (0.0 if offsets is None else offsets)
+            # centred: the derivative then lies outside the lines' span
+            t = np.asarray(grid - float(grid[mask].mean()), dtype=np.float64)
+            del grid
         g = np.where(mask, -(t / lines.period_s) * _derivative(fit, n, dt, lines, mask, offsets),
                      0.0)
         gg = float(np.dot(g, g))

@@ -281,12 +281,12 @@ def analyze_lines(
     fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets,
                     x_spectrum)
     del x_spectrum  # used once (the caller keeps none: memory at the peak below)
-    lines, changed = refine_period(x, mask, dt, lines, offsets, fit)
+    ref_var = _centred_power(x, mask)
+    lines, changed = refine_period(x, mask, dt, lines, offsets, fit, ref_var)
     n_periods = whole_periods(n, dt, lines)
     if changed:
         fit = fit_lines(np.vstack((x, y)), mask, dt, lines.period_s, lines.harmonics, offsets)
     cx, cy = fit.coef[0], fit.coef[1]
-    ref_var = _centred_power(x, mask)
     rpow = fit.residual_power()
     ref_fit = 1.0 - float(rpow[0]) / ref_var
     if ref_fit < REFERENCE_FIT_MIN or np.any(cx == 0):

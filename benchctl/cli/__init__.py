@@ -24,8 +24,9 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
-from benchctl import __version__, exits
+from benchctl import exits
 from benchctl.errors import BenchError, Interrupted
 from benchctl.outcomes import ExitCode
 from benchctl.text import terminal_lines
@@ -41,12 +42,24 @@ class _Parser(argparse.ArgumentParser):
     """argparse exits with 2 on a usage error, which is our error code too."""
 
 
+class _Version(argparse._VersionAction):
+    """``--version``: the installed version, looked up when asked (``importlib.metadata``
+    costs every command about 50 ms otherwise)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        import benchctl
+
+        self.version = f"benchctl {benchctl.__version__}"
+        super().__call__(parser, namespace, values, option_string)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="benchctl",
         description="Dynamic-error tests of navigation instruments on a roll/pitch motion stand.",
     )
-    parser.add_argument("--version", action="version", version=f"benchctl {__version__}")
+    parser.add_argument("--version", action=_Version)
     parser.add_argument(
         "-v", "--verbose", action="count", default=0, help="more logging (-vv: wire trace)"
     )

@@ -134,10 +134,17 @@ def _named(label: str, fn: Callable[..., AnalysisResult], *a: Any, **kw: Any) ->
         raise DataError(f"{label}: {e}") from None
 
 
+def _is_recording(path: str) -> bool:
+    # imported only for a folder: the recording package (its writer and the devices' sample
+    # types) costs a CSV's analysis about 20 ms
+    from benchctl.recording import is_recording
+
+    return is_recording(path)
+
+
 def run(args: argparse.Namespace) -> int:
     from benchctl.analysis import analyze
     from benchctl.analysis.inputs import load_csv_pair, load_single_csv
-    from benchctl.recording import is_recording, load_recording
 
     _check_options(args)
     opts: dict[str, Any] = {
@@ -164,10 +171,11 @@ def run(args: argparse.Namespace) -> int:
                           units=args.units)
         results[""] = _named(s.source, analyze, s.t_ref, s.x_ref, s.t_dev, s.y_dev,
                              source=s.source, **opts)
-    elif is_recording(args.source):
+    elif Path(args.source).is_dir() and _is_recording(args.source):
         # imported here: a CSV needs none of it (the profile and config schemas cost `analyze`
         # of a CSV about a third of its wall time)
         from benchctl.evaluate import EvaluationOptions, EvaluationRequest, evaluate
+        from benchctl.recording import load_recording
 
         rec = load_recording(args.source)
         rec.require_intact()  # an altered recording: exit 2 naming the file, never a σ
