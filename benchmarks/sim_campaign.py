@@ -88,6 +88,7 @@ from benchctl.config import BenchConfig, load_config  # noqa: E402
 from benchctl.errors import BenchError, SafetyAbort  # noqa: E402
 from benchctl.recording.digest import combined_digest  # noqa: E402
 from benchctl.run.devices import open_devices  # noqa: E402
+from benchctl.run.display import NullDisplay  # noqa: E402
 from benchctl.run.prepare import RunOptions  # noqa: E402
 from benchctl.run.session import run_test  # noqa: E402
 from benchctl.run.supervisor import Supervisor  # noqa: E402
@@ -241,7 +242,7 @@ def draw_run(seed: int, durations: list[int], modes: tuple[str, ...] = MODES) ->
     return draw
 
 
-class _StopAtMotion:
+class _StopAtMotion(NullDisplay):
     """A run's display that ends the run (the operator's path, through its supervisor) as it
     enters its fade-in: an undisturbed twin run only to learn when its motion starts."""
 
@@ -252,18 +253,6 @@ class _StopAtMotion:
         if state == "fade-in":
             self.sup.fault(SafetyAbort("campaign: the twin stops where its motion starts"),
                            "signal")
-
-    def update(self, snap: Any) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        pass
-
-    def verdict(self, verdict: str, detail: str = "") -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def _run(cfg: BenchConfig, draw: dict[str, Any], out: Path,
