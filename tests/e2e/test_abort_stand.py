@@ -5,7 +5,6 @@ real drivers and simulators on the ``vclock`` fixture)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -17,22 +16,17 @@ from benchctl.clock.virtual import VirtualClock
 from benchctl.recording import load_recording
 from benchctl.results.record import load_record
 from benchctl.run import RunOptions, run_test
+from benchctl.run.display import NullDisplay
 from benchctl.run.supervisor import Supervisor
 
 pytestmark = pytest.mark.slow
 
 
-class Screen:
+class Screen(NullDisplay):
     """A display that keeps what the run would print (its messages and its verdict)."""
 
     def __init__(self) -> None:
         self.lines: list[str] = []
-
-    def state(self, state: str, reason: str = "") -> None:
-        pass
-
-    def update(self, snap: Any) -> None:
-        pass
 
     def message(self, text: str) -> None:
         self.lines.append(text)
@@ -40,9 +34,6 @@ class Screen:
     def verdict(self, verdict: str, detail: str = "") -> None:
         self.lines.append(verdict)
         self.lines.extend(detail.splitlines())
-
-    def close(self) -> None:
-        pass
 
     @property
     def text(self) -> str:

@@ -27,6 +27,7 @@ from benchctl.devices.base import (
 from benchctl.errors import ConnectionLost, DeviceTimeout
 from benchctl.harmonics import HarmonicTable
 from benchctl.run import prechecks as pc
+from benchctl.run.display import NullDisplay
 from benchctl.run.plan import make_plan
 from benchctl.run.prepare import PreparedMotion
 
@@ -382,24 +383,12 @@ def sigma_sine_gain(amp: float, gain: float) -> float:
     return abs(gain - 1.0) * amp / math.sqrt(2.0)
 
 
-class Lines:
+class Lines(NullDisplay):
     """A run's display that keeps every message the operator would read, in order (the
     states, figures and verdict it is shown go nowhere)."""
 
     def __init__(self) -> None:
         self.messages: list[str] = []
 
-    def state(self, state: str, reason: str = "") -> None:
-        pass
-
-    def update(self, snap: Any) -> None:
-        pass
-
     def message(self, text: str) -> None:
         self.messages.append(text)
-
-    def verdict(self, verdict: str, detail: str = "") -> None:
-        pass
-
-    def close(self) -> None:
-        pass
