@@ -41,7 +41,7 @@ from analysis_synthetic import Multisine, first_order, gain
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
-from benchctl.analysis import analyze
+from benchctl.analysis import AnalysisResult, analyze
 
 # -- the multisine cases: 300 s at 10 Hz --------------------------------------------------------
 MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
@@ -159,11 +159,13 @@ def modulated_variance(x: NDArray[np.float64]) -> float:
 
 
 def nonstationary_coverage(kind: str, records: int,
-                           period: float = 100.0) -> tuple[float, float, float, float]:
-    """(coverage, flagged share, mean σ̂/σ, width ratio) over ``records`` records of a random
-    walk (``walk``) or a modulated gain (``modulated``): the width ratio is the mean
-    half-width of σ's interval over 1.96 × the spread (standard deviation) of σ̂; ``period``
-    100 s (nine periods) or 900 s (one)."""
+                           period: float = 100.0) -> tuple[float, float, float, float, float]:
+    """(coverage, flagged share, mean σ̂/σ, width ratio, drift share) over ``records``
+    records of a random walk (``walk``) or a modulated gain (``modulated``): the flagged share
+    is the period-to-period test's, the drift share that of the drift flag
+    (``uncertainty["drift"]["flagged"]``); the width ratio is the mean half-width of σ's
+    interval over 1.96 × the spread (standard deviation) of σ̂; ``period`` 100 s (nine
+    periods) or 900 s (one)."""
     ms = Multisine(period_s=period, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
     opts = {"period_s": period} if period >= T4.size / FS4 else {}
     x = ms.reference(T4)
@@ -176,7 +178,7 @@ def nonstationary_coverage(kind: str, records: int,
         y0 = x
         truth = np.sqrt(modulated_variance(x))
         errs = np.stack([modulated_error(x, rng) for _ in range(records)])
-    hits = flagged = 0
+    hits = flagged = drifts = 0
     sig = np.empty(records)
     half = np.empty(records)
     for i in range(records):
@@ -185,33 +187,43 @@ def nonstationary_coverage(kind: str, records: int,
         hits += lo <= truth <= hi
         st = r.uncertainty["stationarity"]
         flagged += st is not None and not st["stationary"]
+        drifts += drift_flagged(r)
         sig[i], half[i] = r.sigma, (hi - lo) / 2.0
     return (hits / records, flagged / records, float(sig.mean() / truth),
-            float(half.mean() / (1.959964 * sig.std(ddof=1))))
+            float(half.mean() / (1.959964 * sig.std(ddof=1))), drifts / records)
+
+
+def drift_flagged(r: AnalysisResult) -> bool:
+    """Whether the analysis flagged a drift (``uncertainty["drift"]``)."""
+    d = r.uncertainty.get("drift")
+    return bool(d is not None and d["flagged"])
 
 
 #: the kinds that depend on the noise at the lines: checked on one-period records too
 ONE_PERIOD_KINDS = ("in_band", "linear")
 
 
-def kind_coverage(kind: str, period: float, records: int) -> tuple[float, float, float]:
-    """(coverage, mean σ̂/σ, standard error of that mean) of the σ interval over ``records``
-    records of one kind."""
+def kind_coverage(kind: str, period: float,
+                  records: int) -> tuple[float, float, float, float]:
+    """(coverage, mean σ̂/σ, standard error of that mean, drift share) of the σ interval over
+    ``records`` records of one kind; the drift share: how often a drift was flagged."""
     ms = Multisine(period_s=period, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
     h, make, noise_var = KINDS[kind]
     x, y0 = ms.reference(T4), ms.through(h, T4)
     truth = np.sqrt(ms.error_variance(h) + noise_var)
     noise = make(np.random.default_rng(20240 + len(kind)), records)
     opts = {"period_s": period} if period >= T4.size / FS4 else {}
-    hits = 0
+    hits = drifts = 0
     ratios = np.empty(records)
     for i in range(records):
         r = analyze(T4, x, T4, y0 + noise[i], **opts)
         if r.uncertainty["method"] != "lines":
             raise AssertionError(f"{kind}: not the line-wise estimate ({r.uncertainty['method']})")
         hits += r.sigma_ci95[0] <= truth <= r.sigma_ci95[1]
+        drifts += drift_flagged(r)
         ratios[i] = r.sigma / truth
-    return hits / records, float(ratios.mean()), float(ratios.std(ddof=1) / np.sqrt(records))
+    return (hits / records, float(ratios.mean()), float(ratios.std(ddof=1) / np.sqrt(records)),
+            drifts / records)
 
 
 def drift_mean_removal() -> float:
@@ -228,10 +240,17 @@ LONG_RECORDS = {"multisine": 800, "coloured": 800, "kind": 1000, "one_period": 6
 SUITE_RECORDS = {"multisine": 300, "coloured": 300, "kind": 300, "one_period": 300}
 
 
-def _show_flags(kind: str, res: tuple[float, float, float, float]) -> tuple[float, float]:
-    print(f"  {kind}: flagged non-stationary in {res[1]:.3f} of the records; interval "
-          f"half-width / (1.96 × spread of σ̂) = {res[3]:.2f}", flush=True)
+def _show_flags(kind: str,
+                res: tuple[float, float, float, float, float]) -> tuple[float, float]:
+    print(f"  {kind}: flagged non-stationary (power period to period) in {res[1]:.3f} of the "
+          f"records, a drift in {res[4]:.3f}; interval half-width / (1.96 × spread of σ̂) = "
+          f"{res[3]:.2f}", flush=True)
     return res[0], res[2]
+
+
+def _show_drift(kind: str, res: tuple[float, float, float, float]) -> tuple[float, float]:
+    print(f"  {kind}: a drift flagged in {res[3]:.3f} of the records", flush=True)
+    return res[0], res[1]
 
 
 def binomial_sd(records: int, p: float = 0.95) -> float:
@@ -250,9 +269,11 @@ def main(argv: list[str] | None = None) -> int:
         ("coloured", lambda n: (coloured_gaussian(n), None), LONG_RECORDS["coloured"]),
     ]
     for k in KINDS:
-        cases.append((k, lambda n, k=k: kind_coverage(k, 100.0, n)[:2], LONG_RECORDS["kind"]))
+        cases.append((k, lambda n, k=k: _show_drift(k, kind_coverage(k, 100.0, n)),
+                      LONG_RECORDS["kind"]))
     for k in ONE_PERIOD_KINDS:
-        cases.append((f"{k}_1p", lambda n, k=k: kind_coverage(k, 900.0, n)[:2],
+        cases.append((f"{k}_1p", lambda n, k=k: _show_drift(f"{k}_1p",
+                                                             kind_coverage(k, 900.0, n)),
                       LONG_RECORDS["one_period"]))
     for k in ("walk", "modulated"):
         cases.append((k, lambda n, k=k: _show_flags(k, nonstationary_coverage(k, n)),

@@ -224,6 +224,7 @@ def uncertainty_budget(
     bridge_variance: float,
     reference: Reference,
     stationarity: dict[str, Any] | None = None,
+    drift: dict[str, Any] | None = None,
 ) -> Budget:
     """The budget of the headline ``sigma`` (deg; module notes).
 
@@ -233,7 +234,9 @@ def uncertainty_budget(
     ``timing_bias_variance``: the variance timing adds to σ², the bridged gaps' included
     (deg²); ``bridge_variance``: the bridged gaps' share of it (deg²); ``reference``: the
     reference angle's stated resolution and uncertainty; ``stationarity``: the
-    period-to-period test (``Stationarity.to_dict``), None when not made.
+    period-to-period test (``Stationarity.to_dict``), None when not made; ``drift``: the
+    residual's lowest cosine coefficients (``Drift.to_dict``), None when not fitted — a flagged
+    drift is named in the non-stationarity line (its part of σ² is in the record's term).
     """
     for name, v in (("sigma", sigma), ("sigma_corrected", sigma_corrected),
                     ("timing_cross_variance", timing_cross_variance),
@@ -301,26 +304,35 @@ def uncertainty_budget(
         ("no bridged reference gap" if bridge_variance == 0.0 else
          f"the spline's estimated mean square miss across bridged gaps {bridge_variance:.3g} "
          "deg² ÷ 2σ"), "normal", math.inf, bridge_variance))
-    out.append(_nonstationarity(stationarity, u_ns))
+    out.append(_nonstationarity(stationarity, u_ns, drift))
     return Budget(s, tuple(out))
 
 
-def _nonstationarity(test: dict[str, Any] | None, u: float) -> Contribution:
+def _nonstationarity(test: dict[str, Any] | None, u: float,
+                     drift: dict[str, Any] | None = None) -> Contribution:
+    drifts = ""
+    if drift is not None and drift["flagged"]:
+        drifts = (f"; a DRIFT: the residual's lowest {drift['coefficients']} cosine "
+                  f"coefficients fall as k^−{drift['exponent']:g}, its part of σ² (with its own "
+                  "few degrees of freedom) in the record's term")
     if test is None:
         return Contribution(
             "nonstationarity", "non-stationarity", None, NOT_ASSESSED, None,
-            "not assessed (a record of two to five whole periods, or without a line-wise "
-            "estimate): σ is taken as that of a stationary error over the record")
+            "power period to period not assessed (a record of two to five whole periods, or "
+            "without a line-wise estimate): σ is taken as that of a stationary error over the "
+            f"record{drifts}")
     figures = (f"power period to period: χ² {test['statistic']:.4g} on {test['dof']} degrees "
                f"of freedom, p = {test['p_value']:.2g}")
     if test["stationary"]:
-        return Contribution("nonstationarity", "non-stationarity", "A", EVALUATED, 0.0,
-                            f"tested, stationary ({figures})", "none", math.inf)
+        return Contribution(
+            "nonstationarity", "non-stationarity", "A", EVALUATED, 0.0,
+            f"tested, the power stationary period to period ({figures}){drifts}", "none",
+            math.inf)
     nu = float(test["added_dof"])
     return Contribution(
         "nonstationarity", "non-stationarity", "A", EVALUATED, u,
         f"NOT stationary ({figures}): the changing power adds {test['added_variance']:.3g} "
-        "deg⁴ to var(σ̂²) ÷ 2σ; in σ's interval, the record's term stated without it",
+        f"deg⁴ to var(σ̂²) ÷ 2σ; in σ's interval, the record's term stated without it{drifts}",
         "Student's t", nu)
 
 

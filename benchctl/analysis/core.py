@@ -444,11 +444,12 @@ def _result(
     sigma_corrected = float(np.sqrt(variance + mean_removal))
     stationarity = (None if la is None or la.stationarity is None
                     else la.stationarity.to_dict())
+    drift = None if la is None or la.drift is None else la.drift.to_dict()
     gum = uncertainty_budget(
         sigma=sigma, sigma_corrected=sigma_corrected, ci_statistical=budget.ci_statistical,
         dof=dof, timing_cross_variance=budget.cross, timing_bias_variance=budget.bias,
         bridge_variance=al.bridge_variance, reference=reference or Reference(),
-        stationarity=stationarity)
+        stationarity=stationarity, drift=drift)
     if budget.warn and al.timing_variance + budget.cross > TIMING_FLOOR_DEG2:
         warnings.append(al.timing_warning(variance, budget.cross, budget.offset_u_s))
     if al.device.gap_count:
@@ -533,6 +534,7 @@ def _result(
             "sigma_corrected": sigma_corrected,
             "dof_parts": None if la is None else dict(la.dof_parts),
             "stationarity": stationarity,
+            "drift": drift,
             "dof_motion_random": dof_rand if np.isfinite(dof_rand) else None,
             "sigma_ci95_motion_random": [ci_rand[0], ci_rand[1]],
             "duration_for_5pct": duration_for_precision(duration_eff, dof),

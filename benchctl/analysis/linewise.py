@@ -70,6 +70,7 @@ from benchctl.analysis.lines import (
 from benchctl.analysis.stationarity import (
     MIN_SEGMENTS,
     ONE_PERIOD_SEGMENTS,
+    Drift,
     Stationarity,
     assess,
     fit_drift,
@@ -129,6 +130,7 @@ class LineAnalysis:
     snr_floor: float = SNR_FLOOR
     band: dict[str, Any] | None = None  # the band-limited variance (analyze_lines' band_hz)
     stationarity: Stationarity | None = None  # the segment-to-segment test (stationarity.py)
+    drift: Drift | None = None  # the residual's lowest cosine coefficients (stationarity.py)
 
     @property
     def gain(self) -> FloatArray:
@@ -419,6 +421,13 @@ def analyze_lines(
             notes.append("no distortion estimate: an odd multisine, but the record holds one "
                          "period (the noise lies between the harmonics only over two or more: "
                          "give the profile a repeat_period_s)")
+    if drift is not None and drift.flagged:
+        notes.append(
+            f"the error drifts: its power rises towards the record's lowest frequencies (the "
+            f"residual's lowest {len(drift.values)} cosine coefficients fall as "
+            f"k^−{drift.exponent:g} and hold {drift.excess + 1.0:.3g} times the noise floor's "
+            "power), as a wandering bias or a random walk does; σ is this test's and depends on "
+            "the test's length, and its interval is for tests of this length")
     if stat is not None and not stat.stationary:
         notes.append(
             f"the error is not stationary: its power differs from segment to segment "
@@ -456,6 +465,7 @@ def analyze_lines(
         reliable=reliable,
         band=band,
         stationarity=stat,
+        drift=drift,
     )
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from analysis_synthetic import Multisine, gain
+from scipy.fft import idct
 from scipy.stats import chi2
 from sigma_coverage import N4, T4, nonstationary_coverage
 
@@ -130,9 +131,10 @@ def test_random_walk_interval_coverage() -> None:
     """Against σ of the process: 95 % ± 3.2 binomial standard deviations (200 records:
     0.015). The long run is benchmarks/sigma_coverage.py (the DFT-only term this replaced
     read 0.82)."""
-    cov, flagged, ratio, _ = nonstationary_coverage("walk", 200)
+    cov, flagged, ratio, _, drifts = nonstationary_coverage("walk", 200)
     assert abs(cov - 0.95) <= 0.05
     assert flagged <= 0.03  # a walk's high frequencies are stationary: rarely flagged
+    assert drifts >= 0.90  # … but its lowest ones rise: a drift (the long run: 0.97)
     assert ratio == pytest.approx(1.0, abs=0.02)
 
 
@@ -140,7 +142,43 @@ def test_random_walk_interval_coverage() -> None:
 def test_modulated_gain_is_flagged_and_covered(period: float) -> None:
     """Nine periods and one: flagged, and σ's widened interval holds σ of the process (the
     long run reads 1.000 on both, at 2.3 and 2.7 times the spread: conservative)."""
-    cov, flagged, ratio, _ = nonstationary_coverage("modulated", 200, period)
+    cov, flagged, ratio, _, drifts = nonstationary_coverage("modulated", 200, period)
     assert flagged >= 0.95
+    assert drifts <= 0.02  # a changing power, not a drift (the long run: none)
     assert cov >= 0.93
     assert ratio == pytest.approx(1.0, abs=0.01)
+
+
+@pytest.mark.parametrize("b", [1.0, 2.0])
+def test_a_power_law_rising_to_zero_frequency_is_a_drift(b: float) -> None:
+    """Cosine coefficients exactly ``∝ k^(−b/2)`` (variances ``∝ k^(−b)``) over a floor 400 times
+    below them: the fit's exponent is ``b`` and a drift is flagged; the same power spread
+    flat (``b = 0``, a level at zero frequency) is not a drift."""
+    n = N4
+    k = np.arange(1, 21)
+    floor = 1e-6
+    for exponent, flagged in ((b, True), (0.0, False)):
+        d = np.zeros(n)
+        d[1:21] = np.sqrt(n) * 0.05 * k ** (-exponent / 2.0)
+        drift = fit_drift(idct(d, type=2, norm="ortho"), np.ones(n, dtype=bool), 10, floor)
+        assert drift.flagged is flagged and drift.steep is flagged, exponent
+        assert drift.exponent == exponent
+        assert drift.excess == pytest.approx(np.sum(d[1:21] ** 2 / n) / (20 * floor) - 1.0)
+
+
+def test_white_error_has_no_drift_and_a_walk_is_named() -> None:
+    """White noise: no drift (its lowest coefficients are the floor's); a random walk of 0.3°
+    over the record: flagged, in the result, the warnings and the budget's line."""
+    rng = np.random.default_rng(5)
+    x, y = _record(rng.normal(0.0, 0.1, N4))
+    r = analyze(T4, x, T4, y)
+    assert r.uncertainty["drift"]["flagged"] is False
+    assert not any("drifts" in w for w in r.warnings)
+    walk = np.cumsum(rng.normal(0.0, 0.3 / np.sqrt(N4), N4))
+    x, y = _record(rng.normal(0.0, 0.1, N4) + walk)
+    r = analyze(T4, x, T4, y)
+    d = r.uncertainty["drift"]
+    assert d["flagged"] is True and d["exponent"] >= 1.0 and d["excess"] > d["threshold"]
+    assert any(w.startswith("the error drifts") for w in r.warnings)
+    line = next(c for c in r.budget.contributions if c.key == "nonstationarity")
+    assert "DRIFT" in line.basis
