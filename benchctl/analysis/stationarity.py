@@ -67,11 +67,12 @@ MIN_SEGMENTS = 6  # segments of the stationarity test (whole periods when there 
 ONE_PERIOD_SEGMENTS = 8  # … and of a one-period record's
 FALSE_ALARM = 1e-3  # the test's false-alarm rate on a stationary error
 SMOOTH_BINS = 16  # periodogram bins averaged for the autocovariance's Σ c²
-#: the drift term's shape: of the power laws whose log-likelihood is within this of the best,
-#: the one with the fewest degrees of freedom. Chosen on the Monte Carlo of
-#: benchmarks/sigma_coverage.py: 0 (the best fit) covers a random walk 89 % of the time,
-#: 3.0 (the 95 % region of two parameters) a stationary low-pass noise 99 %; 0.75 gives
-#: 94.4 % and 97.1 %
+#: the drift term's shape where a drift is flagged: of the power laws whose log-likelihood is
+#: within this of the best, the one with the fewest degrees of freedom (without a flag: the
+#: best fit). Chosen on the Monte Carlo of benchmarks/sigma_coverage.py: 0 (the best fit
+#: everywhere) covers a random walk 89 % of the time, 3.0 (the 95 % region of two parameters)
+#: a stationary low-pass noise 99 %; 0.75 for every record gave 94.4 % and 97.9 %, 0.75 where
+#: a drift is flagged gives 93.9 % and 96.6 % (1000 records each)
 SHAPE_DROP = 0.75
 ENVELOPE_TERMS = 3  # DCT coefficients of the segment mean squares for the level at zero
 #: a drift is flagged when its steep fit's coefficients hold more than 1 + this times the noise
@@ -144,10 +145,7 @@ class Drift:
     def excess(self) -> float:
         """The coefficients' power over what the noise floor alone gives them, as a ratio less
         one (0: the floor's; a random walk of the bias reads about 15 in the Monte Carlo)."""
-        expected = self.floor * len(self.values)
-        if expected <= 0.0:
-            return math.inf if float(self.values.sum()) > 0.0 else 0.0
-        return float(self.values.sum()) / expected - 1.0
+        return _excess(self.values, self.floor)
 
     @property
     def flagged(self) -> bool:
@@ -167,15 +165,23 @@ class Drift:
         }
 
 
+def _excess(values: FloatArray, floor: float) -> float:
+    expected = floor * len(values)
+    if expected <= 0.0:
+        return math.inf if float(values.sum()) > 0.0 else 0.0
+    return float(values.sum()) / expected - 1.0
+
+
 def fit_drift(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
               floor: float) -> Drift:
     """The expected values ``θ_k = c + a·k^(−b)`` of the residual's lowest ``2·low_bins``
     cosine coefficients (χ²₁-scaled), fitted by maximum likelihood over a grid of ``a ≥ 0`` and
     ``0 ≤ b ≤ 4``, the floor ``c`` given: a drift's shape, smooth where the values themselves
-    scatter by a factor of ten (one degree of freedom each). The interval takes, of the shapes
-    whose log-likelihood is within ``SHAPE_DROP`` of the best, the one with the fewest degrees
-    of freedom: a record whose first coefficients happen to be small looks flat, and would
-    otherwise get a narrow interval just when it reads low."""
+    scatter by a factor of ten (one degree of freedom each). Where a drift is flagged
+    (``Drift.flagged``) the interval takes, of the shapes whose log-likelihood is within
+    ``SHAPE_DROP`` of the best, the one with the fewest degrees of freedom: a drift whose first
+    coefficients happen to be small looks flatter than it is, and would otherwise get a narrow
+    interval just when it reads low. Where none is flagged it takes the best fit."""
     r = _demeaned(residual, mask)
     n_valid = max(int(mask.sum()), 1)
     d = dct(r, type=2, norm="ortho")[1 : 2 * low_bins + 1]
@@ -188,11 +194,13 @@ def fit_drift(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
     theta = np.maximum(c + a[:, None, None] * k[None, None, :] ** -b[None, :, None], 1e-300)
     loglik = -0.5 * np.sum(np.log(theta) + v / theta, axis=-1)
     best = np.unravel_index(int(np.argmax(loglik)), loglik.shape)
-    nu = theta.sum(axis=-1) ** 2 / np.sum(theta * theta, axis=-1)
-    nu = np.where(loglik >= loglik.max() - SHAPE_DROP, nu, np.inf)
-    i, j = np.unravel_index(int(np.argmin(nu)), nu.shape)
     steep = bool(a[best[0]] > 0.0 and b[best[1]] >= 1.0)
     exponent = float(b[best[1]]) if a[best[0]] > 0.0 else 0.0
+    i, j = best[0], best[1]
+    if steep and _excess(v, c) > DRIFT_EXCESS:  # a drift (Drift.flagged): its safe shape
+        nu = theta.sum(axis=-1) ** 2 / np.sum(theta * theta, axis=-1)
+        nu = np.where(loglik >= loglik.max() - SHAPE_DROP, nu, np.inf)
+        i, j = np.unravel_index(int(np.argmin(nu)), nu.shape)
     return Drift(values=v, shape=np.asarray(theta[i, j], dtype=float), floor=c, steep=steep,
                  exponent=exponent)
 
