@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 
 from benchctl.analysis.clockfit import WANDER_BLOCK, Clock, fit_slots, fit_slots_scatter
 from benchctl.analysis.ranges import check_grid, check_times, check_values
+from benchctl.analysis.sums import dot
 from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
 
@@ -377,8 +378,8 @@ class _Stream:
     def random_scatter(self) -> bool:
         """The scatter's lag-1 correlation is under ``SMOOTH_SCATTER``."""
         d = self.scatter - float(np.mean(self.scatter))
-        den = float(np.dot(d, d))
-        return den > 0.0 and float(np.dot(d[1:], d[:-1])) / den < SMOOTH_SCATTER
+        den = dot(d, d)
+        return den > 0.0 and dot(d[1:], d[:-1]) / den < SMOOTH_SCATTER
 
     def instants(self, mode: str, share: StampShare) -> tuple[FloatArray, StreamTiming, str,
                                                                  float]:
