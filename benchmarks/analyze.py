@@ -121,6 +121,9 @@ def one_record(period_s: float) -> int:
         print(f"ratio: wall {best['benchctl'] / best['baseline']:.2f}x, "
               f"memory {peak['benchctl'] / peak['baseline']:.2f}x "
               f"(goal: wall within 1.3x of the baseline, memory within 1.6x)")
+        load = os.getloadavg()  # the machine's load as measured: 2 shared cores, say
+        print(f"load average: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} (1, 5, 15 min) "
+              f"on {os.cpu_count()} cores")
     return 0
 
 

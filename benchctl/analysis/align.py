@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 
 from benchctl.analysis.clockfit import WANDER_BLOCK, Clock, fit_slots, fit_slots_scatter
 from benchctl.analysis.ranges import check_grid, check_times, check_values
+from benchctl.analysis.sums import dot
 from benchctl.analysis.timing import AUTO_SHARE, NOT_MEASURED, StampShare, stamp_shares
 from benchctl.errors import DataError
 
@@ -333,8 +334,12 @@ def _rate_rms(x: FloatArray, mask: NDArray[np.bool_], dt: float) -> float:
     pair = mask[1:] & mask[:-1]
     if not pair.any():
         return 0.0
-    v = np.diff(x)[pair] / dt
-    return float(np.sqrt(np.mean((v - v.mean()) ** 2)))
+    v = np.diff(x)
+    if not pair.all():
+        v = v[pair]
+    v /= dt
+    v -= v.mean()  # in place: the same numbers as (v − v̄)², without two more arrays
+    return float(np.sqrt(np.mean(np.square(v, out=v))))
 
 
 Label = tuple[str, float, dict[str, Any]] | None
@@ -374,8 +379,8 @@ class _Stream:
     def random_scatter(self) -> bool:
         """The scatter's lag-1 correlation is under ``SMOOTH_SCATTER``."""
         d = self.scatter - float(np.mean(self.scatter))
-        den = float(np.dot(d, d))
-        return den > 0.0 and float(np.dot(d[1:], d[:-1])) / den < SMOOTH_SCATTER
+        den = dot(d, d)
+        return den > 0.0 and dot(d[1:], d[:-1]) / den < SMOOTH_SCATTER
 
     def instants(self, mode: str, share: StampShare) -> tuple[FloatArray, StreamTiming, str,
                                                                  float]:
@@ -515,7 +520,8 @@ def _lay(
     same = shift_s == 0.0 and len(t_ref) == len(t_dev) and np.array_equal(t_ref, t_use)
     t_eval = t_use - shift_s
     d_ref = np.diff(t_ref)
-    edge = EDGE_STEPS * float(np.median(d_ref))  # the spline's ends reach a hair further
+    step = float(np.median(d_ref))
+    edge = EDGE_STEPS * step  # the spline's ends reach a hair further
     ok = (t_eval >= t_ref[0] - edge) & (t_eval <= t_ref[-1] + edge)
     if not ok.any():
         raise DataError(
@@ -523,11 +529,12 @@ def _lay(
             f"device {t_dev[0]:.6g} … {t_dev[-1]:.6g} s"
             + (f" (shifted by {shift_s:.6g} s)" if shift_s else "")
         )
-    gap_ref = d_ref > BRIDGE_STEPS * float(np.median(d_ref))
-    seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
-    inside = (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1])
-    bridge_sq = np.zeros(len(t_eval))  # the spline's estimated squared error there (deg²)
-    if gap_ref.any():
+    gap_ref = d_ref > BRIDGE_STEPS * step
+    bridge_sq = None  # the spline's estimated squared error across bridged gaps (deg²)
+    if gap_ref.any():  # each instant's reference step (a search of every instant: 0.1 s)
+        seg = np.clip(np.searchsorted(t_ref, t_eval, side="right") - 1, 0, len(d_ref) - 1)
+        inside = (t_eval > t_ref[seg]) & (t_eval < t_ref[seg + 1])
+        bridge_sq = np.zeros(len(t_eval))
         bridge_err = _bridgeable(t_ref, x_ref, d_ref, gap_ref)
         bridged = gap_ref & np.isfinite(bridge_err)
         gap_ref &= ~bridged
@@ -549,18 +556,28 @@ def _lay(
     k_rel = k[first : last + 1] - k[first]
     n = int(k_rel[-1]) + 1
     sel = ok[first : last + 1]
-    mask = np.zeros(n, dtype=bool)
-    mask[k_rel[sel]] = True
-    x = np.zeros(n)
-    y = np.zeros(n)
-    t = np.full(n, np.nan)
-    x[k_rel[sel]] = x_at[first : last + 1][sel]
-    y[k_rel[sel]] = y_dev[first : last + 1][sel]
-    t[k_rel[sel]] = t_use[first : last + 1][sel]
-    xdot = None  # one time column: the rate from the grid when asked (Aligned.rate)
-    if rate_at is not None:
-        xdot = np.zeros(n)
-        xdot[k_rel[sel]] = rate_at[first : last + 1][sel]
+    whole = bool(sel.all())  # every sample between the first and the last is read (most)
+    rows: slice | NDArray[np.bool_] = slice(None) if whole else sel
+    if whole and n == len(k_rel):  # … and no slot is empty: the grid is the samples in order
+        slots: slice | NDArray[np.int64] = slice(None)
+        mask = np.ones(n, dtype=bool)
+    else:
+        slots = k_rel[rows]
+        mask = np.zeros(n, dtype=bool)
+        mask[slots] = True
+
+    def laid(v: FloatArray, fill: float = 0.0) -> FloatArray:
+        if isinstance(slots, slice):
+            return np.array(v[first : last + 1], dtype=float)
+        out = np.full(n, fill)
+        out[slots] = v[first : last + 1][rows]
+        return out
+
+    x = laid(x_at)
+    y = laid(y_dev)
+    t = laid(t_use, np.nan)
+    # one time column: the rate from the grid when asked (Aligned.rate)
+    xdot = None if rate_at is None else laid(rate_at)
     return Aligned(
         t=t,
         x=x,
@@ -576,8 +593,9 @@ def _lay(
         device_residual_s=float(dev_res),
         reference_residual_s=float(ref_res),
         rate_rms=_rate_rms(x, mask, dev_timing.dt),
-        bridged=int(np.count_nonzero(bridge_sq[ok])),
-        bridge_variance=float(bridge_sq[ok].sum() / max(1, int(ok.sum()))),
+        bridged=0 if bridge_sq is None else int(np.count_nonzero(bridge_sq[ok])),
+        bridge_variance=(0.0 if bridge_sq is None
+                         else float(bridge_sq[ok].sum() / max(1, int(ok.sum())))),
         xdot=xdot,
         calibration_u_s=_calibration_u(dev.label),
         anchor_u_s=_anchor_u(ref.label) if ref_base == "stand" else 0.0,

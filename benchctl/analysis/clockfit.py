@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from benchctl.analysis.sums import dot
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -65,9 +67,11 @@ class Clock:
     def at(self, x: ArrayLike) -> FloatArray:
         """The clock's instants at ``x`` (slots or another clock's seconds)."""
         xa = np.asarray(x, dtype=float)
-        out = self.t0 + self.dt * (xa - self.x0)
+        out = np.subtract(xa, self.x0)  # t0 + dt·(x − x0) + w(x), in one array
+        out *= self.dt
+        out += self.t0
         if self.knots.size:
-            out = out + _interp(xa, self.knots, self.wander).reshape(xa.shape)
+            out += _interp(xa, self.knots, self.wander).reshape(xa.shape)
         return np.asarray(out, dtype=float)
 
     @property
@@ -90,6 +94,8 @@ def _interp(x: FloatArray, kx: FloatArray, kv: FloatArray) -> FloatArray:
 def fit_line(x: FloatArray, t: FloatArray) -> tuple[float, float]:
     """Least squares ``t ≈ a + b·(x − x̄)``: (a, b)."""
     xc = x - x.mean()
+    # np.dot, not sums.dot: the clock of stamps on a grid is this fit to their last bits,
+    # and their scatter about it (rounding, 1e-14 s) is reported as it always was
     den = float(np.dot(xc, xc))
     b = float(np.dot(xc, t - t.mean()) / den) if den > 0 else 0.0
     return float(t.mean()), b
@@ -111,6 +117,9 @@ def _block_means(x: FloatArray, nb: int) -> FloatArray:
     size = -(-n // nb)
     held = -(-n // size)  # the blocks that hold a sample
     out = np.full(nb, np.nan)
+    if held * size == n and not np.isnan(x).any():  # whole blocks (no copy): their means
+        out[:held] = x.reshape(held, size).sum(axis=1) / size
+        return out
     out[:held] = np.nanmean(np.concatenate((x, np.full(held * size - n, np.nan)))
                             .reshape(held, size), axis=1)
     return out
@@ -118,17 +127,22 @@ def _block_means(x: FloatArray, nb: int) -> FloatArray:
 
 def _block_levels(
     x: FloatArray, r: FloatArray, keep: NDArray[np.bool_], nb: int, q: float,
-    x_means: FloatArray | None = None,
+    x_means: FloatArray | None = None, *, own: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """Mean ``x`` and ``q``-quantile of the kept ``r`` of ``nb`` consecutive blocks (blocks
     with fewer than max(8, a tenth) kept samples are skipped). ``x_means``: the blocks' mean
-    ``x`` (:func:`_block_means`), if made already (the clock's passes share them)."""
+    ``x`` (:func:`_block_means`), if made already (the clock's passes share them). ``own``:
+    ``r`` may be reordered in place (the caller's scratch)."""
     n = len(x)
     size = -(-n // nb)
-    flat = np.full(nb * size, np.nan)
-    np.copyto(flat[:n], r, where=keep)
-    rr = flat.reshape(nb, size)
-    cnt = np.sum(~np.isnan(rr), axis=1)
+    if own and nb * size == n and bool(keep.all()):  # every sample kept, whole blocks: no copy
+        rr = r.reshape(nb, size)
+        cnt = size - np.count_nonzero(np.isnan(rr), axis=1)
+    else:
+        flat = np.full(nb * size, np.nan)
+        np.copyto(flat[:n], r, where=keep)
+        rr = flat.reshape(nb, size)
+        cnt = np.sum(~np.isnan(rr), axis=1)
     pos = q * np.maximum(cnt - 1, 0)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, np.maximum(cnt - 1, 0))
@@ -207,7 +221,9 @@ def robust_clock(
     ta = np.asarray(t, dtype=float)
     n = len(xa)
     x0 = float(xa[0]) if n else 0.0
-    xr = xa - x0
+    owned = xa is not x and xa.base is None  # converted here (slots): made relative in place
+    xr = np.subtract(xa, x0, out=xa if owned else None)
+    del xa
     tref = float(ta[0]) if n else 0.0
     tr = ta - tref  # small numbers: the fit keeps its precision on a large monotonic clock
     inl = np.ones(n, dtype=bool)
@@ -218,14 +234,24 @@ def robust_clock(
     x_means = _block_means(xr, nb) if nb else None  # the same blocks in every pass
     a0, b = fit_line(xr, tr)
     a = a0 - b * float(xr.mean())  # t ≈ a + b·xr
+    r = np.empty(n)  # each pass's residuals (the last pass's are kept) …
+    scratch = np.empty(n)  # … and the levels' and the rejection's, in place
+    new = np.empty(n, dtype=bool)
+    early = np.empty(n, dtype=bool)
+
+    def line_residual(out: FloatArray) -> FloatArray:
+        """``tr − (a + b·xr)`` into ``out``."""
+        np.multiply(xr, b, out=out)
+        out += a
+        return np.subtract(tr, out, out=out)
+
     for it in range(10):
         # receipts (only ever late): each block's level is its lower envelope — the least
         # latency holds still when the host gets busy, a median of the stamps "on time" rises
         # with the load and would tilt the clock (a busy second half: a rate error of 10⁻⁴)
         q = (ONE_SIDED_QUANTILE if it == 0 else ONE_SIDED_BLOCK) if one_sided else 0.5
-        resid = tr - (a + b * xr)
-        kx, kl = (_block_levels(xr, resid, inl, nb, q, x_means) if nb
-                  else (np.empty(0), np.empty(0)))
+        kx, kl = (_block_levels(xr, line_residual(scratch), inl, nb, q, x_means, own=True)
+                  if nb else (np.empty(0), np.empty(0)))
         if kx.size >= 2:
             c0, c1 = fit_line(kx, kl)
             a, b = a + c0 - c1 * float(kx.mean()), b + c1
@@ -237,23 +263,29 @@ def robust_clock(
                 a = a0 - b * float(xr[inl].mean())
             a += float(np.quantile((tr - (a + b * xr))[inl], q))
             knots, wv, w = np.empty(0), np.empty(0), np.zeros(n)
-        r = tr - (a + b * xr) - w
+        line_residual(r)
+        r -= w
         floor = floor_s if floor_s is not None else 1e-6 * abs(b) + 1e-12
         c, sc = _centre_scale(r, one_sided, floor)
-        rc = r - c
-        new = (rc <= REJECT_LATE * sc) & (rc >= -REJECT_EARLY * sc)
+        rc = np.subtract(r, c, out=scratch)
+        np.less_equal(rc, REJECT_LATE * sc, out=new)
+        new &= np.greater_equal(rc, -REJECT_EARLY * sc, out=early)
         del rc
-        if new.sum() < max(2, n // 4):  # never fewer than a quarter: keep the earliest
-            new = r <= np.quantile(r, 0.25)
+        if np.count_nonzero(new) < max(2, n // 4):  # never fewer than a quarter: keep the
+            np.less_equal(r, np.quantile(r, 0.25), out=new)  # earliest
         if it > 0 and np.array_equal(new, inl):
             break
-        inl = new
+        inl, new = new, inl
     # r: the last pass's residuals, of the a, b and w the loop ends with
     if one_sided and inl.any():  # receipts: the clock at their lower envelope, the earliest
         a += float(np.quantile(r[inl], ONE_SIDED_FLOOR))  # on time (their least latency)
         r = tr - (a + b * xr) - w
-    r_in = r[inl]
-    jit = float(np.sqrt(np.mean((r_in - r_in.mean()) ** 2))) if r_in.size else 0.0
+    r_in = r if inl.all() else r[inl]
+    if r_in.size:
+        dev = np.subtract(r_in, r_in.mean(), out=scratch[: r_in.size])
+        jit = float(np.sqrt(np.mean(np.square(dev, out=dev))))
+    else:
+        jit = 0.0
     del r_in
     n_in = max(1, int(inl.sum()))
     if knots.size:
@@ -288,8 +320,8 @@ def _line(k: NDArray[np.int64], t: FloatArray) -> tuple[float, float]:
     for _ in range(8):
         kk, tt = k[keep], t[keep]
         kc = kk - kk.mean()
-        den = float(np.dot(kc, kc))
-        dt = float(np.dot(kc, tt - tt.mean()) / den) if den > 0 else 0.0
+        den = dot(kc, kc)
+        dt = dot(kc, tt - tt.mean()) / den if den > 0 else 0.0
         t0 = float(tt.mean() - dt * kk.mean())
         r = t - (t0 + dt * k)
         med = float(np.median(r[keep]))
@@ -452,8 +484,11 @@ def _slots(ta: FloatArray, one_sided: bool
     if _uniform(ta):  # a grid already (a CSV's times, a fitted clock): one slot per stamp
         k = np.arange(len(ta), dtype=np.int64)
         clk = robust_clock(k, ta, one_sided=one_sided)
-        scatter = ta - clk.at(k)
-        if np.array_equal(_increasing(k + np.rint(scatter / clk.dt).astype(np.int64)), k):
+        scatter = clk.at(k)
+        np.subtract(ta, scatter, out=scatter)
+        moves = np.rint(scatter / clk.dt)  # the slots nearest the stamps, relative to k
+        # none moves (the usual grid): k as it is, strictly increasing
+        if not moves.any() or np.array_equal(_increasing(k + moves.astype(np.int64)), k):
             return k, clk, scatter
     k, clk = refine_slots(ta, first_slots(ta), one_sided=one_sided)
     return k, clk, None

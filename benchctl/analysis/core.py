@@ -354,7 +354,7 @@ def _result(
     mean_error = float(eps_raw.sum() / n)
     eps = demean(eps_raw, al.mask)
     del eps_raw  # a record's length of memory less at the analysis's peak (line-wise, below)
-    variance = float(np.dot(eps, eps) / n)
+    variance = float(np.dot(eps, eps) / n)  # np.dot: the Parseval check's last bits as before
     area = trapezoid_area(grid.freq, sp.gee)
     tol = PARSEVAL_RTOL * variance + 1e-13 * sp.r0_scale
     if not abs(area - variance) <= tol:

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from scipy.fft import fft, ifft, irfft, next_fast_len, rfft
 
 from benchctl.analysis.lines import LinesError, LineSet
+from benchctl.analysis.sums import dot
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -289,7 +290,7 @@ def refine_period(
     span = n * dt
     if xvar is None:
         xd = np.where(mask, x - float(x[mask].mean()), 0.0)
-        xvar = float(np.dot(xd, xd))
+        xvar = dot(xd, xd)
         del xd
     t: FloatArray | None = None  # made at the first step (none when the lines fit at once)
     changed = False
@@ -305,10 +306,10 @@ def refine_period(
             del grid
         g = np.where(mask, -(t / lines.period_s) * _derivative(fit, n, dt, lines, mask, offsets),
                      0.0)
-        gg = float(np.dot(g, g))
+        gg = dot(g, g)
         if not gg > 0.0:
             break
-        step = float(np.dot(fit.residual[0], g)) / gg
+        step = dot(fit.residual[0], g) / gg
         turn = 2.0 * np.pi * float(lines.freq.max()) * span * abs(step) / lines.period_s
         if turn < PERIOD_PHASE_TOL * 1e-3:
             break

@@ -76,6 +76,7 @@ from benchctl.analysis.stationarity import (
     fit_drift,
     low_part,
 )
+from benchctl.analysis.sums import dot
 from benchctl.analysis.uncertainty import mls_interval, unbiased_dof
 
 FloatArray = NDArray[np.float64]
@@ -230,7 +231,7 @@ def noise_spectrum(spec: ComplexArray, deviation: ComplexArray, bins: IntArray,
 def _centred_power(x: FloatArray, mask: NDArray[np.bool_]) -> float:
     """``Σ (x − x̄)²`` over the slots ``mask`` holds."""
     xd = np.where(mask, x - x[mask].mean(), 0.0)
-    return float(np.dot(xd, xd))
+    return dot(xd, xd)
 
 
 def _power(spectrum: ComplexArray, n: int) -> float:

@@ -51,6 +51,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from benchctl.analysis.sums import dot
+
 FloatArray = NDArray[np.float64]
 
 AUTO_SHARE = 0.5  # the fitted clock when at least this share of the scatter is the stamps'
@@ -89,7 +91,7 @@ def stamp_shares(
     cols = [np.ones(n), x - x.mean(), xdot - xdot.mean()]
     names: list[str] = []
     for name, u in (("dev", -xdot * d_dev), ("ref", xdot * d_ref)):
-        if float(np.dot(u, u)) > 0.0 and np.all(np.isfinite(u)):
+        if dot(u, u) > 0.0 and np.all(np.isfinite(u)):
             cols.append(u)
             names.append(name)
     out = {"dev": NOT_MEASURED, "ref": NOT_MEASURED}
@@ -104,7 +106,7 @@ def stamp_shares(
         return out["dev"], out["ref"]
     coef = np.linalg.solve(gram, an.T @ eps)
     resid = eps - an @ coef
-    s2 = float(np.dot(resid, resid)) / (n - len(cols))
+    s2 = dot(resid, resid) / (n - len(cols))
     cov = s2 * np.linalg.inv(gram)
     for j, name in enumerate(names, start=3):
         out[name] = StampShare(float(coef[j] / scale[j]), float(math.sqrt(cov[j, j]) / scale[j]))

@@ -13,13 +13,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from analysis_synthetic import Multisine, gain
-from scipy.fft import idct
+from scipy.fft import dct, idct
 from scipy.stats import chi2
 from sigma_coverage import N4, T4, nonstationary_coverage
 
 from benchctl.analysis import analyze
 from benchctl.analysis.budget import EVALUATED, NOT_ASSESSED
-from benchctl.analysis.stationarity import FALSE_ALARM, assess, fit_drift, low_part
+from benchctl.analysis.stationarity import (
+    FALSE_ALARM,
+    LowCosines,
+    assess,
+    fit_drift,
+    low_part,
+)
 from benchctl.analysis.uncertainty import weighted_chi2_factors
 
 MS = Multisine(period_s=100.0, f_lo=0.05, f_hi=1.0, rms_deg=5.0)
@@ -182,3 +188,21 @@ def test_white_error_has_no_drift_and_a_walk_is_named() -> None:
     assert any(w.startswith("the error drifts") for w in r.warnings)
     line = next(c for c in r.budget.contributions if c.key == "nonstationarity")
     assert "DRIFT" in line.basis
+
+
+@pytest.mark.parametrize("n", [37, 999, 4000, 12_345, 90_001])
+@pytest.mark.parametrize("count", [1, 21, 40])
+def test_low_cosines_are_the_cosine_transforms_lowest(n: int, count: int) -> None:
+    """The lowest cosine coefficients by projection, and the series less their part, are the
+    DCT's and the inverse DCT's of the rest, to rounding: whole blocks, a tail, one block."""
+    count = min(count, n)
+    rng = np.random.default_rng(n + count)
+    v = np.cumsum(rng.normal(size=n)) + rng.normal(size=n)  # a walk: large low coefficients
+    full = dct(v, type=2, norm="ortho")
+    low = LowCosines(n, count)
+    d = low.coefficients(v)
+    scale = float(np.sqrt(np.sum(full * full)))
+    assert np.max(np.abs(d - full[:count])) <= 1e-13 * scale
+    full[:count] = 0.0
+    rest = low.remove(v.copy(), d)
+    assert np.max(np.abs(rest - idct(full, type=2, norm="ortho"))) <= 1e-13 * scale
