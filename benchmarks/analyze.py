@@ -1,7 +1,8 @@
 """Benchmark `benchctl analyze --json` on a 15-minute, 1 kHz record (900 000 samples/channel).
 
 Makes the CSV (time,reference,device: a multisine through a first-order lag plus noise) in a
-temporary folder, then runs, each as its own subprocess and in alternation (best of REPEATS):
+temporary folder, then runs, each as its own subprocess and in alternation (best of REPEATS, 7:
+the baseline's own time swings by a third between runs on a shared machine):
 
 - ``benchctl analyze FILE --json`` (the product), stdout to a file;
 - the baseline: a Python process that reads the same CSV with ``numpy.loadtxt`` and runs one
@@ -29,7 +30,7 @@ import numpy as np
 
 FS = 1000.0
 DURATION_S = 900.0
-REPEATS = 3
+REPEATS = 7
 
 BASELINE = """
 import sys
