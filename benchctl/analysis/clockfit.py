@@ -279,7 +279,8 @@ def robust_clock(
     # r: the last pass's residuals, of the a, b and w the loop ends with
     if one_sided and inl.any():  # receipts: the clock at their lower envelope, the earliest
         a += float(np.quantile(r[inl], ONE_SIDED_FLOOR))  # on time (their least latency)
-        r = tr - (a + b * xr) - w
+        line_residual(r)
+        r -= w
     r_in = r if inl.all() else r[inl]
     if r_in.size:
         dev = np.subtract(r_in, r_in.mean(), out=scratch[: r_in.size])

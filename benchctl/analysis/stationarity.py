@@ -173,6 +173,8 @@ class LowCosines:
         q = COSINE_BLOCK if n >= 2 * COSINE_BLOCK else max(n, 1)
         self.q, self.blocks = q, n // q
         self.head = self.blocks * q
+        #: block rows per matrix product (SERIAL_PRODUCT multiply-adds at most)
+        self.rows = max(1, SERIAL_PRODUCT // max(1, q * 2 * count))
         self.scale = np.full(count, math.sqrt(2.0 / n) if n else 0.0)
         if count:
             self.scale[0] = math.sqrt(1.0 / n) if n else 0.0
@@ -187,7 +189,7 @@ class LowCosines:
         """``d_0 … d_{count−1}`` of ``v`` (length ``n``)."""
         vb = v[: self.head].reshape(self.blocks, self.q)
         uv = np.empty((self.blocks, 2 * self.count))
-        rows = max(1, SERIAL_PRODUCT // max(1, self.q * 2 * self.count))
+        rows = self.rows
         for i in range(0, self.blocks, rows):
             np.matmul(vb[i : i + rows], self.cs_b, out=uv[i : i + rows])
         d = (np.einsum("mk,mk->k", self.cos_a, uv[:, : self.count])
@@ -202,7 +204,7 @@ class LowCosines:
         a = np.hstack((self.cos_a * ds, -self.sin_a * ds))  # blocks × 2·count
         head = v[: self.head].reshape(self.blocks, self.q)
         cs_t = self.cs_b.T
-        rows = max(1, SERIAL_PRODUCT // max(1, self.q * 2 * self.count))
+        rows = self.rows
         low = np.empty((min(rows, self.blocks), self.q))
         for i in range(0, self.blocks, rows):
             part = low[: min(rows, self.blocks - i)]
@@ -239,15 +241,15 @@ class Drift:
 
     @property
     def flagged(self) -> bool:
-        """A drift: the best fit rises without bound towards zero frequency (``steep``) and the
-        lowest coefficients hold more than ``1 + DRIFT_EXCESS`` times the floor's power."""
-        return self.steep and self.excess > DRIFT_EXCESS
+        """A drift (:func:`_is_drift`)."""
+        return _is_drift(self.steep, self.values, self.floor)
 
     def to_dict(self) -> dict[str, Any]:
+        excess = self.excess
         return {
             "flagged": self.flagged,
             "exponent": self.exponent,
-            "excess": self.excess if math.isfinite(self.excess) else None,
+            "excess": excess if math.isfinite(excess) else None,
             "threshold": DRIFT_EXCESS,
             "coefficients": len(self.values),
             "variance": float(self.values.sum()),
@@ -260,6 +262,12 @@ def _excess(values: FloatArray, floor: float) -> float:
     if expected <= 0.0:
         return math.inf if float(values.sum()) > 0.0 else 0.0
     return float(values.sum()) / expected - 1.0
+
+
+def _is_drift(steep: bool, values: FloatArray, floor: float) -> bool:
+    """A drift: the best fit rises without bound towards zero frequency (``steep``) and the
+    lowest coefficients hold more than ``1 + DRIFT_EXCESS`` times the floor's power."""
+    return steep and _excess(values, floor) > DRIFT_EXCESS
 
 
 def fit_drift(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
@@ -287,7 +295,7 @@ def fit_drift(residual: FloatArray, mask: NDArray[np.bool_], low_bins: int,
     steep = bool(a[best[0]] > 0.0 and b[best[1]] >= 1.0)
     exponent = float(b[best[1]]) if a[best[0]] > 0.0 else 0.0
     i, j = best[0], best[1]
-    if steep and _excess(v, c) > DRIFT_EXCESS:  # a drift (Drift.flagged): its safe shape
+    if _is_drift(steep, v, c):  # its safe shape
         nu = theta.sum(axis=-1) ** 2 / np.sum(theta * theta, axis=-1)
         nu = np.where(loglik >= loglik.max() - SHAPE_DROP, nu, np.inf)
         i, j = np.unravel_index(int(np.argmin(nu)), nu.shape)
